@@ -1,0 +1,102 @@
+"""Safe plan generators: the exact space-time A* (default) and the Z3 baseline (:mod:`.smt`).
+
+:class:`SafePlanner` is the one entry point the stack uses. It keeps its
+reservation table and heuristics between plans, so a drone (or a benchmark)
+that plans over and over against a slowly changing fleet pays only for what
+changed::
+
+    planner = SafePlanner(workspace)
+    plan = planner.plan(start, goal, start_step, others)   # others: {id: Trajectory}
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from drona_gcs.errors import ProblemError
+from drona_gcs.motion import Primitive, Trajectory
+from drona_gcs.planner.astar import BudgetExceeded, search
+from drona_gcs.planner.grid import GridIndex
+from drona_gcs.planner.heuristic import DistanceGraph, GoalDistance
+from drona_gcs.planner.reservations import ReservationTable
+from drona_gcs.planner.sealing import find_seal
+from drona_gcs.workspace import Cell, Workspace
+
+__all__ = ["Plan", "SafePlanner", "check_endpoints"]
+
+#: Expansions after which a search stops to look for a seal (plus 16 x the grid's side).
+_SEAL_AFTER = 1000
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A safe plan: its timed trajectory, primitives and cost."""
+
+    trajectory: Trajectory
+    primitives: tuple[Primitive, ...]
+    cost: float
+    expansions: int = 0
+
+
+class SafePlanner:
+    """Space-time A* planner for one workspace, skew window and cost table."""
+
+    def __init__(self, workspace: Workspace, delta: int | None = None,
+                 costs: Mapping[Primitive, float] | None = None, heuristic_cache: int = 32) -> None:
+        self.workspace = workspace
+        self.delta = workspace.delta if delta is None else delta
+        if self.delta < 0:
+            raise ProblemError(f"delta must be >= 0, got {self.delta}")
+        self.grid = GridIndex.build(workspace, costs)
+        self.table = ReservationTable(workspace, self.delta)
+        self.graph = DistanceGraph(self.grid)
+        self._heuristics: OrderedDict[tuple[int, frozenset[int]], GoalDistance] = OrderedDict()
+        self._cache_size = heuristic_cache
+
+    def plan(self, start: Cell, goal: Cell, start_step: int, others: Mapping[str, Trajectory],
+             max_length: int | None = None) -> Plan:
+        """A minimum-cost safe plan from ``start`` at ``start_step`` to ``goal``.
+
+        Raises :class:`~drona_gcs.errors.NoPlanFound` when no safe plan of at
+        most ``max_length`` (default: the workspace's L_max) steps exists.
+        """
+        check_endpoints(self.workspace, start, goal)
+        limit = self.workspace.plan_length_limit if max_length is None else max_length
+        if limit < 0:
+            raise ProblemError(f"max_length must be >= 0, got {limit}")
+        self.table.sync(others)
+        ws = self.workspace
+        start_id, goal_id = ws.cell_id(start), ws.cell_id(goal)
+        heuristic = self._heuristic(goal_id, self.table.blocked_throughout(start_step))
+        args = (self.grid, self.table, heuristic, start_id, goal_id, start_step, limit)
+        try:
+            found = search(*args, budget=_SEAL_AFTER + 16 * int(len(self.grid.coords) ** 0.5))
+        except BudgetExceeded:
+            # A long search: drones parking for good may have sealed the goal off,
+            # and pruning on that can end a search that would otherwise visit all space-time.
+            found = search(*args, seal=find_seal(self.graph, self.table, start_id, goal_id, start_step))
+        return Plan(found.trajectory, found.primitives, found.cost, found.stats.expansions)
+
+    def _heuristic(self, goal: int, blocked: frozenset[int]) -> GoalDistance:
+        """Distances to ``goal``; recent goals are cached, since drones often replan to them."""
+        key = (goal, blocked)
+        found = self._heuristics.get(key)
+        if found is None:
+            found = self.graph.distances(goal, blocked)
+            self._heuristics[key] = found
+            if len(self._heuristics) > self._cache_size:
+                self._heuristics.popitem(last=False)
+        else:
+            self._heuristics.move_to_end(key)
+        return found
+
+
+def check_endpoints(workspace: Workspace, start: Cell, goal: Cell) -> None:
+    """Refuse a start or goal outside the grid or on an obstacle, naming which."""
+    for name, cell in (("start", start), ("goal", goal)):
+        if not workspace.in_bounds(cell):
+            raise ProblemError(f"{name} {list(cell)} is outside the grid {list(workspace.size)}")
+        if cell in workspace.obstacles:
+            raise ProblemError(f"{name} {list(cell)} is on an obstacle")

@@ -1,0 +1,162 @@
+"""Space-time reservations of the other drones, kept across plans.
+
+The table is keyed by absolute step, so it survives from one plan to the
+next: when a plan comes with the other drones' trajectories, only those that
+changed since the last plan are removed and re-added (a few hundred dict
+operations) instead of rebuilding a table proportional to the fleet.
+
+A trajectory ``(m, [c_0 .. c_L])`` of another drone reserves, for my steps:
+
+* cell ``c_k`` at every step in ``[m+k-delta, m+k+delta]`` (Eq. 6);
+* its first cell at every step ``<= m + delta`` (it sits there before ``m``): ``pre``;
+* its last cell at every step ``>= m + L - delta`` (it stays there): ``perm``;
+* with ``delta == 0``, the reverse of each of its moves at the same step
+  (no head-on swaps); with ``delta >= 1`` the vertex windows already forbid them.
+
+Vertex keys are ``step * num_cells + cell``, the same encoding as the search's
+states, so a conflict test is one dict lookup.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from drona_gcs.motion import Trajectory
+from drona_gcs.workspace import Workspace
+
+
+@dataclass(frozen=True)
+class _Entry:
+    trajectory: Trajectory
+    vertex_keys: tuple[int, ...]
+    swap_keys: tuple[int, ...]
+    first: int
+    last: int
+    pre_until: int  #: first cell reserved for every step <= this
+    perm_from: int  #: last cell reserved for every step >= this
+    finite_until: int  #: no reservation but ``perm`` after this step
+    cell_last_step: dict[int, int]  #: per cell, the last step it is reserved (finite part)
+
+
+class ReservationTable:
+    def __init__(self, workspace: Workspace, delta: int) -> None:
+        self.workspace = workspace
+        self.delta = delta
+        self.n = workspace.num_cells
+        self.vertex: dict[int, int] = {}
+        self.swaps: dict[int, int] = {}
+        self.pre: dict[int, int] = {}
+        self.perm: dict[int, int] = {}
+        self._entries: dict[str, _Entry] = {}
+
+    # ----------------------------------------------------------- updates
+    def sync(self, others: Mapping[str, Trajectory]) -> None:
+        """Make the table hold exactly ``others``, touching only what changed."""
+        for drone in [d for d in self._entries if d not in others]:
+            self.remove(drone)
+        for drone, traj in others.items():
+            entry = self._entries.get(drone)
+            if entry is None or (entry.trajectory is not traj and entry.trajectory != traj):
+                self.set(drone, traj)
+
+    def set(self, drone: str, traj: Trajectory) -> None:
+        if drone in self._entries:
+            self.remove(drone)
+        entry = self._reserve(traj)
+        self._entries[drone] = entry
+        _add(self.vertex, entry.vertex_keys)
+        _add(self.swaps, entry.swap_keys)
+        self._recompute_endpoints((entry.first, entry.last))
+
+    def remove(self, drone: str) -> None:
+        entry = self._entries.pop(drone)
+        _sub(self.vertex, entry.vertex_keys)
+        _sub(self.swaps, entry.swap_keys)
+        self._recompute_endpoints((entry.first, entry.last))
+
+    def _reserve(self, traj: Trajectory) -> _Entry:
+        nx, nxy = self.workspace.nx, self.workspace.nx * self.workspace.ny
+        ids = [x + nx * y + nxy * z for x, y, z in traj.cells]
+        n, d, m = self.n, self.delta, traj.start_step
+        inner = ids[1:-1]
+        vertex: list[int] = []
+        for offset in range(-d, d + 1):
+            base = m + offset + 1
+            vertex.extend([(base + k) * n + cell for k, cell in enumerate(inner)])
+        cell_last = dict(zip(inner, range(m + 1 + d, m + 1 + d + len(inner)), strict=True))
+        cell_last.setdefault(ids[0], m + d)
+        swaps: list[int] = []
+        if d == 0:  # forbid my b -> a move while the other moves a -> b
+            swaps = [((m + k) * n + b) * n + a
+                     for k, (a, b) in enumerate(zip(ids, ids[1:], strict=False)) if a != b]
+        end = traj.end_step
+        return _Entry(traj, tuple(vertex), tuple(swaps), ids[0], ids[-1], m + d, end - d,
+                      max(end - 1 + d, m + d), cell_last)
+
+    def _recompute_endpoints(self, cells: tuple[int, int]) -> None:
+        for cell in set(cells):
+            pre = [e.pre_until for e in self._entries.values() if e.first == cell]
+            perm = [e.perm_from for e in self._entries.values() if e.last == cell]
+            _store(self.pre, cell, max(pre) if pre else None)
+            _store(self.perm, cell, min(perm) if perm else None)
+
+    # ----------------------------------------------------------- queries
+    def static_from(self, step: int) -> int:
+        """The first step from which only ``perm`` reservations remain (>= ``step``)."""
+        latest = max((e.finite_until for e in self._entries.values()), default=step - 1)
+        return max(step, latest + 1)
+
+    def goal_free_from(self, cell: int) -> int | None:
+        """The earliest step from which ``cell`` stays unreserved forever; None if never."""
+        if cell in self.perm:
+            return None
+        last = -(2**62)
+        for entry in self._entries.values():
+            step = entry.cell_last_step.get(cell)
+            if step is not None and step > last:
+                last = step
+        return last + 1
+
+    def pre_keys(self, step: int) -> list[int]:
+        """Vertex keys, from ``step`` on, of drones still sitting at their first cell."""
+        return [t * self.n + cell for cell, until in self.pre.items() for t in range(step, until + 1)]
+
+    def parking_after(self, step: int) -> dict[int, int]:
+        """Cells where a drone parks for good at some step after ``step``, with that step."""
+        return {cell: start for cell, start in self.perm.items() if start > step}
+
+    def blocked_throughout(self, step: int) -> frozenset[int]:
+        """Cells reserved at every step from ``step`` on (drones parked for good)."""
+        return frozenset(c for c, start in self.perm.items() if start <= step)
+
+    def conflicts(self, cell: int, step: int) -> bool:
+        """Whether being in ``cell`` at ``step`` clashes with a reservation."""
+        return (step * self.n + cell in self.vertex or self.perm.get(cell, step + 1) <= step
+                or self.pre.get(cell, step - 1) >= step)
+
+
+def _add(table: dict[int, int], keys: tuple[int, ...] | list[int]) -> None:
+    # Most keys are new: insert them all at C speed, then restore the counts of the rest.
+    counts = Counter(keys)
+    shared = {key: table[key] for key in counts.keys() & table.keys()}
+    table.update(counts)
+    for key, before in shared.items():
+        table[key] += before
+
+
+def _sub(table: dict[int, int], keys: tuple[int, ...] | list[int]) -> None:
+    for key in keys:
+        left = table[key] - 1
+        if left:
+            table[key] = left
+        else:
+            del table[key]
+
+
+def _store(table: dict[int, int], key: int, value: int | None) -> None:
+    if value is None:
+        table.pop(key, None)
+    else:
+        table[key] = value

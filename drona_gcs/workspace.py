@@ -1,0 +1,239 @@
+"""The workspace: a 3-D occupancy grid with obstacles, chargers and drone starts.
+
+Cells are ``(x, y, z)`` integer triples, ``0 <= x < nx`` and so on. Each cell
+also has a unique integer id (the paper's Fig. 1 numbers the blocks):
+``id = x + nx * (y + ny * z)``, so ids run along x first, then y, then z.
+
+A :class:`Workspace` is immutable and validated when built: every cell is in
+bounds, nothing that must be free sits on an obstacle, no two drones share a
+start, and every drone start, charging station and task point lies in the one
+connected free region (a start walled off from the rest could never be served).
+Loaders for our YAML format and the original DRONA XML live in
+:mod:`drona_gcs.workspace_files`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from functools import cached_property
+
+from drona_gcs.errors import WorkspaceError
+
+Cell = tuple[int, int, int]
+
+#: Default altitude (m above the origin's altitude) of the centre of layer 0.
+DEFAULT_LAYER0_ALT_M = 10.0
+
+
+@dataclass(frozen=True)
+class GeoOrigin:
+    """Where the grid sits on Earth.
+
+    ``lat``/``lon`` are the WGS84 position of the grid's corner cell (0, 0, *)
+    outer corner, ``alt_m`` the ground altitude (AMSL) there. Layer ``z`` flies
+    at ``alt_m + layer0_alt_m + z * layer_height_m``.
+    """
+
+    lat: float = 0.0
+    lon: float = 0.0
+    alt_m: float = 0.0
+    layer0_alt_m: float = DEFAULT_LAYER0_ALT_M
+    layer_height_m: float | None = None  # None: the cell size
+
+
+@dataclass(frozen=True)
+class Workspace:
+    """A validated DRONA workspace. Build it with :meth:`build` to get checks."""
+
+    size: tuple[int, int, int]
+    obstacles: frozenset[Cell] = frozenset()
+    charging_stations: tuple[Cell, ...] = ()
+    drones: Mapping[str, Cell] = field(default_factory=dict)
+    cell_size_m: float = 1.0
+    tau_s: float = 1.0
+    beta_s: float = 0.0
+    max_plan_length: int | None = None
+    geo: GeoOrigin = field(default_factory=GeoOrigin)
+    pickups: tuple[Cell, ...] = ()
+    dropoffs: tuple[Cell, ...] = ()
+    parking: tuple[Cell, ...] = ()
+    name: str = "workspace"
+    source: str = ""
+
+    # ------------------------------------------------------------------ build
+    @classmethod
+    def build(cls, **kwargs: object) -> Workspace:
+        """Build and validate; raises :class:`WorkspaceError` naming the field."""
+        ws = cls(**kwargs)  # type: ignore[arg-type]
+        ws.validate()
+        return ws
+
+    def validate(self) -> None:
+        src = self.source
+        if len(self.size) != 3 or any(not isinstance(n, int) or n < 1 for n in self.size):
+            raise WorkspaceError(f"must be three positive integers, got {list(self.size)}",
+                                 field="size", source=src)
+        _positive(self.cell_size_m, "cell_size_m", src)
+        _positive(self.tau_s, "tau_s", src)
+        if not self.beta_s >= 0:
+            raise WorkspaceError(f"must be >= 0, got {self.beta_s}", field="beta_s", source=src)
+        if self.max_plan_length is not None and self.max_plan_length < 1:
+            raise WorkspaceError(f"must be >= 1, got {self.max_plan_length}",
+                                 field="max_plan_length", source=src)
+        if self.geo.layer_height_m is not None:
+            _positive(self.geo.layer_height_m, "geo_origin.layer_height_m", src)
+        for cell in self.obstacles:
+            self._check_bounds(cell, "obstacles")
+        self._check_free_cells()
+        self._check_connected()
+
+    def _check_bounds(self, cell: Cell, where: str) -> None:
+        if not self.in_bounds(cell):
+            raise WorkspaceError(f"cell {list(cell)} is outside the grid {list(self.size)}",
+                                 field=where, source=self.source)
+
+    def _named_free_cells(self) -> Iterable[tuple[str, Cell]]:
+        for drone, cell in self.drones.items():
+            yield f"drones.{drone}", cell
+        for group in ("charging_stations", "pickups", "dropoffs", "parking"):
+            for i, cell in enumerate(getattr(self, group)):
+                yield f"{group}[{i}]", cell
+
+    def _check_free_cells(self) -> None:
+        owner: dict[Cell, str] = {}
+        for where, cell in self._named_free_cells():
+            self._check_bounds(cell, where)
+            if cell in self.obstacles:
+                raise WorkspaceError(f"cell {list(cell)} is on an obstacle",
+                                     field=where, source=self.source)
+            if where.startswith("drones.") and cell in owner:
+                raise WorkspaceError(f"cell {list(cell)} is also the start of {owner[cell]}",
+                                     field=where, source=self.source)
+            owner.setdefault(cell, where)
+        stations = self.charging_stations
+        if len(set(stations)) != len(stations):
+            raise WorkspaceError("a charging station is listed twice",
+                                 field="charging_stations", source=self.source)
+
+    def _check_connected(self) -> None:
+        region = self.main_region
+        for where, cell in self._named_free_cells():
+            if cell not in region:
+                raise WorkspaceError(
+                    f"cell {list(cell)} is walled off from the main free region",
+                    field=where, source=self.source)
+
+    # -------------------------------------------------------------- geometry
+    @property
+    def nx(self) -> int:
+        return self.size[0]
+
+    @property
+    def ny(self) -> int:
+        return self.size[1]
+
+    @property
+    def nz(self) -> int:
+        return self.size[2]
+
+    @property
+    def num_cells(self) -> int:
+        return self.nx * self.ny * self.nz
+
+    @property
+    def delta(self) -> int:
+        """Delta = ceil(beta / tau): the clock-skew window in steps (Theorem 3.1)."""
+        # The epsilon keeps 0.3 / 0.1 = 2.9999999999999996 from rounding to 3.
+        return max(0, math.ceil(self.beta_s / self.tau_s - 1e-9))
+
+    @property
+    def plan_length_limit(self) -> int:
+        """L_max: the configured one, or by default the number of cells."""
+        return self.max_plan_length if self.max_plan_length is not None else self.num_cells
+
+    @property
+    def layer_height_m(self) -> float:
+        return self.geo.layer_height_m if self.geo.layer_height_m is not None else self.cell_size_m
+
+    def in_bounds(self, cell: Cell) -> bool:
+        x, y, z = cell
+        return 0 <= x < self.nx and 0 <= y < self.ny and 0 <= z < self.nz
+
+    def is_free(self, cell: Cell) -> bool:
+        return self.in_bounds(cell) and cell not in self.obstacles
+
+    def cell_id(self, cell: Cell) -> int:
+        x, y, z = cell
+        return x + self.nx * (y + self.ny * z)
+
+    def cell_of_id(self, cell_id: int) -> Cell:
+        if not 0 <= cell_id < self.num_cells:
+            raise WorkspaceError(f"cell id {cell_id} is outside 0..{self.num_cells - 1}",
+                                 source=self.source)
+        xy, z = cell_id % (self.nx * self.ny), cell_id // (self.nx * self.ny)
+        return (xy % self.nx, xy // self.nx, z)
+
+    def neighbours(self, cell: Cell) -> Iterable[Cell]:
+        """Free cells one move away (6-connected in 3-D, 4-connected when nz == 1)."""
+        x, y, z = cell
+        for dx, dy, dz in ((1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)):
+            nxt = (x + dx, y + dy, z + dz)
+            if self.is_free(nxt):
+                yield nxt
+
+    @cached_property
+    def free_cells(self) -> tuple[Cell, ...]:
+        return tuple((x, y, z) for z in range(self.nz) for y in range(self.ny)
+                     for x in range(self.nx) if (x, y, z) not in self.obstacles)
+
+    @cached_property
+    def main_region(self) -> frozenset[Cell]:
+        """The largest connected set of free cells (ties: the one met first)."""
+        seen: set[Cell] = set()
+        best: set[Cell] = set()
+        for cell in self.free_cells:
+            if cell in seen:
+                continue
+            component = self.reachable_from(cell)
+            seen |= component
+            if len(component) > len(best):
+                best = component
+        return frozenset(best)
+
+    def reachable_from(self, start: Cell) -> set[Cell]:
+        found = {start}
+        queue = deque([start])
+        while queue:
+            for nxt in self.neighbours(queue.popleft()):
+                if nxt not in found:
+                    found.add(nxt)
+                    queue.append(nxt)
+        return found
+
+    def with_drones(self, drones: Mapping[str, Cell]) -> Workspace:
+        """A copy with another set of drones, validated."""
+        return _replace_validated(self, drones=dict(drones))
+
+
+def _replace_validated(ws: Workspace, **changes: object) -> Workspace:
+    from dataclasses import replace
+
+    new = replace(ws, **changes)  # type: ignore[arg-type]
+    new.validate()
+    return new
+
+
+def _positive(value: float, name: str, source: str) -> None:
+    if not (isinstance(value, (int, float)) and value > 0 and math.isfinite(value)):
+        raise WorkspaceError(f"must be a positive number, got {value!r}", field=name, source=source)
+
+
+def box_cells(lo: Cell, hi: Cell) -> list[Cell]:
+    """Every cell of the inclusive box between corners ``lo`` and ``hi``."""
+    return [(x, y, z)
+            for x in range(min(lo[0], hi[0]), max(lo[0], hi[0]) + 1)
+            for y in range(min(lo[1], hi[1]), max(lo[1], hi[1]) + 1)
+            for z in range(min(lo[2], hi[2]), max(lo[2], hi[2]) + 1)]
