@@ -15,6 +15,8 @@ Every error the core raises is a :class:`DronaError`; the edges (``fleet/``,
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 
 class DronaError(Exception):
     """Base class of every error raised by drona-gcs."""
@@ -42,8 +44,8 @@ class NoPlanFound(DronaError):
 class UnsafeTrajectory(DronaError):
     """The safety checker found violations; ``violations`` lists them."""
 
-    def __init__(self, violations: list[object]) -> None:
-        self.violations = violations
+    def __init__(self, violations: Sequence[object]) -> None:
+        self.violations = list(violations)
         shown = "; ".join(str(v) for v in violations[:5])
         more = f" (+{len(violations) - 5} more)" if len(violations) > 5 else ""
         super().__init__(f"unsafe trajectory: {shown}{more}")

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 from drona_gcs.errors import WorkspaceError
@@ -78,8 +78,8 @@ class Workspace:
                                  field="size", source=src)
         _positive(self.cell_size_m, "cell_size_m", src)
         _positive(self.tau_s, "tau_s", src)
-        if not self.beta_s >= 0:
-            raise WorkspaceError(f"must be >= 0, got {self.beta_s}", field="beta_s", source=src)
+        if not (self.beta_s >= 0 and math.isfinite(self.beta_s)):
+            raise WorkspaceError(f"must be a finite number >= 0, got {self.beta_s}", field="beta_s", source=src)
         if self.max_plan_length is not None and self.max_plan_length < 1:
             raise WorkspaceError(f"must be >= 1, got {self.max_plan_length}",
                                  field="max_plan_length", source=src)
@@ -219,8 +219,6 @@ class Workspace:
 
 
 def _replace_validated(ws: Workspace, **changes: object) -> Workspace:
-    from dataclasses import replace
-
     new = replace(ws, **changes)  # type: ignore[arg-type]
     new.validate()
     return new

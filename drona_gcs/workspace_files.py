@@ -32,6 +32,8 @@ def load_workspace(path: str | Path) -> Workspace:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise WorkspaceError(f"cannot read the file: {exc.strerror or exc}", source=source) from exc
+    except UnicodeDecodeError as exc:
+        raise WorkspaceError(f"is not UTF-8 text: {exc.reason} at byte {exc.start}", source=source) from exc
     suffix = path.suffix.lower()
     if suffix == ".xml":
         return workspace_from_xml(text, source=source, name=path.parent.name or path.stem)

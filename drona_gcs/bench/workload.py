@@ -25,7 +25,7 @@ def random_workspace(width: int, height: int, rng: random.Random, obstacle_ratio
                      layers: int = 1) -> Workspace:
     """A random grid with ``obstacle_ratio`` of its cells blocked and its pockets filled."""
     cells = [(x, y, z) for z in range(layers) for y in range(height) for x in range(width)]
-    blocked = set(rng.sample(cells, int(round(obstacle_ratio * len(cells)))))
+    blocked = set(rng.sample(cells, round(obstacle_ratio * len(cells))))
     rough = Workspace(size=(width, height, layers), obstacles=frozenset(blocked))
     pockets = set(rough.free_cells) - rough.main_region
     return Workspace.build(size=(width, height, layers), obstacles=frozenset(blocked | pockets),

@@ -26,8 +26,8 @@ from drona_gcs.workspace import Cell, Workspace
 
 __all__ = ["Plan", "SafePlanner", "check_endpoints"]
 
-#: Expansions after which a search stops to look for a seal (plus 16 x the grid's side).
-_SEAL_AFTER = 1000
+#: Expansions after which a search stops to look for a seal (plus terms for path and grid size).
+_SEAL_AFTER = 64
 
 
 @dataclass(frozen=True)
@@ -71,8 +71,12 @@ class SafePlanner:
         start_id, goal_id = ws.cell_id(start), ws.cell_id(goal)
         heuristic = self._heuristic(goal_id, self.table.blocked_throughout(start_step))
         args = (self.grid, self.table, heuristic, start_id, goal_id, start_step, limit)
+        # Looking for a seal costs a few BFS over the grid: worth it once the search has
+        # spent about as much, or a few times the straight path's work.
+        budget = _SEAL_AFTER + 4 * int(heuristic.get(start_id) / self.grid.min_cost if self.grid.min_cost else 0) \
+            + len(self.grid.coords) // 20
         try:
-            found = search(*args, budget=_SEAL_AFTER + 16 * int(len(self.grid.coords) ** 0.5))
+            found = search(*args, budget=budget)
         except BudgetExceeded:
             # A long search: drones parking for good may have sealed the goal off,
             # and pruning on that can end a search that would otherwise visit all space-time.

@@ -25,8 +25,8 @@ exists within ``L_max`` steps. What keeps it exact and fast:
 from __future__ import annotations
 
 import heapq
-from collections.abc import Callable
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from drona_gcs.errors import NoPlanFound
@@ -76,7 +76,6 @@ def search(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
     if hopeless is not None and hopeless(start, n):
         raise NoPlanFound("drones parking for good seal the goal off before it can be reached")
     uniform = grid.uniform_cost
-    n_cells = table.n
     # With uniform costs the layers from `static` on are one; otherwise never collapse.
     static = table.static_from(n) if uniform is not None else n + max_length + 1
     pre_keys = table.pre_keys(n)
@@ -173,8 +172,7 @@ def _run(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance, star
                 h1 = get_h(nxt)
             if h1 >= UNREACHABLE or (hopeless is not None and hopeless(nxt, nstep)):
                 continue
-            if wait_bound > h1:
-                h1 = wait_bound
+            h1 = max(h1, wait_bound)
             g[k1] = g1
             parent[k1] = key
             f1 = g1 + h1

@@ -55,7 +55,7 @@ class GridIndex:
         uniform = all_costs[0] if len(set(all_costs)) == 1 and all_costs[0] > 0 else None
         hold = model.cost(Primitive.HOLD)
         moves_only = tuple(tuple((j, cost) for j, cost, _ in out) for out in moves)
-        successors = tuple(m + ((i, hold),) if free[i] else m for i, m in enumerate(moves_only))
+        successors = tuple((*m, (i, hold)) if free[i] else m for i, m in enumerate(moves_only))
         return cls(workspace, model, tuple(moves), tuple(tuple(r) for r in reverse), free, coords,
                    hold, min(all_costs), uniform, successors, moves_only)
 

@@ -84,7 +84,7 @@ class GoalDistance:
     so the search's inner loop can try a plain dict lookup first.
     """
 
-    __slots__ = ("known", "reached", "_pred", "_unit", "_full")
+    __slots__ = ("_full", "_pred", "_unit", "known", "reached")
 
     def __init__(self, goal: int, reached: np.ndarray, pred: memoryview | None, unit: float,
                  full: memoryview | None = None) -> None:

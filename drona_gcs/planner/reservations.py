@@ -22,6 +22,7 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass
+from itertools import pairwise
 
 from drona_gcs.motion import Trajectory
 from drona_gcs.workspace import Workspace
@@ -90,7 +91,7 @@ class ReservationTable:
         swaps: list[int] = []
         if d == 0:  # forbid my b -> a move while the other moves a -> b
             swaps = [((m + k) * n + b) * n + a
-                     for k, (a, b) in enumerate(zip(ids, ids[1:], strict=False)) if a != b]
+                     for k, (a, b) in enumerate(pairwise(ids)) if a != b]
         end = traj.end_step
         return _Entry(traj, tuple(vertex), tuple(swaps), ids[0], ids[-1], m + d, end - d,
                       max(end - 1 + d, m + d), cell_last)

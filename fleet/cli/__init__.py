@@ -1,0 +1,44 @@
+"""The ``drona`` command: one entry point that ties the core, the fleet and the service together.
+
+Each subcommand lives in its own module and is imported only when used, so
+``drona plan`` does not pay for Zenoh or FastAPI. Exit codes: 0 success,
+1 the command ran and found a problem (for example a violation), 2 bad
+arguments or unusable input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+# name -> (module, help). Each module has `add_arguments(parser)` and `run(args) -> int`.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "plan": ("fleet.cli.plan", "plan safe trajectories for JSON Lines problems"),
+    "bench": ("fleet.cli.bench", "benchmarks (bench planner)"),
+}
+
+
+def build_parser(selected: str | None = None) -> argparse.ArgumentParser:
+    """The parser; only the ``selected`` command's module is imported (all when None)."""
+    parser = argparse.ArgumentParser(prog="drona", description="DRONA ground-control toolkit")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, (module, help_text) in COMMANDS.items():
+        cmd = sub.add_parser(name, help=help_text, description=help_text)
+        if selected in (None, name):
+            importlib.import_module(module).add_arguments(cmd)
+        cmd.set_defaults(_module=module)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    selected = next((a for a in argv if not a.startswith("-")), None)
+    args = build_parser(selected if selected in COMMANDS else None).parse_args(argv)
+    code: int = importlib.import_module(args._module).run(args)
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())
