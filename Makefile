@@ -4,9 +4,14 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: test lint bench demo clean
+.PHONY: test lint bench bench-quick demo clean
+
+# System packages the project needs (installed only when missing, and only as root).
+SYSTEM_PACKAGES := python3-venv
 
 $(STAMP): pyproject.toml
+	@$(PY) -c 'import venv, ensurepip' 2>/dev/null || { \
+	  [ "$$(id -u)" = 0 ] && apt-get update -qq && apt-get install -y -qq $(SYSTEM_PACKAGES); }
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -e '.[dev]'
@@ -24,8 +29,10 @@ lint: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/drona bench planner
 
-demo: $(STAMP)
-	@echo "The demo fleet arrives with the service issue; meanwhile: $(BIN)/drona plan --help"
+bench-quick: $(STAMP)
+	$(BIN)/drona bench planner --quick
+
+demo: bench
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

@@ -15,6 +15,7 @@ Loaders for our YAML format and the original DRONA XML live in
 from __future__ import annotations
 
 import math
+from fractions import Fraction
 from collections import deque
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
@@ -146,8 +147,9 @@ class Workspace:
     @property
     def delta(self) -> int:
         """Delta = ceil(beta / tau): the clock-skew window in steps (Theorem 3.1)."""
-        # The epsilon keeps 0.3 / 0.1 = 2.9999999999999996 from rounding to 3.
-        return max(0, math.ceil(self.beta_s / self.tau_s - 1e-9))
+        # Divide the decimal values, not their binary approximations: 0.3 / 0.1 is
+        # 2.9999999999999996 in floats, but exactly 3, and a tiny beta still gives 1.
+        return max(0, math.ceil(Fraction(str(self.beta_s)) / Fraction(str(self.tau_s))))
 
     @property
     def plan_length_limit(self) -> int:

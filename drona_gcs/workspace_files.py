@@ -199,8 +199,8 @@ def _geo(value: object, source: str) -> GeoOrigin:
 
 
 def _xml_cell(elem: ET.Element, where: str, source: str, positive: bool = False) -> Cell:
-    try:
-        cell = (int(elem.get("x", "")), int(elem.get("y", "")), int(elem.get("z", "0")))
+    try:  # a missing z is layer 0 of a cell, or one layer of a dimension
+        cell = (int(elem.get("x", "")), int(elem.get("y", "")), int(elem.get("z", "1" if positive else "0")))
     except ValueError:
         raise WorkspaceError(f"needs integer x, y, z attributes, got {dict(elem.attrib)}",
                              field=where, source=source) from None

@@ -57,7 +57,7 @@ def parse_problem(data: object, load: Callable[[str], Workspace],
     planner = data.get("planner", "astar")
     if planner not in PLANNERS:
         raise ProblemError(f"planner: must be one of {list(PLANNERS)}, got {planner!r}")
-    costs_raw = data.get("costs") or {}
+    costs_raw = data.get("costs", {})
     if not isinstance(costs_raw, Mapping) or not all(_is_number(v) for v in costs_raw.values()):
         raise ProblemError(f"costs: must map primitive names to numbers, got {costs_raw!r}")
     return PlanProblem(
@@ -65,7 +65,7 @@ def parse_problem(data: object, load: Callable[[str], Workspace],
         start_step=_int(data, "start_step", 0),
         delta=_int(data, "delta", ws.delta, minimum=0),
         max_length=_int(data, "max_length", ws.plan_length_limit, minimum=0),
-        others=_others(ws, data.get("others") or {}),
+        others=_others(ws, data.get("others", {})),
         planner=planner, costs=parse_costs(costs_raw), request_id=data.get("id"))
 
 
