@@ -15,10 +15,10 @@ Loaders for our YAML format and the original DRONA XML live in
 from __future__ import annotations
 
 import math
-from fractions import Fraction
 from collections import deque
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
+from fractions import Fraction
 from functools import cached_property
 
 from drona_gcs.errors import WorkspaceError
