@@ -87,10 +87,15 @@ def check_path(workspace: Workspace, traj: Trajectory) -> list[Violation]:
 
 
 def check_pair(mine: Trajectory, other: Trajectory, delta: int, other_id: str = "other",
-               from_step: int | None = None) -> list[Violation]:
-    """Collisions and swaps of ``mine`` against ``other`` for my steps ``t >= from_step``."""
+               from_step: int | None = None, until: int | None = None) -> list[Violation]:
+    """Collisions and swaps of ``mine`` against ``other`` for my steps ``from_step <= t <= until``.
+
+    By default ``until`` is where both drones have been still for longer than
+    the window, which covers "forever"; a monitor that sees trajectories grow
+    step by step passes the last step it can judge.
+    """
     n = mine.start_step if from_step is None else from_step
-    horizon = max(mine.end_step, other.end_step) + delta + 1
+    horizon = max(mine.end_step, other.end_step) + delta + 1 if until is None else until
     found: list[Violation] = []
     for t in range(n, horizon + 1):
         here, nxt = mine.at(t), mine.at(t + 1)

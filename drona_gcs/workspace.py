@@ -126,6 +126,30 @@ class Workspace:
                 raise WorkspaceError(
                     f"cell {list(cell)} is walled off from the main free region",
                     field=where, source=self.source)
+        # Drones rest on parking cells for good: together they must not cut the free region.
+        cut = self.cells_cut_off_by(self.parking)
+        if cut:
+            where = next(f"parking[{i}]" for i, c in enumerate(self.parking) if c in self.neighbour_set(cut))
+            raise WorkspaceError(f"drones parked there would wall off {len(cut)} free cell(s), "
+                                 f"such as {list(min(cut))}", field=where, source=self.source)
+
+    def cells_cut_off_by(self, resting: Iterable[Cell]) -> set[Cell]:
+        """Free cells that drones resting on ``resting`` would cut off from the rest."""
+        resting = set(resting)
+        rest = [c for c in self.main_region if c not in resting]
+        if not resting or not rest:
+            return set()
+        found = {rest[0]}
+        queue = deque(found)
+        while queue:
+            for nxt in self.neighbours(queue.popleft()):
+                if nxt not in found and nxt not in resting:
+                    found.add(nxt)
+                    queue.append(nxt)
+        return set(rest) - found
+
+    def neighbour_set(self, cells: Iterable[Cell]) -> set[Cell]:
+        return {n for c in cells for n in self.neighbours(c)}
 
     # -------------------------------------------------------------- geometry
     @property

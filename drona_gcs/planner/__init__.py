@@ -55,6 +55,10 @@ class SafePlanner:
         self._heuristics: OrderedDict[tuple[int, frozenset[int]], GoalDistance] = OrderedDict()
         self._cache_size = heuristic_cache
 
+    def __deepcopy__(self, memo: dict[int, object]) -> SafePlanner:
+        # A planner is a cache over immutable inputs: copies of a simulated fleet share it.
+        return self
+
     def plan(self, start: Cell, goal: Cell, start_step: int, others: Mapping[str, Trajectory],
              max_length: int | None = None) -> Plan:
         """A minimum-cost safe plan from ``start`` at ``start_step`` to ``goal``.

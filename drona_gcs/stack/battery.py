@@ -1,0 +1,74 @@
+"""Battery: the energy model and the battery monitor (sense and infer).
+
+The monitor turns readings into two events for the task planner, with
+hysteresis so a level hovering at the threshold does not chatter: ``BatteryLow``
+once the level drops below ``low``, then ``BatteryRecharged`` once it is back
+at ``recharged`` or more.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+from drona_gcs.errors import ProblemError
+
+
+@dataclass(frozen=True)
+class BatteryModel:
+    """Percent per step flying (moving or hovering) and charging at a station, and the safe floor."""
+
+    drain_per_step: float = 1.0
+    charge_per_step: float = 5.0
+    safe_threshold: float = 20.0
+    margin_steps: int = 8  #: slack for waiting and coordination, in steps of drain
+
+    def __post_init__(self) -> None:
+        if self.drain_per_step <= 0 or self.charge_per_step <= 0:
+            raise ProblemError("battery drain and charge rates must be > 0")
+        if not 0 <= self.safe_threshold < 100:
+            raise ProblemError(f"safe threshold must be within [0, 100), got {self.safe_threshold}")
+
+    def steps_affordable(self, level: float) -> int:
+        """How many flying steps ``level`` allows before reaching the safe threshold."""
+        return max(0, int((level - self.safe_threshold) / self.drain_per_step))
+
+
+class BatteryState(enum.Enum):
+    OK = "ok"  #: above the low mark
+    LOW = "low"  #: dropped below the low mark; waiting to be recharged
+
+
+@dataclass(frozen=True)
+class BatteryLow:
+    level: float
+
+
+@dataclass(frozen=True)
+class BatteryRecharged:
+    level: float
+
+
+BatteryEvent = BatteryLow | BatteryRecharged
+
+
+@dataclass
+class BatteryMonitor:
+    low: float = 40.0
+    recharged: float = 95.0
+    state: BatteryState = BatteryState.OK
+
+    def __post_init__(self) -> None:
+        if not self.low < self.recharged:
+            raise ProblemError(f"low mark {self.low} must be below recharged mark {self.recharged}")
+
+    def reading(self, level: float) -> list[BatteryEvent]:
+        if not 0 <= level <= 100:
+            raise ProblemError(f"battery reading must be a percentage, got {level}")
+        if self.state is BatteryState.OK and level < self.low:
+            self.state = BatteryState.LOW
+            return [BatteryLow(level)]
+        if self.state is BatteryState.LOW and level >= self.recharged:
+            self.state = BatteryState.OK
+            return [BatteryRecharged(level)]
+        return []

@@ -1,0 +1,152 @@
+"""One drone's stack: task planner, coordination protocol, plan executor and battery monitor, wired.
+
+The modules talk through events (paper Fig. 2). Inside one drone those are
+handed over at once, in one call, as they would be in one event loop; only
+messages between drones travel through the network, where the runtime (the
+agent daemon or the systematic tester) may delay and reorder them.
+
+Inputs: :meth:`DroneStack.receive` (a peer's message), :meth:`assign`
+(mail), :meth:`peer_left` / :meth:`peer_joined` (membership) and :meth:`step`
+(a step boundary of the local clock, with the battery level). Outputs are
+the actions below, which the runtime carries out.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+from drona_gcs.planner import SafePlanner
+from drona_gcs.planner.heuristic import UNREACHABLE, GoalDistance
+from drona_gcs.stack.battery import BatteryLow, BatteryModel, BatteryMonitor, BatteryRecharged
+from drona_gcs.stack.executor import Completed, PlanExecutor, Setpoint
+from drona_gcs.stack.mail import Distance, GoTo, MailAction, MailPlanner, MailRequest
+from drona_gcs.stack.messages import HybridClock, Message, Task
+from drona_gcs.stack.protocol import Action as ProtocolAction
+from drona_gcs.stack.protocol import (
+    CoordinationProtocol,
+    Event,
+    NewTask,
+    PeerJoined,
+    PeerLeft,
+    PlanCompleted,
+    StartExecuting,
+    State,
+    TaskFailed,
+)
+from drona_gcs.workspace import Cell, Workspace
+
+DroneAction = ProtocolAction | Setpoint | Completed | MailAction | BatteryLow | BatteryRecharged
+
+
+@dataclass(frozen=True)
+class StackConfig:
+    """What every drone of a fleet shares (immutable: copies of a simulated fleet share it)."""
+
+    workspace: Workspace
+    planner: SafePlanner
+    battery: BatteryModel = field(default_factory=BatteryModel)
+    low_mark: float = 40.0
+    recharged_mark: float = 95.0
+    lead_steps: int | None = None  #: steps between planning and a plan's start; default Delta + 1
+    bugs: frozenset[str] = frozenset()
+
+    def __deepcopy__(self, memo: dict[int, object]) -> StackConfig:
+        return self
+
+
+class DroneStack:
+    def __init__(self, me: str, config: StackConfig, peers: Mapping[str, Cell]) -> None:
+        ws = config.workspace
+        self.me = me
+        self.config = config
+        start = peers[me]
+        self.clock = HybridClock(me)
+        planner = config.planner
+        lead = config.lead_steps if config.lead_steps is not None else config.planner.delta + 1
+        self.protocol = CoordinationProtocol(me, start, dict(peers), planner.plan, lead, config.bugs)
+        self.executor = PlanExecutor(start)
+        self.monitor = BatteryMonitor(config.low_mark, config.recharged_mark)
+        self.mail = MailPlanner(start, ws.charging_stations, ws.parking, _distance_function(planner),
+                                config.battery, recharged_level=config.recharged_mark, bugs=config.bugs)
+
+    # ------------------------------------------------------------ inputs
+    @property
+    def now(self) -> int:
+        return max(self.executor.step, 0)
+
+    def receive(self, message: Message, now: int | None = None) -> list[DroneAction]:
+        stamp = getattr(message, "task_id", None) or getattr(message, "in_reply_to", None)
+        if stamp is not None:
+            self.clock.observe(stamp.stamp)
+        return self._protocol(message)
+
+    def assign(self, request: MailRequest) -> list[DroneAction]:
+        self.mail.assign(request)
+        return []
+
+    def peer_left(self, drone: str) -> list[DroneAction]:
+        return self._protocol(PeerLeft(drone))
+
+    def peer_joined(self, drone: str, cell: Cell) -> list[DroneAction]:
+        return self._protocol(PeerJoined(drone, cell))
+
+    def step(self, step: int, battery_level: float, physical_time: int = 0) -> list[DroneAction]:
+        """Step boundary ``step``: move, feel the battery, then let the task planner decide."""
+        actions: list[DroneAction] = []
+        for done in self.executor.tick(step):
+            actions.append(done)
+            if isinstance(done, Completed):
+                actions += self._protocol(PlanCompleted())
+                actions += self.mail.leg_done()
+        for event in self.monitor.reading(battery_level):
+            actions.append(event)
+            if isinstance(event, BatteryLow):
+                self.mail.battery_low()
+            else:
+                self.mail.battery_recharged()
+        if self.protocol.state is State.WAIT_FOR_TASK:
+            for decided in self.mail.decide(step, battery_level, self.taken_cells()):
+                actions.append(decided)
+                if isinstance(decided, GoTo):
+                    hovering = None if self.landed else step
+                    task = Task(self.clock.next_id(max(physical_time, step)), decided.goal,
+                                decided.flight_steps, hovering)
+                    actions += self._protocol(NewTask(task))
+        return actions
+
+    @property
+    def landed(self) -> bool:
+        return self.mail.landed(holding=not self.executor.flying)
+
+    def taken_cells(self) -> set[Cell]:
+        """Cells where other drones rest, as far as this drone knows."""
+        known = {**self.protocol.known, **self.protocol.ghosts}
+        return {traj.last for drone, traj in known.items() if drone != self.me}
+
+    # ---------------------------------------------------------- wiring
+    def _protocol(self, event: Event) -> list[DroneAction]:
+        actions: list[DroneAction] = []
+        for action in self.protocol.handle(event, self.now):
+            actions.append(action)
+            if isinstance(action, StartExecuting):
+                self.executor.start(action.trajectory)
+            elif isinstance(action, TaskFailed):
+                self.mail.leg_failed(self.now)
+        return actions
+
+
+def _distance_function(planner: SafePlanner) -> Distance:
+    """Static shortest-path steps between cells, one cached BFS per target cell."""
+    ws, graph = planner.workspace, planner.graph
+
+    @lru_cache(maxsize=256)
+    def to(goal: Cell) -> GoalDistance:
+        return graph.distances(ws.cell_id(goal), frozenset())
+
+    def distance(a: Cell, b: Cell) -> int:
+        d = to(b).get(ws.cell_id(a))
+        return int(d) if d < UNREACHABLE else 10**6
+
+    return distance

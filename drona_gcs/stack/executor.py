@@ -1,0 +1,78 @@
+"""The plan executor (paper section 3.3) as a sans-I/O periodic machine.
+
+At each local step boundary ``k`` (the edge calls :meth:`PlanExecutor.tick`
+at ``epoch + k * tau`` on the drone's clock; the tester when its scheduler
+lets the drone step) it takes the cell of the trajectory for step ``k``,
+reports it as the setpoint, holds at the last cell, and reports completion
+once. The safety argument assumes every drone follows its timed trajectory,
+so a trajectory whose start the executor has already passed is refused.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+from drona_gcs.errors import ProtocolViolation
+from drona_gcs.motion import Trajectory
+from drona_gcs.workspace import Cell
+
+
+class ExecutorState(enum.Enum):
+    HOLDING = "holding"  #: no trajectory: hold the current cell
+    EXECUTING = "executing"  #: following a trajectory
+
+
+@dataclass(frozen=True)
+class Setpoint:
+    """Be at ``cell`` during step ``step`` (moving there from the previous cell)."""
+
+    step: int
+    cell: Cell
+    moving: bool
+
+
+@dataclass(frozen=True)
+class Completed:
+    trajectory: Trajectory
+
+
+ExecutorAction = Setpoint | Completed
+
+
+@dataclass
+class PlanExecutor:
+    cell: Cell
+    step: int = -1  #: the last step boundary taken
+    state: ExecutorState = ExecutorState.HOLDING
+    trajectory: Trajectory | None = None
+
+    @property
+    def flying(self) -> bool:
+        """Whether the trajectory has begun: the drone leaves its first cell after its start step."""
+        return self.trajectory is not None and self.step >= self.trajectory.start_step
+
+    def start(self, trajectory: Trajectory) -> None:
+        """Follow ``trajectory`` from its start step; it must start after the last boundary taken."""
+        if trajectory.start_step <= self.step:
+            raise ProtocolViolation(
+                f"trajectory starts at step {trajectory.start_step} but the executor is already at step "
+                f"{self.step}")
+        if trajectory.first != self.cell:
+            raise ProtocolViolation(f"trajectory starts at {list(trajectory.first)} but the drone holds "
+                                    f"{list(self.cell)}")
+        self.trajectory, self.state = trajectory, ExecutorState.EXECUTING
+
+    def tick(self, step: int) -> list[ExecutorAction]:
+        """Take step boundary ``step`` (each exactly once, in order)."""
+        if step != self.step + 1 and self.step >= 0:
+            raise ProtocolViolation(f"step {step} after step {self.step}: boundaries must come in order")
+        self.step = step
+        if self.state is ExecutorState.HOLDING or self.trajectory is None:
+            return [Setpoint(step, self.cell, moving=False)]
+        previous, self.cell = self.cell, self.trajectory.at(step)
+        actions: list[ExecutorAction] = [Setpoint(step, self.cell, moving=previous != self.cell)]
+        if step >= self.trajectory.end_step:
+            actions.append(Completed(self.trajectory))
+            self.state, self.trajectory = ExecutorState.HOLDING, None
+        return actions

@@ -1,0 +1,279 @@
+"""The priority mail-delivery task planner (the application's task planner, paper Fig. 2).
+
+A drone keeps its assigned requests and serves them in priority order (9 is
+the most urgent), oldest first among equals: each is a leg to the pickup and
+then a leg to the drop-off, each a motion task for the coordination protocol.
+
+Energy. Flying a step (moving or hovering) drains ``drain_per_step``; landed,
+nothing; landed on a charger, the battery charges. The rules, which keep the
+battery above the safe threshold whatever the schedule:
+
+* **Every leg has a flight budget**: what the battery affords now, less what
+  must remain on arrival (the way from the goal to a charger, and for a pickup
+  the way on to the drop-off too). The protocol turns it into the plan's
+  maximum length when it plans, less the steps spent hovering while it
+  coordinated, so a plan that would wait too long is refused by the planner
+  itself.
+* **A leg is started only when its deadline can be met** by the shortest
+  path; otherwise the drone goes to charge first.
+* **What must remain is the way to the second-nearest charger**: the nearest
+  may be taken by a drone charging there.
+* **A drone never waits in the air.** When a leg finds no plan, it lands where
+  it is (or stays on the parking cell, charger or start it is on) and tries
+  again from the ground, where waiting is free.
+
+Idle drones fly to the nearest parking cell and land there, instead of
+hovering where they block corridors: a parked drone is an obstacle for every
+plan (the paper notes MRMP is incomplete because parked robots can wall others
+in). Chargers are for charging: a charged drone leaves for a parking cell.
+A failed leg is retried after ``retry_steps``, towards the next candidate when
+the goal was a charger or parking cell. Mail is never dropped.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Callable, Collection, Sequence
+from dataclasses import dataclass, field
+
+from drona_gcs.errors import ProblemError, ProtocolViolation
+from drona_gcs.stack.battery import BatteryModel
+from drona_gcs.workspace import Cell
+
+#: distance(a, b): steps of the shortest static path from a to b (large if none).
+Distance = Callable[[Cell, Cell], int]
+
+
+@dataclass(frozen=True)
+class MailRequest:
+    id: str
+    pickup: Cell
+    dropoff: Cell
+    priority: int  #: 0..9, 9 the most urgent
+    seq: int = 0  #: arrival order; lower is older
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.priority <= 9:
+            raise ProblemError(f"mail {self.id}: priority must be within 0..9, got {self.priority}")
+        if self.pickup == self.dropoff:
+            raise ProblemError(f"mail {self.id}: pickup and drop-off are the same cell {list(self.pickup)}")
+
+    @property
+    def rank(self) -> tuple[int, int]:
+        """Sort key: most urgent first, then oldest."""
+        return (-self.priority, self.seq)
+
+
+class Phase(enum.Enum):
+    IDLE = "idle"  #: nothing to do (landed when at a parking cell or charger)
+    TO_PICKUP = "to_pickup"  #: flying to the pickup of ``current``
+    TO_DROPOFF = "to_dropoff"  #: carrying ``current`` to its drop-off
+    TO_CHARGER = "to_charger"  #: flying to a charging station
+    CHARGING = "charging"  #: landed on a station until recharged
+    TO_PARKING = "to_parking"  #: flying to a parking cell
+
+
+# --------------------------------------------------------------- actions
+@dataclass(frozen=True)
+class GoTo:
+    """Ask the coordination protocol for a motion task; the battery affords ``flight_steps``."""
+
+    goal: Cell
+    flight_steps: int | None
+    purpose: Phase
+
+
+@dataclass(frozen=True)
+class MailStarted:
+    request: MailRequest
+    waiting: tuple[MailRequest, ...]  #: the rest of the queue at that moment (for the order monitor)
+
+
+@dataclass(frozen=True)
+class MailPickedUp:
+    request: MailRequest
+
+
+@dataclass(frozen=True)
+class MailDelivered:
+    request: MailRequest
+
+
+MailAction = GoTo | MailStarted | MailPickedUp | MailDelivered
+
+
+@dataclass
+class MailPlanner:
+    """The task planner of one drone; :meth:`decide` is called at every step boundary."""
+
+    cell: Cell
+    chargers: Sequence[Cell]
+    parking: Sequence[Cell]
+    distance: Distance
+    battery: BatteryModel = field(default_factory=BatteryModel)
+    retry_steps: int = 2
+    recharged_level: float = 95.0  #: charging ends here
+    bugs: frozenset[str] = frozenset()
+    phase: Phase = Phase.IDLE
+    queue: list[MailRequest] = field(default_factory=list)
+    current: MailRequest | None = None
+    low: bool = False
+    retry_at: int = 0
+    goal: Cell | None = None
+    carrying: bool = False  #: ``current`` is on board
+    landed_here: bool = True  #: on the ground (drones start landed)
+    tried: set[Cell] = field(default_factory=set)  #: goals that found no plan since the last leg
+
+    # ---------------------------------------------------------- inputs
+    def assign(self, request: MailRequest) -> None:
+        if any(r.id == request.id for r in self.queue) or (self.current and self.current.id == request.id):
+            return  # a duplicate assignment is harmless
+        self.queue.append(request)
+
+    def battery_low(self) -> None:
+        self.low = True
+
+    def battery_recharged(self) -> None:
+        self.low = False
+        if self.phase is Phase.CHARGING:
+            self.phase = Phase.IDLE
+
+    def leg_done(self) -> list[MailAction]:
+        """The protocol completed the current leg: we are at ``goal``."""
+        if self.goal is None:
+            raise ProtocolViolation(f"leg done while {self.phase.value}, with no leg under way")
+        self.cell, self.goal = self.goal, None
+        self.tried.clear()
+        self.landed_here = self.cell in self.parking or self.cell in self.chargers
+        done, actions = self.phase, list[MailAction]()
+        if done is Phase.TO_PICKUP and self.current is not None:
+            actions.append(MailPickedUp(self.current))
+            self.carrying, self.phase = True, Phase.IDLE  # the drop-off leg starts at the next decision
+        elif done is Phase.TO_DROPOFF and self.current is not None:
+            actions.append(MailDelivered(self.current))
+            self.current, self.carrying, self.phase = None, False, Phase.IDLE
+        elif done is Phase.TO_CHARGER:
+            self.phase = Phase.CHARGING
+        else:
+            self.phase = Phase.IDLE
+        return actions
+
+    def leg_failed(self, now: int) -> None:
+        """No plan was found: land here and try again a little later, from the ground."""
+        self.retry_at = now + self.retry_steps
+        if self.goal is not None:
+            self.tried.add(self.goal)
+        self.goal = None
+        self.landed_here = True
+        if self.current is not None and not self.carrying:
+            # Not picked up yet: back in the queue, to be weighed again against priorities and battery.
+            self.queue.append(self.current)
+            self.current = None
+        self.phase = Phase.IDLE
+
+    def landed(self, holding: bool) -> bool:
+        """Whether the drone is on the ground: holding still (not flying a plan), landed here.
+        It stays landed while it coordinates its next leg, so waiting costs no energy."""
+        return holding and self.landed_here
+
+    @property
+    def busy(self) -> bool:
+        return self.goal is not None
+
+    # ---------------------------------------------------------- decide
+    def decide(self, now: int, level: float, taken: Collection[Cell]) -> list[MailAction]:
+        """At step boundary ``now`` with battery ``level``; ``taken``: cells other drones rest on."""
+        if self.phase is Phase.CHARGING and level >= self.recharged_level:
+            self.battery_recharged()  # also ends charging for a mail it could not afford
+        if self.busy or self.phase is Phase.CHARGING or now < self.retry_at:
+            return []
+        budget = Budget(now, self.battery.steps_affordable(level), "no-battery-check" in self.bugs)
+        spots = self.parking or self.chargers
+        if self.tried and not self.low and self.cell not in spots:
+            # A leg found no plan: maybe our goal is where another drone waits, while we wait
+            # where it wants to go. Clear the way on a parking cell before trying again.
+            return self._to_one_of(spots, budget, taken, Phase.TO_PARKING)
+        if self.carrying and self.current is not None:
+            dropoff, after = self.current.dropoff, self._after(self.current.dropoff)
+            if budget.allows(self.distance(self.cell, dropoff) + after + self.battery.margin_steps // 2):
+                return self._go(dropoff, budget, after, Phase.TO_DROPOFF, taken)
+            return self._to_charger(budget, taken)  # charge with the mail on board, then deliver
+        if self.low:
+            return self._to_charger(budget, taken)
+        if self.queue:
+            return self._start_next_mail(budget, taken)
+        if self.cell not in spots:
+            return self._to_one_of(spots, budget, taken, Phase.TO_PARKING)
+        return []
+
+    def _start_next_mail(self, budget: Budget, taken: Collection[Cell]) -> list[MailAction]:
+        self.queue.sort(key=lambda r: r.rank)
+        best = self.queue[0]
+        rest = self.distance(best.pickup, best.dropoff) + self._after(best.dropoff)
+        if not budget.allows(self.distance(self.cell, best.pickup) + rest + self.battery.margin_steps):
+            self.low = True  # not enough for this mail: charge first
+            return self._to_charger(budget, taken)
+        self.queue.pop(0)
+        self.current = best
+        return [MailStarted(best, tuple(self.queue)), *self._go(best.pickup, budget, rest, Phase.TO_PICKUP, taken)]
+
+    def _to_charger(self, budget: Budget, taken: Collection[Cell]) -> list[MailAction]:
+        if self.cell in self.chargers:
+            self.phase = Phase.CHARGING
+            return []
+        return self._to_one_of(self.chargers, budget, taken, Phase.TO_CHARGER)
+
+    def _to_one_of(self, candidates: Sequence[Cell], budget: Budget, taken: Collection[Cell],
+                   purpose: Phase) -> list[MailAction]:
+        """Fly to the best candidate whose way (and what must remain after it) the battery affords.
+
+        Free ones first: one we believe taken may have been left since we last heard, and
+        trying it costs one coordination round. A parking cell that would leave too little to
+        reach a charger from it is skipped, and if none is left the drone charges instead.
+        """
+        def reserve(cell: Cell) -> int:
+            return 0 if purpose is Phase.TO_CHARGER else self._after(cell)
+
+        ranked = sorted((c for c in candidates if budget.allows(self.distance(self.cell, c) + reserve(c))),
+                        key=lambda c: (c in taken, self.distance(self.cell, c), c))
+        if not ranked:
+            if purpose is Phase.TO_PARKING:
+                self.low = True
+                return self._to_charger(budget, taken)
+            self.landed_here = True  # no charger in reach: wait on the ground
+            return []
+        untried = [c for c in ranked if c not in self.tried]  # after a failure, the next one
+        if not untried:
+            self.tried.clear()
+            untried = ranked
+        return self._go(untried[0], budget, reserve(untried[0]), purpose, taken)
+
+    def _go(self, goal: Cell, budget: Budget, reserve: int, purpose: Phase,
+            taken: Collection[Cell]) -> list[MailAction]:
+        self.goal, self.phase = goal, purpose
+        return [GoTo(goal, budget.flight(reserve), purpose)]
+
+    def _after(self, cell: Cell) -> int:
+        """Steps from ``cell`` to a charger: what must stay in the battery on arrival.
+
+        The nearest charger may be taken by a drone charging there, so this is the
+        way to the second nearest when there are two or more.
+        """
+        ways = sorted(self.distance(cell, c) for c in self.chargers)
+        return ways[min(1, len(ways) - 1)] if ways else 0
+
+
+@dataclass(frozen=True)
+class Budget:
+    """What the battery affords from step ``now``: ``steps`` of flight before the safe threshold."""
+
+    now: int
+    steps: int
+    unchecked: bool = False  #: the seeded bug no-battery-check
+
+    def allows(self, steps: int) -> bool:
+        return self.unchecked or steps <= self.steps
+
+    def flight(self, reserve: int) -> int | None:
+        """The steps of flight a leg may take and still leave ``reserve`` steps."""
+        return None if self.unchecked else self.steps - reserve

@@ -1,0 +1,95 @@
+"""Task ids and the messages drones exchange: frozen dataclasses that validate themselves.
+
+**Task ids** are globally unique and totally ordered without a central
+counter: ``(stamp, drone, seq)`` where ``stamp`` comes from the drone's hybrid
+logical clock (:class:`HybridClock`), ``drone`` breaks ties between drones
+and ``seq`` between tasks of one drone. The original DRONA used a
+process-global counter, which only works when every robot runs in one process.
+A lower id is a higher priority (the paper's rule).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from drona_gcs.errors import ProtocolViolation
+from drona_gcs.motion import Trajectory
+from drona_gcs.workspace import Cell
+
+
+@dataclass(frozen=True, order=True)
+class TaskId:
+    stamp: int
+    drone: str
+    seq: int
+
+    def __str__(self) -> str:
+        return f"{self.stamp}.{self.drone}.{self.seq}"
+
+
+class HybridClock:
+    """A hybrid logical clock: stamps follow physical time but never go backwards,
+    and jump past every stamp seen from a peer, so ids stay causally ordered."""
+
+    def __init__(self, drone: str) -> None:
+        self.drone = drone
+        self.last = 0
+        self.seq = 0
+
+    def observe(self, stamp: int) -> None:
+        self.last = max(self.last, stamp)
+
+    def next_id(self, physical: int) -> TaskId:
+        self.last = max(self.last + 1, physical)
+        self.seq += 1
+        return TaskId(self.last, self.drone, self.seq)
+
+
+@dataclass(frozen=True)
+class Task:
+    """A motion task (the paper's atomic task): reach ``goal``.
+
+    ``flight_steps`` is what the battery affords for it; a drone that hovers
+    while it coordinates (``hovering_since`` the step it began) pays those
+    steps from the same budget. The protocol caps the plan's length with what
+    is left when it plans.
+    """
+
+    id: TaskId
+    goal: Cell
+    flight_steps: int | None = None
+    hovering_since: int | None = None
+
+    def max_length(self, start_step: int) -> int | None:
+        if self.flight_steps is None:
+            return None
+        hovered = start_step - self.hovering_since if self.hovering_since is not None else 0
+        return self.flight_steps - hovered
+
+
+@dataclass(frozen=True)
+class ReqForCurrentTraj:
+    """Protocol 1: ``sender`` coordinates task ``task_id`` and asks for everyone's trajectory."""
+
+    task_id: TaskId
+    sender: str
+
+
+@dataclass(frozen=True)
+class CurrentTraj:
+    """Protocol 1: ``sender``'s current trajectory, answering request ``in_reply_to``.
+
+    ``in_reply_to`` is our addition: a reply to an older request (delayed or
+    duplicated on the network) is recognised and dropped, never planned with.
+    """
+
+    sender: str
+    trajectory: Trajectory
+    in_reply_to: TaskId
+
+    def __post_init__(self) -> None:
+        if not self.trajectory.cells:
+            raise ProtocolViolation(f"CurrentTraj from {self.sender!r} carries no cells")
+
+
+Message = ReqForCurrentTraj | CurrentTraj

@@ -1,0 +1,282 @@
+"""The decentralized coordination protocol (paper Protocol 1), one per drone.
+
+Theory of operation
+-------------------
+A drone with a new task asks every peer for its current trajectory
+(``ReqForCurrentTraj``), waits for all of them, plans against what it got
+(Psi), starts executing, and answers the peers that waited on it with its new
+trajectory. A request whose task id is lower (a higher priority) than mine is
+answered at once with my current location; otherwise the requester waits in
+``R_pend`` and gets my new trajectory once I have planned. Idle, I answer with
+my location; executing, with my trajectory. What the paper leaves open is
+settled here:
+
+* **Task ids** are ``(HLC stamp, drone, seq)`` (see :mod:`.messages`): globally
+  unique and totally ordered with no central counter, so ties cannot happen.
+* **Answering a higher priority while coordinating.** The requester will plan
+  before me, so any answer it already gave me (its location, if it was idle
+  when my request arrived) is about to be stale. I drop it from Psi and ask it
+  again; it now holds me in ``R_pend`` and sends its new trajectory once
+  planned. (With task ids from a hybrid logical clock this cannot happen: a
+  drone that answered my request has seen my stamp, so its next task ranks
+  below mine. It is kept because it costs nothing and ids need not be HLCs.)
+* **Psi is rebuilt for every task.** Answers from an earlier round describe
+  plans that may have been replaced since; planning with them is the race the
+  paper's model checker found (seeded bug ``stale-trajectory``).
+* **A plan starts ``lead_steps`` after now**, because planning, messaging and
+  the executor's hand-over take time; the executor refuses a trajectory whose
+  start it has already passed. Other drones' executors may be up to Delta
+  steps ahead or behind; the planner's skew window covers exactly that.
+* **Membership can change.** ``PeerLeft`` means the drone's liveliness was
+  lost: it is no longer waited for, and its last known trajectory (its last
+  cell forever after) stays in Psi as an obstacle: safety first. ``PeerJoined``
+  (again) makes it a peer; if I am coordinating, I ask it too.
+* **No plan found:** I stay where I am, answer my pending peers with my
+  location, and report ``TaskFailed`` so the task planner retries or
+  reassigns the task. Nothing is dropped.
+* **Messages** may be delayed, duplicated and reordered. Every reply names
+  the request it answers (``in_reply_to``); replies to anything but my current
+  request are ignored, and duplicates only overwrite an entry with itself.
+
+Every transition is in :data:`TRANSITIONS`; an event a state does not take
+raises :class:`~drona_gcs.errors.ProtocolViolation` naming both.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+
+from drona_gcs.errors import NoPlanFound, ProtocolViolation
+from drona_gcs.motion import Trajectory
+from drona_gcs.planner import Plan
+from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj, Task, TaskId
+from drona_gcs.workspace import Cell
+
+#: plan(start, goal, start_step, others, max_length) -> Plan, e.g. SafePlanner.plan
+PlanFunction = Callable[[Cell, Cell, int, Mapping[str, Trajectory], int | None], Plan]
+
+
+class State(enum.Enum):
+    WAIT_FOR_TASK = "WaitForTaskRequest"  #: idle at its location, answering with it
+    COORDINATING = "CoordinateAndGeneratePlan"  #: collecting every peer's trajectory
+    EXECUTING = "WaitForPlanCompletion"  #: flying its plan, answering with it
+
+
+# ------------------------------------------------------------------ events
+@dataclass(frozen=True)
+class NewTask:
+    task: Task
+
+
+@dataclass(frozen=True)
+class PlanCompleted:
+    """The executor finished the trajectory (the paper's Reset)."""
+
+
+@dataclass(frozen=True)
+class PeerLeft:
+    drone: str
+
+
+@dataclass(frozen=True)
+class PeerJoined:
+    drone: str
+    cell: Cell  #: where it is now, as it announced
+
+
+Event = NewTask | PlanCompleted | PeerLeft | PeerJoined | ReqForCurrentTraj | CurrentTraj
+
+
+# ----------------------------------------------------------------- actions
+@dataclass(frozen=True)
+class Send:
+    to: str
+    message: Message
+
+
+@dataclass(frozen=True)
+class Broadcast:
+    message: Message
+
+
+@dataclass(frozen=True)
+class StartExecuting:
+    task: Task
+    trajectory: Trajectory
+    psi: Mapping[str, Trajectory]  #: what the plan avoided, for the consistency monitor
+
+
+@dataclass(frozen=True)
+class TaskFailed:
+    task: Task
+    reason: str
+
+
+Action = Send | Broadcast | StartExecuting | TaskFailed
+
+
+@dataclass
+class CoordinationProtocol:
+    """Protocol 1 for drone ``me``. ``peers`` maps each peer to where it starts."""
+
+    me: str
+    location: Cell
+    peers: Mapping[str, Cell]
+    plan: PlanFunction
+    lead_steps: int = 1
+    bugs: frozenset[str] = frozenset()  #: seeded bugs, for the systematic tester only
+    state: State = State.WAIT_FOR_TASK
+    task: Task | None = None
+    trajectory: Trajectory | None = None
+    members: set[str] = field(default_factory=set)
+    received: dict[str, Trajectory] = field(default_factory=dict)  #: R_recv with Psi
+    pending: dict[str, TaskId] = field(default_factory=dict)  #: R_pend, with their task ids
+    ghosts: dict[str, Trajectory] = field(default_factory=dict)  #: departed drones, kept as obstacles
+    known: dict[str, Trajectory] = field(default_factory=dict)  #: last trajectory heard of each peer
+
+    def __post_init__(self) -> None:
+        self.members = set(self.peers) - {self.me}
+        self.known = {p: Trajectory.stationary(c, 0) for p, c in self.peers.items() if p != self.me}
+
+    # ------------------------------------------------------------- driver
+    def handle(self, event: Event, now: int) -> list[Action]:
+        """Take one event at local step ``now``; return what to do."""
+        handler = TRANSITIONS[self.state].get(type(event))
+        if handler is None:
+            raise ProtocolViolation(f"drone {self.me!r}: state {self.state.value} does not take "
+                                    f"{type(event).__name__}")
+        return handler(self, event, now)
+
+    def current_trajectory(self, now: int) -> Trajectory:
+        """What I answer with: my plan while executing; idle, my location.
+
+        Idle after a plan, the location is that plan's last cell, and the plan
+        itself says so *and* where I was in the last steps, which a peer whose
+        clock is up to Delta behind still needs; so I answer with the plan.
+        """
+        if self.trajectory is not None:
+            return self.trajectory
+        return Trajectory.stationary(self.location, now)
+
+    # ----------------------------------------------------------- handlers
+    def _on_new_task(self, event: NewTask, now: int) -> list[Action]:
+        self.task, self.state = event.task, State.COORDINATING
+        if "stale-trajectory" not in self.bugs:  # the seeded bug keeps last round's answers
+            self.received = {}
+        self.pending = {}
+        actions: list[Action] = [Broadcast(ReqForCurrentTraj(event.task.id, self.me))]
+        return actions + self._plan_if_ready(now)
+
+    def _answer(self, event: ReqForCurrentTraj, now: int) -> list[Action]:
+        if event.sender == self.me:
+            return []
+        return [Send(event.sender, CurrentTraj(self.me, self.current_trajectory(now), event.task_id))]
+
+    def _on_request_while_coordinating(self, event: ReqForCurrentTraj, now: int) -> list[Action]:
+        assert self.task is not None
+        if event.sender == self.me:
+            return []
+        if "answer-while-coordinating" in self.bugs:
+            return self._answer(event, now)
+        if self._outranks(event.task_id, self.task.id):
+            actions = self._answer(event, now)
+            if event.sender in self.members:
+                # It plans before me: whatever it told me is about to change. Ask again.
+                self.received.pop(event.sender, None)
+                actions.append(Send(event.sender, ReqForCurrentTraj(self.task.id, self.me)))
+            return actions
+        self.pending[event.sender] = event.task_id
+        return []
+
+    def _outranks(self, theirs: TaskId, mine: TaskId) -> bool:
+        return theirs > mine if "tie-break-reversed" in self.bugs else theirs < mine
+
+    def _on_reply(self, event: CurrentTraj, now: int) -> list[Action]:
+        assert self.task is not None
+        if event.in_reply_to != self.task.id or event.sender not in self.members:
+            return []  # an answer to an older request, or from a drone that left
+        self.received[event.sender] = event.trajectory
+        self.known[event.sender] = event.trajectory
+        return self._plan_if_ready(now)
+
+    def _ignore(self, event: Event, now: int) -> list[Action]:
+        return []  # a late reply to a round that is over
+
+    def _on_completed(self, event: PlanCompleted, now: int) -> list[Action]:
+        assert self.trajectory is not None
+        self.location, self.state, self.task = self.trajectory.last, State.WAIT_FOR_TASK, None
+        return []
+
+    def _on_peer_left(self, event: PeerLeft, now: int) -> list[Action]:
+        if event.drone not in self.members:
+            return []
+        self.members.discard(event.drone)
+        self.ghosts[event.drone] = self.received.pop(event.drone, self.known[event.drone])
+        self.pending.pop(event.drone, None)
+        return self._plan_if_ready(now) if self.state is State.COORDINATING else []
+
+    def _on_peer_joined(self, event: PeerJoined, now: int) -> list[Action]:
+        if event.drone == self.me or event.drone in self.members:
+            return []
+        self.members.add(event.drone)
+        self.ghosts.pop(event.drone, None)
+        self.known.setdefault(event.drone, Trajectory.stationary(event.cell, now))
+        if self.state is State.COORDINATING and self.task is not None:
+            return [Send(event.drone, ReqForCurrentTraj(self.task.id, self.me))]
+        return []
+
+    # ------------------------------------------------------------- planning
+    def _plan_if_ready(self, now: int) -> list[Action]:
+        if not self.members.issubset(self.received):
+            return []
+        assert self.task is not None
+        task = self.task
+        psi = {**self.ghosts, **{p: self.received[p] for p in self.members}}
+        start_step = now + self.lead_steps
+        max_length = task.max_length(start_step)
+        try:
+            if max_length is not None and max_length < 0:
+                raise NoPlanFound("the battery no longer affords the task")
+            plan = self.plan(self.location, task.goal, start_step, psi, max_length)
+        except NoPlanFound as exc:
+            self.state, self.task = State.WAIT_FOR_TASK, None
+            # I stay: my last plan (or my location) is still the truth, including the recent
+            # steps a peer up to Delta behind me still needs.
+            return [*self._release_pending(self.current_trajectory(now)), TaskFailed(task, str(exc))]
+        self.trajectory, self.state = plan.trajectory, State.EXECUTING
+        return [StartExecuting(task, plan.trajectory, psi), *self._release_pending(plan.trajectory)]
+
+    def _release_pending(self, trajectory: Trajectory) -> Iterable[Action]:
+        pending, self.pending = self.pending, {}
+        return [Send(peer, CurrentTraj(self.me, trajectory, task_id)) for peer, task_id in pending.items()]
+
+
+# Handlers take (protocol, event of the row's type, now); Callable[..., ...] since each takes its own type.
+_Handler = Callable[..., list[Action]]
+
+#: Everything that moves the protocol between states: TRANSITIONS[state][event type] -> handler.
+#: An event missing from its state's row is a protocol violation.
+TRANSITIONS: dict[State, dict[type, _Handler]] = {
+    State.WAIT_FOR_TASK: {
+        NewTask: CoordinationProtocol._on_new_task,  # -> COORDINATING
+        ReqForCurrentTraj: CoordinationProtocol._answer,  # with my location
+        CurrentTraj: CoordinationProtocol._ignore,
+        PeerLeft: CoordinationProtocol._on_peer_left,
+        PeerJoined: CoordinationProtocol._on_peer_joined,
+    },
+    State.COORDINATING: {
+        ReqForCurrentTraj: CoordinationProtocol._on_request_while_coordinating,
+        CurrentTraj: CoordinationProtocol._on_reply,  # -> EXECUTING, or WAIT_FOR_TASK if no plan
+        PeerLeft: CoordinationProtocol._on_peer_left,
+        PeerJoined: CoordinationProtocol._on_peer_joined,
+    },
+    State.EXECUTING: {
+        ReqForCurrentTraj: CoordinationProtocol._answer,  # with my trajectory
+        CurrentTraj: CoordinationProtocol._ignore,
+        PlanCompleted: CoordinationProtocol._on_completed,  # -> WAIT_FOR_TASK
+        PeerLeft: CoordinationProtocol._on_peer_left,
+        PeerJoined: CoordinationProtocol._on_peer_joined,
+    },
+}

@@ -1,0 +1,275 @@
+"""A simulated fleet for the systematic tester: the real stacks over an in-memory network.
+
+The world is the paper's mixed-synchronous abstraction (section 4.2). Its
+transitions are:
+
+* ``("deliver", k)``: the network hands in-flight message ``k`` to its
+  receiver. Messages are delivered in any order (a bag, not a queue), but
+  within ``max_delay`` steps: real links are fast compared with tau, and an
+  unbounded delay would let the tester starve a drone of its replies forever.
+* ``("inject",)``: the environment assigns the next mail request.
+* ``("step", i)``: drone ``i``'s periodic processes take their next step
+  boundary (executor, battery, task planner). The scheduler ``rho_Delta``
+  allows it only while every pair of step counts stays within Delta
+  (approximate synchrony, ``|N_i - N_j| <= Delta``). With Delta 0 the only
+  step is ``("step", -1)``: every drone at once (the paper's set-valued label).
+
+Asynchronous processes interleave freely with each other and with the
+periodic ones. Monitors judge every transition; see :mod:`.monitors`.
+"""
+
+from __future__ import annotations
+
+import random
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+from drona_gcs.bench.workload import random_workspace
+from drona_gcs.motion import Trajectory
+from drona_gcs.planner import SafePlanner
+from drona_gcs.stack.battery import BatteryLow, BatteryModel, BatteryRecharged
+from drona_gcs.stack.drone import DroneStack, StackConfig
+from drona_gcs.stack.mail import GoTo, MailDelivered, MailPickedUp, MailRequest, MailStarted, Phase
+from drona_gcs.stack.messages import CurrentTraj, Message
+from drona_gcs.stack.protocol import Broadcast, Send, StartExecuting, TaskFailed
+from drona_gcs.verify.monitors import Monitors
+from drona_gcs.workspace import Cell, Workspace
+
+Transition = tuple[str, int]
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    workspace: Workspace
+    drones: tuple[str, ...]
+    starts: tuple[Cell, ...]
+    requests: tuple[MailRequest, ...]
+    assignees: tuple[str, ...]
+    delta: int
+    bugs: frozenset[str] = frozenset()
+    battery: BatteryModel = field(default_factory=BatteryModel)
+    initial_battery: tuple[float, ...] = ()  #: per drone; empty: all full
+    max_delay: int = 2
+    liveness_steps: int = 120  #: every mail delivered within this many steps after the last one arrives
+
+    def __deepcopy__(self, memo: dict[int, object]) -> WorldConfig:
+        return self
+
+
+def make_world_config(workspace: Workspace, drones: int, requests: int, delta: int, seed: int,
+                      bugs: frozenset[str] = frozenset(), **options: object) -> WorldConfig:
+    """Drones at the workspace's starts (random free cells for the rest) and random mail."""
+    rng = random.Random(seed)
+    region = sorted(workspace.main_region)
+    ids = list(workspace.drones)[:drones]
+    starts = [workspace.drones[d] for d in ids]
+    spare = [c for c in region if c not in starts and c not in workspace.charging_stations
+             and c not in workspace.parking]
+    while len(ids) < drones:
+        cell = rng.choice(spare)
+        spare.remove(cell)
+        ids.append(f"d{len(ids)}")
+        starts.append(cell)
+    # Mail never goes to a parking cell or charger: a drone may rest there for good.
+    spots = set(workspace.parking) | set(workspace.charging_stations)
+    pickups = [c for c in list(workspace.pickups) or region if c not in spots]
+    dropoffs = [c for c in list(workspace.dropoffs) or region if c not in spots]
+    mail = []
+    for i in range(requests):
+        pickup = rng.choice(pickups)
+        dropoff = rng.choice([c for c in dropoffs if c != pickup])
+        mail.append(MailRequest(f"m{i}", pickup, dropoff, rng.randint(0, 9), seq=i))
+    assignees = tuple(ids[i % len(ids)] for i in range(requests))
+    # Batteries start part-charged, so charging and the energy checks are exercised.
+    levels = tuple(float(rng.randint(35, 70)) for _ in ids)
+    # Generous enough for a drone's share of the mail, a charge and the detours of a busy grid.
+    per_drone = -(-requests // len(ids))
+    span = workspace.nx + workspace.ny + workspace.nz
+    liveness = 8 * span * (per_drone + 1) + 100
+    defaults: dict[str, object] = {"initial_battery": levels, "liveness_steps": liveness}
+    return WorldConfig(workspace, tuple(ids), tuple(starts), tuple(mail), assignees, delta, bugs,
+                       **{**defaults, **options})  # type: ignore[arg-type]
+
+
+def tester_workspace(width: int, height: int, layers: int, obstacle_ratio: float, seed: int,
+                     drones: int) -> Workspace:
+    """A random grid for the tester, with two chargers and a parking cell per drone on its rim."""
+    rough = random_workspace(width, height, random.Random(seed), obstacle_ratio, layers)
+    free = sorted(rough.main_region)
+    rim = [c for c in free if c[0] in (0, width - 1) or c[1] in (0, height - 1)] or free
+
+    def nearest(target: Cell, pool: list[Cell]) -> Cell:
+        return min(pool, key=lambda c: (abs(c[0] - target[0]) + abs(c[1] - target[1]) + c[2], c))
+
+    chargers: list[Cell] = []
+    parking: list[Cell] = []
+
+    def usable(cell: Cell, group: list[Cell]) -> bool:
+        """Drones resting on the group and ``cell`` must not cut the grid."""
+        return cell not in chargers and cell not in parking and not rough.cells_cut_off_by([*group, cell])
+
+    for corner in ((0, 0, 0), (width - 1, height - 1, 0)):
+        chargers.append(nearest(corner, [c for c in rim if usable(c, chargers)]))
+    for i in range(drones):
+        pool = [c for c in rim if usable(c, parking) and not rough.cells_cut_off_by([*parking, *chargers, c])]
+        if not pool:
+            break
+        parking.append(pool[(i * len(pool)) // drones])
+    return Workspace.build(size=rough.size, obstacles=rough.obstacles, charging_stations=tuple(chargers),
+                           parking=tuple(parking), name=f"tester-{width}x{height}x{layers}-{seed}")
+
+
+@dataclass
+class InFlight:
+    seq: int
+    sender: str
+    to: str
+    message: Message
+    deadline: int
+
+
+class World:
+    def __init__(self, config: WorldConfig, planner: SafePlanner) -> None:
+        self.config = config
+        planner_delta = 0 if "skip-delta" in config.bugs else config.delta
+        if planner.delta != planner_delta:
+            raise ValueError(f"planner has delta {planner.delta}, the world needs {planner_delta}")
+        stack = StackConfig(config.workspace, planner, config.battery, bugs=config.bugs)
+        peers = dict(zip(config.drones, config.starts, strict=True))
+        self.stacks = {d: DroneStack(d, stack, peers) for d in config.drones}
+        self.steps = dict.fromkeys(config.drones, -1)
+        levels = config.initial_battery or tuple(100.0 for _ in config.drones)
+        self.battery = dict(zip(config.drones, levels, strict=True))
+        self.inflight: list[InFlight] = []
+        self.injected = 0
+        self.last_injection_step = 0
+        self.sent = 0
+        self.monitors = Monitors(config)
+        self.trace: list[str] = []
+
+    # -------------------------------------------------------- scheduling
+    def enabled(self) -> list[Transition]:
+        moves: list[Transition] = [("deliver", m.seq) for m in self.inflight]
+        if self.injected < len(self.config.requests):
+            moves.append(("inject", 0))
+        deadline = min((m.deadline for m in self.inflight), default=None)
+        if self.config.delta == 0:
+            # Perfect synchrony: every executor takes the same step at once (one transition).
+            nxt = min(self.steps.values()) + 1
+            if deadline is None or nxt <= deadline:
+                moves.append(("step", -1))
+            return moves
+        for i, drone in enumerate(self.config.drones):
+            nxt = self.steps[drone] + 1
+            others_low = min((s for d, s in self.steps.items() if d != drone), default=nxt)
+            if nxt - min(others_low, nxt) > self.config.delta:
+                continue  # rho_Delta: it would run more than Delta steps ahead
+            if deadline is not None and nxt > deadline:
+                continue  # a message must arrive first
+            moves.append(("step", i))
+        return moves
+
+    def apply(self, move: Transition) -> None:
+        kind, arg = move
+        if kind == "deliver":
+            self._deliver(arg)
+        elif kind == "inject":
+            self._inject()
+        elif arg < 0:
+            for drone in self.config.drones:
+                self._step(drone)
+        else:
+            self._step(self.config.drones[arg])
+
+    @property
+    def finished(self) -> bool:
+        """Every request arrived and was delivered, and the network is quiet."""
+        return (self.injected == len(self.config.requests) and not self.inflight
+                and len(self.monitors.delivered) == len(self.config.requests))
+
+    # ------------------------------------------------------- transitions
+    def _deliver(self, seq: int) -> None:
+        index = next(i for i, m in enumerate(self.inflight) if m.seq == seq)
+        msg = self.inflight.pop(index)
+        self.trace.append(f"{msg.to} <- {msg.sender}: {_describe(msg.message)}")
+        self._carry_out(msg.to, self.stacks[msg.to].receive(msg.message))
+
+    def _inject(self) -> None:
+        request = self.config.requests[self.injected]
+        drone = self.config.assignees[self.injected]
+        self.injected += 1
+        self.last_injection_step = min(self.steps.values())
+        self.monitors.assigned(drone, request)
+        self.trace.append(f"env -> {drone}: mail {request.id} p{request.priority} "
+                          f"{list(request.pickup)}->{list(request.dropoff)}")
+        self._carry_out(drone, self.stacks[drone].assign(request))
+
+    def _step(self, drone: str) -> None:
+        stack = self.stacks[drone]
+        step = self.steps[drone] + 1
+        self.steps[drone] = step
+        self.battery[drone] = self._battery_after_step(stack, self.battery[drone])
+        self.monitors.battery(drone, step, self.battery[drone])
+        self.trace.append(f"{drone} steps to {step} (battery {self.battery[drone]:.0f})")
+        self._carry_out(drone, stack.step(step, self.battery[drone]))
+        self.monitors.position(drone, step, stack.executor.cell, self.steps)
+        if self.injected == len(self.config.requests):
+            self.monitors.liveness(min(self.steps.values()) - self.last_injection_step)
+
+    def _battery_after_step(self, stack: DroneStack, level: float) -> float:
+        model = self.config.battery
+        if stack.mail.phase is Phase.CHARGING and stack.executor.cell in self.config.workspace.charging_stations:
+            return min(100.0, level + model.charge_per_step)
+        if stack.landed:
+            return level
+        return max(0.0, level - model.drain_per_step)
+
+    def _carry_out(self, drone: str, actions: Sequence[object]) -> None:
+        for action in actions:
+            if isinstance(action, Send):
+                self._post(drone, action.to, action.message)
+            elif isinstance(action, Broadcast):
+                for peer in self.config.drones:
+                    if peer != drone:
+                        self._post(drone, peer, action.message)
+            note = _note(action)
+            if note:
+                self.trace.append(f"{drone}: {note}")
+            self.monitors.action(drone, action, self)
+
+    def _post(self, sender: str, to: str, message: Message) -> None:
+        self.sent += 1
+        deadline = min(self.steps.values()) + self.config.max_delay
+        self.inflight.append(InFlight(self.sent, sender, to, message, deadline))
+
+    # ---------------------------------------------------------- queries
+    def commitment(self, drone: str) -> Trajectory:
+        """What ``drone`` is committed to now: its plan while executing, else its location."""
+        return self.stacks[drone].protocol.current_trajectory(max(self.steps[drone], 0))
+
+
+def _describe(message: Message) -> str:
+    name = type(message).__name__
+    if isinstance(message, CurrentTraj):
+        traj = message.trajectory
+        return (f"{name}(from {message.sender}, re {message.in_reply_to}, step {traj.start_step}: "
+                f"{' '.join(''.join(map(str, c[:2])) for c in traj.cells[:12])}"
+                f"{' ...' if len(traj.cells) > 12 else ''})")
+    return f"{name}(task {message.task_id} of {message.sender})"
+
+
+def _note(action: object) -> str:
+    """A line of the trace for the actions worth reading; empty for the rest."""
+    if isinstance(action, StartExecuting):
+        t = action.trajectory
+        return f"plans task {action.task.id}: from step {t.start_step} {' '.join(f'{c[0]}{c[1]}' for c in t.cells)}"
+    if isinstance(action, TaskFailed):
+        return f"no plan for task {action.task.id} to {list(action.task.goal)}: {action.reason}"
+    if isinstance(action, GoTo):
+        by = f" within {action.flight_steps} steps of flight" if action.flight_steps is not None else ""
+        return f"task planner: go to {list(action.goal)} for {action.purpose.value}{by}"
+    if isinstance(action, (MailStarted, MailPickedUp, MailDelivered)):
+        return f"{type(action).__name__} {action.request.id}"
+    if isinstance(action, (BatteryLow, BatteryRecharged)):
+        return f"{type(action).__name__} at {action.level:.0f}%"
+    return ""
