@@ -229,6 +229,18 @@ class Workspace:
                 best = component
         return frozenset(best)
 
+    def distances_from(self, start: Cell) -> dict[Cell, int]:
+        """Steps of the shortest obstacle-free path from ``start`` to every reachable cell."""
+        found = {start: 0}
+        queue = deque([start])
+        while queue:
+            cell = queue.popleft()
+            for nxt in self.neighbours(cell):
+                if nxt not in found:
+                    found[nxt] = found[cell] + 1
+                    queue.append(nxt)
+        return found
+
     def reachable_from(self, start: Cell) -> set[Cell]:
         found = {start}
         queue = deque([start])

@@ -24,11 +24,19 @@ of ``k`` primitives applied from step ``n`` it asks Z3 for:
   constant, so that part is checked in Python: ``n + k`` must reach the first
   step from which no other drone's window ever holds the goal (a drone that
   ends on my goal makes every ``k`` infeasible).
-* **Eq. 1**: minimise the total cost. ``k`` grows by one from the Manhattan
-  distance to ``max_length`` (default L_max). When every primitive costs the
-  same, the first satisfiable ``k`` is optimal and a plain solver suffices;
-  otherwise each ``k`` is a ``z3.Optimize`` problem, and ``k`` keeps growing
-  while ``k * min_cost`` could still beat the best plan found.
+* **Corridor** (implied by Eq. 2-4, added only to help Z3): with ``ds``/``dg``
+  the obstacle-aware distances from the start and to the goal, ``l_q`` is a
+  cell with ``ds <= q`` and ``dg <= k - q``. Without it, proving that no plan
+  of some length exists took Z3 minutes on a 32x32 grid; with it, a second.
+* **Eq. 1**: minimise the total cost. ``k`` grows by one up to ``max_length``
+  (default L_max). The paper starts at the Manhattan distance; every ``k``
+  below the obstacle-aware distance has an empty corridor, so we start there.
+  Once every other drone has stopped (step ``S``) the world is static, and a
+  shortest path finishes any plan, so no ``k`` beyond ``S - n + |free cells|``
+  is tried. When every primitive costs the same, the first satisfiable ``k``
+  is optimal and a plain solver suffices; otherwise each ``k`` is a
+  ``z3.Optimize`` problem, and ``k`` keeps growing while ``k * min_cost``
+  could still beat the best plan found.
 
 Each call uses its own Z3 context, so plans may run in parallel threads.
 """
@@ -36,6 +44,7 @@ Each call uses its own Z3 context, so plans may run in parallel threads.
 from __future__ import annotations
 
 import time
+from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -82,12 +91,18 @@ def plan_smt(workspace: Workspace, start: Cell, goal: Cell, start_step: int,
     ready = _goal_free_from(goal, others, start_step, delta)
     if ready is None:
         raise NoPlanFound("the goal is another drone's resting cell for good")
+    to_goal = _distances(workspace, goal)
+    if start not in to_goal:
+        raise NoPlanFound("the goal cannot be reached from the start")
     prim_costs = [model.cost(p) for p in model.primitives]
     min_cost, uniform = min(prim_costs), len(set(prim_costs)) == 1
-    problem = _Problem(workspace, model, windows, start, goal, start_step)
+    problem = _Problem(workspace, model, windows, start, goal, start_step,
+                       _distances(workspace, start), to_goal)
+    stopped = max((o.end_step + delta + 1 for o in others.values()), default=start_step)
+    useful = min(limit, max(0, stopped - start_step) + len(workspace.free_cells))
     deadline = None if timeout_ms is None else time.monotonic() + timeout_ms / 1000
     best: Plan | None = None
-    for k in range(_manhattan(start, goal), limit + 1):
+    for k in range(to_goal[start], useful + 1):
         if best is not None and k * min_cost >= best.cost - _EPS:
             break
         if start_step + k < ready:
@@ -138,8 +153,17 @@ def _goal_free_from(goal: Cell, others: Mapping[str, Trajectory], n: int, delta:
     return ready
 
 
-def _manhattan(a: Cell, b: Cell) -> int:
-    return sum(abs(u - v) for u, v in zip(a, b, strict=True))
+def _distances(workspace: Workspace, source: Cell) -> dict[Cell, int]:
+    """Fewest moves between ``source`` and each free cell it connects to (moves are symmetric)."""
+    found = {source: 0}
+    queue = deque([source])
+    while queue:
+        cell = queue.popleft()
+        for nxt in workspace.neighbours(cell):
+            if nxt not in found:
+                found[nxt] = found[cell] + 1
+                queue.append(nxt)
+    return found
 
 
 @dataclass(frozen=True)
@@ -150,6 +174,8 @@ class _Problem:
     start: Cell
     goal: Cell
     n: int  #: the start step
+    from_start: Mapping[Cell, int]
+    to_goal: Mapping[Cell, int]
 
 
 def _solve(problem: _Problem, k: int, uniform: bool, deadline: float | None) -> Plan | None:
@@ -167,6 +193,7 @@ def _solve(problem: _Problem, k: int, uniform: bool, deadline: float | None) -> 
     _obstacles(workspace, solver, ctx, xs)
     choices = _continuity(model, solver, ctx, xs)
     _collisions(solver, problem.windows, ids, n)
+    _corridor(problem, solver, ids, k)
     if not uniform:
         solver.minimize(_total_cost(model, ctx, choices))
     verdict = solver.check()
@@ -238,6 +265,15 @@ def _collisions(solver: Any, windows: _Windows, ids: Sequence[Any], n: int) -> N
         if q + 1 < len(ids):
             for b, a in sorted(windows.swaps(n + q)):
                 solver.add(z3.Not(z3.And(here == b, ids[q + 1] == a)))
+
+
+def _corridor(problem: _Problem, solver: Any, ids: Sequence[Any], k: int) -> None:
+    """``l_q`` is at most ``q`` moves from the start and ``k - q`` from the goal."""
+    ws, far = problem.workspace, k + 1
+    for q, here in enumerate(ids):
+        inside = [ws.cell_id(c) for c, d in problem.from_start.items()
+                  if d <= q and problem.to_goal.get(c, far) <= k - q]
+        solver.add(z3.Or(*[here == cell for cell in inside]))
 
 
 def _total_cost(model: MotionModel, ctx: Any, choices: Sequence[Any]) -> Any:

@@ -18,9 +18,10 @@ battery above the safe threshold whatever the schedule:
   path; otherwise the drone goes to charge first.
 * **What must remain is the way to the second-nearest charger**: the nearest
   may be taken by a drone charging there.
-* **A drone never waits in the air.** When a leg finds no plan, it lands where
-  it is (or stays on the parking cell, charger or start it is on) and tries
-  again from the ground, where waiting is free.
+* **A drone never waits in the air when energy is tight.** When a leg finds
+  no plan, it lands where it is (or stays on the parking cell, charger or
+  start it is on) and tries again from the ground, where waiting is free; and
+  before coordinating a leg to a charger it lands too.
 
 Idle drones fly to the nearest parking cell and land there, instead of
 hovering where they block corridors: a parked drone is an obstacle for every
@@ -221,6 +222,9 @@ class MailPlanner:
         if self.cell in self.chargers:
             self.phase = Phase.CHARGING
             return []
+        # Low on energy: land before coordinating, so the wait for the peers' answers is free
+        # and the whole budget is left for the way to the charger.
+        self.landed_here = True
         return self._to_one_of(self.chargers, budget, taken, Phase.TO_CHARGER)
 
     def _to_one_of(self, candidates: Sequence[Cell], budget: Budget, taken: Collection[Cell],

@@ -20,9 +20,11 @@ periodic ones. Monitors judge every transition; see :mod:`.monitors`.
 
 from __future__ import annotations
 
+import copy
 import random
-from collections.abc import Sequence
+from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 from drona_gcs.bench.workload import random_workspace
 from drona_gcs.motion import Trajectory
@@ -36,6 +38,7 @@ from drona_gcs.verify.monitors import Monitors
 from drona_gcs.workspace import Cell, Workspace
 
 Transition = tuple[str, int]
+_T = TypeVar("_T")
 
 
 @dataclass(frozen=True)
@@ -81,7 +84,9 @@ def make_world_config(workspace: Workspace, drones: int, requests: int, delta: i
         mail.append(MailRequest(f"m{i}", pickup, dropoff, rng.randint(0, 9), seq=i))
     assignees = tuple(ids[i % len(ids)] for i in range(requests))
     # Batteries start part-charged, so charging and the energy checks are exercised.
-    levels = tuple(float(rng.randint(35, 70)) for _ in ids)
+    model = options.get("battery", BatteryModel())
+    assert isinstance(model, BatteryModel)
+    levels = tuple(_initial_level(workspace, start, model, rng) for start in starts)
     # Generous enough for a drone's share of the mail, a charge and the detours of a busy grid.
     per_drone = -(-requests // len(ids))
     span = workspace.nx + workspace.ny + workspace.nz
@@ -89,6 +94,16 @@ def make_world_config(workspace: Workspace, drones: int, requests: int, delta: i
     defaults: dict[str, object] = {"initial_battery": levels, "liveness_steps": liveness}
     return WorldConfig(workspace, tuple(ids), tuple(starts), tuple(mail), assignees, delta, bugs,
                        **{**defaults, **options})  # type: ignore[arg-type]
+
+
+def _initial_level(workspace: Workspace, start: Cell, model: BatteryModel, rng: random.Random) -> float:
+    """Part-charged, so charging and the energy rules are exercised: enough to reach the second
+    nearest charger with the margin to spare, plus up to 20 points."""
+    far = workspace.distances_from(start)
+    ways = sorted(far.get(c, 0) for c in workspace.charging_stations)
+    reach = ways[min(1, len(ways) - 1)] if ways else 0
+    floor = model.safe_threshold + (reach + model.margin_steps) * model.drain_per_step
+    return float(min(100, round(floor) + 1 + rng.randint(0, 20)))
 
 
 def tester_workspace(width: int, height: int, layers: int, obstacle_ratio: float, seed: int,
@@ -119,7 +134,7 @@ def tester_workspace(width: int, height: int, layers: int, obstacle_ratio: float
                            parking=tuple(parking), name=f"tester-{width}x{height}x{layers}-{seed}")
 
 
-@dataclass
+@dataclass(frozen=True)
 class InFlight:
     seq: int
     sender: str
@@ -181,6 +196,37 @@ class World:
         else:
             self._step(self.config.drones[arg])
 
+    def actor(self, move: Transition) -> tuple[str, str]:
+        """Who makes the move: the network for a receiver, the environment, or a drone's clock."""
+        kind, arg = move
+        if kind == "deliver":
+            return ("net", next(m.to for m in self.inflight if m.seq == arg))
+        if kind == "inject":
+            return ("env", "")
+        return ("clock", self.config.drones[arg] if arg >= 0 else "*")
+
+    def state_key(self) -> Hashable:
+        """The state, less what does not change the future (trace, message numbers, old history)."""
+        keep = self.config.delta + 2
+        return (
+            tuple(_stack_key(stack) for stack in self.stacks.values()),
+            tuple(self.steps.values()), tuple(self.battery.values()),
+            tuple(sorted((m.sender, m.to, repr(m.message), m.deadline) for m in self.inflight)),
+            self.injected, frozenset(self.monitors.delivered),
+            tuple(tuple(h[-keep:]) for h in self.monitors.history.values()),
+        )
+
+    def clone(self) -> World:
+        """An independent copy for the DFS: machines copied one level deep, values shared
+        (every value in them is immutable), the trace left behind."""
+        new = copy.copy(self)
+        new.stacks = {d: _clone_stack(s) for d, s in self.stacks.items()}
+        new.steps, new.battery, new.inflight = dict(self.steps), dict(self.battery), list(self.inflight)
+        new.monitors = _shallow(self.monitors)
+        new.monitors.history = {d: list(h) for d, h in self.monitors.history.items()}
+        new.trace = []
+        return new
+
     @property
     def finished(self) -> bool:
         """Every request arrived and was delivered, and the network is quiet."""
@@ -239,7 +285,9 @@ class World:
 
     def _post(self, sender: str, to: str, message: Message) -> None:
         self.sent += 1
-        deadline = min(self.steps.values()) + self.config.max_delay
+        # Within max_delay steps of the sender's clock: the bound is local to the sender,
+        # so sending does not depend on how far the other drones' clocks have got.
+        deadline = max(self.steps[sender], 0) + self.config.max_delay
         self.inflight.append(InFlight(self.sent, sender, to, message, deadline))
 
     # ---------------------------------------------------------- queries
@@ -273,3 +321,45 @@ def _note(action: object) -> str:
     if isinstance(action, (BatteryLow, BatteryRecharged)):
         return f"{type(action).__name__} at {action.level:.0f}%"
     return ""
+
+
+#: Attributes that are the same in every state of a run (shared, immutable or functions).
+_STATIC = frozenset({"config", "plan", "distance", "bugs", "peers", "battery", "chargers", "parking"})
+_MACHINES = ("clock", "protocol", "executor", "monitor", "mail")
+
+
+def _shallow(machine: _T) -> _T:
+    """A copy whose containers are new and whose values (all immutable) are shared."""
+    new = copy.copy(machine)
+    for name, value in vars(machine).items():
+        if isinstance(value, (dict, list, set)):
+            setattr(new, name, value.copy())
+    return new
+
+
+def _clone_stack(stack: DroneStack) -> DroneStack:
+    new = copy.copy(stack)
+    for name in _MACHINES:
+        setattr(new, name, _shallow(getattr(stack, name)))
+    return new
+
+
+def _stack_key(stack: DroneStack) -> Hashable:
+    return tuple(_machine_key(getattr(stack, name)) for name in _MACHINES)
+
+
+def _machine_key(machine: object) -> Hashable:
+    out: list[Hashable] = []
+    for name, value in vars(machine).items():
+        if name in _STATIC:
+            continue
+        if isinstance(value, dict):
+            out.append(frozenset(value.items()))
+        elif isinstance(value, set):
+            out.append(frozenset(value))
+        elif isinstance(value, list):
+            out.append(tuple(value))
+        else:
+            out.append(value)
+    return tuple(out)
+

@@ -17,6 +17,7 @@ from collections.abc import Sequence
 COMMANDS: dict[str, tuple[str, str]] = {
     "plan": ("fleet.cli.plan", "plan safe trajectories for JSON Lines problems"),
     "bench": ("fleet.cli.bench", "benchmarks (bench planner)"),
+    "verify": ("fleet.cli.verify", "systematic tester: explore schedules of the real stack for bugs"),
 }
 
 

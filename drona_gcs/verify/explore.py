@@ -1,0 +1,223 @@
+"""Exploring schedules of a simulated fleet: random walks, PCT, and bounded DFS with state caching.
+
+A schedule is the list of choices made at each transition: the index of the
+transition taken among :meth:`World.enabled`, which lists them in a fixed
+order. Replaying the choices from the scenario's initial state reproduces the
+run exactly, so a violation comes with a *replay token*: the scenario and the
+choices, compressed. Clocks stay at the edge: the caller passes ``stop()``,
+which says when the time is up, and ``progress()``, which is told how far
+the search has come.
+"""
+
+from __future__ import annotations
+
+import base64
+import enum
+import json
+import random
+import zlib
+from collections.abc import Callable, Hashable
+from dataclasses import asdict, dataclass, field
+
+from drona_gcs.errors import DronaError, ProblemError, ProtocolViolation
+from drona_gcs.planner import SafePlanner
+from drona_gcs.verify.monitors import Violation
+from drona_gcs.verify.world import World, WorldConfig, make_world_config, tester_workspace
+from drona_gcs.workspace import Workspace
+from drona_gcs.workspace_files import load_workspace
+
+#: Bugs that ``--seed-bug`` can plant, and what each does.
+SEEDED_BUGS = {
+    "stale-trajectory": "a drone keeps its peers' answers from its previous task and plans with them",
+    "tie-break-reversed": "a request ranks above mine when its task id is higher, not lower",
+    "answer-while-coordinating": "a coordinating drone answers every request with its location",
+    "no-battery-check": "the task planner starts legs without checking the battery",
+    "skip-delta": "the planner ignores the clock-skew window (plans with Delta 0)",
+}
+
+
+class Strategy(enum.Enum):
+    RANDOM = "random"  #: uniform random walks, one seed per schedule
+    PCT = "pct"  #: probabilistic concurrency testing: random priorities with d change points
+    DFS = "dfs"  #: depth-first over every schedule to a depth bound, with state caching
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """Everything that fixes the initial state: what a replay token carries besides the choices."""
+
+    drones: int = 4
+    requests: int = 6
+    delta: int = 1
+    seed: int = 0
+    grid: tuple[int, int, int] = (8, 8, 1)
+    obstacles: float = 0.2
+    workspace_path: str | None = None
+    bugs: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        unknown = sorted(set(self.bugs) - set(SEEDED_BUGS))
+        if unknown:
+            raise ProblemError(f"unknown seeded bug(s) {unknown}; known: {sorted(SEEDED_BUGS)}")
+        if self.drones < 1 or self.requests < 0 or self.delta < 0:
+            raise ProblemError("drones must be >= 1, requests >= 0 and delta >= 0")
+        if any(n < 1 for n in self.grid) or not 0 <= self.obstacles < 0.9:
+            raise ProblemError("grid sizes must be >= 1 and obstacles within [0, 0.9)")
+
+    def workspace(self) -> Workspace:
+        if self.workspace_path is not None:
+            return load_workspace(self.workspace_path)
+        w, h, layers = self.grid
+        return tester_workspace(w, h, layers, self.obstacles, self.seed, self.drones)
+
+    def world_config(self, workspace: Workspace) -> WorldConfig:
+        return make_world_config(workspace, self.drones, self.requests, self.delta, self.seed,
+                                 frozenset(self.bugs))
+
+
+@dataclass
+class Outcome:
+    """What exploring found: a violation with its schedule, or nothing."""
+
+    schedules: int = 0
+    transitions: int = 0
+    states: int = 0  #: distinct states seen (DFS) or transitions taken (walks)
+    violation: Violation | None = None
+    choices: list[int] = field(default_factory=list)
+    trace: list[str] = field(default_factory=list)
+    exhausted: bool = False  #: DFS: every schedule to the depth bound was covered
+
+
+class Explorer:
+    """Runs schedules of one scenario; the planner is built once and shared by every world."""
+
+    def __init__(self, scenario: Scenario) -> None:
+        self.scenario = scenario
+        self.workspace = scenario.workspace()
+        self.config = scenario.world_config(self.workspace)
+        delta = 0 if "skip-delta" in scenario.bugs else scenario.delta
+        self.planner = SafePlanner(self.workspace, delta=delta)
+
+    def world(self) -> World:
+        return World(self.config, self.planner)
+
+    # ------------------------------------------------------------- runs
+    def run(self, strategy: Strategy, schedules: int, max_depth: int, seed: int,
+            stop: Callable[[], bool] = lambda: False,
+            progress: Callable[[Outcome], None] = lambda o: None) -> Outcome:
+        if strategy is Strategy.DFS:
+            return self._dfs(max_depth, stop, progress)
+        outcome = Outcome()
+        for i in range(schedules):
+            if stop():
+                break
+            rng = random.Random(f"{seed}-{i}")
+            chooser = _pct_chooser(rng, max_depth) if strategy is Strategy.PCT \
+                else (lambda actors, depth, r=rng: r.randrange(len(actors)))
+            self._walk(chooser, max_depth, outcome)
+            outcome.schedules += 1
+            progress(outcome)
+            if outcome.violation is not None:
+                break
+        return outcome
+
+    def replay(self, choices: list[int]) -> Outcome:
+        """Run exactly these choices (from a token); the outcome holds the trace."""
+        outcome = Outcome(schedules=1)
+        it = iter(choices)
+        self._walk(lambda moves, depth: next(it), len(choices), outcome)
+        return outcome
+
+    def _walk(self, choose: Callable[[list[Hashable], int], int], max_depth: int, outcome: Outcome) -> None:
+        world, choices = self.world(), []
+        try:
+            for depth in range(max_depth):
+                if world.finished:
+                    break
+                moves = world.enabled()
+                pick = choose([world.actor(m) for m in moves], depth)
+                choices.append(pick)
+                world.apply(moves[pick])
+                outcome.transitions += 1
+                outcome.states += 1
+        except (Violation, ProtocolViolation) as exc:
+            outcome.violation = exc if isinstance(exc, Violation) else Violation("crash", str(exc))
+            outcome.choices, outcome.trace = choices, world.trace
+
+    def _dfs(self, max_depth: int, stop: Callable[[], bool], progress: Callable[[Outcome], None]) -> Outcome:
+        """Every schedule up to ``max_depth`` transitions; a state met again at no smaller depth is cut."""
+        outcome = Outcome()
+        seen: dict[Hashable, int] = {}
+        stack: list[tuple[World, list[int]]] = [(self.world(), [])]
+        while stack:
+            if stop():
+                return outcome
+            world, choices = stack.pop()
+            depth = len(choices)
+            key = world.state_key()
+            if seen.get(key, max_depth + 1) <= depth:
+                continue
+            seen[key] = depth
+            outcome.states = len(seen)
+            if depth == max_depth or world.finished:
+                outcome.schedules += 1
+                if outcome.schedules % 256 == 0:
+                    progress(outcome)
+                continue
+            moves = world.enabled()
+            for pick in reversed(range(len(moves))):
+                child = world.clone() if pick else world
+                try:
+                    child.apply(moves[pick])
+                except (Violation, ProtocolViolation) as exc:
+                    outcome.violation = exc if isinstance(exc, Violation) else Violation("crash", str(exc))
+                    outcome.choices = [*choices, pick]
+                    outcome.trace = self.replay(outcome.choices).trace
+                    return outcome
+                outcome.transitions += 1
+                stack.append((child, [*choices, pick]))
+        outcome.exhausted = True
+        progress(outcome)
+        return outcome
+
+
+def _pct_chooser(rng: random.Random, max_depth: int,
+                 change_points: int = 3) -> Callable[[list[Hashable], int], int]:
+    """PCT (Burckhardt et al. 2010): every actor gets a random priority; the highest enabled one
+    runs; at ``change_points`` random depths the running actor drops to the lowest priority."""
+    priorities: dict[Hashable, float] = {}
+    changes = set(rng.sample(range(max(1, max_depth)), min(change_points, max(1, max_depth))))
+    low = [0.0]
+
+    def choose(actors: list[Hashable], depth: int) -> int:
+        ranked = []
+        for i, who in enumerate(actors):
+            if who not in priorities:
+                priorities[who] = rng.random() + 1.0
+            ranked.append((priorities[who], i))
+        _, best = max(ranked)
+        if depth in changes:
+            low[0] -= 1.0
+            priorities[actors[best]] = low[0]
+        return best
+
+    return choose
+
+
+# ------------------------------------------------------------- tokens
+def encode_token(scenario: Scenario, choices: list[int]) -> str:
+    payload = {"v": 1, "scenario": asdict(scenario), "choices": choices}
+    raw = zlib.compress(json.dumps(payload, separators=(",", ":")).encode(), 9)
+    return base64.urlsafe_b64encode(raw).decode().rstrip("=")
+
+
+def decode_token(token: str) -> tuple[Scenario, list[int]]:
+    try:
+        raw = zlib.decompress(base64.urlsafe_b64decode(token + "=" * (-len(token) % 4)))
+        payload = json.loads(raw)
+        fields = payload["scenario"]
+        fields["grid"] = tuple(fields["grid"])
+        fields["bugs"] = tuple(fields["bugs"])
+        return Scenario(**fields), [int(c) for c in payload["choices"]]
+    except (ValueError, KeyError, TypeError, zlib.error) as exc:
+        raise DronaError(f"not a replay token from drona verify: {exc}") from exc

@@ -1,0 +1,139 @@
+"""``drona verify``: the systematic tester. Exit 0 when no violation is found, 1 with a trace
+and a replay token when one is, 2 on bad arguments."""
+
+from __future__ import annotations
+
+import argparse
+import re
+import time
+
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+from drona_gcs.errors import DronaError
+from drona_gcs.verify.explore import (
+    SEEDED_BUGS,
+    Explorer,
+    Outcome,
+    Scenario,
+    Strategy,
+    decode_token,
+    encode_token,
+)
+
+_GRID = re.compile(r"^(\d+)x(\d+)(?:x(\d+))?$")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workspace", help="workspace file (YAML, DRONA XML, ...)")
+    where.add_argument("--grid", default="8x8", help="random grid WxH[xL] (default 8x8)")
+    parser.add_argument("--obstacles", type=float, default=0.2, help="obstacle ratio of --grid (default 0.2)")
+    parser.add_argument("--drones", type=int, default=4)
+    parser.add_argument("--requests", type=int, default=6, help="mail requests the environment sends")
+    parser.add_argument("--delta", type=int, default=1, help="clock-skew window in steps")
+    parser.add_argument("--strategy", choices=[s.value for s in Strategy], default="random")
+    parser.add_argument("--schedules", type=int, default=1000, help="schedules to run (random, pct)")
+    parser.add_argument("--max-depth", type=int, default=5000, help="transitions per schedule")
+    parser.add_argument("--seed", type=int, default=0, help="seeds the scenario and the strategy")
+    parser.add_argument("--time-limit", type=float, default=60.0, help="seconds (default 60)")
+    parser.add_argument("--seed-bug", action="append", default=[], choices=sorted(SEEDED_BUGS),
+                        help="plant a known bug (repeatable): "
+                        + "; ".join(f"{k}: {v}" for k, v in SEEDED_BUGS.items()))
+    parser.add_argument("--replay", metavar="TOKEN", help="replay the schedule of a token and print its trace")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    console = Console(stderr=True)
+    try:
+        if args.replay:
+            return _replay(args.replay)
+        scenario = _scenario(args)
+        explorer = Explorer(scenario)
+    except (DronaError, ValueError) as exc:
+        console.print(f"drona verify: {exc}", markup=False)
+        return 2
+    strategy = Strategy(args.strategy)
+    started = time.monotonic()
+    with _progress(args.quiet, console) as bar:
+        task = bar.add_task(strategy.value, total=None if strategy is Strategy.DFS else args.schedules, rate="")
+
+        def progress(outcome: Outcome) -> None:
+            elapsed = max(time.monotonic() - started, 1e-9)
+            bar.update(task, completed=outcome.schedules,
+                       rate=f"{outcome.schedules / elapsed:,.0f} schedules/s, {outcome.states / elapsed:,.0f} states/s")
+
+        outcome = explorer.run(strategy, args.schedules, args.max_depth, args.seed,
+                               stop=lambda: time.monotonic() - started > args.time_limit, progress=progress)
+    elapsed = time.monotonic() - started
+    _summary(outcome, strategy, elapsed)
+    if outcome.violation is None:
+        return 0
+    token = encode_token(scenario, outcome.choices)
+    _print_violation(outcome, token)
+    return 1
+
+
+def _scenario(args: argparse.Namespace) -> Scenario:
+    grid = (8, 8, 1)
+    if not args.workspace:
+        match = _GRID.match(args.grid)
+        if not match:
+            raise ValueError(f"--grid must look like 8x8 or 8x8x2, got {args.grid!r}")
+        grid = (int(match[1]), int(match[2]), int(match[3] or 1))
+    if args.schedules < 1 or args.max_depth < 1 or args.time_limit <= 0:
+        raise ValueError("--schedules, --max-depth and --time-limit must be positive")
+    return Scenario(drones=args.drones, requests=args.requests, delta=args.delta, seed=args.seed, grid=grid,
+                    obstacles=args.obstacles, workspace_path=args.workspace, bugs=tuple(args.seed_bug))
+
+
+def _replay(token: str) -> int:
+    scenario, choices = decode_token(token)
+    outcome = Explorer(scenario).replay(choices)
+    if outcome.violation is None:
+        print(f"replayed {len(choices)} transitions: no violation")
+        return 0
+    _print_violation(outcome, token)
+    return 1
+
+
+def _summary(outcome: Outcome, strategy: Strategy, elapsed: float) -> None:
+    rate = outcome.schedules / elapsed if elapsed else 0.0
+    states = outcome.states / elapsed if elapsed else 0.0
+    done = " (every schedule to the depth bound)" if outcome.exhausted else ""
+    print(f"{strategy.value}: {outcome.schedules} schedules{done}, {outcome.transitions} transitions, "
+          f"{outcome.states} states in {elapsed:.1f} s ({rate:,.1f} schedules/s, {states:,.0f} states/s)")
+
+
+def _print_violation(outcome: Outcome, token: str) -> None:
+    assert outcome.violation is not None
+    print(f"\nVIOLATION {outcome.violation}\n")
+    print("trace (who sent what, who stepped):")
+    for line in compress_trace(outcome.trace):
+        print(f"  {line}")
+    print(f"\nreplay: drona verify --replay {token}")
+
+
+def compress_trace(trace: list[str]) -> list[str]:
+    """Runs of clock steps become one line, so the messages stand out."""
+    out: list[str] = []
+    run: list[str] = []
+    for line in trace:
+        step = re.match(r"^(\S+) steps to (\d+) \(battery (\d+)\)$", line)
+        if step:
+            run.append(f"{step[1]}@{step[2]}")
+            continue
+        if run:
+            out.append("steps " + " ".join(run))
+            run = []
+        out.append(line)
+    if run:
+        out.append("steps " + " ".join(run))
+    return out
+
+
+def _progress(quiet: bool, console: Console) -> Progress:
+    return Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.completed} schedules"),
+                    TextColumn("{task.fields[rate]}"), TimeElapsedColumn(), console=console, disable=quiet,
+                    transient=True)
