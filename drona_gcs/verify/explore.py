@@ -54,13 +54,14 @@ class Scenario:
     obstacles: float = 0.2
     workspace_path: str | None = None
     bugs: tuple[str, ...] = ()
+    max_delay: int = 2  #: steps of the sender's clock within which a message arrives
 
     def __post_init__(self) -> None:
         unknown = sorted(set(self.bugs) - set(SEEDED_BUGS))
         if unknown:
             raise ProblemError(f"unknown seeded bug(s) {unknown}; known: {sorted(SEEDED_BUGS)}")
-        if self.drones < 1 or self.requests < 0 or self.delta < 0:
-            raise ProblemError("drones must be >= 1, requests >= 0 and delta >= 0")
+        if self.drones < 1 or self.requests < 0 or self.delta < 0 or self.max_delay < 0:
+            raise ProblemError("drones must be >= 1, and requests, delta and max_delay >= 0")
         if any(n < 1 for n in self.grid) or not 0 <= self.obstacles < 0.9:
             raise ProblemError("grid sizes must be >= 1 and obstacles within [0, 0.9)")
 
@@ -72,7 +73,7 @@ class Scenario:
 
     def world_config(self, workspace: Workspace) -> WorldConfig:
         return make_world_config(workspace, self.drones, self.requests, self.delta, self.seed,
-                                 frozenset(self.bugs))
+                                 frozenset(self.bugs), max_delay=self.max_delay)
 
 
 @dataclass
@@ -112,14 +113,28 @@ class Explorer:
             if stop():
                 break
             rng = random.Random(f"{seed}-{i}")
-            chooser = _pct_chooser(rng, max_depth) if strategy is Strategy.PCT \
-                else (lambda actors, depth, r=rng: r.randrange(len(actors)))
+            chooser = _pct_chooser(rng, max_depth) if strategy is Strategy.PCT else _uniform(rng)
             self._walk(chooser, max_depth, outcome)
             outcome.schedules += 1
             progress(outcome)
             if outcome.violation is not None:
                 break
         return outcome
+
+    def shrink(self, found: Outcome, strategy: Strategy, seed: int, stop: Callable[[], bool]) -> Outcome:
+        """Look for a shorter schedule that breaks the same monitor, until ``stop()``: short
+        traces are the ones people read. Random walks, each cut at the best length so far."""
+        if found.violation is None or strategy is Strategy.DFS:
+            return found
+        best, i = found, 0
+        while not stop() and len(best.choices) > 1:
+            i += 1
+            trial = Outcome()
+            self._walk(_uniform(random.Random(f"shrink-{seed}-{i}")), len(best.choices) - 1, trial)
+            if trial.violation is not None and trial.violation.monitor == found.violation.monitor:
+                best = trial
+        best.schedules, best.transitions, best.states = found.schedules, found.transitions, found.states
+        return best
 
     def replay(self, choices: list[int]) -> Outcome:
         """Run exactly these choices (from a token); the outcome holds the trace."""
@@ -179,6 +194,11 @@ class Explorer:
         outcome.exhausted = True
         progress(outcome)
         return outcome
+
+
+def _uniform(rng: random.Random) -> Callable[[list[Hashable], int], int]:
+    """A random walk: every enabled transition equally likely."""
+    return lambda actors, depth: rng.randrange(len(actors))
 
 
 def _pct_chooser(rng: random.Random, max_depth: int,

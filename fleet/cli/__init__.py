@@ -37,7 +37,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     selected = next((a for a in argv if not a.startswith("-")), None)
     args = build_parser(selected if selected in COMMANDS else None).parse_args(argv)
-    code: int = importlib.import_module(args._module).run(args)
+    try:
+        code: int = importlib.import_module(args._module).run(args)
+    except BrokenPipeError:  # the reader went away (drona ... | head): not our error
+        sys.stderr.close()
+        return 0
     return code
 
 

@@ -40,6 +40,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed-bug", action="append", default=[], choices=sorted(SEEDED_BUGS),
                         help="plant a known bug (repeatable): "
                         + "; ".join(f"{k}: {v}" for k, v in SEEDED_BUGS.items()))
+    parser.add_argument("--max-delay", type=int, default=None,
+                        help="steps within which a message arrives (default 2; 0 with dfs, which keeps the "
+                             "state space small: messages arrive within the step they were sent in)")
+    parser.add_argument("--shrink", type=float, default=3.0,
+                        help="seconds spent looking for a shorter trace once a violation is found (default 3)")
     parser.add_argument("--replay", metavar="TOKEN", help="replay the schedule of a token and print its trace")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -67,6 +72,9 @@ def run(args: argparse.Namespace) -> int:
         outcome = explorer.run(strategy, args.schedules, args.max_depth, args.seed,
                                stop=lambda: time.monotonic() - started > args.time_limit, progress=progress)
     elapsed = time.monotonic() - started
+    if outcome.violation is not None and args.shrink > 0:
+        shrink_until = time.monotonic() + args.shrink
+        outcome = explorer.shrink(outcome, strategy, args.seed, stop=lambda: time.monotonic() > shrink_until)
     _summary(outcome, strategy, elapsed)
     if outcome.violation is None:
         return 0
@@ -84,8 +92,10 @@ def _scenario(args: argparse.Namespace) -> Scenario:
         grid = (int(match[1]), int(match[2]), int(match[3] or 1))
     if args.schedules < 1 or args.max_depth < 1 or args.time_limit <= 0:
         raise ValueError("--schedules, --max-depth and --time-limit must be positive")
+    max_delay = args.max_delay if args.max_delay is not None else (0 if args.strategy == "dfs" else 2)
     return Scenario(drones=args.drones, requests=args.requests, delta=args.delta, seed=args.seed, grid=grid,
-                    obstacles=args.obstacles, workspace_path=args.workspace, bugs=tuple(args.seed_bug))
+                    obstacles=args.obstacles, workspace_path=args.workspace, bugs=tuple(args.seed_bug),
+                    max_delay=max_delay)
 
 
 def _replay(token: str) -> int:
