@@ -100,7 +100,15 @@ class MailDelivered:
     request: MailRequest
 
 
-MailAction = GoTo | MailStarted | MailPickedUp | MailDelivered
+@dataclass(frozen=True)
+class MailRejected:
+    """A mail no full battery can fly: handed back to whoever assigned it."""
+
+    request: MailRequest
+    reason: str
+
+
+MailAction = GoTo | MailStarted | MailPickedUp | MailDelivered | MailRejected
 
 
 @dataclass
@@ -210,13 +218,32 @@ class MailPlanner:
     def _start_next_mail(self, budget: Budget, taken: Collection[Cell]) -> list[MailAction]:
         self.queue.sort(key=lambda r: r.rank)
         best = self.queue[0]
-        rest = self.distance(best.pickup, best.dropoff) + self._after(best.dropoff)
-        if not budget.allows(self.distance(self.cell, best.pickup) + rest + self.battery.margin_steps):
-            self.low = True  # not enough for this mail: charge first
-            return self._to_charger(budget, taken)
-        self.queue.pop(0)
-        self.current = best
-        return [MailStarted(best, tuple(self.queue)), *self._go(best.pickup, budget, rest, Phase.TO_PICKUP, taken)]
+        if budget.allows(self._need(self.cell, best)):
+            self.queue.pop(0)
+            self.current = best
+            rest = self._need(best.pickup, best) - self.battery.margin_steps
+            return [MailStarted(best, tuple(self.queue)), *self._go(best.pickup, budget, rest, Phase.TO_PICKUP, taken)]
+        # Not enough for this mail: charge first, at a charger from which a full battery will do.
+        full = self.battery.steps_affordable(self.recharged_level)
+        staging = [c for c in self.chargers if self._need(c, best) <= full]
+        if not staging:
+            self.queue.pop(0)  # beyond any full battery: hand it back rather than block the queue
+            return [MailRejected(best, f"needs {self._need(self.cell, best)} steps of flight; a full battery "
+                                       f"gives {full}"), *self.decide_again(budget, taken)]
+        self.low = True
+        if self.cell in staging:
+            self.phase = Phase.CHARGING
+            return []
+        self.landed_here = True
+        return self._to_one_of(staging, budget, taken, Phase.TO_CHARGER)
+
+    def decide_again(self, budget: Budget, taken: Collection[Cell]) -> list[MailAction]:
+        return self._start_next_mail(budget, taken) if self.queue else []
+
+    def _need(self, start: Cell, request: MailRequest) -> int:
+        """Steps of flight a mail takes from ``start``: pickup, drop-off, a charger, and the margin."""
+        return (self.distance(start, request.pickup) + self.distance(request.pickup, request.dropoff)
+                + self._after(request.dropoff) + self.battery.margin_steps)
 
     def _to_charger(self, budget: Budget, taken: Collection[Cell]) -> list[MailAction]:
         if self.cell in self.chargers:

@@ -84,6 +84,10 @@ class PeerLeft:
 class PeerJoined:
     drone: str
     cell: Cell  #: where it is now, as it announced
+    trajectory: Trajectory | None = None  #: the plan it announced it is flying, if any
+
+    def announced(self, now: int) -> Trajectory:
+        return self.trajectory if self.trajectory is not None else Trajectory.stationary(self.cell, now)
 
 
 Event = NewTask | PlanCompleted | PeerLeft | PeerJoined | ReqForCurrentTraj | CurrentTraj
@@ -222,7 +226,8 @@ class CoordinationProtocol:
             return []
         self.members.add(event.drone)
         self.ghosts.pop(event.drone, None)
-        self.known.setdefault(event.drone, Trajectory.stationary(event.cell, now))
+        # What it announces now is newer than anything we heard before it left.
+        self.known[event.drone] = event.announced(now)
         if self.state is State.COORDINATING and self.task is not None:
             return [Send(event.drone, ReqForCurrentTraj(self.task.id, self.me))]
         return []

@@ -31,7 +31,15 @@ from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.battery import BatteryLow, BatteryModel, BatteryRecharged
 from drona_gcs.stack.drone import DroneStack, StackConfig
-from drona_gcs.stack.mail import GoTo, MailDelivered, MailPickedUp, MailRequest, MailStarted, Phase
+from drona_gcs.stack.mail import (
+    GoTo,
+    MailDelivered,
+    MailPickedUp,
+    MailRejected,
+    MailRequest,
+    MailStarted,
+    Phase,
+)
 from drona_gcs.stack.messages import CurrentTraj, Message
 from drona_gcs.stack.protocol import Broadcast, Send, StartExecuting, TaskFailed
 from drona_gcs.verify.monitors import Monitors
@@ -318,6 +326,8 @@ def _note(action: object) -> str:
         return f"task planner: go to {list(action.goal)} for {action.purpose.value}{by}"
     if isinstance(action, (MailStarted, MailPickedUp, MailDelivered)):
         return f"{type(action).__name__} {action.request.id}"
+    if isinstance(action, MailRejected):
+        return f"MailRejected {action.request.id}: {action.reason}"
     if isinstance(action, (BatteryLow, BatteryRecharged)):
         return f"{type(action).__name__} at {action.level:.0f}%"
     return ""

@@ -1,0 +1,119 @@
+"""A test seam for the coordination protocol: N drones joined by an in-memory network.
+
+Like h11's ``ConnectionPair``, :class:`ProtocolCluster` wires real
+:class:`~drona_gcs.stack.protocol.CoordinationProtocol` machines (planning with
+a real :class:`~drona_gcs.planner.SafePlanner`) so a test drives the whole
+exchange and decides the network's behaviour::
+
+    cluster = ProtocolCluster(workspace, {"a": (0, 0, 0), "b": (4, 4, 0)})
+    cluster.start_task("a", (4, 0, 0))
+    cluster.start_task("b", (0, 4, 0))
+    cluster.deliver_all(random.Random(3))     # or "fifo", "lifo", or deliver(i) by hand
+    cluster.started                            # every StartExecuting, with context
+
+Every drone shares one global step ``now`` (perfect synchrony); a test may
+move it. A broadcast goes to every drone, the sender included (as in the
+paper's P model); ``network`` holds what is in flight as ``(sender, to, message)``.
+"""
+
+from __future__ import annotations
+
+import random
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from drona_gcs.motion import Trajectory
+from drona_gcs.planner import SafePlanner
+from drona_gcs.stack.messages import HybridClock, Message, ReqForCurrentTraj, Task
+from drona_gcs.stack.protocol import (
+    Broadcast,
+    CoordinationProtocol,
+    Event,
+    NewTask,
+    PlanCompleted,
+    Send,
+    StartExecuting,
+    TaskFailed,
+)
+from drona_gcs.workspace import Cell, Workspace
+
+
+@dataclass(frozen=True)
+class Started:
+    """A drone's ``StartExecuting`` at step ``step``, and every peer's committed trajectory at that moment."""
+
+    drone: str
+    step: int
+    action: StartExecuting
+    peers_then: Mapping[str, Trajectory]
+
+
+class ProtocolCluster:
+    """Protocol machines for the drones of ``starts``, an in-memory network and a shared clock."""
+
+    def __init__(self, workspace: Workspace, starts: Mapping[str, Cell], *,
+                 delta: int | None = None, lead_steps: int | None = None) -> None:
+        self.workspace = workspace
+        self.planner = SafePlanner(workspace, delta)
+        self.delta = self.planner.delta
+        self.lead_steps = self.delta + 1 if lead_steps is None else lead_steps  # as DroneStack does
+        self.protocols = {d: CoordinationProtocol(d, cell, dict(starts), self.planner.plan, self.lead_steps)
+                          for d, cell in starts.items()}
+        self.clocks = {d: HybridClock(d) for d in starts}
+        self.network: list[tuple[str, str, Message]] = []
+        self.started: list[Started] = []
+        self.failed: list[tuple[str, TaskFailed]] = []
+        self.now = 0
+
+    # ----------------------------------------------------------- inputs
+    def start_task(self, drone: str, goal: Cell, flight_steps: int | None = None) -> Task:
+        """Give ``drone`` a new task (its id from the drone's hybrid clock at ``now``)."""
+        task = Task(self.clocks[drone].next_id(self.now), goal, flight_steps)
+        self._handle(drone, NewTask(task))
+        return task
+
+    def deliver(self, index: int = 0) -> tuple[str, str, Message]:
+        """Deliver the in-flight message at ``index`` (0: the oldest) and queue what it causes."""
+        _sender, to, message = entry = self.network.pop(index)
+        stamp = message.task_id if isinstance(message, ReqForCurrentTraj) else message.in_reply_to
+        self.clocks[to].observe(stamp.stamp)
+        self._handle(to, message)
+        return entry
+
+    def deliver_all(self, order: str | random.Random = "fifo", limit: int = 1000) -> None:
+        """Deliver until nothing is in flight: oldest first ("fifo"), newest first ("lifo"),
+        or in an order drawn from a seeded ``random.Random``. More than ``limit`` deliveries fail."""
+        for _ in range(limit):
+            if not self.network:
+                return
+            if isinstance(order, random.Random):
+                self.deliver(order.randrange(len(self.network)))
+            else:
+                self.deliver({"fifo": 0, "lifo": -1}[order])
+        raise AssertionError(f"still {len(self.network)} message(s) in flight after {limit} deliveries")
+
+    def complete(self, drone: str) -> None:
+        """The executor of ``drone`` finished its trajectory."""
+        self._handle(drone, PlanCompleted())
+
+    # ---------------------------------------------------------- outputs
+    def trajectory(self, drone: str) -> Trajectory:
+        """What ``drone`` would answer now: its committed plan, or its location."""
+        return self.protocols[drone].current_trajectory(self.now)
+
+    def executed(self) -> dict[str, Trajectory]:
+        """The last trajectory each drone started (drones that never started are left out)."""
+        return {s.drone: s.action.trajectory for s in self.started}
+
+    # ----------------------------------------------------------- wiring
+    def _handle(self, drone: str, event: Event) -> None:
+        for action in self.protocols[drone].handle(event, self.now):
+            if isinstance(action, Broadcast):
+                self.network += [(drone, to, action.message) for to in self.protocols]
+            elif isinstance(action, Send):
+                self.network.append((drone, action.to, action.message))
+            elif isinstance(action, StartExecuting):
+                peers = {p: self.trajectory(p) for p in self.protocols if p != drone}
+                self.started.append(Started(drone, self.now, action, peers))
+            else:
+                self.failed.append((drone, action))

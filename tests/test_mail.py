@@ -1,0 +1,297 @@
+"""The priority mail task planner: order, legs, retries, charging, parking and the energy rules.
+
+Most tests use a 10 x 10 plane with Manhattan distances (cells written (x, y)):
+chargers at the corners (0, 0) and (9, 0), parking cells at (0, 9) and (5, 9).
+The default battery drains 1 % a step down to a 20 % floor, so a level of
+``L`` affords ``L - 20`` steps. A last test runs the planner in a small
+simulated world with walls (real shortest-path distances), random mail and
+failed legs, and checks that the battery never goes below the floor and no
+mail is lost.
+"""
+
+from __future__ import annotations
+
+import random
+
+import pytest
+
+from drona_gcs.errors import ProblemError, ProtocolViolation
+from drona_gcs.planner import SafePlanner
+from drona_gcs.stack.battery import BatteryModel, BatteryMonitor, BatteryRecharged
+from drona_gcs.stack.drone import _distance_function
+from drona_gcs.stack.mail import (
+    Distance,
+    GoTo,
+    MailAction,
+    MailDelivered,
+    MailPickedUp,
+    MailPlanner,
+    MailRequest,
+    MailStarted,
+    Phase,
+)
+from drona_gcs.workspace import Cell, Workspace
+
+
+def c(x: int, y: int) -> Cell:
+    return (x, y, 0)
+
+
+def manhattan(a: Cell, b: Cell) -> int:
+    return sum(abs(p - q) for p, q in zip(a, b, strict=True))
+
+
+Q1, Q2 = c(0, 0), c(9, 0)  # chargers
+P1, P2 = c(0, 9), c(5, 9)  # parking
+MODEL = BatteryModel()  # drain 1, floor 20, margin 8
+
+
+def planner(at: Cell = P1) -> MailPlanner:
+    return MailPlanner(at, (Q1, Q2), (P1, P2), manhattan, MODEL)
+
+
+def mail(name: str, pickup: Cell, dropoff: Cell, priority: int = 5, seq: int = 0) -> MailRequest:
+    return MailRequest(name, pickup, dropoff, priority, seq)
+
+
+def goto(actions: list[MailAction]) -> GoTo:
+    found = [a for a in actions if isinstance(a, GoTo)]
+    assert len(found) == 1, actions
+    return found[0]
+
+
+def assert_energy_rules(goal_from: Cell, action: GoTo, level: float, chargers: tuple[Cell, ...],
+                        distance: Distance, model: BatteryModel = MODEL) -> None:
+    """The leg is affordable, and on arrival the way from the goal to a charger is still left."""
+    assert action.flight_steps is not None
+    assert distance(goal_from, action.goal) <= action.flight_steps
+    to_charger = min(distance(action.goal, q) for q in chargers)
+    assert action.flight_steps + to_charger <= model.steps_affordable(level)
+
+
+# ======================================================== requests
+@pytest.mark.parametrize("priority", [-1, 10, 99])
+def test_priority_must_be_0_to_9(priority: int) -> None:
+    with pytest.raises(ProblemError, match="priority"):
+        mail("m", c(1, 1), c(2, 2), priority)
+    for ok in (0, 9):
+        assert mail("m", c(1, 1), c(2, 2), ok).priority == ok
+
+
+def test_pickup_and_dropoff_must_differ() -> None:
+    with pytest.raises(ProblemError, match="same cell"):
+        mail("m", c(3, 3), c(3, 3))
+
+
+def test_a_duplicate_assignment_is_ignored() -> None:
+    mp = planner()
+    m = mail("m", c(2, 2), c(4, 4))
+    mp.assign(m)
+    mp.assign(m)
+    mp.assign(mail("m", c(7, 7), c(8, 8)))  # the id is what counts
+    assert mp.queue == [m]
+    [started, _] = mp.decide(0, 100, ())
+    assert started == MailStarted(m, ())
+    mp.assign(m)  # while it is under way
+    assert mp.queue == []
+
+
+# ======================================================== order and legs
+def test_most_urgent_first_then_oldest() -> None:
+    mp = planner()
+    low = mail("low", c(1, 1), c(2, 2), priority=0, seq=0)
+    urgent_new = mail("urgent-new", c(3, 3), c(4, 4), priority=9, seq=2)
+    urgent_old = mail("urgent-old", c(5, 5), c(6, 6), priority=9, seq=1)
+    middle = mail("middle", c(7, 7), c(8, 8), priority=4, seq=3)
+    for m in (low, urgent_new, urgent_old, middle):
+        mp.assign(m)
+    order = []
+    for now in range(200):
+        for action in mp.decide(now, 100, ()):
+            if isinstance(action, MailStarted):
+                order.append(action.request)
+                assert action.waiting == tuple(r for r in (urgent_new, middle, low) if r not in order)
+        if mp.busy:
+            mp.leg_done()
+    assert order == [urgent_old, urgent_new, middle, low]
+
+
+def test_pickup_then_dropoff_then_parking() -> None:
+    mp = planner()
+    m = mail("m", c(2, 2), c(4, 4))
+    mp.assign(m)
+    actions = mp.decide(0, 100, ())
+    # the pickup leg keeps, on top of the way from (2, 2): 4 steps to the drop-off and from there
+    # 9 to the second-nearest charger (9, 0) (the nearest may be taken): 80 - 13
+    assert actions == [MailStarted(m, ()), GoTo(c(2, 2), 67, Phase.TO_PICKUP)]
+    assert mp.busy and mp.decide(1, 100, ()) == []  # one leg at a time
+    assert mp.leg_done() == [MailPickedUp(m)]
+    assert (mp.cell, mp.carrying, mp.current) == (c(2, 2), True, m)
+    assert mp.decide(2, 96, ()) == [GoTo(c(4, 4), 76 - 9, Phase.TO_DROPOFF)]
+    assert mp.leg_done() == [MailDelivered(m)]
+    assert (mp.current, mp.carrying) == (None, False)
+    # the nearer parking cell (5, 9); from there (9, 0) is 13 steps and (0, 0), the second nearest, 14
+    assert mp.decide(3, 92, ()) == [GoTo(P2, 72 - 14, Phase.TO_PARKING)]
+    assert mp.leg_done() == []
+    assert mp.decide(4, 87, ()) == []  # parked: nothing to do
+
+
+def test_leg_done_without_a_leg_is_a_violation() -> None:
+    with pytest.raises(ProtocolViolation, match="no leg"):
+        planner().leg_done()
+
+
+def test_a_failed_pickup_puts_the_mail_back_in_the_queue() -> None:
+    mp = planner()  # on a parking cell: it can retry from there
+    m, other = mail("m", c(2, 2), c(4, 4), priority=7), mail("o", c(3, 3), c(6, 6), priority=1)
+    mp.assign(m)
+    mp.assign(other)
+    assert MailStarted(m, (other,)) in mp.decide(0, 100, ())
+    mp.leg_failed(0)
+    assert sorted(r.id for r in mp.queue) == ["m", "o"] and mp.current is None
+    assert (mp.phase, mp.busy, mp.retry_at) == (Phase.IDLE, False, 2)
+    assert mp.decide(1, 100, ()) == []  # it waits retry_steps
+    actions = mp.decide(2, 100, ())
+    assert actions[0] == MailStarted(m, (other,))  # weighed again: still first
+    assert goto(actions).goal == c(2, 2)
+
+
+def test_a_failed_leg_away_from_parking_clears_the_way_first_and_keeps_the_mail() -> None:
+    mp = planner()
+    m = mail("m", c(2, 2), c(4, 4))
+    mp.assign(m)
+    mp.decide(0, 100, ())
+    mp.leg_done()  # picked up, hovering at (2, 2)
+    mp.decide(1, 100, ())
+    mp.leg_failed(1)  # no plan to the drop-off
+    assert (mp.current, mp.carrying, mp.queue) == (m, True, [])
+    assert goto(mp.decide(3, 100, ())) == GoTo(P1, 80 - manhattan(P1, Q2), Phase.TO_PARKING)
+    assert mp.leg_done() == []
+    assert goto(mp.decide(4, 100, ())).goal == c(4, 4)  # then it tries the drop-off again
+    assert mp.leg_done() == [MailDelivered(m)]
+
+
+# ======================================================== charging
+def test_low_battery_sends_it_to_the_nearest_charger_until_recharged() -> None:
+    mp = planner()
+    mp.assign(mail("m", c(2, 2), c(4, 4)))
+    mp.battery_low()
+    assert mp.decide(0, 38, ()) == [GoTo(Q1, 18, Phase.TO_CHARGER)]  # 9 steps away; (9, 0) is 18
+    assert mp.leg_done() == []
+    assert mp.phase is Phase.CHARGING
+    for now, level in enumerate([40, 60, 80, 94.9], start=1):
+        assert mp.decide(now, level, ()) == []
+    actions = mp.decide(5, 95, ())
+    assert mp.low is False
+    assert isinstance(actions[0], MailStarted)  # recharged: back to work
+
+
+def test_charging_ends_with_the_recharged_event_and_a_charged_drone_leaves_the_charger() -> None:
+    mp = planner(at=Q1)
+    mp.battery_low()
+    assert (mp.decide(0, 30, ()), mp.phase) == ([], Phase.CHARGING)  # already on a charger
+    mp.battery_recharged()
+    assert mp.phase is Phase.IDLE
+    assert goto(mp.decide(1, 96, ())).purpose is Phase.TO_PARKING
+
+
+def test_a_taken_charger_is_avoided_when_another_is_affordable() -> None:
+    mp = planner(at=c(4, 0))
+    mp.battery_low()
+    assert goto(mp.decide(0, 60, {Q1})).goal == Q2  # 5 steps instead of 4, but free
+    mp = planner(at=c(1, 9))
+    mp.battery_low()
+    assert goto(mp.decide(0, 32, {Q1})).goal == Q1  # (9, 0) is beyond the 12 steps left: try anyway
+
+
+def test_a_mail_it_cannot_afford_sends_it_to_charge_first() -> None:
+    mp = planner()
+    far = mail("far", c(9, 9), c(9, 5))
+    mp.assign(far)
+    # from (0, 9): 9 to the pickup, 4 to the drop-off, 14 on to (0, 0), 8 of margin = 35 > 20
+    assert mp.decide(0, 40, ()) == [GoTo(Q1, 20, Phase.TO_CHARGER)]
+    assert mp.queue == [far] and mp.current is None and mp.low
+    mp.leg_done()
+    assert mp.decide(1, 90, ()) == []  # charging
+    actions = mp.decide(2, 95, ())
+    assert actions[0] == MailStarted(far, ())
+    assert_energy_rules(Q1, goto(actions), 95, (Q1, Q2), manhattan)
+
+
+def test_a_carried_mail_it_cannot_deliver_is_delivered_after_charging() -> None:
+    mp = planner()
+    m = mail("m", c(5, 5), c(9, 9))
+    mp.assign(m)
+    mp.decide(0, 100, ())
+    mp.leg_done()  # picked up at (5, 5)
+    # 8 steps to (9, 9), then 18 to the second-nearest charger (0, 0): not with 35 % (15 steps)
+    assert goto(mp.decide(1, 35, ())).purpose is Phase.TO_CHARGER
+    mp.leg_done()
+    assert mp.carrying and mp.current == m
+    assert mp.decide(2, 95, ()) == [GoTo(c(9, 9), 75 - 18, Phase.TO_DROPOFF)]
+
+
+# ======================================================== parking
+def test_an_idle_drone_goes_to_the_nearest_free_parking_cell() -> None:
+    assert planner(at=c(5, 5)).decide(0, 100, ()) == [GoTo(P2, 80 - 14, Phase.TO_PARKING)]
+    assert goto(planner(at=c(5, 5)).decide(0, 100, {P2})).goal == P1  # P2 is taken
+    for spot in (P1, P2):
+        assert planner(at=spot).decide(0, 100, ()) == []  # parked already
+
+
+def test_parking_it_could_not_come_back_from_sends_it_to_charge() -> None:
+    # with 20 steps from (9, 1): (5, 9) is 12 away and 14 more from the second-nearest charger (0, 0) after
+    # it; (0, 9) is 17 and 18 more. Neither leaves enough, so it charges at (9, 0), one step away
+    mp = planner(at=c(9, 1))
+    assert goto(mp.decide(0, 40, ())) == GoTo(Q2, 20, Phase.TO_CHARGER)
+    assert mp.low
+
+
+# ======================================================== the energy rules, simulated
+WALLS = Workspace.build(
+    size=(8, 8, 1),
+    obstacles=frozenset({c(3, y) for y in range(1, 7)} | {c(5, y) for y in range(2, 8)}),
+    charging_stations=(c(0, 0), c(7, 0)),
+    parking=(c(0, 7), c(7, 7)),
+)
+
+
+@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize("drain", [1.0, 1.5])
+def test_simulated_schedules_keep_the_battery_above_the_floor_and_lose_no_mail(drain: float, seed: int) -> None:
+    """Legs are flown at once along the shortest way; a fifth of them find no plan (and cost nothing,
+    as the drone waits on the ground); charging adds charge_per_step a step."""
+    rng = random.Random(seed)
+    model = BatteryModel(drain_per_step=drain)
+    distance = _distance_function(SafePlanner(WALLS))
+    chargers = WALLS.charging_stations
+    mp = MailPlanner(WALLS.parking[0], chargers, WALLS.parking, distance, model)
+    monitor = BatteryMonitor(low=40, recharged=95)
+    free = [cell for cell in WALLS.free_cells if cell not in chargers]
+    mails = []
+    for i in range(12):
+        pickup, dropoff = rng.sample(free, 2)
+        mails.append(MailRequest(f"m{i}", pickup, dropoff, rng.randint(0, 9), seq=i))
+        mp.assign(mails[-1])
+    level, delivered, lowest = 100.0, [], 100.0
+    for now in range(600):
+        for event in monitor.reading(level):
+            (mp.battery_recharged if isinstance(event, BatteryRecharged) else mp.battery_low)()
+        for action in mp.decide(now, level, ()):
+            if isinstance(action, MailStarted):
+                assert all(action.request.rank < r.rank for r in action.waiting)
+            if not isinstance(action, GoTo):
+                continue
+            assert_energy_rules(mp.cell, action, level, chargers, distance, model)
+            if rng.random() < 0.2:
+                mp.leg_failed(now)  # found no plan: it waits on the ground, for free
+                continue
+            level -= distance(mp.cell, action.goal) * model.drain_per_step
+            lowest = min(lowest, level)
+            delivered += [d.request for d in mp.leg_done() if isinstance(d, MailDelivered)]
+        if mp.phase is Phase.CHARGING:
+            level = min(100.0, level + model.charge_per_step)
+        if len(delivered) == len(mails):
+            break
+    assert lowest >= model.safe_threshold
+    assert delivered == sorted(mails, key=lambda r: r.rank)  # all of them, most urgent first

@@ -1,0 +1,500 @@
+"""The coordination protocol (paper Protocol 1) as a sans-I/O state machine.
+
+Unit tests feed one drone's machine events by hand on an open 5 x 5 x 1 grid
+(the unit tests use delta 0, so the shortest plan is the Manhattan path);
+the cluster tests join two or three machines through
+:class:`tests.stack_cluster.ProtocolCluster` and check, under several message
+orders, that everyone starts, plans against what its peers had committed,
+and that the flown trajectories are safe by the independent checker.
+"""
+
+from __future__ import annotations
+
+import itertools
+import random
+from collections.abc import Mapping
+
+import pytest
+
+from drona_gcs.errors import ProtocolViolation
+from drona_gcs.motion import Trajectory
+from drona_gcs.planner import SafePlanner
+from drona_gcs.safety import check_fleet, check_trajectory
+from drona_gcs.stack.messages import CurrentTraj, HybridClock, ReqForCurrentTraj, Task, TaskId
+from drona_gcs.stack.protocol import (
+    TRANSITIONS,
+    Action,
+    Broadcast,
+    CoordinationProtocol,
+    Event,
+    NewTask,
+    PeerJoined,
+    PeerLeft,
+    PlanCompleted,
+    Send,
+    StartExecuting,
+    State,
+    TaskFailed,
+)
+from drona_gcs.workspace import Cell, Workspace
+from tests.stack_cluster import ProtocolCluster
+
+OPEN = Workspace.build(size=(5, 5, 1))
+A, B, C = (0, 0, 0), (4, 4, 0), (0, 4, 0)
+STARTS = {"a": A, "b": B, "c": C}
+GOAL = (4, 0, 0)  # 4 steps from A, free of every start
+
+# the ids a, b and c use; a lower id is a higher priority
+ID_A, ID_B_HIGH, ID_B_LOW, ID_C_LOW = TaskId(5, "a", 1), TaskId(3, "b", 1), TaskId(7, "b", 1), TaskId(8, "c", 1)
+
+
+def traj(start_step: int, *cells: tuple[int, int]) -> Trajectory:
+    return Trajectory(start_step, tuple((x, y, 0) for x, y in cells))
+
+
+def manhattan(a: Cell, b: Cell) -> int:
+    return sum(abs(p - q) for p, q in zip(a, b, strict=True))
+
+
+def machine(peers: Mapping[str, Cell] | None = None, me: str = "a", lead_steps: int = 2,
+            workspace: Workspace = OPEN) -> CoordinationProtocol:
+    """Drone ``me`` with ``peers`` (default a, b and c); the peer map includes ``me``."""
+    peers = dict(STARTS if peers is None else peers)
+    return CoordinationProtocol(me, peers[me], peers, SafePlanner(workspace, 0).plan, lead_steps)
+
+
+def started(actions: list[Action]) -> StartExecuting:
+    found = [a for a in actions if isinstance(a, StartExecuting)]
+    assert len(found) == 1, actions
+    return found[0]
+
+
+def location_of(drone: str, now: int = 0) -> Trajectory:
+    return Trajectory.stationary(STARTS[drone], now)
+
+
+# =========================================================== the state table
+EVENT_TYPES: tuple[type, ...] = (NewTask, PlanCompleted, PeerLeft, PeerJoined, ReqForCurrentTraj, CurrentTraj)
+#: What Protocol 1 takes in each state (paper section 3.1); the rest is a protocol violation.
+REJECTED = {(State.COORDINATING, NewTask), (State.EXECUTING, NewTask),
+            (State.WAIT_FOR_TASK, PlanCompleted), (State.COORDINATING, PlanCompleted)}
+
+
+def in_state(state: State) -> CoordinationProtocol:
+    """Drone a (peer b) in ``state``, its task ``ID_A`` when it has one."""
+    proto = machine({"a": A, "b": B})
+    if state is not State.WAIT_FOR_TASK:
+        proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    if state is State.EXECUTING:
+        started(proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0))
+    assert proto.state is state
+    return proto
+
+
+def sample(event_type: type) -> Event:
+    samples: dict[type, Event] = {
+        NewTask: NewTask(Task(TaskId(9, "a", 2), (2, 2, 0))),
+        PlanCompleted: PlanCompleted(),
+        PeerLeft: PeerLeft("b"),
+        PeerJoined: PeerJoined("c", C),
+        ReqForCurrentTraj: ReqForCurrentTraj(ID_B_LOW, "b"),
+        CurrentTraj: CurrentTraj("b", location_of("b"), ID_A),
+    }
+    return samples[event_type]
+
+
+def test_the_transition_table_is_the_papers() -> None:
+    table = {(state, event) for state, row in TRANSITIONS.items() for event in row}
+    everything = set(itertools.product(State, EVENT_TYPES))
+    assert table == everything - REJECTED
+
+
+@pytest.mark.parametrize("event_type", EVENT_TYPES, ids=lambda t: t.__name__)
+@pytest.mark.parametrize("state", list(State), ids=lambda s: s.name)
+def test_every_state_event_pair(state: State, event_type: type) -> None:
+    proto = in_state(state)
+    event = sample(event_type)
+    if (state, event_type) in REJECTED:
+        with pytest.raises(ProtocolViolation) as info:
+            proto.handle(event, 1)
+        assert state.value in str(info.value)
+        assert event_type.__name__ in str(info.value)
+        assert proto.state is state  # a refused event changes nothing
+    else:
+        assert isinstance(proto.handle(event, 1), list)
+
+
+# ====================================================== answering requests
+def test_an_idle_drone_answers_with_its_location() -> None:
+    proto = machine()
+    actions = proto.handle(ReqForCurrentTraj(ID_B_LOW, "b"), 3)
+    assert actions == [Send("b", CurrentTraj("a", Trajectory.stationary(A, 3), ID_B_LOW))]
+    assert proto.state is State.WAIT_FOR_TASK
+
+
+def test_a_drone_ignores_its_own_broadcast_request() -> None:
+    proto = machine()
+    assert proto.handle(ReqForCurrentTraj(ID_A, "a"), 0) == []
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    assert proto.handle(ReqForCurrentTraj(ID_A, "a"), 0) == []
+
+
+def test_an_executing_drone_answers_with_its_trajectory_then_idle_with_the_finished_plan() -> None:
+    proto = machine({"a": A})
+    plan = started(proto.handle(NewTask(Task(ID_A, GOAL)), 0)).trajectory
+    assert proto.state is State.EXECUTING
+    assert proto.handle(ReqForCurrentTraj(ID_B_LOW, "b"), 1) == [Send("b", CurrentTraj("a", plan, ID_B_LOW))]
+    proto.handle(PlanCompleted(), plan.end_step)
+    assert (proto.state, proto.location) == (State.WAIT_FOR_TASK, GOAL)
+    # idle after a plan: the plan itself, which ends at the location and forever stays there
+    [reply] = proto.handle(ReqForCurrentTraj(ID_C_LOW, "c"), 20)
+    assert isinstance(reply, Send) and isinstance(reply.message, CurrentTraj)
+    assert reply.message.trajectory.at(20) == GOAL and reply.message.in_reply_to == ID_C_LOW
+
+
+# ================================================================ new task
+def test_new_task_broadcasts_a_request_with_its_id() -> None:
+    proto = machine()
+    task = Task(ID_A, GOAL)
+    assert proto.handle(NewTask(task), 0) == [Broadcast(ReqForCurrentTraj(ID_A, "a"))]
+    assert (proto.state, proto.task) == (State.COORDINATING, task)
+
+
+@pytest.mark.parametrize(("now", "lead"), [(0, 1), (5, 2), (7, 3)])
+def test_with_no_peers_it_plans_at_once_lead_steps_ahead(now: int, lead: int) -> None:
+    proto = machine({"a": A}, lead_steps=lead)
+    task = Task(ID_A, GOAL)
+    actions = proto.handle(NewTask(task), now)
+    assert actions[0] == Broadcast(ReqForCurrentTraj(ID_A, "a"))
+    action = started(actions)
+    plan = action.trajectory
+    assert action.task == task and action.psi == {}
+    assert plan.start_step == now + lead
+    assert (plan.first, plan.last) == (A, GOAL)
+    assert len(plan.cells) - 1 == manhattan(A, GOAL)  # the open grid's shortest path
+    assert proto.state is State.EXECUTING and proto.trajectory == plan
+
+
+def test_it_plans_once_every_peer_answered_against_their_answers() -> None:
+    proto = machine()
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    # b is about to cross a's shortest way along y = 0
+    crossing = traj(1, (1, 2), (1, 1), (1, 0), (1, 1), (1, 2))
+    assert proto.handle(CurrentTraj("b", crossing, ID_A), 0) == []
+    action = started(proto.handle(CurrentTraj("c", location_of("c"), ID_A), 0))
+    assert action.psi == {"b": crossing, "c": location_of("c")}
+    assert check_trajectory(OPEN, action.trajectory, action.psi, 0, goal=GOAL) == []
+
+
+# ===================================================== requests while coordinating
+def test_a_higher_priority_request_is_answered_at_once_and_its_old_reply_dropped() -> None:
+    proto = machine()
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    assert proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0) == []  # b was idle
+    # b got a task of higher priority (a lower id): it plans first, so its answer is stale
+    actions = proto.handle(ReqForCurrentTraj(ID_B_HIGH, "b"), 1)
+    assert actions == [Send("b", CurrentTraj("a", Trajectory.stationary(A, 1), ID_B_HIGH)),
+                       Send("b", ReqForCurrentTraj(ID_A, "a"))]
+    assert "b" not in proto.received and "b" not in proto.pending
+    # c answering no longer completes the round: b's answer was dropped
+    assert proto.handle(CurrentTraj("c", location_of("c"), ID_A), 1) == []
+    assert proto.state is State.COORDINATING
+    b_plan = traj(2, (4, 4), (4, 3), (4, 2), (3, 2))
+    action = started(proto.handle(CurrentTraj("b", b_plan, ID_A), 2))
+    assert action.psi["b"] == b_plan
+
+
+def test_a_lower_priority_request_waits_for_my_new_trajectory() -> None:
+    proto = machine({"a": A, "b": B, "c": C})
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    assert proto.handle(ReqForCurrentTraj(ID_B_LOW, "b"), 0) == []
+    assert proto.handle(ReqForCurrentTraj(ID_C_LOW, "c"), 0) == []
+    assert proto.pending == {"b": ID_B_LOW, "c": ID_C_LOW}
+    proto.handle(CurrentTraj("b", location_of("b"), ID_A), 1)
+    actions = proto.handle(CurrentTraj("c", location_of("c"), ID_A), 1)
+    plan = started(actions).trajectory
+    assert actions[0] == started(actions)  # it starts executing, then unblocks the waiting peers
+    assert set(actions[1:]) == {Send("b", CurrentTraj("a", plan, ID_B_LOW)),
+                                Send("c", CurrentTraj("a", plan, ID_C_LOW))}
+    assert proto.pending == {}
+
+
+# ================================================= stale, duplicate and foreign replies
+def test_a_reply_to_an_older_request_is_ignored() -> None:
+    proto = machine({"a": A, "b": B})
+    old = TaskId(1, "a", 0)
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    stale = traj(0, (4, 4), (4, 3), (4, 2), (4, 1), (4, 0))  # an old plan of b, ending on a's goal
+    assert proto.handle(CurrentTraj("b", stale, old), 0) == []
+    assert proto.state is State.COORDINATING and proto.received == {}
+    action = started(proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0))
+    assert action.psi == {"b": location_of("b")}
+
+
+def test_a_reply_from_a_stranger_is_ignored() -> None:
+    proto = machine({"a": A, "b": B})
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    assert proto.handle(CurrentTraj("z", Trajectory.stationary((2, 2, 0), 0), ID_A), 0) == []
+    assert proto.state is State.COORDINATING
+
+
+def test_a_duplicated_reply_is_harmless() -> None:
+    reply_b = CurrentTraj("b", traj(1, (1, 2), (1, 1), (1, 0), (1, 1)), ID_A)
+    reply_c = CurrentTraj("c", location_of("c"), ID_A)
+    once, twice = machine(), machine()
+    for proto in (once, twice):
+        proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    once.handle(reply_b, 0)
+    assert twice.handle(reply_b, 0) == [] and twice.handle(reply_b, 0) == []
+    assert started(twice.handle(reply_c, 0)) == started(once.handle(reply_c, 0))
+    assert twice.handle(reply_c, 0) == []  # late duplicate while executing
+    assert twice.state is State.EXECUTING
+
+
+# ========================================================== membership changes
+def test_a_peer_leaving_is_no_longer_waited_for_but_stays_an_obstacle() -> None:
+    proto = machine()
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    b_plan = traj(1, (4, 4), (4, 3), (4, 2), (4, 1))  # b answered, then lost its link
+    proto.handle(CurrentTraj("b", b_plan, ID_A), 0)
+    assert proto.handle(PeerLeft("b"), 1) == []  # still waiting for c
+    action = started(proto.handle(CurrentTraj("c", location_of("c"), ID_A), 1))
+    assert action.psi == {"b": b_plan, "c": location_of("c")}
+    assert action.trajectory.last == GOAL
+    assert check_trajectory(OPEN, action.trajectory, action.psi, 0) == []
+
+
+def test_the_last_awaited_peer_leaving_lets_it_plan_with_its_last_known_trajectory() -> None:
+    proto = machine()
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    proto.handle(ReqForCurrentTraj(ID_C_LOW, "c"), 0)  # c waits for a's plan ...
+    proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0)
+    actions = proto.handle(PeerLeft("c"), 1)  # ... then leaves before answering
+    action = started(actions)
+    assert action.psi == {"b": location_of("b"), "c": Trajectory.stationary(C, 0)}  # where it was last known
+    assert actions == [action]  # a departed drone is not answered
+    assert proto.handle(PeerLeft("c"), 1) == []  # leaving twice changes nothing
+
+
+def test_a_peer_joining_during_coordination_is_asked_and_waited_for() -> None:
+    proto = machine({"a": A, "b": B})
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    assert proto.handle(PeerJoined("c", C), 1) == [Send("c", ReqForCurrentTraj(ID_A, "a"))]
+    assert proto.handle(PeerJoined("c", C), 1) == []  # already a member
+    assert proto.handle(CurrentTraj("b", location_of("b"), ID_A), 1) == []  # still waiting for c
+    c_plan = traj(2, (0, 4), (0, 3), (1, 3))
+    action = started(proto.handle(CurrentTraj("c", c_plan, ID_A), 2))
+    assert action.psi == {"b": location_of("b"), "c": c_plan}
+
+
+def test_a_peer_joining_while_idle_is_asked_at_the_next_task() -> None:
+    proto = machine({"a": A})
+    assert proto.handle(PeerJoined("b", B), 0) == []
+    actions = proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    assert actions == [Broadcast(ReqForCurrentTraj(ID_A, "a"))]  # it waits for b now
+    assert started(proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0)).psi == {"b": location_of("b")}
+
+
+# ============================================================== no plan found
+CORRIDOR = Workspace.build(size=(6, 1, 1))  # 1 wide: a parked drone walls in what lies behind it
+
+
+def test_no_plan_fails_the_task_and_answers_the_pending_peers() -> None:
+    peers = {"a": (0, 0, 0), "b": (2, 0, 0), "c": (5, 0, 0)}
+    proto = machine(peers, workspace=CORRIDOR)
+    task = Task(ID_A, (4, 0, 0))  # behind b, which stays parked
+    proto.handle(NewTask(task), 3)
+    proto.handle(ReqForCurrentTraj(ID_C_LOW, "c"), 3)
+    proto.handle(CurrentTraj("b", Trajectory.stationary((2, 0, 0), 3), ID_A), 3)
+    actions = proto.handle(CurrentTraj("c", Trajectory.stationary((5, 0, 0), 3), ID_A), 4)
+    assert actions[0] == Send("c", CurrentTraj("a", Trajectory.stationary((0, 0, 0), 4), ID_C_LOW))
+    [failed] = actions[1:]
+    assert isinstance(failed, TaskFailed) and failed.task == task
+    assert (proto.state, proto.task, proto.pending, proto.location) == (State.WAIT_FOR_TASK, None, {}, (0, 0, 0))
+    # back in WaitForTaskRequest: it takes the next task
+    assert proto.handle(NewTask(Task(TaskId(9, "a", 2), (1, 0, 0))), 5) == [Broadcast(ReqForCurrentTraj(
+        TaskId(9, "a", 2), "a"))]
+
+
+@pytest.mark.parametrize(("flight_steps", "hovering_since", "plans"), [
+    (4, None, True),  # exactly the 4 steps of the way
+    (3, None, False),  # one short
+    (7, 2, True),  # hovered 3 steps (2 .. start step 5) of 7: 4 left
+    (6, 2, False),  # hovered 3 of 6: 3 left
+    (2, 0, False),  # hovered longer than the budget
+])
+def test_the_battery_budget_caps_the_plan(flight_steps: int, hovering_since: int | None, plans: bool) -> None:
+    proto = machine({"a": A}, lead_steps=2)
+    actions = proto.handle(NewTask(Task(ID_A, GOAL, flight_steps, hovering_since)), 3)  # plan starts at 5
+    kinds = [type(a) for a in actions[1:]]
+    assert kinds == ([StartExecuting] if plans else [TaskFailed])
+    assert proto.state is (State.EXECUTING if plans else State.WAIT_FOR_TASK)
+
+
+# ============================================================ whole clusters
+CROSSING = Workspace.build(size=(5, 5, 1), obstacles=frozenset({(1, 1, 0), (3, 3, 0)}), beta_s=1.0)  # delta 1
+CLUSTER_STARTS = {"a": (0, 2, 0), "b": (2, 0, 0), "c": (4, 4, 0)}
+CLUSTER_GOALS = {"a": (4, 2, 0), "b": (2, 4, 0), "c": (0, 0, 0)}  # three crossing ways
+ORDERS: list[str | int] = ["fifo", "lifo", 0, 1, 2, 3, 4]  # an int is the seed of a random order
+
+
+def run_round(cluster: ProtocolCluster, goals: Mapping[str, Cell], order: str | int) -> None:
+    """Every drone gets its task at the same step, then the network delivers everything."""
+    first = len(cluster.started)
+    for drone, goal in goals.items():
+        cluster.start_task(drone, goal)
+    cluster.deliver_all(random.Random(order) if isinstance(order, int) else order)
+    round_ = cluster.started[first:]
+    assert sorted(s.drone for s in round_) == sorted(goals), "every drone starts exactly once"
+    assert cluster.failed == []
+    for s in round_:
+        plan = s.action.trajectory
+        assert (plan.first, plan.last, plan.start_step) == (
+            cluster.protocols[s.drone].location, goals[s.drone], cluster.now + cluster.lead_steps)
+        # Psi is exactly what every peer had committed when I planned ...
+        assert dict(s.action.psi) == dict(s.peers_then)
+    # ... and whoever planned after me had my final trajectory: the paper's safety argument
+    for i, earlier in enumerate(round_):
+        for later in round_[i + 1:]:
+            assert later.action.psi[earlier.drone] == earlier.action.trajectory
+            assert later.action.psi[earlier.drone] == cluster.trajectory(earlier.drone)
+    flown = {s.drone: s.action.trajectory for s in round_}
+    assert check_fleet(cluster.workspace, flown, cluster.delta) == []
+
+
+@pytest.mark.parametrize("order", ORDERS)
+@pytest.mark.parametrize("drones", [("a", "b"), ("a", "c"), ("a", "b", "c")], ids="+".join)
+def test_simultaneous_tasks_all_start_safely(drones: tuple[str, ...], order: str | int) -> None:
+    cluster = ProtocolCluster(CROSSING, {d: CLUSTER_STARTS[d] for d in drones})
+    assert cluster.delta == 1 and cluster.lead_steps == 2
+    run_round(cluster, {d: CLUSTER_GOALS[d] for d in drones}, order)
+    # the highest priority (lowest id) plans first; with equal stamps that is the smallest name
+    assert cluster.started[0].drone == min(drones)
+
+
+@pytest.mark.parametrize("order", ORDERS)
+def test_a_second_round_plans_against_the_finished_first(order: str | int) -> None:
+    cluster = ProtocolCluster(CROSSING, CLUSTER_STARTS)
+    run_round(cluster, CLUSTER_GOALS, order)
+    cluster.now = max(t.end_step for t in cluster.executed().values()) + 1
+    for drone in CLUSTER_STARTS:
+        cluster.complete(drone)
+    run_round(cluster, CLUSTER_STARTS, order)  # and back home: the idle drones answer with their finished plans
+    assert {s.drone: s.action.trajectory.first for s in cluster.started[3:]} == CLUSTER_GOALS
+
+
+def test_a_drone_that_answered_a_request_ranks_below_it() -> None:
+    """The hybrid clock at work: c answers b's request, then gets a task at the same physical step.
+    By name c would lose to b anyway, so let a (the smallest name) be the one that answered."""
+    cluster = ProtocolCluster(CROSSING, CLUSTER_STARTS)
+    task_b = cluster.start_task("b", CLUSTER_GOALS["b"])
+    for _ in range(3):  # b's broadcast reaches a, b and c
+        cluster.deliver()
+    task_a = cluster.start_task("a", CLUSTER_GOALS["a"])
+    assert task_a.id > task_b.id  # a saw b's stamp
+    cluster.deliver_all("lifo")
+    b, a = cluster.started
+    assert (b.drone, a.drone) == ("b", "a")
+    assert a.action.psi["b"] == b.action.trajectory
+    assert check_fleet(CROSSING, cluster.executed(), cluster.delta) == []
+
+
+def test_a_later_task_plans_around_a_drone_already_flying() -> None:
+    cluster = ProtocolCluster(CROSSING, CLUSTER_STARTS)
+    cluster.start_task("a", CLUSTER_GOALS["a"])
+    cluster.deliver_all()
+    cluster.now = 2  # a is under way
+    cluster.start_task("b", CLUSTER_GOALS["b"])
+    cluster.deliver_all("lifo")
+    a, b = cluster.started
+    assert b.action.psi["a"] == a.action.trajectory  # the executing drone answered with its plan
+    assert b.action.task.id > a.action.task.id
+    flown = {**cluster.executed(), "c": cluster.trajectory("c")}  # c stays where it is
+    assert check_fleet(CROSSING, flown, cluster.delta) == []
+
+
+def test_a_rejoined_peer_that_leaves_again_stays_an_obstacle_where_it_announced_itself() -> None:
+    proto = machine({"a": A, "b": B})
+    proto.handle(PeerLeft("b"), 0)
+    back_at = (2, 0, 0)  # on a's shortest way to its goal
+    proto.handle(PeerJoined("b", back_at), 1)
+    proto.handle(NewTask(Task(ID_A, GOAL)), 2)
+    action = started(proto.handle(PeerLeft("b"), 3))  # gone again before answering
+    assert check_trajectory(OPEN, action.trajectory, {"b": Trajectory.stationary(back_at, 1)}, 0) == []
+
+
+# ============================================================ random schedules
+def flown_paths(cluster: ProtocolCluster, horizon: int) -> dict[str, Trajectory]:
+    """Where each drone is at every step 0..horizon: its latest started plan, else where it began."""
+    paths = {}
+    for drone, proto in cluster.protocols.items():
+        plans = [s.action.trajectory for s in cluster.started if s.drone == drone]
+        here = plans[0].first if plans else proto.location
+        cells = []
+        for t in range(horizon + 1):
+            begun = [p for p in plans if p.start_step <= t]
+            cells.append(begun[-1].at(t) if begun else here)
+        paths[drone] = Trajectory(0, tuple(cells))
+    return paths
+
+
+@pytest.mark.parametrize("seed", range(10))
+@pytest.mark.parametrize("n", [2, 3, 4])
+def test_random_schedules_of_tasks_messages_and_time(n: int, seed: int) -> None:
+    """Tasks to idle drones at random moments, messages delivered in random order, time going on
+    and plans completing: Psi is always what the peers had committed, nobody stays stuck
+    coordinating, and what the fleet flies is safe."""
+    rng = random.Random(seed)
+    starts = dict(list({**CLUSTER_STARTS, "d": (0, 0, 0)}.items())[:n])
+    cluster = ProtocolCluster(CROSSING, starts)
+    for _ in range(300):
+        idle = [d for d, p in cluster.protocols.items() if p.state is State.WAIT_FOR_TASK]
+        roll = rng.random()
+        if roll < 0.5 and cluster.network:
+            cluster.deliver(rng.randrange(len(cluster.network)))
+        elif roll < 0.7 and idle:
+            cluster.start_task(rng.choice(idle), rng.choice(CROSSING.free_cells))
+        else:
+            cluster.now += 1
+            for drone, proto in cluster.protocols.items():
+                if proto.state is State.EXECUTING and proto.trajectory and proto.trajectory.end_step <= cluster.now:
+                    cluster.complete(drone)
+    cluster.deliver_all(rng)
+    assert all(p.state is not State.COORDINATING for p in cluster.protocols.values())
+    assert len(cluster.started) >= n  # the schedule did something
+    horizon = max(s.action.trajectory.end_step for s in cluster.started) + cluster.delta + 2
+    for s in cluster.started:
+        assert s.action.psi.keys() == s.peers_then.keys()
+        for peer, answer in s.action.psi.items():  # the same positions (a location's stamp may differ)
+            assert [answer.at(t) for t in range(horizon)] == [s.peers_then[peer].at(t) for t in range(horizon)]
+    assert check_fleet(CROSSING, flown_paths(cluster, horizon), cluster.delta) == []
+
+
+# =========================================================== hybrid clocks
+def test_task_ids_are_unique_and_totally_ordered_across_drones() -> None:
+    clocks = [HybridClock(d) for d in ("a", "b", "c")]
+    ids = [clock.next_id(physical) for physical in (0, 0, 5, 3, 3, 10) for clock in clocks]
+    assert len(set(ids)) == len(ids)
+    for x, y in itertools.combinations(ids, 2):
+        assert (x < y) != (y < x)  # exactly one way round: a strict total order
+    for clock in clocks:  # each drone's own ids only grow, even when physical time steps back
+        own = [i for i in ids if i.drone == clock.drone]
+        assert own == sorted(own) and [i.seq for i in own] == list(range(1, 7))
+
+
+def test_ids_follow_physical_time_and_never_go_back() -> None:
+    clock = HybridClock("a")
+    assert clock.next_id(100).stamp == 100
+    assert clock.next_id(50).stamp == 101
+    assert clock.next_id(200).stamp == 200
+
+
+def test_an_observed_stamp_makes_later_ids_rank_below_it() -> None:
+    a, b = HybridClock("a"), HybridClock("b")
+    seen = a.next_id(40)
+    b.observe(seen.stamp)
+    later = b.next_id(0)
+    assert later.stamp > seen.stamp
+    assert later > seen and later > TaskId(seen.stamp, "zzz", 10**6)
+    b.observe(3)  # an older stamp does not pull the clock back
+    assert b.next_id(0) > later
