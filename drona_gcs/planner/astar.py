@@ -156,6 +156,7 @@ def _run(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance, star
         wait_bound = (goal_ready - nstep) * min_cost
         # Holding in the collapsed layer would lead back to the same state.
         base = (nstep if nstep < static else static) * n_cells
+        swap_base = (step * n_cells + cell) * n_cells
         for nxt, cost in (with_hold if step < static else without_hold)[cell]:
             k1 = base + nxt
             if k1 in vertex:
@@ -165,14 +166,15 @@ def _run(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance, star
                 continue
             if later_perm and later_perm.get(nxt, INF) <= nstep:
                 continue
-            if swaps and (step * n_cells + cell) * n_cells + nxt in swaps:
+            if swaps and swap_base + nxt in swaps:
                 continue
             h1 = known.get(nxt)
             if h1 is None:
                 h1 = get_h(nxt)
             if h1 >= UNREACHABLE or (hopeless is not None and hopeless(nxt, nstep)):
                 continue
-            h1 = max(h1, wait_bound)
+            if wait_bound > h1:  # noqa: PLR1730 (a call costs more in this loop)
+                h1 = wait_bound
             g[k1] = g1
             parent[k1] = key
             f1 = g1 + h1
