@@ -23,6 +23,9 @@ battery above the safe threshold whatever the schedule:
   start it is on) and tries again from the ground, where waiting is free; and
   before coordinating a leg to a charger it lands too.
 
+A workspace without charging stations has no energy model: batteries are
+not budgeted (the runtime then does not drain them either).
+
 Idle drones fly to the nearest parking cell and land there, instead of
 hovering where they block corridors: a parked drone is an obstacle for every
 plan (the paper notes MRMP is incomplete because parked robots can wall others
@@ -196,9 +199,10 @@ class MailPlanner:
             self.battery_recharged()  # also ends charging for a mail it could not afford
         if self.busy or self.phase is Phase.CHARGING or now < self.retry_at:
             return []
-        budget = Budget(now, self.battery.steps_affordable(level), "no-battery-check" in self.bugs)
+        unchecked = "no-battery-check" in self.bugs or not self.chargers  # no chargers: no energy model
+        budget = Budget(now, self.battery.steps_affordable(level), unchecked)
         spots = self.parking or self.chargers
-        if self.tried and not self.low and self.cell not in spots:
+        if self.tried and not self.low and spots and self.cell not in spots:
             # A leg found no plan: maybe our goal is where another drone waits, while we wait
             # where it wants to go. Clear the way on a parking cell before trying again.
             return self._to_one_of(spots, budget, taken, Phase.TO_PARKING)
@@ -211,7 +215,7 @@ class MailPlanner:
             return self._to_charger(budget, taken)
         if self.queue:
             return self._start_next_mail(budget, taken)
-        if self.cell not in spots:
+        if spots and self.cell not in spots:
             return self._to_one_of(spots, budget, taken, Phase.TO_PARKING)
         return []
 
@@ -268,7 +272,7 @@ class MailPlanner:
         ranked = sorted((c for c in candidates if budget.allows(self.distance(self.cell, c) + reserve(c))),
                         key=lambda c: (c in taken, self.distance(self.cell, c), c))
         if not ranked:
-            if purpose is Phase.TO_PARKING:
+            if purpose is Phase.TO_PARKING and self.chargers:
                 self.low = True
                 return self._to_charger(budget, taken)
             self.landed_here = True  # no charger in reach: wait on the ground

@@ -94,7 +94,8 @@ def make_world_config(workspace: Workspace, drones: int, requests: int, delta: i
     # Batteries start part-charged, so charging and the energy checks are exercised.
     model = options.get("battery", BatteryModel())
     assert isinstance(model, BatteryModel)
-    levels = tuple(_initial_level(workspace, start, model, rng) for start in starts)
+    levels = tuple(_initial_level(workspace, start, model, rng) if workspace.charging_stations else 100.0
+                   for start in starts)
     # Generous enough for a drone's share of the mail, a charge and the detours of a busy grid.
     per_drone = -(-requests // len(ids))
     span = workspace.nx + workspace.ny + workspace.nz
@@ -272,6 +273,8 @@ class World:
 
     def _battery_after_step(self, stack: DroneStack, level: float) -> float:
         model = self.config.battery
+        if not self.config.workspace.charging_stations:
+            return level  # nowhere to charge: batteries are not modelled
         if stack.mail.phase is Phase.CHARGING and stack.executor.cell in self.config.workspace.charging_stations:
             return min(100.0, level + model.charge_per_step)
         if stack.landed:

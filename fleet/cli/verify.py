@@ -60,6 +60,8 @@ def run(args: argparse.Namespace) -> int:
         console.print(f"drona verify: {exc}", markup=False)
         return 2
     strategy = Strategy(args.strategy)
+    if not explorer.workspace.charging_stations:
+        print("note: the workspace has no charging stations, so batteries are not modelled")
     started = time.monotonic()
     with _progress(args.quiet, console) as bar:
         task = bar.add_task(strategy.value, total=None if strategy is Strategy.DFS else args.schedules, rate="")

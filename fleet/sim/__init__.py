@@ -1,0 +1,13 @@
+"""The fake vehicle: a MAVLink quadrotor that behaves like ArduCopter or PX4 SITL, without a simulator.
+
+Layers, from the inside out:
+
+* :mod:`fleet.sim.personality`: what differs between ArduCopter and PX4 (mode numbers, results, streams);
+* :mod:`fleet.sim.physics`: point-mass kinematics and the battery, stepped with ``now``;
+* :mod:`fleet.sim.model`: :class:`~fleet.sim.model.VehicleModel`, the sans-I/O vehicle: decoded
+  messages in, messages out, time passed in as ``now``;
+* :mod:`fleet.sim.telemetry`: the messages the vehicle sends, and when;
+* :mod:`fleet.sim.codec`: pymavlink encoding, decoding and signing;
+* :mod:`fleet.sim.transport`: asyncio UDP (PX4 SITL style) and TCP (ArduPilot SITL style) links;
+* :mod:`fleet.sim.fleet`: many vehicles in one process, one clock, one TaskGroup.
+"""
