@@ -242,14 +242,7 @@ class Workspace:
         return found
 
     def reachable_from(self, start: Cell) -> set[Cell]:
-        found = {start}
-        queue = deque([start])
-        while queue:
-            for nxt in self.neighbours(queue.popleft()):
-                if nxt not in found:
-                    found.add(nxt)
-                    queue.append(nxt)
-        return found
+        return set(self.distances_from(start))
 
     def with_drones(self, drones: Mapping[str, Cell]) -> Workspace:
         """A copy with another set of drones, validated."""

@@ -44,7 +44,6 @@ Each call uses its own Z3 context, so plans may run in parallel threads.
 from __future__ import annotations
 
 import time
-from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -91,13 +90,13 @@ def plan_smt(workspace: Workspace, start: Cell, goal: Cell, start_step: int,
     ready = _goal_free_from(goal, others, start_step, delta)
     if ready is None:
         raise NoPlanFound("the goal is another drone's resting cell for good")
-    to_goal = _distances(workspace, goal)
+    to_goal = workspace.distances_from(goal)
     if start not in to_goal:
         raise NoPlanFound("the goal cannot be reached from the start")
     prim_costs = [model.cost(p) for p in model.primitives]
     min_cost, uniform = min(prim_costs), len(set(prim_costs)) == 1
     problem = _Problem(workspace, model, windows, start, goal, start_step,
-                       _distances(workspace, start), to_goal)
+                       workspace.distances_from(start), to_goal)
     stopped = max((o.end_step + delta + 1 for o in others.values()), default=start_step)
     useful = min(limit, max(0, stopped - start_step) + len(workspace.free_cells))
     deadline = None if timeout_ms is None else time.monotonic() + timeout_ms / 1000
@@ -151,19 +150,6 @@ def _goal_free_from(goal: Cell, others: Mapping[str, Trajectory], n: int, delta:
             if any(other.at(p) == goal for p in range(t - delta, t + delta + 1)):
                 ready = max(ready, t + 1)
     return ready
-
-
-def _distances(workspace: Workspace, source: Cell) -> dict[Cell, int]:
-    """Fewest moves between ``source`` and each free cell it connects to (moves are symmetric)."""
-    found = {source: 0}
-    queue = deque([source])
-    while queue:
-        cell = queue.popleft()
-        for nxt in workspace.neighbours(cell):
-            if nxt not in found:
-                found[nxt] = found[cell] + 1
-                queue.append(nxt)
-    return found
 
 
 @dataclass(frozen=True)
