@@ -1,0 +1,1 @@
+"""The vehicle link: one async interface to an autopilot, with pymavlink and MAVSDK backends."""
