@@ -18,6 +18,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "plan": ("fleet.cli.plan", "plan safe trajectories for JSON Lines problems"),
     "bench": ("fleet.cli.bench", "benchmarks (bench planner)"),
     "verify": ("fleet.cli.verify", "systematic tester: explore schedules of the real stack for bugs"),
+    "sim-vehicle": ("fleet.cli.sim_vehicle", "fake ArduCopter/PX4 vehicles speaking MAVLink over UDP or TCP"),
 }
 
 

@@ -6,7 +6,7 @@ import os
 
 os.environ.setdefault("MAVLINK20", "1")  # for any mavutil imported later in this process
 
-from pymavlink.dialects.v20 import ardupilotmega as mavlink2  # noqa: E402
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 Message = mavlink2.MAVLink_message
 

@@ -56,11 +56,11 @@ class Personality:
     def behaviour(self, name: str) -> Behaviour:
         return self.modes[name][1]
 
-    def mode_from_command(self, param2: float, param3: float) -> int:
+    def mode_from_command(self, param2: int, param3: int) -> int:
         """MAV_CMD_DO_SET_MODE's custom mode: param2 for ArduPilot, main param2 and sub param3 for PX4."""
         if self.autopilot == mavlink2.MAV_AUTOPILOT_PX4:
-            return px4_mode(int(param2), int(param3))
-        return int(param2)
+            return px4_mode(param2, param3)
+        return param2
 
 
 ARDUPILOT = Personality(

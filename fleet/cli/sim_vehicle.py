@@ -1,0 +1,87 @@
+"""``drona sim-vehicle``: fake MAVLink quadrotors that behave like ArduCopter or PX4 SITL.
+
+Vehicle ``i`` (system id ``i + 1``) starts under drone ``i``'s start cell of ``--workspace``.
+Over UDP (the default, as PX4 SITL) it sends to a ground station listening on
+``--host``:(14540 + i); with ``--tcp`` (as ArduPilot SITL) it listens on (5760 + 10 i).
+``--base-port`` moves either range. Stops cleanly on SIGINT or SIGTERM (exit 0).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import signal
+import sys
+
+from drona_gcs.errors import DronaError
+from drona_gcs.workspace import Workspace
+from drona_gcs.workspace_files import load_workspace
+from fleet.sim.codec import parse_key
+from fleet.sim.config import VehicleConfig
+from fleet.sim.fleet import FleetConfig, SimNode, run_fleet
+from fleet.sim.personality import PERSONALITIES
+from fleet.sim.physics import Limits
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--workspace", help="workspace file: vehicle i starts at drone i's start cell")
+    parser.add_argument("--count", type=int, default=1, help="number of vehicles (default 1)")
+    parser.add_argument("--autopilot", choices=sorted(PERSONALITIES), default="ardupilot",
+                        help="personality: modes, results and streams of ArduCopter or PX4 (default ardupilot)")
+    parser.add_argument("--tcp", action="store_true", help="TCP servers as ArduPilot SITL (default: UDP as PX4 SITL)")
+    parser.add_argument("--host", default="127.0.0.1", help="address to use (default 127.0.0.1)")
+    parser.add_argument("--base-port", type=int, help="first port (default 14540 for UDP, 5760 for TCP)")
+    parser.add_argument("--speedup", type=float, default=1.0, help="simulated seconds per wall-clock second")
+    parser.add_argument("--ready-after", type=float, default=2.0,
+                        help="simulated seconds from boot to a position estimate (arming refused before)")
+    parser.add_argument("--auto-disarm", type=float, default=10.0,
+                        help="seconds armed on the ground without takeoff before disarming itself (default 10)")
+    parser.add_argument("--max-speed", type=float, default=5.0, help="horizontal speed limit, m/s (default 5)")
+    parser.add_argument("--battery", type=float, default=100.0, help="initial battery charge, percent")
+    parser.add_argument("--signing-key", help="MAVLink 2 signing key, 64 hex digits: unsigned commands are ignored")
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        config = _config(args)
+        workspace: Workspace | None = load_workspace(args.workspace) if args.workspace else None
+    except (ValueError, DronaError) as exc:
+        print(f"drona sim-vehicle: {exc}", file=sys.stderr)
+        return 2
+    try:
+        asyncio.run(_serve(config, workspace))
+    except DronaError as exc:
+        print(f"drona sim-vehicle: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def _config(args: argparse.Namespace) -> FleetConfig:
+    if args.count < 1:
+        raise ValueError(f"--count must be >= 1, got {args.count}")
+    for name in ("speedup", "max_speed"):
+        if not getattr(args, name) > 0:
+            raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
+    if not 0 <= args.battery <= 100:
+        raise ValueError(f"--battery must be within 0..100, got {args.battery}")
+    vehicle = VehicleConfig(personality=PERSONALITIES[args.autopilot], limits=Limits(max_speed=args.max_speed),
+                            ready_after_s=args.ready_after, auto_disarm_s=args.auto_disarm,
+                            battery_pct=args.battery)
+    key = parse_key(args.signing_key) if args.signing_key else None
+    return FleetConfig(count=args.count, vehicle=vehicle, tcp=args.tcp, host=args.host, base_port=args.base_port,
+                       speedup=args.speedup, signing_key=key)
+
+
+async def _serve(config: FleetConfig, workspace: Workspace | None) -> None:
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+
+    def announce(nodes: list[SimNode]) -> None:
+        kind = "tcp server" if config.tcp else "udp to"
+        for i, node in enumerate(nodes):
+            print(f"drona sim-vehicle: system {node.system_id} ({config.vehicle.personality.name}) "
+                  f"{kind} {config.host}:{config.port(i)}", file=sys.stderr, flush=True)
+
+    await run_fleet(config, workspace, stop, on_ready=announce)

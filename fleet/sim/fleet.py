@@ -1,0 +1,183 @@
+"""Many fake vehicles in one process: one simulated clock, one tick loop, one TaskGroup.
+
+Vehicle ``i`` (system id ``i + 1``) starts on the ground under drone ``i``'s start cell of the
+workspace (``workspace.drones`` order); without a workspace the vehicles stand 5 m apart
+eastwards at ArduPilot SITL's default home. Its link is, as the real SITLs:
+
+* UDP (PX4 SITL): it sends to the ground station at ``host:(base_port + i)``, default base
+  14540, and replies to whatever address last wrote to it;
+* TCP (ArduPilot SITL): a server on ``host:(base_port + 10 i)``, default base 5760.
+
+Local positions (LOCAL_POSITION_NED, SET_POSITION_TARGET_LOCAL_NED) are relative to the
+vehicle's own home on the ground, as a real autopilot's EKF origin; GLOBAL_POSITION_INT and
+HOME_POSITION place it in the workspace (:class:`drona_gcs.geo.GeoFrame`). A vehicle landed and
+disarmed on a charging-station cell's ground recharges.
+
+Simulated time runs ``speedup`` times faster than the wall clock; every rule of the model
+(ready delay, auto-disarm, stream rates, offboard timeout) is in simulated seconds.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass, field, replace
+
+from drona_gcs.errors import WorkspaceError
+from drona_gcs.geo import GeoFrame, Ned
+from drona_gcs.workspace import GeoOrigin, Workspace
+from fleet.sim.codec import Codec, decode
+from fleet.sim.config import Placement, VehicleConfig
+from fleet.sim.mav import Message
+from fleet.sim.model import VehicleModel
+from fleet.sim.transport import DataCallback, TcpServerLink, UdpLink
+
+UDP_BASE_PORT = 14540
+TCP_BASE_PORT = 5760
+TCP_PORT_STRIDE = 10
+#: ArduPilot SITL's default home (CMAC, Canberra), for runs without a workspace.
+DEFAULT_HOME = GeoOrigin(lat=-35.363261, lon=149.165230, alt_m=584.0)
+DEFAULT_SPACING_M = 5.0
+
+
+@dataclass(frozen=True)
+class FleetConfig:
+    count: int = 1
+    vehicle: VehicleConfig = field(default_factory=VehicleConfig)  #: system_id is set per vehicle
+    tcp: bool = False
+    host: str = "127.0.0.1"
+    base_port: int | None = None  #: None: 14540 for UDP, 5760 for TCP
+    speedup: float = 1.0
+    tick_s: float = 0.02  #: wall-clock seconds between physics/telemetry steps
+    signing_key: bytes | None = None
+
+    def port(self, index: int) -> int:
+        if self.tcp:
+            return (TCP_BASE_PORT if self.base_port is None else self.base_port) + TCP_PORT_STRIDE * index
+        return (UDP_BASE_PORT if self.base_port is None else self.base_port) + index
+
+
+class SimClock:
+    """Simulated seconds since the start, ``speedup`` times the wall clock."""
+
+    def __init__(self, speedup: float = 1.0) -> None:
+        if not speedup > 0:
+            raise ValueError(f"speedup must be > 0, got {speedup}")
+        self.speedup = speedup
+        self._start = time.monotonic()
+
+    def now(self) -> float:
+        return (time.monotonic() - self._start) * self.speedup
+
+
+def placements(workspace: Workspace | None, count: int) -> list[Placement]:
+    """Where each of ``count`` vehicles starts (raises WorkspaceError if the workspace has too few drones)."""
+    if workspace is None:
+        ws = Workspace.build(size=(max(1, count), 1, 1), cell_size_m=DEFAULT_SPACING_M, geo=DEFAULT_HOME)
+        cells = [(i, 0, 0) for i in range(count)]
+    else:
+        ws, cells = workspace, list(workspace.drones.values())
+        if len(cells) < count:
+            raise WorkspaceError(f"has {len(cells)} drone(s), {count} vehicles asked for",
+                                 field="drones", source=workspace.source)
+    frame = GeoFrame(ws)
+    chargers = frozenset((x, y) for x, y, _ in ws.charging_stations)
+    out = []
+    for cell in cells[:count]:
+        centre = frame.cell_to_ned(cell)
+        out.append(Placement(frame, Ned(centre.north, centre.east, 0.0), chargers))
+    return out
+
+
+class SimNode:
+    """One vehicle model on its link: decodes what arrives, encodes and sends what the model says."""
+
+    def __init__(self, model: VehicleModel, codec: Codec, clock: SimClock) -> None:
+        self.model = model
+        self.codec = codec
+        self.clock = clock
+        self.link: UdpLink | TcpServerLink | None = None
+
+    @property
+    def system_id(self) -> int:
+        return self.model.config.system_id
+
+    async def open(self, config: FleetConfig, index: int) -> None:
+        port = config.port(index)
+        if config.tcp:
+            self.link = await TcpServerLink.open(config.host, port, self.session)
+        else:
+            self.link = await UdpLink.open(config.host, port, self.session)
+
+    def session(self) -> DataCallback:
+        decoder = self.codec.decoder()
+
+        def on_data(data: bytes) -> None:
+            now = self.clock.now()
+            for msg in decode(decoder, data):
+                self.send(self.model.handle(msg, now))
+
+        return on_data
+
+    def step(self, now: float) -> None:
+        self.send(self.model.step(now))
+
+    def send(self, messages: list[Message]) -> None:
+        if self.link is None:
+            return
+        for msg in messages:
+            self.link.send(self.codec.encode(msg))
+
+    def close(self) -> None:
+        if self.link is not None:
+            self.link.close()
+
+
+def build_nodes(config: FleetConfig, workspace: Workspace | None, clock: SimClock) -> list[SimNode]:
+    now = clock.now()
+    nodes = []
+    for i, place in enumerate(placements(workspace, config.count)):
+        vehicle = replace(config.vehicle, system_id=i + 1)
+        codec = Codec(i + 1, signing_key=config.signing_key)
+        nodes.append(SimNode(VehicleModel(vehicle, place, now), codec, clock))
+    return nodes
+
+
+async def periodic(period: float) -> AsyncIterator[None]:
+    """Yield every ``period`` seconds of the event loop's clock, skipping ticks that were missed."""
+    loop = asyncio.get_running_loop()
+    next_at = loop.time()
+    while True:
+        yield
+        next_at = max(next_at + period, loop.time())
+        await asyncio.sleep(next_at - loop.time())
+
+
+async def run_fleet(config: FleetConfig, workspace: Workspace | None, stop: asyncio.Event,
+                    on_ready: Callable[[list[SimNode]], None] | None = None) -> None:
+    """Run the vehicles until ``stop`` is set; ``on_ready(nodes)`` once every link is open."""
+    clock = SimClock(config.speedup)
+    nodes = build_nodes(config, workspace, clock)
+    try:
+        for i, node in enumerate(nodes):
+            await node.open(config, i)
+        if on_ready is not None:
+            on_ready(nodes)
+        async with asyncio.TaskGroup() as tg:
+            ticker = tg.create_task(_tick(nodes, clock, config.tick_s))
+            await stop.wait()
+            ticker.cancel()
+    finally:
+        for node in nodes:
+            node.close()
+        for node in nodes:
+            if node.link is not None:
+                await node.link.wait_closed()
+
+
+async def _tick(nodes: list[SimNode], clock: SimClock, period: float) -> None:
+    async for _ in periodic(period):
+        now = clock.now()
+        for node in nodes:
+            node.step(now)

@@ -1,0 +1,101 @@
+"""The flight rules of the fake vehicle, stepped with ``now``: what it flies to, and what time does.
+
+Every step: a vehicle armed on the ground without a takeoff disarms after ``auto_disarm_s``;
+PX4 leaves OFFBOARD for AUTO.LOITER once the setpoints stop; an ArduCopter GUIDED velocity
+setpoint not renewed for ``guided_velocity_timeout_s`` stops. Then the body moves towards
+the mode's target, touchdown and takeoff completion are noticed (LAND and RTL disarm on
+touchdown), and the battery drains (in the air, armed) or charges (landed, disarmed, on a
+charging station).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+from fleet.sim.mav import mavlink2
+from fleet.sim.personality import ARDUPILOT, Behaviour
+from fleet.sim.physics import HOLD_STILL, Target
+
+if TYPE_CHECKING:
+    from fleet.sim.model import VehicleModel
+
+
+def advance(m: VehicleModel, now: float, dt: float) -> None:
+    """Apply the rules at ``now``, then fly and drain (or charge) for ``dt`` seconds."""
+    _rules(m, now)
+    m.body.step(_motion_target(m, now), dt)
+    _after_motion(m, now)
+    m.battery.step(dt, _current(m))
+
+
+def _rules(m: VehicleModel, now: float) -> None:
+    p, cfg = m.personality, m.config
+    if m.armed and not m.airborne and m.takeoff_point is None \
+            and now - m.landed_since > cfg.auto_disarm_s:
+        m.text(mavlink2.MAV_SEVERITY_INFO, "Disarming motors" if p is ARDUPILOT else "Auto disarmed")
+        m.disarm(now)
+    if m.mode == p.follow_mode and p is not ARDUPILOT and not m.streaming(now):
+        m.text(mavlink2.MAV_SEVERITY_CRITICAL, "Offboard signal lost: holding")
+        m.enter_mode(p.hold_mode, now)
+    if (p is ARDUPILOT and m.setpoint is not None and not m.setpoint.has_horizontal_position
+            and m.setpoint_times and now - m.setpoint_times[-1] > cfg.guided_velocity_timeout_s):
+        m.setpoint = None  # GUIDED velocity control times out: stop
+
+
+def _motion_target(m: VehicleModel, now: float) -> Target | None:
+    if not m.armed:
+        return None
+    behaviour, b, lim = m.behaviour, m.body, m.config.limits
+    if not m.airborne and m.takeoff_point is None and not (
+            behaviour is Behaviour.FOLLOW and m.personality is not ARDUPILOT):
+        return None  # armed on the ground, idle
+    if behaviour is Behaviour.TAKEOFF:
+        return m.takeoff_point or HOLD_STILL
+    if behaviour is Behaviour.FOLLOW:
+        return m.setpoint or HOLD_STILL
+    if behaviour is Behaviour.LAND:
+        return Target(vd=lim.descent_rate if b.height > lim.land_speed_high_alt else lim.land_speed)
+    if behaviour is Behaviour.RTL:
+        return _rtl_target(m)
+    return HOLD_STILL  # HOLD, and MANUAL in the air (no sticks: it hovers)
+
+
+def _rtl_target(m: VehicleModel) -> Target:
+    """Climb to the return height (``rtl_alt_m``, or higher if already higher), fly home, land."""
+    b, lim = m.body, m.config.limits
+    far = math.hypot(b.north, b.east) > 0.5
+    height = max(m.config.rtl_alt_m, b.height)
+    if far and b.height < height - 0.5:
+        return Target(down=-height)  # climb first
+    if far:
+        return Target(0.0, 0.0, -height)
+    return Target(0.0, 0.0, vd=lim.descent_rate if b.height > lim.land_speed_high_alt else lim.land_speed)
+
+
+def _after_motion(m: VehicleModel, now: float) -> None:
+    b = m.body
+    if not m.airborne and b.height > 0.2:
+        m.airborne = True
+    if m.takeoff_point is not None and m.takeoff_point.down is not None \
+            and b.down <= m.takeoff_point.down + 0.3:
+        m.takeoff_point = None
+        if m.personality.takeoff_mode and m.mode == m.personality.takeoff_mode:
+            m.enter_mode(m.personality.hold_mode, now)
+    if m.airborne and b.down >= 0.0:  # touchdown
+        m.airborne = False
+        m.landed_since = now
+        b.stop()
+        if m.behaviour in (Behaviour.LAND, Behaviour.RTL) and m.armed:
+            m.text(mavlink2.MAV_SEVERITY_INFO, "Landed, disarming")
+            m.disarm(now)
+
+
+def _current(m: VehicleModel) -> float:
+    if m.airborne or m.takeoff_point is not None:
+        return m.config.hover_current_a + 0.8 * m.body.ground_speed
+    if m.armed:
+        return 2.0
+    if m.battery.remaining < 1.0 and m.on_charger():
+        return -m.config.charge_current_a
+    return 0.3

@@ -1,0 +1,375 @@
+"""The fake vehicle itself, sans-I/O: decoded MAVLink messages in, messages out, time passed as ``now``.
+
+``handle(msg, now)`` answers one incoming message; ``step(now)`` advances the flight rules,
+the motion and the battery to ``now`` (:mod:`fleet.sim.flight`) and returns the telemetry then
+due (:mod:`fleet.sim.telemetry`). Nothing here reads a clock or touches
+a socket, so a test can drive it directly and the runner can drive many from one loop.
+
+Behaviour copied from the real autopilots (see :mod:`fleet.sim.personality` for the numbers):
+
+* arming is refused until the vehicle is ready (``ready_after_s`` after boot: its position
+  estimate) and with a low battery; ArduCopter answers MAV_RESULT_FAILED with a STATUSTEXT;
+* ArduCopter ACKs MAV_CMD_DO_SET_MODE with ACCEPTED before it is ready, but stays in
+  STABILIZE: the mode is known only from the next HEARTBEAT (measured on SITL);
+* ArduCopter takes off only armed in GUIDED and not yet airborne, ignores setpoints outside
+  GUIDED and before takeoff, and holds at the last target;
+* PX4 enters OFFBOARD only while setpoints stream (>= 2 Hz) and leaves it for AUTO.LOITER when
+  they stop for more than ``offboard_timeout_s``;
+* a vehicle armed on the ground without taking off disarms itself after ``auto_disarm_s``;
+  LAND and RTL disarm on touchdown.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from drona_gcs.geo import GeoPoint, Ned
+from fleet.sim import flight, telemetry
+from fleet.sim.config import Placement, VehicleConfig
+from fleet.sim.mav import Message, mavlink2
+from fleet.sim.personality import ARDUPILOT, Behaviour
+from fleet.sim.physics import Battery, Body, Target
+from fleet.sim.setpoints import setpoint_from_global, setpoint_from_local
+
+__all__ = ["Command", "Placement", "VehicleConfig", "VehicleModel"]
+
+log = logging.getLogger(__name__)
+
+ACCEPTED: int = mavlink2.MAV_RESULT_ACCEPTED
+UNSUPPORTED: int = mavlink2.MAV_RESULT_UNSUPPORTED
+FORCE_MAGIC = 21196  #: MAV_CMD_COMPONENT_ARM_DISARM param2 that forces arming or disarming
+
+
+@dataclass(frozen=True)
+class Command:
+    """COMMAND_LONG and COMMAND_INT, alike: params 1..7 (COMMAND_INT's x, y, z as 5..7)."""
+
+    command: int
+    params: tuple[float, float, float, float, float, float, float]
+    frame: int | None  #: COMMAND_INT's frame; None for COMMAND_LONG
+    source: tuple[int, int]
+
+
+class VehicleModel:
+    """One fake vehicle: its state, the message handlers and the command table."""
+
+    def __init__(self, config: VehicleConfig, placement: Placement, now: float) -> None:
+        self.config = config
+        self.personality = config.personality
+        self.placement = placement
+        self.home_global = placement.frame.ned_to_global(placement.home)
+        self.boot_time = now
+        self.last_step = now
+        self.mode = self.personality.boot_mode
+        self.armed = False
+        self.airborne = False  #: has left the ground since the last touchdown
+        self.takeoff_point: Target | None = None  #: a takeoff is under way to this point
+        self.landed_since = now
+        self.setpoint: Target | None = None
+        self.setpoint_times: deque[float] = deque(maxlen=8)
+        self.body = Body(config.limits)
+        self.battery = Battery(remaining=config.battery_pct / 100)
+        self.streams = telemetry.Streams(dict(self.personality.default_streams), now)
+        self.unhandled: dict[str, int] = {}
+        self._out: list[Message] = []
+        self._handlers: dict[str, Callable[[Message, float], None]] = {
+            "COMMAND_LONG": self._on_command_long,
+            "COMMAND_INT": self._on_command_int,
+            "SET_MODE": self._on_set_mode,
+            "SET_POSITION_TARGET_LOCAL_NED": self._on_setpoint,
+            "SET_POSITION_TARGET_GLOBAL_INT": self._on_setpoint,
+            "TIMESYNC": self._on_timesync,
+            "REQUEST_DATA_STREAM": self._on_request_data_stream,
+            # Ignored on purpose:
+            "HEARTBEAT": _ignore,  # the ground station's; we answer whoever writes
+            "BAD_DATA": _ignore,  # corrupt bytes, or unsigned/badly signed while signing is on
+            "SYSTEM_TIME": _ignore,
+            "RADIO_STATUS": _ignore,
+            "PARAM_REQUEST_LIST": _ignore,
+            "PARAM_REQUEST_READ": _ignore,
+            "MISSION_REQUEST_LIST": _ignore,
+            "COMMAND_ACK": _ignore,
+        }
+        self._commands: dict[int, Callable[[Command, float], tuple[int, list[Message]]]] = {
+            mavlink2.MAV_CMD_COMPONENT_ARM_DISARM: self._cmd_arm,
+            mavlink2.MAV_CMD_DO_SET_MODE: self._cmd_set_mode,
+            mavlink2.MAV_CMD_NAV_TAKEOFF: self._cmd_takeoff,
+            mavlink2.MAV_CMD_NAV_LAND: self._cmd_land,
+            mavlink2.MAV_CMD_NAV_RETURN_TO_LAUNCH: self._cmd_rtl,
+            mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL: self._cmd_message_interval,
+            mavlink2.MAV_CMD_REQUEST_MESSAGE: self._cmd_request_message,
+            mavlink2.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: self._cmd_request_version,
+            mavlink2.MAV_CMD_GET_HOME_POSITION: self._cmd_get_home,
+        }
+
+    # ------------------------------------------------------------------ state
+    def ready(self, now: float) -> bool:
+        return now - self.boot_time >= self.config.ready_after_s
+
+    def boot_ms(self, now: float) -> int:
+        return max(0, round((now - self.boot_time) * 1000))
+
+    @property
+    def behaviour(self) -> Behaviour:
+        return self.personality.behaviour(self.mode)
+
+    def global_position(self) -> GeoPoint:
+        h, b = self.placement.home, self.body
+        return self.placement.frame.ned_to_global(Ned(h.north + b.north, h.east + b.east, h.down + b.down))
+
+    def landed_state(self) -> int:
+        state: int
+        if not self.airborne:
+            state = (mavlink2.MAV_LANDED_STATE_TAKEOFF if self.takeoff_point is not None and self.armed
+                     else mavlink2.MAV_LANDED_STATE_ON_GROUND)
+        elif self.behaviour is Behaviour.LAND:
+            state = mavlink2.MAV_LANDED_STATE_LANDING
+        else:
+            state = mavlink2.MAV_LANDED_STATE_IN_AIR
+        return state
+
+    def on_charger(self) -> bool:
+        size = self.placement.frame.ws.cell_size_m
+        h, b = self.placement.home, self.body
+        cell = (math.floor((h.east + b.east) / size), math.floor((h.north + b.north) / size))
+        return cell in self.placement.chargers
+
+    # ---------------------------------------------------------------- inbound
+    def handle(self, msg: Message, now: float) -> list[Message]:
+        """Answer one decoded message; returns what to send (ACKs, texts, requested messages)."""
+        kind = msg.get_type()
+        handler = self._handlers.get(kind)
+        if handler is None:
+            self.unhandled[kind] = self.unhandled.get(kind, 0) + 1
+            if self.unhandled[kind] == 1:
+                log.debug("vehicle %d: no handler for %s", self.config.system_id, kind)
+            return []
+        handler(msg, now)
+        out, self._out = self._out, []
+        return out
+
+    def _for_me(self, target_system: int, target_component: int = 0) -> bool:
+        return target_system in (0, self.config.system_id) and target_component in (0, mavlink2.MAV_COMP_ID_AUTOPILOT1)
+
+    def _on_command_long(self, msg: Message, now: float) -> None:
+        if self._for_me(msg.target_system, msg.target_component):
+            params = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
+            self._run_command(Command(msg.command, params, None, _source(msg)), now)
+
+    def _on_command_int(self, msg: Message, now: float) -> None:
+        if self._for_me(msg.target_system, msg.target_component):
+            params = (msg.param1, msg.param2, msg.param3, msg.param4, float(msg.x), float(msg.y), msg.z)
+            self._run_command(Command(msg.command, params, msg.frame, _source(msg)), now)
+
+    def _run_command(self, cmd: Command, now: float) -> None:
+        run = self._commands.get(cmd.command)
+        result, after = run(cmd, now) if run else (UNSUPPORTED, [])
+        # The ACK goes first; texts follow (ArduPilot queues STATUSTEXT), then requested messages.
+        self._out.insert(0, telemetry.command_ack(cmd.command, result, cmd.source))
+        self._out.extend(after)
+
+    def _on_set_mode(self, msg: Message, now: float) -> None:
+        if not self._for_me(msg.target_system):
+            return
+        result = self._set_mode(msg.base_mode, msg.custom_mode, now)
+        # ArduPilot ACKs SET_MODE with the message id as the command; PX4 with DO_SET_MODE.
+        command = (mavlink2.MAVLINK_MSG_ID_SET_MODE if self.personality is ARDUPILOT
+                   else mavlink2.MAV_CMD_DO_SET_MODE)
+        self._out.append(telemetry.command_ack(command, result, _source(msg)))
+
+    def _on_setpoint(self, msg: Message, now: float) -> None:
+        if not self._for_me(msg.target_system, msg.target_component):
+            return
+        if msg.get_type() == "SET_POSITION_TARGET_LOCAL_NED":
+            update = setpoint_from_local(msg, self.body)
+        else:
+            update = setpoint_from_global(msg, self.placement.frame, self.placement.home)
+        if update is None:  # unsupported frame
+            return
+        target, yaw = update
+        self.setpoint_times.append(now)
+        if self.personality is ARDUPILOT and (self.behaviour is not Behaviour.FOLLOW or not self.airborne):
+            return  # ArduCopter uses setpoints only in GUIDED, once flying
+        if target is not None:
+            self.setpoint = target
+            if self.personality is ARDUPILOT:
+                self.takeoff_point = None  # a new target supersedes the takeoff
+        if yaw is not None:
+            self.body.yaw = yaw
+
+    def _on_timesync(self, msg: Message, now: float) -> None:
+        if msg.tc1 == 0:
+            self._out.append(telemetry.timesync(round((now - self.boot_time) * 1e9), msg.ts1))
+
+    def _on_request_data_stream(self, msg: Message, now: float) -> None:
+        """ArduPilot's legacy stream rates (PX4 ignores the message)."""
+        if self.personality is not ARDUPILOT or not self._for_me(msg.target_system, msg.target_component):
+            return
+        on = msg.start_stop and msg.req_message_rate > 0
+        for msg_id in telemetry.DATA_STREAMS.get(msg.req_stream_id, ()):
+            self.streams.set_interval(msg_id, 1e6 / msg.req_message_rate if on else -1, now)
+
+    # --------------------------------------------------------------- commands
+    def text(self, severity: int, text: str) -> None:
+        self._out.append(telemetry.statustext(severity, text))
+
+    def _cmd_arm(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
+        arm, force = _int(cmd.params[0]), _int(cmd.params[1]) == FORCE_MAGIC
+        if arm not in (0, 1):
+            return mavlink2.MAV_RESULT_DENIED, []
+        if arm == 0:
+            if self.armed and self.airborne and not force:
+                self.text(mavlink2.MAV_SEVERITY_CRITICAL, "Disarm: vehicle is flying")
+                return self.personality.rejected, []
+            self.disarm(now)
+            return ACCEPTED, []
+        if self.armed:
+            return ACCEPTED, []
+        if not force:
+            reason = self._arming_problem(now)
+            if reason:
+                self.text(mavlink2.MAV_SEVERITY_CRITICAL, reason)
+                return self.personality.rejected, []
+        self.armed = True
+        self.landed_since = now
+        return ACCEPTED, []
+
+    def _arming_problem(self, now: float) -> str:
+        if not self.ready(now):
+            return self.personality.text_not_ready
+        if self.battery.percent < self.config.min_arm_battery_pct:
+            return self.personality.text_low_battery
+        if self.behaviour in (Behaviour.RTL, Behaviour.LAND):
+            return "Arm: Mode not armable"
+        return ""
+
+    def disarm(self, now: float) -> None:
+        self.armed = False
+        self.takeoff_point = None
+        self.setpoint = None
+        self.landed_since = now
+
+    def _cmd_set_mode(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
+        base, main, sub = (_int(p) for p in cmd.params[:3])
+        if base is None or main is None:
+            return self.personality.rejected, []
+        return self._set_mode(base, self.personality.mode_from_command(main, sub or 0), now), []
+
+    def _set_mode(self, base_mode: int, custom_mode: int, now: float) -> int:
+        if not base_mode & mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+            return UNSUPPORTED  # only custom modes are modelled
+        name = self.personality.mode_name(custom_mode)
+        if name is None:
+            return self.personality.rejected
+        if not self.ready(now) and self.personality.behaviour(name) is not Behaviour.LAND:
+            # ArduCopter SITL before its position estimate: ACCEPTED, yet it stays where it was.
+            return ACCEPTED if self.personality is ARDUPILOT else self.personality.rejected
+        if name == self.personality.follow_mode and self.personality is not ARDUPILOT and not self.streaming(now):
+            self.text(mavlink2.MAV_SEVERITY_CRITICAL, "Switching to Offboard rejected: no setpoints")
+            return self.personality.rejected
+        if name == self.personality.takeoff_mode and not (self.armed and not self.airborne):
+            return self.personality.rejected
+        self.enter_mode(name, now)
+        return ACCEPTED
+
+    def enter_mode(self, name: str, now: float) -> None:
+        if name == self.mode:
+            return
+        self.mode = name
+        if self.personality is ARDUPILOT:
+            self.setpoint = None  # GUIDED starts by holding where it is
+        behaviour = self.personality.behaviour(name)
+        if behaviour is Behaviour.TAKEOFF and self.takeoff_point is None:
+            self.takeoff_point = Target(self.body.north, self.body.east, -self.config.takeoff_alt_m)
+        elif behaviour is not Behaviour.TAKEOFF:
+            self.takeoff_point = None
+
+    def streaming(self, now: float) -> bool:
+        """PX4: are setpoints arriving at >= offboard_min_rate_hz, the last one recently?"""
+        times, cfg = self.setpoint_times, self.config
+        if not times or now - times[-1] > cfg.offboard_timeout_s:
+            return False
+        window = 2.0 / cfg.offboard_min_rate_hz
+        return sum(1 for t in times if now - t <= window) >= 2
+
+    def _cmd_takeoff(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
+        p = self.personality
+        if not self.armed or self.airborne or self.takeoff_point is not None:
+            return p.rejected, []
+        if p is ARDUPILOT:
+            if self.behaviour is not Behaviour.FOLLOW:
+                return p.rejected, []
+            height = cmd.params[6]
+        else:  # PX4: param7 is AMSL, NaN for the default height
+            relative = cmd.frame in (mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT, mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
+            alt = cmd.params[6]
+            height = (self.config.takeoff_alt_m if math.isnan(alt)
+                      else alt if relative else alt - self.home_global.alt_m)
+            if p.takeoff_mode:
+                self.enter_mode(p.takeoff_mode, now)
+        if not height > 0:
+            return p.rejected, []
+        self.takeoff_point = Target(self.body.north, self.body.east, -height)
+        if p is ARDUPILOT:
+            self.setpoint = self.takeoff_point  # GUIDED then holds there
+        elif p.takeoff_mode:
+            self.enter_mode(p.takeoff_mode, now)
+        return ACCEPTED, []
+
+    def _cmd_land(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
+        self.enter_mode(self.personality.land_mode, now)
+        return ACCEPTED, []
+
+    def _cmd_rtl(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
+        if not self.ready(now):
+            return self.personality.rejected, []
+        self.enter_mode(self.personality.rtl_mode, now)
+        return ACCEPTED, []
+
+    def _cmd_message_interval(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
+        msg_id, interval_us = _int(cmd.params[0]), cmd.params[1]
+        if msg_id not in telemetry.STREAMABLE or not math.isfinite(interval_us):
+            return self.personality.rejected, []  # HEARTBEAT too: it stays at 1 Hz
+        self.streams.set_interval(msg_id, interval_us, now)
+        return ACCEPTED, []
+
+    def _cmd_request_message(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
+        build = telemetry.REQUESTABLE.get(_int(cmd.params[0]) or 0)
+        if build is None:
+            return self.personality.rejected, []
+        return ACCEPTED, [build(self, now)]
+
+    def _cmd_request_version(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
+        return ACCEPTED, [telemetry.autopilot_version(self, now)]
+
+    def _cmd_get_home(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
+        return ACCEPTED, [telemetry.home_position(self, now)]
+
+    # ------------------------------------------------------------------- time
+    def step(self, now: float) -> list[Message]:
+        """Advance to ``now``: flight rules, motion, battery; returns the telemetry due."""
+        dt = max(0.0, now - self.last_step)
+        self.last_step = now
+        flight.advance(self, now, dt)
+        out, self._out = self._out, []
+        for msg_id in self.streams.due(now):
+            build = telemetry.REQUESTABLE[msg_id]
+            out.append(build(self, now))
+        return out
+
+
+def _ignore(msg: Message, now: float) -> None:
+    """A message type we receive and deliberately do nothing with."""
+
+
+def _int(value: float) -> int | None:
+    """A command parameter as an integer; None for NaN or infinity ("no value")."""
+    return round(value) if math.isfinite(value) else None
+
+
+def _source(msg: Message) -> tuple[int, int]:
+    return msg.get_srcSystem(), msg.get_srcComponent()

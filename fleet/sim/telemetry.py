@@ -1,0 +1,185 @@
+"""The messages the fake vehicle sends, and when it sends them.
+
+HEARTBEAT goes out at 1 Hz always. Every other message streams only at the interval a
+ground station set with MAV_CMD_SET_MESSAGE_INTERVAL (ArduCopter's default stream rates are
+all 0; the PX4 personality starts with a default set), or once on MAV_CMD_REQUEST_MESSAGE.
+The builders read the model's state and never change it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+from fleet.sim.mav import Message, mavlink2
+
+if TYPE_CHECKING:
+    from fleet.sim.model import VehicleModel
+
+#: Encodes message objects only (its ``*_encode`` methods touch no state).
+_ENC = mavlink2.MAVLink(None)
+
+_SENSORS = (mavlink2.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink2.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+            | mavlink2.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink2.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+            | mavlink2.MAV_SYS_STATUS_SENSOR_GPS | mavlink2.MAV_SYS_STATUS_SENSOR_BATTERY)
+_CAPABILITIES = (mavlink2.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mavlink2.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+                 | mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_INT | mavlink2.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+                 | mavlink2.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+                 | mavlink2.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT)
+_UNUSED_CELL = 0xFFFF
+HEARTBEAT_PERIOD_S = 1.0
+MIN_INTERVAL_S = 0.02  #: 50 Hz at most per message
+DEFAULT_INTERVAL_S = 1.0  #: SET_MESSAGE_INTERVAL with 0: "the default rate"
+
+
+def heartbeat(m: VehicleModel, now: float) -> Message:
+    base = mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+    if m.armed:
+        base |= mavlink2.MAV_MODE_FLAG_SAFETY_ARMED
+    status = mavlink2.MAV_STATE_ACTIVE if m.armed else mavlink2.MAV_STATE_STANDBY
+    return _ENC.heartbeat_encode(mavlink2.MAV_TYPE_QUADROTOR, m.personality.autopilot, base,
+                                 m.personality.custom_mode(m.mode), status)
+
+
+def sys_status(m: VehicleModel, now: float) -> Message:
+    health = _SENSORS if m.ready(now) else _SENSORS & ~mavlink2.MAV_SYS_STATUS_SENSOR_GPS
+    b = m.battery
+    return _ENC.sys_status_encode(_SENSORS, _SENSORS, health, 100, round(b.voltage * 1000),
+                                  round(b.current_a * 100), b.percent, 0, 0, 0, 0, 0, 0)
+
+
+def battery_status(m: VehicleModel, now: float) -> Message:
+    b = m.battery
+    cells = [round(b.voltage / b.cells * 1000)] * b.cells + [_UNUSED_CELL] * (10 - b.cells)
+    charging = b.current_a < 0
+    state = (mavlink2.MAV_BATTERY_CHARGE_STATE_CHARGING if charging
+             else mavlink2.MAV_BATTERY_CHARGE_STATE_LOW if b.percent < m.config.min_arm_battery_pct
+             else mavlink2.MAV_BATTERY_CHARGE_STATE_OK)
+    left = round(b.remaining * b.capacity_mah / 1000 / b.current_a * 3600) if b.current_a > 0.1 else 0
+    return _ENC.battery_status_encode(0, mavlink2.MAV_BATTERY_FUNCTION_ALL, mavlink2.MAV_BATTERY_TYPE_LIPO,
+                                      2500, cells, round(b.current_a * 100), round(b.consumed_mah),
+                                      round(b.energy_j / 100), b.percent, left, state)
+
+
+def local_position_ned(m: VehicleModel, now: float) -> Message:
+    p = m.body
+    return _ENC.local_position_ned_encode(m.boot_ms(now), p.north, p.east, p.down, p.vn, p.ve, p.vd)
+
+
+def global_position_int(m: VehicleModel, now: float) -> Message:
+    g, p = m.global_position(), m.body
+    return _ENC.global_position_int_encode(m.boot_ms(now), round(g.lat * 1e7), round(g.lon * 1e7),
+                                           round(g.alt_m * 1000), round(p.height * 1000), round(p.vn * 100),
+                                           round(p.ve * 100), round(p.vd * 100), _centidegrees(p.yaw))
+
+
+def gps_raw_int(m: VehicleModel, now: float) -> Message:
+    g, p, ready = m.global_position(), m.body, m.ready(now)
+    fix = mavlink2.GPS_FIX_TYPE_3D_FIX if ready else mavlink2.GPS_FIX_TYPE_NO_FIX
+    course = _centidegrees(math.atan2(p.ve, p.vn)) if p.ground_speed > 0.1 else 0
+    return _ENC.gps_raw_int_encode(m.boot_ms(now) * 1000, fix, round(g.lat * 1e7), round(g.lon * 1e7),
+                                   round(g.alt_m * 1000), 121, 200, round(p.ground_speed * 100), course,
+                                   10 if ready else 0)
+
+
+def extended_sys_state(m: VehicleModel, now: float) -> Message:
+    return _ENC.extended_sys_state_encode(mavlink2.MAV_VTOL_STATE_UNDEFINED, m.landed_state())
+
+
+def attitude(m: VehicleModel, now: float) -> Message:
+    p = m.body
+    # Tilt into the horizontal acceleration, seen in the body frame.
+    fwd = p.an * math.cos(p.yaw) + p.ae * math.sin(p.yaw)
+    right = -p.an * math.sin(p.yaw) + p.ae * math.cos(p.yaw)
+    return _ENC.attitude_encode(m.boot_ms(now), math.atan2(right, 9.81), -math.atan2(fwd, 9.81), p.yaw,
+                                0.0, 0.0, 0.0)
+
+
+def home_position(m: VehicleModel, now: float) -> Message:
+    h = m.home_global
+    return _ENC.home_position_encode(round(h.lat * 1e7), round(h.lon * 1e7), round(h.alt_m * 1000),
+                                     0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, m.boot_ms(now) * 1000)
+
+
+def autopilot_version(m: VehicleModel, now: float) -> Message:
+    return _ENC.autopilot_version_encode(_CAPABILITIES, m.personality.flight_sw_version, 0, 0, 0,
+                                         [0] * 8, [0] * 8, [0] * 8, 0, 0, m.config.system_id)
+
+
+#: Messages a ground station may stream with SET_MESSAGE_INTERVAL (and request once).
+STREAMABLE: dict[int, Callable[[VehicleModel, float], Message]] = {
+    mavlink2.MAVLINK_MSG_ID_SYS_STATUS: sys_status,
+    mavlink2.MAVLINK_MSG_ID_BATTERY_STATUS: battery_status,
+    mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED: local_position_ned,
+    mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: global_position_int,
+    mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT: gps_raw_int,
+    mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: extended_sys_state,
+    mavlink2.MAVLINK_MSG_ID_ATTITUDE: attitude,
+    mavlink2.MAVLINK_MSG_ID_HOME_POSITION: home_position,
+}
+
+#: Messages MAV_CMD_REQUEST_MESSAGE can ask for once.
+REQUESTABLE: dict[int, Callable[[VehicleModel, float], Message]] = {
+    **STREAMABLE,
+    mavlink2.MAVLINK_MSG_ID_HEARTBEAT: heartbeat,
+    mavlink2.MAVLINK_MSG_ID_AUTOPILOT_VERSION: autopilot_version,
+}
+
+
+#: ArduPilot's legacy REQUEST_DATA_STREAM groups (of the messages modelled here).
+DATA_STREAMS: dict[int, tuple[int, ...]] = {
+    mavlink2.MAV_DATA_STREAM_EXTENDED_STATUS: (mavlink2.MAVLINK_MSG_ID_SYS_STATUS, mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT,
+                                               mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE),
+    mavlink2.MAV_DATA_STREAM_POSITION: (mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+                                        mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED),
+    mavlink2.MAV_DATA_STREAM_EXTRA1: (mavlink2.MAVLINK_MSG_ID_ATTITUDE,),
+    mavlink2.MAV_DATA_STREAM_EXTRA3: (mavlink2.MAVLINK_MSG_ID_BATTERY_STATUS,),
+}
+DATA_STREAMS[mavlink2.MAV_DATA_STREAM_ALL] = tuple(i for ids in DATA_STREAMS.values() for i in ids)
+
+
+class Streams:
+    """Message id -> interval, and when each is next due. HEARTBEAT is always in."""
+
+    def __init__(self, intervals: dict[int, float], now: float) -> None:
+        self._interval: dict[int, float] = {mavlink2.MAVLINK_MSG_ID_HEARTBEAT: HEARTBEAT_PERIOD_S, **intervals}
+        self._due: dict[int, float] = dict.fromkeys(self._interval, now)
+
+    def set_interval(self, msg_id: int, interval_us: float, now: float) -> None:
+        """MAV_CMD_SET_MESSAGE_INTERVAL's param2: -1 stops, 0 is the default rate, else microseconds."""
+        if interval_us < 0:
+            self._interval.pop(msg_id, None)
+            self._due.pop(msg_id, None)
+            return
+        interval = DEFAULT_INTERVAL_S if interval_us == 0 else max(MIN_INTERVAL_S, interval_us / 1e6)
+        self._interval[msg_id] = interval
+        self._due[msg_id] = now
+
+    def interval(self, msg_id: int) -> float | None:
+        return self._interval.get(msg_id)
+
+    def due(self, now: float) -> list[int]:
+        """Ids due at ``now``; each is then next due one interval later (never in the past)."""
+        out = []
+        for msg_id, due in self._due.items():
+            if now >= due:
+                out.append(msg_id)
+                self._due[msg_id] = max(due + self._interval[msg_id], now)
+        return out
+
+
+def statustext(severity: int, text: str) -> Message:
+    return _ENC.statustext_encode(severity, text.encode("ascii", "replace")[:50])
+
+
+def command_ack(command: int, result: int, target: tuple[int, int]) -> Message:
+    return _ENC.command_ack_encode(command, result, 0, 0, target[0], target[1])
+
+
+def timesync(tc1: int, ts1: int) -> Message:
+    return _ENC.timesync_encode(tc1, ts1)
+
+
+def _centidegrees(rad: float) -> int:
+    return round(math.degrees(rad) * 100) % 36000

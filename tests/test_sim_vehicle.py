@@ -1,0 +1,438 @@
+"""The fake vehicle (``drona sim-vehicle``) against pymavlink's stock ground-station connection.
+
+Real MAVLink bytes over UDP and TCP on 127.0.0.1 only, on ports picked free for each test.
+The fleet runs in a thread of this process (or, for the CLI test, in a subprocess); the
+ground station is ``mavutil.mavlink_connection``. Simulated time runs faster (``speedup``)
+so whole flights take seconds; every wait below is bounded.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+os.environ.setdefault("MAVLINK20", "1")  # before mavutil picks its dialect
+from pymavlink import mavutil
+
+from drona_gcs.geo import GeoFrame
+from drona_gcs.workspace_files import load_workspace
+from fleet.cli import main as drona_main
+from fleet.sim.config import VehicleConfig
+from fleet.sim.fleet import FleetConfig, placements, run_fleet
+from fleet.sim.mav import mavlink2
+from fleet.sim.model import VehicleModel
+from fleet.sim.personality import ARDUPILOT, PX4, px4_mode
+from fleet.sim.telemetry import battery_status
+
+ML = mavutil.mavlink
+REPO = Path(__file__).resolve().parents[1]
+SIGNING_KEY = bytes(range(32))
+GUIDED, STABILIZE = 4, 0
+POSITION_ONLY = 0b110111111000  # SET_POSITION_TARGET type_mask: use x, y, z only
+OFFBOARD, AUTO_LOITER = px4_mode(6), px4_mode(4, 3)
+
+
+# ------------------------------------------------------------------ harness
+def free_udp_base(count: int) -> int:
+    """A port p such that p .. p + count - 1 are all free for UDP on 127.0.0.1."""
+    for _ in range(50):
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            probe.bind(("127.0.0.1", 0))
+            base = probe.getsockname()[1]
+        socks = []
+        try:
+            for port in range(base, base + count):
+                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                socks.append(s)
+                s.bind(("127.0.0.1", port))
+            return base
+        except OSError:
+            continue
+        finally:
+            for s in socks:
+                s.close()
+    raise RuntimeError("no free UDP ports")
+
+
+def free_tcp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port: int = probe.getsockname()[1]
+        return port
+
+
+@contextlib.contextmanager
+def sim_fleet(config: FleetConfig) -> Iterator[None]:
+    """Run the fleet in a thread with its own event loop; stop it (bounded) on exit."""
+    ready = threading.Event()
+    box: dict[str, Any] = {}
+
+    async def main() -> None:
+        box["loop"], box["stop"] = asyncio.get_running_loop(), asyncio.Event()
+        await run_fleet(config, None, box["stop"], on_ready=lambda nodes: ready.set())
+
+    def target() -> None:
+        try:
+            asyncio.run(main())
+        except BaseException as exc:  # handed to the test thread below
+            box["error"] = exc
+            ready.set()
+
+    thread = threading.Thread(target=target, daemon=True)
+    thread.start()
+    assert ready.wait(5), "the fleet did not start"
+    if "error" in box:
+        raise box["error"]
+    try:
+        yield
+    finally:
+        box["loop"].call_soon_threadsafe(box["stop"].set)
+        thread.join(5)
+        assert not thread.is_alive(), "the fleet did not stop"
+        if "error" in box:
+            raise box["error"]
+
+
+@contextlib.contextmanager
+def ground_station(url: str) -> Iterator[Any]:
+    gcs = mavutil.mavlink_connection(url, source_system=255)
+    try:
+        yield gcs
+    finally:
+        gcs.close()
+
+
+def wait_for(gcs: Any, kind: str, timeout: float = 5.0,
+             where: Callable[[Any], bool] = lambda m: True) -> Any:
+    """The next ``kind`` message for which ``where`` holds; fails after ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while (left := deadline - time.monotonic()) > 0:
+        msg = gcs.recv_match(type=kind, blocking=True, timeout=left)
+        if msg is not None and where(msg):
+            return msg
+    pytest.fail(f"no {kind} within {timeout} s")
+
+
+def command(gcs: Any, cmd: int, *params: float, target: int = 1, timeout: float = 3.0) -> int:
+    """Send COMMAND_LONG; return the result of its COMMAND_ACK."""
+    p = [*params, 0, 0, 0, 0, 0, 0, 0][:7]
+    gcs.mav.command_long_send(target, 1, cmd, 0, *p)
+    return int(wait_for(gcs, "COMMAND_ACK", timeout, lambda m: m.command == cmd).result)
+
+
+def mode_after(gcs: Any) -> int:
+    return int(wait_for(gcs, "HEARTBEAT").custom_mode)
+
+
+def drain(gcs: Any, seconds: float) -> list[Any]:
+    out, deadline = [], time.monotonic() + seconds
+    while (left := deadline - time.monotonic()) > 0:
+        msg = gcs.recv_match(blocking=True, timeout=left)
+        if msg is not None:
+            out.append(msg)
+    return out
+
+
+def ardupilot(**vehicle: Any) -> VehicleConfig:
+    return replace(VehicleConfig(personality=ARDUPILOT), **vehicle)
+
+
+# ------------------------------------------------------------------ ArduCopter
+def test_ardupilot_guided_flight_over_tcp() -> None:
+    port = free_tcp_port()
+    config = FleetConfig(vehicle=ardupilot(ready_after_s=20.0), tcp=True, base_port=port, speedup=10.0)
+    with sim_fleet(config), ground_station(f"tcp:127.0.0.1:{port}") as gcs:
+        hb = wait_for(gcs, "HEARTBEAT")
+        assert (hb.type, hb.autopilot, hb.custom_mode) == (ML.MAV_TYPE_QUADROTOR, ML.MAV_AUTOPILOT_ARDUPILOTMEGA, 0)
+        assert hb.base_mode & ML.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        assert {m.get_type() for m in drain(gcs, 0.3)} == {"HEARTBEAT"}  # stream rates are 0 until asked
+
+        # Before the position estimate: DO_SET_MODE is ACKed but the mode stays; arming fails with a reason.
+        assert command(gcs, ML.MAV_CMD_DO_SET_MODE, 1, GUIDED) == ML.MAV_RESULT_ACCEPTED
+        assert mode_after(gcs) == STABILIZE
+        assert command(gcs, ML.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ML.MAV_RESULT_FAILED
+        assert "Need Position Estimate" in wait_for(gcs, "STATUSTEXT").text
+
+        for msg_id, interval_us in ((ML.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 100_000),
+                                    (ML.MAVLINK_MSG_ID_BATTERY_STATUS, 1_000_000),
+                                    (ML.MAVLINK_MSG_ID_GPS_RAW_INT, 1_000_000)):
+            assert command(gcs, ML.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, interval_us) == ML.MAV_RESULT_ACCEPTED
+        assert wait_for(gcs, "BATTERY_STATUS").battery_remaining == 100
+        wait_for(gcs, "GPS_RAW_INT", 10, lambda m: m.fix_type >= 3)
+
+        assert command(gcs, ML.MAV_CMD_DO_SET_MODE, 1, GUIDED) == ML.MAV_RESULT_ACCEPTED
+        assert mode_after(gcs) == GUIDED
+        assert command(gcs, ML.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ML.MAV_RESULT_ACCEPTED
+        assert wait_for(gcs, "HEARTBEAT").base_mode & ML.MAV_MODE_FLAG_SAFETY_ARMED
+        assert command(gcs, ML.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 10) == ML.MAV_RESULT_ACCEPTED
+        wait_for(gcs, "LOCAL_POSITION_NED", 5, lambda m: abs(m.z + 10) < 0.25)
+        assert command(gcs, ML.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 10) == ML.MAV_RESULT_FAILED  # airborne
+
+        gcs.mav.set_position_target_local_ned_send(0, 1, 1, ML.MAV_FRAME_LOCAL_NED, POSITION_ONLY,
+                                                   20, 0, -10, 0, 0, 0, 0, 0, 0, 0, 0)
+        peak, settled_since = 0.0, None
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline:
+            pos = wait_for(gcs, "LOCAL_POSITION_NED")
+            peak = max(peak, math.hypot(pos.vx, pos.vy))
+            if math.dist((pos.x, pos.y, pos.z), (20, 0, -10)) < 0.25:
+                settled_since = settled_since or pos.time_boot_ms
+                if pos.time_boot_ms - settled_since > 2000:  # stayed 2 s (simulated) within 0.25 m
+                    break
+            else:
+                settled_since = None
+        else:
+            pytest.fail(f"did not settle at (20, 0, -10); last {pos}")
+        assert 4.0 < peak <= 5.0 + 1e-4
+
+        assert command(gcs, ML.MAV_CMD_NAV_LAND) == ML.MAV_RESULT_ACCEPTED
+        wait_for(gcs, "HEARTBEAT", 8, lambda m: not m.base_mode & ML.MAV_MODE_FLAG_SAFETY_ARMED)  # disarms on landing
+        assert abs(wait_for(gcs, "LOCAL_POSITION_NED").z) < 0.05
+        assert command(gcs, ML.MAV_CMD_COMPONENT_ARM_DISARM, 0) == ML.MAV_RESULT_ACCEPTED
+        assert wait_for(gcs, "BATTERY_STATUS").battery_remaining < 100  # the flight drew current
+
+
+def test_ardupilot_command_rules_over_udp() -> None:
+    base = free_udp_base(1)
+    with ground_station(f"udpin:127.0.0.1:{base}") as gcs, \
+            sim_fleet(FleetConfig(vehicle=ardupilot(ready_after_s=0.0), base_port=base, speedup=10.0)):
+        wait_for(gcs, "HEARTBEAT")
+        takeoff = (ML.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 5)
+        assert command(gcs, *takeoff) == ML.MAV_RESULT_FAILED  # disarmed, STABILIZE
+        assert command(gcs, ML.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ML.MAV_RESULT_ACCEPTED
+        assert command(gcs, *takeoff) == ML.MAV_RESULT_FAILED  # armed, but not GUIDED
+        assert command(gcs, ML.MAV_CMD_DO_SET_MODE, 1, GUIDED) == ML.MAV_RESULT_ACCEPTED
+        assert command(gcs, *takeoff) == ML.MAV_RESULT_ACCEPTED
+
+        assert command(gcs, ML.MAV_CMD_DO_FLIGHTTERMINATION, 1) == ML.MAV_RESULT_UNSUPPORTED
+        gcs.mav.command_int_send(1, 1, ML.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, ML.MAV_CMD_DO_REPOSITION, 0, 0,
+                                 -1, 0, 0, 0, 0, 0, 10)
+        assert wait_for(gcs, "COMMAND_ACK").result == ML.MAV_RESULT_UNSUPPORTED
+        gcs.mav.set_mode_send(1, ML.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 5)  # LOITER by SET_MODE
+        assert wait_for(gcs, "COMMAND_ACK").result == ML.MAV_RESULT_ACCEPTED
+        assert mode_after(gcs) == 5
+
+        assert command(gcs, ML.MAV_CMD_REQUEST_MESSAGE, ML.MAVLINK_MSG_ID_AUTOPILOT_VERSION) == ML.MAV_RESULT_ACCEPTED
+        assert wait_for(gcs, "AUTOPILOT_VERSION").capabilities & ML.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+        assert command(gcs, ML.MAV_CMD_REQUEST_MESSAGE, ML.MAVLINK_MSG_ID_HOME_POSITION) == ML.MAV_RESULT_ACCEPTED
+        assert wait_for(gcs, "HOME_POSITION").latitude != 0
+        gcs.mav.timesync_send(0, 123456)
+        assert wait_for(gcs, "TIMESYNC").ts1 == 123456
+        gcs.mav.request_data_stream_send(1, 1, ML.MAV_DATA_STREAM_POSITION, 4, 1)  # legacy stream rates
+        assert wait_for(gcs, "GLOBAL_POSITION_INT").lat != 0
+
+
+def test_ardupilot_refuses_to_arm_on_low_battery_and_disarms_itself() -> None:
+    base = free_udp_base(1)
+    low = FleetConfig(vehicle=ardupilot(ready_after_s=0.0, battery_pct=10), base_port=base, speedup=10.0)
+    with ground_station(f"udpin:127.0.0.1:{base}") as gcs, sim_fleet(low):
+        wait_for(gcs, "HEARTBEAT")
+        assert command(gcs, ML.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ML.MAV_RESULT_FAILED
+        assert "Battery" in wait_for(gcs, "STATUSTEXT").text
+    idle = FleetConfig(vehicle=ardupilot(ready_after_s=0.0, auto_disarm_s=5.0), base_port=base, speedup=10.0)
+    with ground_station(f"udpin:127.0.0.1:{base}") as gcs, sim_fleet(idle):
+        wait_for(gcs, "HEARTBEAT")
+        assert command(gcs, ML.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ML.MAV_RESULT_ACCEPTED
+        wait_for(gcs, "HEARTBEAT", 1, lambda m: m.base_mode & ML.MAV_MODE_FLAG_SAFETY_ARMED)
+        wait_for(gcs, "HEARTBEAT", 3, lambda m: not m.base_mode & ML.MAV_MODE_FLAG_SAFETY_ARMED)
+
+
+# ------------------------------------------------------------------ PX4
+def test_px4_offboard_needs_a_setpoint_stream() -> None:
+    base = free_udp_base(1)
+    config = FleetConfig(vehicle=VehicleConfig(personality=PX4, ready_after_s=0.0), base_port=base, speedup=1.0)
+    with ground_station(f"udpin:127.0.0.1:{base}") as gcs, sim_fleet(config):
+        hb = wait_for(gcs, "HEARTBEAT")
+        assert (hb.autopilot, hb.custom_mode) == (ML.MAV_AUTOPILOT_PX4, AUTO_LOITER)
+        wait_for(gcs, "LOCAL_POSITION_NED")  # PX4 streams a default set
+
+        offboard = (ML.MAV_CMD_DO_SET_MODE, ML.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 6, 0)
+        assert command(gcs, *offboard) == ML.MAV_RESULT_TEMPORARILY_REJECTED
+        assert mode_after(gcs) == AUTO_LOITER
+
+        def setpoint() -> None:
+            gcs.mav.set_position_target_local_ned_send(0, 1, 1, ML.MAV_FRAME_LOCAL_NED, POSITION_ONLY,
+                                                       0, 0, -3, 0, 0, 0, 0, 0, 0, 0, 0)
+
+        received: list[Any] = []
+        for _ in range(6):  # 10 Hz for 0.6 s
+            setpoint()
+            received += drain(gcs, 0.1)
+        gcs.mav.command_long_send(1, 1, *offboard[:1], 0, *offboard[1:], 0, 0, 0, 0)
+        gcs.mav.command_long_send(1, 1, ML.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+        for _ in range(20):  # keep streaming 2 s: it arms, switches and climbs to 3 m
+            setpoint()
+            received += drain(gcs, 0.1)
+        acks = {m.command: m.result for m in received if m.get_type() == "COMMAND_ACK"}
+        assert acks == {ML.MAV_CMD_DO_SET_MODE: ML.MAV_RESULT_ACCEPTED,
+                        ML.MAV_CMD_COMPONENT_ARM_DISARM: ML.MAV_RESULT_ACCEPTED}
+        assert [m.custom_mode for m in received if m.get_type() == "HEARTBEAT"][-1] == OFFBOARD
+        assert [m.z for m in received if m.get_type() == "LOCAL_POSITION_NED"][-1] < -2.5
+
+        # The stream stops: after 0.5 s without setpoints it falls back to AUTO.LOITER, still flying.
+        hb = wait_for(gcs, "HEARTBEAT", 3, lambda m: m.custom_mode != OFFBOARD)
+        assert hb.custom_mode == AUTO_LOITER
+        assert hb.base_mode & ML.MAV_MODE_FLAG_SAFETY_ARMED
+        assert wait_for(gcs, "EXTENDED_SYS_STATE").landed_state == ML.MAV_LANDED_STATE_IN_AIR
+
+
+# ------------------------------------------------------------------ signing
+def test_signing_ignores_unsigned_commands() -> None:
+    base = free_udp_base(1)
+    config = FleetConfig(vehicle=ardupilot(ready_after_s=0.0), base_port=base, speedup=10.0, signing_key=SIGNING_KEY)
+    with ground_station(f"udpin:127.0.0.1:{base}") as gcs, sim_fleet(config):
+        wait_for(gcs, "HEARTBEAT")
+        gcs.mav.command_long_send(1, 1, ML.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+        assert not [m for m in drain(gcs, 0.5) if m.get_type() == "COMMAND_ACK"]  # ignored: no ACK
+        assert not wait_for(gcs, "HEARTBEAT").base_mode & ML.MAV_MODE_FLAG_SAFETY_ARMED
+        gcs.setup_signing(SIGNING_KEY, sign_outgoing=True)
+        assert command(gcs, ML.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ML.MAV_RESULT_ACCEPTED
+        assert wait_for(gcs, "HEARTBEAT").get_signed()
+
+
+# ------------------------------------------------------------------ the command
+def test_cli_runs_two_vehicles_and_stops_on_sigterm(write_file: Callable[[str, str], Path]) -> None:
+    ws_file = write_file("ws.yaml", "size: [4, 4, 1]\ncell_size_m: 5\n"
+                         "geo_origin: {lat: 37.87, lon: -122.27, alt_m: 52}\n"
+                         "drones: {d1: [1, 0, 0], d2: [3, 2, 0]}\n")
+    frame = GeoFrame(load_workspace(ws_file))
+    base = free_udp_base(2)
+    with ground_station(f"udpin:127.0.0.1:{base}") as g1, ground_station(f"udpin:127.0.0.1:{base + 1}") as g2:
+        proc = subprocess.Popen([sys.executable, "-m", "fleet.cli", "sim-vehicle", "--workspace", str(ws_file),
+                                 "--count", "2", "--base-port", str(base), "--speedup", "5"],
+                                cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        try:
+            for gcs, sysid, cell in ((g1, 1, (1, 0, 0)), (g2, 2, (3, 2, 0))):
+                hb = wait_for(gcs, "HEARTBEAT", 10)
+                assert hb.get_srcSystem() == sysid
+                assert command(gcs, ML.MAV_CMD_REQUEST_MESSAGE, ML.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+                               target=sysid) == ML.MAV_RESULT_ACCEPTED
+                pos, want = wait_for(gcs, "GLOBAL_POSITION_INT"), frame.cell_to_global(cell)
+                assert (pos.lat, pos.lon, pos.relative_alt) == (round(want.lat * 1e7), round(want.lon * 1e7), 0)
+        finally:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                _, err = proc.communicate(timeout=5)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.communicate()
+                raise
+        assert proc.returncode == 0, err.decode()
+
+
+def test_cli_refuses_more_vehicles_than_drones(write_file: Callable[[str, str], Path],
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    ws_file = write_file("ws.yaml", "size: [4, 4, 1]\ndrones: {d1: [1, 0, 0]}\n")
+    assert drona_main(["sim-vehicle", "--workspace", str(ws_file), "--count", "2"]) == 2
+    assert "has 1 drone(s), 2 vehicles asked for" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ the sans-I/O model, driven by `now`
+GCS = mavlink2.MAVLink(None, srcSystem=255, srcComponent=190)
+
+
+def deliver(model: VehicleModel, msg: Any, now: float) -> list[Any]:
+    """Pack as a ground station would and decode as the vehicle's link does, then handle."""
+    decoder = mavlink2.MAVLink(None)
+    return [out for m in decoder.parse_buffer(msg.pack(GCS)) or () for out in model.handle(m, now)]
+
+
+def ack_of(model: VehicleModel, now: float, cmd: int, *params: float) -> int:
+    p = [*params, 0, 0, 0, 0, 0, 0, 0][:7]
+    replies = deliver(model, GCS.command_long_encode(model.config.system_id, 1, cmd, 0, *p), now)
+    return int(next(m.result for m in replies if m.get_type() == "COMMAND_ACK"))
+
+
+def run_for(model: VehicleModel, now: float, seconds: float, dt: float = 0.1) -> float:
+    for _ in range(round(seconds / dt)):
+        now += dt
+        model.step(now)
+    return now
+
+
+def airborne_guided(model: VehicleModel, height: float) -> float:
+    now = 0.0
+    assert ack_of(model, now, ML.MAV_CMD_DO_SET_MODE, 1, GUIDED) == ML.MAV_RESULT_ACCEPTED
+    assert ack_of(model, now, ML.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ML.MAV_RESULT_ACCEPTED
+    assert ack_of(model, now, ML.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, height) == ML.MAV_RESULT_ACCEPTED
+    return run_for(model, now, 10)
+
+
+def test_model_global_setpoint_battery_rtl_and_charging(write_file: Callable[[str, str], Path]) -> None:
+    ws = load_workspace(write_file("ws.yaml", "size: [6, 6, 1]\ncell_size_m: 5\n"
+                                   "geo_origin: {lat: 37.87, lon: -122.27, alt_m: 52}\n"
+                                   "charging_stations: [[1, 1, 0]]\ndrones: {d1: [1, 1, 0]}\n"))
+    (place,) = placements(ws, 1)
+    model = VehicleModel(ardupilot(ready_after_s=0.0), place, 0.0)
+    now = airborne_guided(model, 10)
+    assert model.body.height == pytest.approx(10, abs=0.25)
+
+    goal = place.frame.cell_to_global((4, 3, 0))
+    deliver(model, GCS.set_position_target_global_int_encode(
+        0, 1, 1, ML.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, POSITION_ONLY, round(goal.lat * 1e7), round(goal.lon * 1e7),
+        12.0, 0, 0, 0, 0, 0, 0, 0, 0), now)
+    now = run_for(model, now, 20)
+    want = place.frame.cell_to_ned((4, 3, 0))
+    b, home = model.body, place.home
+    assert math.dist((b.north, b.east, b.down), (want.north - home.north, want.east - home.east, -12)) < 0.25
+    assert model.battery.remaining < 1.0 and model.battery.current_a > 10
+
+    assert ack_of(model, now, ML.MAV_CMD_NAV_RETURN_TO_LAUNCH) == ML.MAV_RESULT_ACCEPTED
+    now = run_for(model, now, 60)
+    assert (model.armed, model.airborne) == (False, False)  # home, landed, disarmed
+    assert math.hypot(model.body.north, model.body.east) < 0.6
+    drained = model.battery.remaining
+    now = run_for(model, now, 60)
+    assert model.battery.remaining > drained  # home is on a charging station
+    assert battery_status(model, now).current_battery < 0
+
+
+def test_model_velocity_setpoint_times_out_in_guided() -> None:
+    (place,) = placements(None, 1)
+    model = VehicleModel(ardupilot(ready_after_s=0.0), place, 0.0)
+    now = airborne_guided(model, 5)
+    velocity_only = 0b110111000111
+    deliver(model, GCS.set_position_target_local_ned_encode(0, 1, 1, ML.MAV_FRAME_LOCAL_NED, velocity_only,
+                                                            0, 0, 0, 2.0, 0, 0, 0, 0, 0, 0, 0), now)
+    now = run_for(model, now, 2.5)
+    assert model.body.vn == pytest.approx(2.0, abs=0.01)
+    now = run_for(model, now, 3)  # ArduCopter stops a velocity setpoint that is not renewed for 3 s
+    assert model.body.ground_speed < 0.01
+    assert model.body.height == pytest.approx(5, abs=0.25)
+
+
+def test_model_px4_takeoff_default_height_then_loiter() -> None:
+    (place,) = placements(None, 1)
+    model = VehicleModel(VehicleConfig(personality=PX4, ready_after_s=0.0), place, 0.0)
+    assert ack_of(model, 0.0, ML.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, math.nan) == ML.MAV_RESULT_TEMPORARILY_REJECTED
+    assert ack_of(model, 0.0, ML.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ML.MAV_RESULT_ACCEPTED
+    assert ack_of(model, 0.0, ML.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, math.nan) == ML.MAV_RESULT_ACCEPTED
+    assert model.mode == "AUTO.TAKEOFF"
+    run_for(model, 0.0, 8)
+    assert model.mode == "AUTO.LOITER"
+    assert model.body.height == pytest.approx(2.5, abs=0.3)
+
+
+@pytest.mark.parametrize("personality", [ARDUPILOT, PX4], ids=lambda p: p.name)
+def test_model_acks_every_command_even_with_nan_params(personality: Any) -> None:
+    (place,) = placements(None, 1)
+    model = VehicleModel(VehicleConfig(personality=personality, ready_after_s=0.0), place, 0.0)
+    for cmd in [*model._commands, ML.MAV_CMD_DO_FLIGHTTERMINATION]:
+        assert ack_of(model, 1.0, cmd, *[math.nan] * 7) in (ML.MAV_RESULT_ACCEPTED, ML.MAV_RESULT_DENIED,
+                                                             ML.MAV_RESULT_FAILED, ML.MAV_RESULT_UNSUPPORTED,
+                                                             ML.MAV_RESULT_TEMPORARILY_REJECTED)
+    assert not model.armed  # a NaN arm request is refused, not taken as 0 or 1
