@@ -20,6 +20,7 @@ from drona_gcs.motion import Primitive, Trajectory
 from drona_gcs.planner.astar import BudgetExceeded, search
 from drona_gcs.planner.grid import GridIndex
 from drona_gcs.planner.heuristic import DistanceGraph, GoalDistance
+from drona_gcs.planner.layers import TimeLayers
 from drona_gcs.planner.reservations import ReservationTable
 from drona_gcs.planner.sealing import find_seal
 from drona_gcs.workspace import Cell, Workspace
@@ -84,7 +85,11 @@ class SafePlanner:
         except BudgetExceeded:
             # A long search: drones parking for good may have sealed the goal off,
             # and pruning on that can end a search that would otherwise visit all space-time.
-            found = search(*args, seal=find_seal(self.graph, self.table, start_id, goal_id, start_step))
+            # Drones parking in the way also make long detours: a heuristic that knows where
+            # they will park keeps the search from flooding behind them.
+            layers = TimeLayers(self.graph, self.table, goal_id, start_step, heuristic)
+            seal = find_seal(self.graph, self.table, start_id, goal_id, start_step)
+            found = search(*args, seal=seal, layers=layers)
         return Plan(found.trajectory, found.primitives, found.cost, found.stats.expansions)
 
     def _heuristic(self, goal: int, blocked: frozenset[int]) -> GoalDistance:

@@ -33,6 +33,7 @@ from drona_gcs.errors import NoPlanFound
 from drona_gcs.motion import Primitive, Trajectory
 from drona_gcs.planner.grid import GridIndex
 from drona_gcs.planner.heuristic import UNREACHABLE, GoalDistance
+from drona_gcs.planner.layers import TimeLayers
 from drona_gcs.planner.reservations import ReservationTable, _add, _sub
 from drona_gcs.planner.sealing import Seal
 
@@ -59,7 +60,7 @@ class SearchResult:
 
 def search(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
            start: int, goal: int, n: int, max_length: int, seal: Seal | None = None,
-           budget: int | None = None) -> SearchResult:
+           budget: int | None = None, layers: TimeLayers | None = None) -> SearchResult:
     """Run the space-time A*; raise :class:`NoPlanFound` when no safe plan exists.
 
     With a ``budget``, raise :class:`BudgetExceeded` after that many expansions,
@@ -84,7 +85,8 @@ def search(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
         found = _shortest_path_if_free(grid, table, heuristic, start, goal, n, max_length, goal_ready)
         if found is not None:
             return found
-        return _run(grid, table, heuristic, start, goal, n, max_length, static, goal_ready, hopeless, budget)
+        return _run(grid, table, heuristic, start, goal, n, max_length, static, goal_ready, hopeless, budget,
+                    layers)
     finally:
         _sub(table.vertex, pre_keys)
 
@@ -115,7 +117,8 @@ def _shortest_path_if_free(grid: GridIndex, table: ReservationTable, heuristic: 
 
 def _run(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance, start: int, goal: int,
          n: int, max_length: int, static: int, goal_ready: int,
-         hopeless: Callable[[int, int], bool] | None, budget: int | None) -> SearchResult:
+         hopeless: Callable[[int, int], bool] | None, budget: int | None,
+         layers: TimeLayers | None = None) -> SearchResult:
     """The search loop, kept flat and with local names: it runs a million times a second."""
     n_cells, uniform, min_cost = table.n, grid.uniform_cost or 1.0, grid.min_cost
     last_step = n + max_length
@@ -154,6 +157,9 @@ def _run(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance, star
         if nstep > last_step:
             continue
         wait_bound = (goal_ready - nstep) * min_cost
+        if layers is not None:  # the walls of drones parked by the next step
+            field = layers.at(nstep)
+            known, get_h = field.known, field.get
         # Holding in the collapsed layer would lead back to the same state.
         base = (nstep if nstep < static else static) * n_cells
         swap_base = (step * n_cells + cell) * n_cells
