@@ -44,6 +44,11 @@ class Plan:
 class SafePlanner:
     """Space-time A* planner for one workspace, skew window and cost table."""
 
+    #: Expansions (plus terms for path and grid size) after which a search restarts with seal
+    #: pruning and the time-layered heuristic. Both keep the search exact; tests set it to
+    #: -10**9 to take that path every time.
+    seal_after = _SEAL_AFTER
+
     def __init__(self, workspace: Workspace, delta: int | None = None,
                  costs: Mapping[Primitive, float] | None = None, heuristic_cache: int = 32) -> None:
         self.workspace = workspace
@@ -78,10 +83,10 @@ class SafePlanner:
         args = (self.grid, self.table, heuristic, start_id, goal_id, start_step, limit)
         # Looking for a seal costs a few BFS over the grid: worth it once the search has
         # spent about as much, or a few times the straight path's work.
-        budget = _SEAL_AFTER + 4 * int(heuristic.get(start_id) / self.grid.min_cost if self.grid.min_cost else 0) \
+        budget = self.seal_after + 4 * int(heuristic.get(start_id) / self.grid.min_cost if self.grid.min_cost else 0) \
             + len(self.grid.coords) // 20
         try:
-            found = search(*args, budget=budget)
+            found = search(*args, budget=max(1, budget))
         except BudgetExceeded:
             # A long search: drones parking for good may have sealed the goal off,
             # and pruning on that can end a search that would otherwise visit all space-time.

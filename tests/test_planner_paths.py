@@ -1,0 +1,64 @@
+"""The planner's second path (seal pruning and time-layered heuristic) is as exact as the first."""
+
+from __future__ import annotations
+
+import random
+
+import pytest
+
+from drona_gcs.bench.workload import TaskStream, random_workspace
+from drona_gcs.errors import NoPlanFound
+from drona_gcs.motion import Trajectory
+from drona_gcs.planner import SafePlanner
+from drona_gcs.safety import check_trajectory
+
+
+@pytest.mark.parametrize(("width", "drones", "delta"), [(12, 10, 0), (16, 16, 1), (20, 24, 0)])
+def test_forced_long_path_finds_the_same_costs(width: int, drones: int, delta: int) -> None:
+    rng = random.Random(f"paths-{width}-{drones}-{delta}")
+    ws = random_workspace(width, width, rng)
+    quick, slow = SafePlanner(ws, delta), SafePlanner(ws, delta)
+    slow.seal_after = -10**9  # every search restarts at once with seal pruning and layers
+    stream = TaskStream(ws, drones, rng)
+    outcomes = {"ok": 0, "no_plan": 0}
+    for _ in range(120):
+        task = stream.next_task()
+        results: list[Trajectory | None] = []
+        costs = []
+        for planner in (quick, slow):
+            try:
+                plan = planner.plan(task.start, task.goal, task.start_step, task.others)
+            except NoPlanFound:
+                results.append(None)
+                costs.append(None)
+                continue
+            assert check_trajectory(ws, plan.trajectory, task.others, delta, task.goal) == []
+            results.append(plan.trajectory)
+            costs.append(plan.cost)
+        assert costs[0] == costs[1], f"task {task}: {costs}"
+        outcomes["ok" if results[0] else "no_plan"] += 1
+        stream.complete(task, results[0])
+    assert outcomes["ok"] > 100  # the stream is mostly feasible; both paths agree on the rest
+
+
+def test_the_forced_planner_really_takes_the_second_path(monkeypatch: pytest.MonkeyPatch) -> None:
+    import drona_gcs.planner as planner_module
+
+    calls: list[bool] = []
+    real = planner_module.TimeLayers
+
+    def spy(*args: object, **kwargs: object) -> object:
+        calls.append(True)
+        return real(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(planner_module, "TimeLayers", spy)
+    ws = random_workspace(12, 12, random.Random(5))
+    slow = SafePlanner(ws, 0)
+    slow.seal_after = -10**9
+    start, goal = min(ws.main_region), max(ws.main_region)
+    straight = SafePlanner(ws, 0).plan(start, goal, 0, {}).trajectory
+    # Another drone flies the same corridor head-on: the straight path is no longer free.
+    oncoming = {"a": Trajectory(0, tuple(reversed(straight.cells[1:-1])))}
+    plan = slow.plan(start, goal, 0, oncoming)
+    assert calls
+    assert check_trajectory(ws, plan.trajectory, oncoming, 0, goal) == []
