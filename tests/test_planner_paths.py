@@ -62,3 +62,14 @@ def test_the_forced_planner_really_takes_the_second_path(monkeypatch: pytest.Mon
     plan = slow.plan(start, goal, 0, oncoming)
     assert calls
     assert check_trajectory(ws, plan.trajectory, oncoming, 0, goal) == []
+
+
+def test_layers_with_nobody_about_to_park() -> None:
+    from drona_gcs.planner.layers import TimeLayers
+
+    ws = random_workspace(8, 8, random.Random(1))
+    planner = SafePlanner(ws, 0)
+    goal = ws.cell_id(max(ws.main_region))
+    now = planner.graph.distances(goal, frozenset())
+    layers = TimeLayers(planner.graph, planner.table, goal, 0, now)
+    assert layers.thresholds == [] and layers.at(50) is now

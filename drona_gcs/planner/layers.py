@@ -28,8 +28,8 @@ class TimeLayers:
         self._parks = dict(table.perm)
         times = sorted({t for t in self._parks.values() if t > step})
         # A few layers catch most of the detours; one per parking time would cost a BFS each.
-        self.thresholds = sorted({times[(i * len(times)) // MAX_LAYERS] for i in range(1, MAX_LAYERS)}
-                                 | set(times[-1:]))
+        picks = {times[(i * len(times)) // MAX_LAYERS] for i in range(1, MAX_LAYERS)} if times else set()
+        self.thresholds = sorted(picks | set(times[-1:]))
         self._fields: list[GoalDistance | None] = [None] * len(self.thresholds)
 
     def at(self, step: int) -> GoalDistance:
