@@ -1,0 +1,310 @@
+"""Contract tests of the vehicle link against the fake vehicle, and the connection-string parser.
+
+Every backend in :data:`BACKENDS` runs the same scenarios against the fake vehicle (both
+personalities, UDP and TCP): real MAVLink bytes on 127.0.0.1, free ports, the fake in the test's
+own event loop. Simulated time runs ``SPEEDUP`` times faster, so the fake's rules are scaled to
+stay realistic against the link's wall-clock rates (a 20 Hz setpoint stream is 2 Hz simulated,
+PX4's minimum). Every wait is bounded and each scenario has an overall deadline.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import socket
+import time
+from collections.abc import AsyncIterator, Callable, Coroutine
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import pytest
+
+from drona_gcs.errors import DronaError, VehicleCommandRejected, VehicleError
+from drona_gcs.geo import Ned
+from fleet.sim.config import VehicleConfig
+from fleet.sim.fleet import FleetConfig, placements, run_fleet
+from fleet.sim.mav import mavlink2
+from fleet.sim.personality import PERSONALITIES, Personality
+from fleet.vehicle.link import Autopilot, LandedState, Telemetry, VehicleLink
+from fleet.vehicle.mavlink_link import PymavlinkLink
+from fleet.vehicle.urls import DEFAULT_BAUD, LinkUrl, LinkUrlError, Scheme, parse_link_url
+
+SPEEDUP = 10.0
+SCENARIO_DEADLINE_S = 30.0
+
+
+class Backend(Protocol):
+    def __call__(self, url: str, *, heartbeat_timeout: float = 3.0, frame: Any = None) -> VehicleLink: ...
+
+
+def _pymavlink(url: str, *, heartbeat_timeout: float = 3.0, frame: Any = None) -> VehicleLink:
+    return PymavlinkLink(url, heartbeat_timeout=heartbeat_timeout, frame=frame, setpoint_hz=20.0)
+
+
+#: Backend name -> factory. A MAVSDK backend joins here and runs every contract test below.
+BACKENDS: dict[str, Backend] = {"pymavlink": _pymavlink}
+
+
+# ------------------------------------------------------------------ harness
+def free_port(kind: int) -> int:
+    with socket.socket(socket.AF_INET, kind) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port: int = probe.getsockname()[1]
+        return port
+
+
+@dataclass
+class Fake:
+    url: str
+    personality: Personality
+    stop: asyncio.Event
+    task: asyncio.Task[None]
+
+    async def silence(self) -> None:
+        """Stop the fake vehicle (its links close; over UDP it just goes quiet)."""
+        self.stop.set()
+        await asyncio.wait_for(self.task, 5)
+
+
+@contextlib.asynccontextmanager
+async def fake_vehicle(personality: str, transport: str, **vehicle: Any) -> AsyncIterator[Fake]:
+    """One fake vehicle in this event loop; ``url`` is how a ground station reaches it."""
+    tcp = transport == "tcp"
+    port = free_port(socket.SOCK_STREAM if tcp else socket.SOCK_DGRAM)
+    settings: dict[str, Any] = {"ready_after_s": 1.0, "auto_disarm_s": 60.0, "offboard_timeout_s": 5.0,
+                                "offboard_min_rate_hz": 0.5, **vehicle}
+    config = FleetConfig(vehicle=VehicleConfig(personality=PERSONALITIES[personality], **settings), tcp=tcp,
+                         base_port=port, speedup=SPEEDUP)
+    stop, started = asyncio.Event(), asyncio.Event()
+    task = asyncio.create_task(run_fleet(config, None, stop, on_ready=lambda nodes: started.set()))
+    waiter = asyncio.ensure_future(started.wait())
+    await asyncio.wait([task, waiter], timeout=5, return_when=asyncio.FIRST_COMPLETED)
+    waiter.cancel()
+    if task.done():
+        task.result()  # raises why it did not start
+    assert started.is_set(), "the fake vehicle did not start"
+    url = f"tcp://127.0.0.1:{port}" if tcp else f"udpin://127.0.0.1:{port}"
+    fake = Fake(url, PERSONALITIES[personality], stop, task)
+    try:
+        yield fake
+    finally:
+        if not task.done():
+            await fake.silence()
+
+
+@contextlib.asynccontextmanager
+async def connected(backend: str, fake: Fake, **options: Any) -> AsyncIterator[VehicleLink]:
+    link = BACKENDS[backend](fake.url, **options)
+    await link.connect(timeout=5)
+    try:
+        yield link
+    finally:
+        await link.close()
+
+
+def run(scenario: Callable[[], Coroutine[Any, Any, None]]) -> None:
+    async def bounded() -> None:
+        async with asyncio.timeout(SCENARIO_DEADLINE_S):
+            await scenario()
+
+    asyncio.run(bounded())
+
+
+def near(target: Ned, tolerance: float) -> Callable[[Telemetry], bool]:
+    def check(t: Telemetry) -> bool:
+        p = t.position
+        return p is not None and math.dist((p.ned.north, p.ned.east, p.ned.down),
+                                           (target.north, target.east, target.down)) < tolerance
+    return check
+
+
+AUTOPILOTS = {"ardupilot": Autopilot.ARDUPILOT, "px4": Autopilot.PX4}
+FOLLOW = {"ardupilot": "GUIDED", "px4": "OFFBOARD"}
+backends = pytest.mark.parametrize("backend", sorted(BACKENDS))
+personalities = pytest.mark.parametrize("personality", ["ardupilot", "px4"])
+transports = pytest.mark.parametrize("transport", ["udp", "tcp"])
+
+
+# ------------------------------------------------------------------ contract: a whole flight
+@backends
+@personalities
+@transports
+def test_connect_arm_take_off_follow_setpoints_and_land(backend: str, personality: str, transport: str) -> None:
+    async def scenario() -> None:
+        async with fake_vehicle(personality, transport) as fake, connected(backend, fake) as link:
+            await link.wait_ready(timeout=5)
+            t = link.telemetry()
+            assert t.autopilot is AUTOPILOTS[personality]
+            assert not t.armed and t.battery_pct == 100 and t.battery_v is not None and t.battery_v > 16
+            assert t.gps_fix >= 3 and t.global_position is not None and t.heartbeat_at is not None
+            assert near(Ned(0, 0, 0), 0.05)(t)
+            await link.wait_until(lambda t: t.landed is LandedState.ON_GROUND, 2, "the landed state")
+
+            await link.arm()
+            assert link.telemetry().armed
+            await link.takeoff(5.0)
+            await link.wait_until(lambda t: (t.height_m or 0) > 4.7, 5, "5 m up")
+            await link.follow_setpoints()
+            assert link.telemetry().mode == FOLLOW[personality]
+
+            target = Ned(10.0, 5.0, -6.0)
+            await link.send_position_target(target)
+            await link.wait_until(near(target, 0.3), 5, "the target")
+            t = link.telemetry()
+            assert t.mode == FOLLOW[personality] and t.landed is LandedState.IN_AIR
+            assert t.global_position is not None and abs(t.global_position.alt_m - 584.0 - 6.0) < 0.5
+
+            await link.land()
+            t = await link.wait_until(lambda t: not t.armed and t.landed is LandedState.ON_GROUND, 5, "touchdown")
+            assert t.position is not None and abs(t.position.ned.down) < 0.05
+            assert t.battery_pct is not None and t.battery_pct < 100  # the flight drew current
+            await link.disarm()  # already disarmed on touchdown: acknowledged, nothing changes
+
+    run(scenario)
+
+
+# ------------------------------------------------------------------ contract: refusals
+@backends
+@personalities
+def test_arming_before_the_position_estimate_is_refused_with_the_reason(backend: str, personality: str) -> None:
+    async def scenario() -> None:
+        async with fake_vehicle(personality, "udp", ready_after_s=1000.0) as fake, connected(backend, fake) as link:
+            with pytest.raises(VehicleError, match="GPS fix"):
+                await link.wait_ready(timeout=0.3)
+            with pytest.raises(VehicleCommandRejected) as refused:
+                await link.arm()
+            assert refused.value.result == fake.personality.rejected
+            assert "position estimate" in refused.value.reason.lower()
+            assert not link.telemetry().armed
+
+    run(scenario)
+
+
+@backends
+def test_a_mode_change_acked_but_not_taken_is_a_rejection(backend: str) -> None:
+    """ArduCopter ACKs GUIDED before its position estimate and stays in STABILIZE."""
+    async def scenario() -> None:
+        async with fake_vehicle("ardupilot", "tcp", ready_after_s=1000.0) as fake, connected(backend, fake) as link:
+            with pytest.raises(VehicleCommandRejected, match="stayed in STABILIZE") as refused:
+                await link.set_mode("GUIDED")
+            assert refused.value.result == mavlink2.MAV_RESULT_ACCEPTED
+            assert link.telemetry().mode == "STABILIZE"
+
+    run(scenario)
+
+
+@backends
+@personalities
+def test_takeoff_while_disarmed_is_rejected_with_the_mav_result(backend: str, personality: str) -> None:
+    async def scenario() -> None:
+        async with fake_vehicle(personality, "tcp") as fake, connected(backend, fake) as link:
+            await link.wait_ready(timeout=5)
+            started = time.monotonic()
+            with pytest.raises(VehicleCommandRejected, match="TAKEOFF") as refused:
+                await link.takeoff(5.0)
+            assert refused.value.result == fake.personality.rejected
+            assert time.monotonic() - started < 2.0
+            with pytest.raises(VehicleError, match="unknown mode"):
+                await link.set_mode("SPORT")
+
+    run(scenario)
+
+
+# ------------------------------------------------------------------ contract: a vehicle that goes silent
+@backends
+@personalities
+@transports
+def test_a_silent_vehicle_fails_commands_and_waits_within_the_timeout(backend: str, personality: str,
+                                                                       transport: str) -> None:
+    async def scenario() -> None:
+        async with fake_vehicle(personality, transport) as fake, \
+                connected(backend, fake, heartbeat_timeout=0.5) as link:
+            await link.wait_ready(timeout=5)
+            await fake.silence()
+            started = time.monotonic()
+            why = "connection closed by the vehicle" if transport == "tcp" else "no HEARTBEAT for 0.5 s"
+            with pytest.raises(VehicleError, match=why):
+                await link.wait_until(lambda t: False, 5, "something that never comes")
+            with pytest.raises(VehicleError, match=why):
+                await link.arm()
+            assert time.monotonic() - started < 1.5
+            with pytest.raises(VehicleError):
+                await link.send_position_target(Ned(0, 0, -1))
+
+    run(scenario)
+
+
+@backends
+@transports
+def test_connecting_to_nothing_fails_cleanly(backend: str, transport: str) -> None:
+    async def scenario() -> None:
+        url = (f"tcp://127.0.0.1:{free_port(socket.SOCK_STREAM)}" if transport == "tcp"
+               else f"udpin://127.0.0.1:{free_port(socket.SOCK_DGRAM)}")
+        link = BACKENDS[backend](url)
+        why = "cannot open" if transport == "tcp" else "waited 0.3 s for a HEARTBEAT"
+        with pytest.raises(VehicleError, match=why):
+            await link.connect(timeout=0.3)
+        await link.close()
+
+    run(scenario)
+
+
+# ------------------------------------------------------------------ pymavlink: the workspace frame
+def test_pymavlink_link_in_a_workspace_frame_flies_global_setpoints() -> None:
+    """With a GeoFrame, positions and targets are in the workspace's frame, not the vehicle's local one."""
+    place = placements(None, 1)[0]  # where the fake stands without a workspace
+
+    async def scenario() -> None:
+        async with fake_vehicle("px4", "udp") as fake, connected("pymavlink", fake, frame=place.frame) as link:
+            await link.wait_ready(timeout=5)
+            assert near(place.home, 0.05)(link.telemetry())
+            await link.arm()
+            await link.takeoff(3.0)
+            await link.wait_until(lambda t: (t.height_m or 0) > 2.7, 5, "3 m up")
+            await link.follow_setpoints()
+            target = Ned(place.home.north + 4.0, place.home.east - 3.0, -4.0)
+            await link.send_position_target(target)
+            t = await link.wait_until(near(target, 0.3), 5, "the target")
+            assert t.mode == "OFFBOARD"
+
+    run(scenario)
+
+
+# ------------------------------------------------------------------ connection strings
+@pytest.mark.parametrize(("text", "expected"), [
+    ("udpin://0.0.0.0:14540", LinkUrl(Scheme.UDPIN, host="0.0.0.0", port=14540)),
+    ("udpout://192.168.1.20:14550", LinkUrl(Scheme.UDPOUT, host="192.168.1.20", port=14550)),
+    ("tcp://localhost:5760", LinkUrl(Scheme.TCP, host="localhost", port=5760)),
+    ("TCP://[::1]:5760", LinkUrl(Scheme.TCP, host="::1", port=5760)),
+    ("serial:///dev/ttyUSB0:57600", LinkUrl(Scheme.SERIAL, device="/dev/ttyUSB0", baud=57600)),
+    ("serial:///dev/ttyACM0:921600", LinkUrl(Scheme.SERIAL, device="/dev/ttyACM0", baud=921600)),
+    ("serial:///dev/serial/by-id/usb-Hex_ProfiCNC_CubeOrange-if00",
+     LinkUrl(Scheme.SERIAL, device="/dev/serial/by-id/usb-Hex_ProfiCNC_CubeOrange-if00", baud=DEFAULT_BAUD)),
+    ("serial://COM3:115200", LinkUrl(Scheme.SERIAL, device="COM3", baud=115200)),
+])
+def test_connection_strings_parse(text: str, expected: LinkUrl) -> None:
+    assert parse_link_url(text) == expected
+    assert parse_link_url(str(expected)) == expected
+
+
+@pytest.mark.parametrize(("text", "problem"), [
+    ("127.0.0.1:14540", "starts with a scheme"),
+    ("udp://127.0.0.1:14540", "unknown scheme 'udp'"),
+    ("udpin://:14540", "host is missing"),
+    ("tcp://127.0.0.1", "port is missing"),
+    ("tcp://127.0.0.1:http", "port must be a number"),
+    ("tcp://127.0.0.1:70000", "port must be a number"),
+    ("tcp://127.0.0.1:0", "port must be a number"),
+    ("tcp://127.0.0.1:5760/x", "nothing after the port"),
+    ("udpout://0.0.0.0:14550", "listening address"),
+    ("tcp://user@host:5760", "user names"),
+    ("serial://", "device is missing"),
+    ("serial:///dev/ttyUSB0:57601", "unsupported baud rate '57601'"),
+    ("serial:///dev/ttyUSB0:fast", "unsupported baud rate 'fast'"),
+])
+def test_bad_connection_strings_say_what_is_wrong(text: str, problem: str) -> None:
+    with pytest.raises(LinkUrlError, match=problem) as error:
+        parse_link_url(text)
+    assert isinstance(error.value, DronaError) and isinstance(error.value, ValueError)
+    assert repr(text) in str(error.value)
