@@ -35,8 +35,9 @@ of ``k`` primitives applied from step ``n`` it asks Z3 for:
   shortest path finishes any plan, so no ``k`` beyond ``S - n + |free cells|``
   is tried. When every primitive costs the same, the first satisfiable ``k``
   is optimal and a plain solver suffices; otherwise each ``k`` is a
-  ``z3.Optimize`` problem, and ``k`` keeps growing while ``k * min_cost``
-  could still beat the best plan found.
+  ``z3.Optimize`` problem asked for a plan cheaper than the best so far, and
+  ``k`` grows while a length-``k`` plan could still be cheaper: it makes at
+  least ``dg(start)`` moves, and every step costs at least ``min_cost``.
 
 Each call uses its own Z3 context, so plans may run in parallel threads.
 """
@@ -95,18 +96,20 @@ def plan_smt(workspace: Workspace, start: Cell, goal: Cell, start_step: int,
         raise NoPlanFound("the goal cannot be reached from the start")
     prim_costs = [model.cost(p) for p in model.primitives]
     min_cost, uniform = min(prim_costs), len(set(prim_costs)) == 1
+    min_move = min(model.cost(p) for p in model.primitives if p is not Primitive.HOLD)
     problem = _Problem(workspace, model, windows, start, goal, start_step,
-                       workspace.distances_from(start), to_goal)
+                       workspace.distances_from(start), to_goal, uniform)
     stopped = max((o.end_step + delta + 1 for o in others.values()), default=start_step)
     useful = min(limit, max(0, stopped - start_step) + len(workspace.free_cells))
     deadline = None if timeout_ms is None else time.monotonic() + timeout_ms / 1000
     best: Plan | None = None
-    for k in range(to_goal[start], useful + 1):
-        if best is not None and k * min_cost >= best.cost - _EPS:
-            break
+    moves = to_goal[start]
+    for k in range(moves, useful + 1):
+        if best is not None and moves * min_move + (k - moves) * min_cost >= best.cost - _EPS:
+            break  # no plan of k or more primitives can be cheaper
         if start_step + k < ready:
             continue  # I would sit on the goal while another drone still passes it
-        found = _solve(problem, k, uniform, deadline)
+        found = _solve(problem, k, None if uniform or best is None else best.cost, deadline)
         if found is not None and (best is None or found.cost < best.cost - _EPS):
             best = found
             if uniform:
@@ -162,11 +165,12 @@ class _Problem:
     n: int  #: the start step
     from_start: Mapping[Cell, int]
     to_goal: Mapping[Cell, int]
+    uniform: bool  #: every primitive costs the same
 
 
-def _solve(problem: _Problem, k: int, uniform: bool, deadline: float | None) -> Plan | None:
-    """The cheapest safe plan of exactly ``k`` primitives, or None when there is none."""
-    workspace, model, n = problem.workspace, problem.model, problem.n
+def _solve(problem: _Problem, k: int, below: float | None, deadline: float | None) -> Plan | None:
+    """The cheapest safe plan of exactly ``k`` primitives costing less than ``below``, or None."""
+    workspace, model, n, uniform = problem.workspace, problem.model, problem.n, problem.uniform
     ctx = z3.Context()
     solver: Any = z3.Solver(ctx=ctx) if uniform else z3.Optimize(ctx=ctx)
     if deadline is not None:
@@ -181,7 +185,10 @@ def _solve(problem: _Problem, k: int, uniform: bool, deadline: float | None) -> 
     _collisions(solver, problem.windows, ids, n)
     _corridor(problem, solver, ids, k)
     if not uniform:
-        solver.minimize(_total_cost(model, ctx, choices))
+        total = _total_cost(model, ctx, choices)
+        if below is not None:  # only a cheaper plan is of use: proving there is none is quicker
+            solver.add(total < z3.RealVal(below, ctx))
+        solver.minimize(total)
     verdict = solver.check()
     if verdict == z3.unknown:
         raise SmtTimeout(f"Z3 could not decide plans of length {k}: {solver.reason_unknown()}")
