@@ -36,7 +36,7 @@ from fleet.sim.fleet import FleetConfig, placements, run_fleet
 from fleet.sim.mav import mavlink2
 from fleet.sim.model import VehicleModel
 from fleet.sim.personality import ARDUPILOT, PX4, px4_mode
-from fleet.sim.telemetry import battery_status
+from fleet.sim.telemetry import battery_status, sys_status
 
 ML = mavutil.mavlink
 REPO = Path(__file__).resolve().parents[1]
@@ -436,3 +436,27 @@ def test_model_acks_every_command_even_with_nan_params(personality: Any) -> None
                                                              ML.MAV_RESULT_FAILED, ML.MAV_RESULT_UNSUPPORTED,
                                                              ML.MAV_RESULT_TEMPORARILY_REJECTED)
     assert not model.armed  # a NaN arm request is refused, not taken as 0 or 1
+
+
+@pytest.mark.parametrize("personality", [ARDUPILOT, PX4], ids=lambda p: p.name)
+def test_model_reports_its_prearm_checks_in_sys_status(personality: Any) -> None:
+    (place,) = placements(None, 1)
+    model = VehicleModel(VehicleConfig(personality=personality, ready_after_s=2.0), place, 0.0)
+    prearm = ML.MAV_SYS_STATUS_PREARM_CHECK
+    booting = sys_status(model, 1.0)
+    assert booting.onboard_control_sensors_present & booting.onboard_control_sensors_enabled & prearm
+    assert not booting.onboard_control_sensors_health & prearm  # no position estimate yet: cannot arm
+    assert sys_status(model, 2.0).onboard_control_sensors_health & prearm
+    model.battery.remaining = 0.1
+    assert not sys_status(model, 2.0).onboard_control_sensors_health & prearm
+
+
+def test_model_px4_answers_ping_requests_and_ardupilot_does_not() -> None:
+    (place,) = placements(None, 1)
+    px4 = VehicleModel(VehicleConfig(personality=PX4), place, 0.0)
+    (pong,) = deliver(px4, GCS.ping_encode(123456, 7, 0, 0), 1.0)
+    assert (pong.get_type(), pong.time_usec, pong.seq, pong.target_system, pong.target_component) == \
+        ("PING", 123456, 7, 255, 190)
+    assert not deliver(px4, GCS.ping_encode(123456, 8, 1, 1), 1.0)  # a reply to our own ping: nothing
+    assert not deliver(VehicleModel(VehicleConfig(personality=ARDUPILOT), place, 0.0),
+                       GCS.ping_encode(123456, 7, 0, 0), 1.0)

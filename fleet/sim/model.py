@@ -16,7 +16,9 @@ Behaviour copied from the real autopilots (see :mod:`fleet.sim.personality` for 
 * PX4 enters OFFBOARD only while setpoints stream (>= 2 Hz) and leaves it for AUTO.LOITER when
   they stop for more than ``offboard_timeout_s``;
 * a vehicle armed on the ground without taking off disarms itself after ``auto_disarm_s``;
-  LAND and RTL disarm on touchdown.
+  LAND and RTL disarm on touchdown;
+* SYS_STATUS carries the pre-arm checks (MAV_SYS_STATUS_PREARM_CHECK, healthy when it may arm),
+  which MAVSDK reads as ``health.is_armable``; PX4 answers PING requests.
 """
 
 from __future__ import annotations
@@ -84,6 +86,7 @@ class VehicleModel:
             "SET_POSITION_TARGET_GLOBAL_INT": self._on_setpoint,
             "TIMESYNC": self._on_timesync,
             "REQUEST_DATA_STREAM": self._on_request_data_stream,
+            "PING": self._on_ping,
             # Ignored on purpose:
             "HEARTBEAT": _ignore,  # the ground station's; we answer whoever writes
             "BAD_DATA": _ignore,  # corrupt bytes, or unsigned/badly signed while signing is on
@@ -205,6 +208,13 @@ class VehicleModel:
         if msg.tc1 == 0:
             self._out.append(telemetry.timesync(round((now - self.boot_time) * 1e9), msg.ts1))
 
+    def _on_ping(self, msg: Message, now: float) -> None:
+        """PX4 (mavlink_receiver's handle_message_ping) answers a ping request, one addressed to
+        system 0 component 0, with the same time_usec and seq addressed to the sender; MAVSDK
+        sends one every few seconds to measure latency. The ArduCopter fake leaves it unanswered."""
+        if self.personality is not ARDUPILOT and msg.target_system == 0 and msg.target_component == 0:
+            self._out.append(telemetry.ping(msg.time_usec, msg.seq, _source(msg)))
+
     def _on_request_data_stream(self, msg: Message, now: float) -> None:
         """ArduPilot's legacy stream rates (PX4 ignores the message)."""
         if self.personality is not ARDUPILOT or not self._for_me(msg.target_system, msg.target_component):
@@ -230,7 +240,7 @@ class VehicleModel:
         if self.armed:
             return ACCEPTED, []
         if not force:
-            reason = self._arming_problem(now)
+            reason = self.arming_problem(now)
             if reason:
                 self.text(mavlink2.MAV_SEVERITY_CRITICAL, reason)
                 return self.personality.rejected, []
@@ -238,7 +248,8 @@ class VehicleModel:
         self.landed_since = now
         return ACCEPTED, []
 
-    def _arming_problem(self, now: float) -> str:
+    def arming_problem(self, now: float) -> str:
+        """Why arming would be refused now (the STATUSTEXT it sends), or "" when it may arm."""
         if not self.ready(now):
             return self.personality.text_not_ready
         if self.battery.percent < self.config.min_arm_battery_pct:

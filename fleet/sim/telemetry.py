@@ -43,9 +43,15 @@ def heartbeat(m: VehicleModel, now: float) -> Message:
 
 
 def sys_status(m: VehicleModel, now: float) -> Message:
+    present = _SENSORS | mavlink2.MAV_SYS_STATUS_PREARM_CHECK
     health = _SENSORS if m.ready(now) else _SENSORS & ~mavlink2.MAV_SYS_STATUS_SENSOR_GPS
+    # Both autopilots report their pre-arm checks here, and MAVSDK's health.is_armable reads this bit:
+    # ArduPilot (GCS::update_sensor_status_flags) marks it healthy when armed or when the checks pass,
+    # PX4 (SYS_STATUS stream) when its health-and-arming checks pass.
+    if m.armed or not m.arming_problem(now):
+        health |= mavlink2.MAV_SYS_STATUS_PREARM_CHECK
     b = m.battery
-    return _ENC.sys_status_encode(_SENSORS, _SENSORS, health, 100, round(b.voltage * 1000),
+    return _ENC.sys_status_encode(present, present, health, 100, round(b.voltage * 1000),
                                   round(b.current_a * 100), b.percent, 0, 0, 0, 0, 0, 0)
 
 
@@ -175,6 +181,10 @@ def statustext(severity: int, text: str) -> Message:
 
 def command_ack(command: int, result: int, target: tuple[int, int]) -> Message:
     return _ENC.command_ack_encode(command, result, 0, 0, target[0], target[1])
+
+
+def ping(time_usec: int, seq: int, target: tuple[int, int]) -> Message:
+    return _ENC.ping_encode(time_usec, seq, target[0], target[1])
 
 
 def timesync(tc1: int, ts1: int) -> Message:
