@@ -111,8 +111,9 @@ def _shortest_path_if_free(grid: GridIndex, table: ReservationTable, heuristic: 
             return None
     cells = tuple(grid.coords[c] for c in path)
     traj = Trajectory(n, cells)
-    cost = grid.model.plan_cost(traj.primitives())
-    return SearchResult(traj, traj.primitives(), cost, SearchStats(0, len(path)))
+    primitives = traj.primitives()
+    cost = grid.uniform_cost * len(primitives) if grid.uniform_cost is not None else grid.model.plan_cost(primitives)
+    return SearchResult(traj, primitives, cost, SearchStats(0, len(path)))
 
 
 def _run(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance, start: int, goal: int,
