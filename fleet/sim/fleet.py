@@ -21,12 +21,13 @@ from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import AsyncIterator, Callable
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 from drona_gcs.errors import WorkspaceError
 from drona_gcs.geo import GeoFrame, Ned
 from drona_gcs.workspace import GeoOrigin, Workspace
+from fleet.clock import periodic
 from fleet.sim.codec import Codec, decode
 from fleet.sim.config import Placement, VehicleConfig
 from fleet.sim.mav import Message
@@ -142,16 +143,6 @@ def build_nodes(config: FleetConfig, workspace: Workspace | None, clock: SimCloc
         codec = Codec(i + 1, signing_key=config.signing_key)
         nodes.append(SimNode(VehicleModel(vehicle, place, now), codec, clock))
     return nodes
-
-
-async def periodic(period: float) -> AsyncIterator[None]:
-    """Yield every ``period`` seconds of the event loop's clock, skipping ticks that were missed."""
-    loop = asyncio.get_running_loop()
-    next_at = loop.time()
-    while True:
-        yield
-        next_at = max(next_at + period, loop.time())
-        await asyncio.sleep(next_at - loop.time())
 
 
 async def run_fleet(config: FleetConfig, workspace: Workspace | None, stop: asyncio.Event,

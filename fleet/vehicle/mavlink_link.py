@@ -26,13 +26,14 @@ import contextlib
 import logging
 import math
 import time
-from collections.abc import AsyncIterator, Callable
+from collections.abc import Callable
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from drona_gcs.geo import GeoFrame, GeoPoint, Ned
+from fleet.clock import periodic
 from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry
 from fleet.vehicle.urls import LinkUrl, Transport, open_transport, parse_link_url
 
@@ -65,16 +66,6 @@ def _px4_custom(main: int, sub: int) -> int:
 def _command_name(command: int) -> str:
     entry = mavlink2.enums["MAV_CMD"].get(command)
     return entry.name.removeprefix("MAV_CMD_") if entry is not None else f"command {command}"
-
-
-async def periodic(period: float) -> AsyncIterator[None]:
-    """Yield every ``period`` seconds of the event loop's clock, skipping ticks that were missed."""
-    loop = asyncio.get_running_loop()
-    next_at = loop.time()
-    while True:
-        yield
-        next_at = max(next_at + period, loop.time())
-        await asyncio.sleep(next_at - loop.time())
 
 
 # ------------------------------------------------------------------ the link

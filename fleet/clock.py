@@ -1,0 +1,16 @@
+"""Clock helpers for the edges (the core never reads a clock)."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import AsyncIterator
+
+
+async def periodic(period: float) -> AsyncIterator[None]:
+    """Yield every ``period`` seconds of the event loop's clock, skipping ticks that were missed."""
+    loop = asyncio.get_running_loop()
+    next_at = loop.time()
+    while True:
+        yield
+        next_at = max(next_at + period, loop.time())
+        await asyncio.sleep(next_at - loop.time())
