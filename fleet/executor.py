@@ -45,6 +45,8 @@ class SetpointLoop:
         self.period = 1.0 / rate_hz
         # By default a drone may trail by a cell: it is between two cells for most of a step.
         self.tolerance = lag_tolerance_m if lag_tolerance_m is not None else frame.ws.cell_size_m
+        self.target = executor.cell
+        self.last_sent = -math.inf
 
     def step_at(self, t: float) -> int:
         """The step under way at local time ``t``."""
@@ -53,22 +55,24 @@ class SetpointLoop:
     async def run(self, on_step: Callable[[StepReport, Sequence[ExecutorAction]], None],
                   stop: asyncio.Event) -> None:
         """Until ``stop`` is set: take every boundary, stream the target between them."""
-        step = max(self.step_at(self.clock()), self.executor.step + 1)
-        target = self.executor.cell
-        while not stop.is_set():
-            boundary = self.epoch + step * self.tau
-            while (now := self.clock()) < boundary and not stop.is_set():
-                await self.sink.send_position_target(self.frame.cell_to_ned(target))
-                await _sleep_or_stop(stop, min(self.period, boundary - now))
-            if stop.is_set():
-                return
-            late = self.clock() - boundary
-            previous = target
-            actions = self.executor.tick(step)
-            target = next(a.cell for a in actions if isinstance(a, Setpoint))
-            await self.sink.send_position_target(self.frame.cell_to_ned(target))
-            on_step(self._report(step, previous, target, late), actions)
-            step += 1
+        await SetpointFleet([self]).run(lambda _, report, actions: on_step(report, actions), stop)
+
+    # ------------------------------------------------- used by SetpointFleet
+    def due(self, now: float) -> bool:
+        """Whether the stream needs a setpoint now (not again right after a boundary's)."""
+        return now - self.last_sent >= self.period
+
+    async def send(self) -> None:
+        await self.sink.send_position_target(self.frame.cell_to_ned(self.target))
+        self.last_sent = self.clock()
+
+    def take(self, step: int, boundary: float) -> tuple[StepReport, Sequence[ExecutorAction]]:
+        """Take boundary ``step`` (no I/O): the executor moves the target to its next cell."""
+        late = self.clock() - boundary
+        previous = self.target
+        actions = self.executor.tick(step)
+        self.target = next(a.cell for a in actions if isinstance(a, Setpoint))
+        return self._report(step, previous, self.target, late), actions
 
     def _report(self, step: int, previous: Cell, target: Cell, late: float) -> StepReport:
         """At boundary ``step`` the vehicle should have reached ``previous`` (last step's cell)."""
@@ -80,6 +84,45 @@ class SetpointLoop:
         error = math.dist((position.ned.north, position.ned.east, position.ned.down),
                           (should.north, should.east, should.down))
         return StepReport(step, target, fix.cell, error, error > self.tolerance, late)
+
+
+class SetpointFleet:
+    """The setpoint loops of every drone a process hosts, on one timer.
+
+    At a boundary every executor takes its step first (no I/O, microseconds
+    each), then the new targets are sent. Loops that each woke on their own
+    timer took their boundaries one send apart: with 32 drones in one process
+    the last was 15 ms late.
+    """
+
+    def __init__(self, loops: Sequence[SetpointLoop]) -> None:
+        if not loops:
+            raise ValueError("no setpoint loops")
+        first = loops[0]
+        if any(loop.epoch != first.epoch or loop.tau != first.tau for loop in loops):
+            raise ValueError("the loops of one process share the fleet epoch and tau")
+        self.loops, self.clock, self.epoch, self.tau = list(loops), first.clock, first.epoch, first.tau
+
+    async def run(self, on_step: Callable[[int, StepReport, Sequence[ExecutorAction]], None],
+                  stop: asyncio.Event) -> None:
+        """Until ``stop`` is set; ``on_step(i, report, actions)`` for loop ``i`` at each boundary."""
+        step = max(self.loops[0].step_at(self.clock()), *(loop.executor.step + 1 for loop in self.loops))
+        while not stop.is_set():
+            boundary = self.epoch + step * self.tau
+            while (now := self.clock()) < boundary and not stop.is_set():
+                for loop in self.loops:
+                    if loop.due(now):
+                        await loop.send()
+                next_send = min(loop.last_sent + loop.period for loop in self.loops)
+                await _sleep_or_stop(stop, min(next_send, boundary) - self.clock())
+            if stop.is_set():
+                return
+            taken = [loop.take(step, boundary) for loop in self.loops]
+            for loop in self.loops:
+                await loop.send()
+            for i, (report, actions) in enumerate(taken):
+                on_step(i, report, actions)
+            step += 1
 
 
 async def _sleep_or_stop(stop: asyncio.Event, seconds: float) -> None:

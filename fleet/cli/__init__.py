@@ -16,7 +16,7 @@ from collections.abc import Sequence
 # name -> (module, help). Each module has `add_arguments(parser)` and `run(args) -> int`.
 COMMANDS: dict[str, tuple[str, str]] = {
     "plan": ("fleet.cli.plan", "plan safe trajectories for JSON Lines problems"),
-    "bench": ("fleet.cli.bench", "benchmarks (bench planner)"),
+    "bench": ("fleet.cli.bench", "benchmarks (bench planner, bench mavlink)"),
     "verify": ("fleet.cli.verify", "systematic tester: explore schedules of the real stack for bugs"),
     "sim-vehicle": ("fleet.cli.sim_vehicle", "fake ArduCopter/PX4 vehicles speaking MAVLink over UDP or TCP"),
 }

@@ -1,5 +1,7 @@
 """``drona bench planner``: the paper's planner workload (Tables 1 and 2), timed in CPU time.
 
+(``drona bench mavlink`` is :mod:`fleet.bench_mavlink`: fake vehicles and MAVLink links on loopback.)
+
 For each grid size W and drone count R of Table 2, at Delta 0 and 1: a random
 W x W grid with 20% obstacles (pockets filled), R drones at random free
 cells, and a stream of tasks (see :mod:`drona_gcs.bench.workload`). Each plan
@@ -59,8 +61,9 @@ class Row:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("what", choices=["planner"], help="what to benchmark")
-    parser.add_argument("--quick", action="store_true", help="a short run: 40 tasks a cell, Z3 on 16x16 only")
+    parser.add_argument("what", choices=["planner", "mavlink"], help="what to benchmark")
+    parser.add_argument("--quick", action="store_true", help="a short run: 40 tasks a cell, Z3 on 16x16 only "
+                        "(mavlink: 16 vehicles for 5 s, 8 loops for 5 boundaries)")
     parser.add_argument("--json", action="store_true", help="print JSON Lines rows instead of a table")
     parser.add_argument("--tasks", type=int, help="tasks per cell (default 300; 40 with --quick)")
     parser.add_argument("--smt-tasks", type=int, default=5, help="tasks per Z3 cell (default 5)")
@@ -69,9 +72,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--deltas", default="0,1", help="skew windows to run (default 0,1)")
     parser.add_argument("--no-smt", action="store_true", help="skip the Z3 generator (Table 1)")
     parser.add_argument("--seed", type=int, default=2017)
+    _add_mavlink_arguments(parser)
+
+
+def _add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
+    """``drona bench mavlink`` (:mod:`fleet.bench_mavlink`, imported only when run); shares --quick and --json."""
+    group = parser.add_argument_group("bench mavlink")
+    group.add_argument("--vehicles", type=int, help="vehicles and links for telemetry (default 128; 16 with --quick)")
+    group.add_argument("--seconds", type=float, help="seconds of telemetry measured (default 20; 5 with --quick)")
+    group.add_argument("--warmup", type=float, default=2.0, help="seconds of telemetry before measuring (default 2)")
+    group.add_argument("--stream-hz", type=float, default=10.0, help="telemetry rate the links ask for (default 10)")
+    group.add_argument("--loops", type=int, help="setpoint loops for the jitter (default 32; 8 with --quick)")
+    group.add_argument("--tau", type=float, default=1.0, help="seconds per step (default 1)")
+    group.add_argument("--boundaries", type=int, help="step boundaries per loop (default 20; 5 with --quick)")
+    group.add_argument("--rate-hz", type=float, default=10.0, help="setpoint rate between boundaries (default 10)")
+    group.add_argument("--only", choices=["telemetry", "jitter"], help="run only one of the two measurements")
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.what == "mavlink":
+        from fleet import bench_mavlink
+
+        return bench_mavlink.run(args)
     try:
         grids = _ints(args.grids) if args.grids else None
         drones = _ints(args.drones) if args.drones else None
