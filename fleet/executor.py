@@ -107,6 +107,11 @@ class SetpointFleet:
                   stop: asyncio.Event) -> None:
         """Until ``stop`` is set; ``on_step(i, report, actions)`` for loop ``i`` at each boundary."""
         step = max(self.loops[0].step_at(self.clock()), *(loop.executor.step + 1 for loop in self.loops))
+        first = self.epoch + step * self.tau
+        for loop in self.loops:  # start the stream now, half a period out of phase with the boundaries
+            await loop.send()
+            behind = math.ceil((first - loop.period / 2 - loop.last_sent) / loop.period)
+            loop.last_sent = first - loop.period / 2 - behind * loop.period
         while not stop.is_set():
             boundary = self.epoch + step * self.tau
             while (now := self.clock()) < boundary and not stop.is_set():
@@ -120,6 +125,9 @@ class SetpointFleet:
             taken = [loop.take(step, boundary) for loop in self.loops]
             for loop in self.loops:
                 await loop.send()
+                # Stream half a period out of phase with the boundaries: a burst of sends
+                # just before a boundary would delay it by the whole burst.
+                loop.last_sent = boundary - loop.period / 2
             for i, (report, actions) in enumerate(taken):
                 on_step(i, report, actions)
             step += 1
