@@ -316,6 +316,20 @@ def test_connection_strings_parse(text: str, expected: LinkUrl) -> None:
     assert parse_link_url(str(expected)) == expected
 
 
+@pytest.mark.parametrize(("text", "expected"), [
+    ("udpin://0.0.0.0:14540", "udpin://0.0.0.0:14540"),
+    ("udpout://192.168.1.20:14550", "udpout://192.168.1.20:14550"),
+    ("tcp://[::1]:5760", "tcpout://[::1]:5760"),
+    ("serial:///dev/ttyUSB0", "serial:///dev/ttyUSB0:57600"),
+])
+def test_connection_strings_in_mavsdk_form(text: str, expected: str) -> None:
+    try:
+        from fleet.vehicle.mavsdk_link import mavsdk_url
+    except Exception as exc:  # no package, or its native library does not load here
+        pytest.skip(f"MAVSDK cannot run here: {type(exc).__name__}: {exc}")
+    assert mavsdk_url(parse_link_url(text)) == expected
+
+
 @pytest.mark.parametrize(("text", "problem"), [
     ("127.0.0.1:14540", "starts with a scheme"),
     ("udp://127.0.0.1:14540", "unknown scheme 'udp'"),

@@ -1,0 +1,460 @@
+"""The MAVSDK backend of :class:`~fleet.vehicle.link.VehicleLink`: MAVSDK 4 (the ctypes binding) does the MAVLink.
+
+MAVSDK's plugins carry the commands: Action arms, disarms and lands, Offboard follows setpoints
+(PX4's OFFBOARD, ArduCopter's GUIDED; MAVSDK streams the last setpoint at 20 Hz itself).
+MavlinkDirect carries what MAVSDK has no call for: DO_SET_MODE by autopilot mode name, and
+NAV_TAKEOFF with its altitude (MAVSDK's own takeoff altitude is PX4's MIS_TAKEOFF_ALT parameter,
+and this link writes no parameter). Telemetry comes from subscriptions whose latest values
+:meth:`MavsdkLink.telemetry` reads; HEARTBEAT, COMMAND_ACK and STATUSTEXT are subscribed through
+MavlinkDirect for the exact mode, the exact MAV_RESULT of a refusal and the text that explains it.
+
+Errors are mapped at this edge: a refused command (ActionError, OffboardError, a COMMAND_ACK that
+is not ACCEPTED) is a :class:`~drona_gcs.errors.VehicleCommandRejected` with the MAV_RESULT and
+the vehicle's STATUSTEXT; timeouts, a failed connection and a vehicle silent for
+``heartbeat_timeout`` are :class:`~drona_gcs.errors.VehicleError`. Every wait is bounded. MAVSDK is
+driven through its callback API (``arm_async``, ``subscribe_*``): its callbacks only hand the result to
+the event loop (``call_soon_threadsafe``), so no thread ever blocks on a vehicle that went quiet, and a
+call the link gave up on is simply forgotten.
+
+MAVSDK hides the wire: a refused or closed TCP connection only shows in its log (its ``tcpout``
+reconnects in the background), so here both look like a vehicle that stopped sending HEARTBEATs.
+
+Positions are local NED, or with a :class:`~drona_gcs.geo.GeoFrame` that workspace's frame (targets
+go out as global setpoints, positions come from the global position), as with the pymavlink backend.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import contextlib
+import functools
+import json
+import math
+import time
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+from mavsdk import Autopilot as MavsdkAutopilot
+from mavsdk import ComponentType, Configuration, Mavsdk, MavsdkError
+from mavsdk.plugins.action import Action, ActionError
+from mavsdk.plugins.mavlink_direct import MavlinkDirect, MavlinkDirectError, MavlinkMessage
+from mavsdk.plugins.offboard import Offboard, OffboardError, PositionGlobalYaw, PositionNedYaw
+from mavsdk.plugins.telemetry import Telemetry as MavsdkTelemetry
+from mavsdk.plugins.telemetry import TelemetryError
+
+from drona_gcs.errors import VehicleCommandRejected, VehicleError
+from drona_gcs.geo import GeoFrame, GeoPoint, Ned
+from fleet.clock import periodic
+from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry
+from fleet.vehicle.mavlink_link import ARDUCOPTER_MODES, CONFIRM_HEARTBEATS, FOLLOW_MODE, LAND_MODE, PX4_MODES
+from fleet.vehicle.urls import LinkUrl, Scheme, parse_link_url
+
+ACCEPTED, TEMPORARILY_REJECTED, DENIED, UNSUPPORTED, FAILED = 0, 1, 2, 3, 4  #: MAV_RESULT
+SET_MESSAGE_INTERVAL, NAV_TAKEOFF, DO_SET_MODE = 511, 22, 176  #: MAV_CMD
+ARM_DISARM, NAV_LAND = 400, 21
+SYS_STATUS, EXTENDED_SYS_STATE = 1, 245  #: message ids MAVSDK has no set_rate_* for
+CUSTOM_MODE_ENABLED, SAFETY_ARMED = 1, 128  #: MAV_MODE_FLAG
+SETPOINTS_BEFORE_START = 3  #: at MAVSDK's own 20 Hz
+SERIOUS = 4  #: MAV_SEVERITY_WARNING: texts at this severity or worse explain a refusal
+#: MAVSDK's ActionResult/OffboardResult name -> MAV_RESULT, when no COMMAND_ACK says better.
+RESULTS = {"COMMAND_DENIED": DENIED, "COMMAND_DENIED_LANDED_STATE_UNKNOWN": DENIED,
+           "COMMAND_DENIED_NOT_LANDED": DENIED, "BUSY": TEMPORARILY_REJECTED, "UNSUPPORTED": UNSUPPORTED}
+#: Results that mean no answer came: a link problem, not a refusal.
+UNANSWERED = {"NO_SYSTEM", "CONNECTION_ERROR", "TIMEOUT", "UNKNOWN"}
+Start = Callable[[Callable[..., None]], None]  #: starts a MAVSDK ``*_async`` call with its callback
+TELEMETRY = ("position", "position_velocity_ned", "battery", "gps_info", "landed_state")  #: kept as latest values
+
+
+def mavsdk_url(url: LinkUrl) -> str:
+    """Our connection string in MAVSDK's form: our ``tcp://`` (a client) is its ``tcpout://``."""
+    host = f"[{url.host}]" if ":" in url.host else url.host
+    return {Scheme.UDPIN: f"udpin://{host}:{url.port}", Scheme.UDPOUT: f"udpout://{host}:{url.port}",
+            Scheme.TCP: f"tcpout://{host}:{url.port}", Scheme.SERIAL: f"serial://{url.device}:{url.baud}"}[url.scheme]
+
+
+class MavsdkLink:
+    """One vehicle through one MAVSDK instance; see the module docstring."""
+
+    def __init__(self, url: str | LinkUrl, *, frame: GeoFrame | None = None, heartbeat_timeout: float = 3.0,
+                 command_timeout: float = 3.0, text_grace: float = 0.3, stream_hz: float = 10.0,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.url = parse_link_url(url) if isinstance(url, str) else url
+        self.frame, self.clock = frame, clock
+        self.heartbeat_timeout, self.command_timeout = heartbeat_timeout, command_timeout
+        self.text_grace, self.stream_hz = text_grace, stream_hz
+        self.sysid: int | None = None
+        self._mavsdk: Mavsdk | None = None
+        self._action: Any = None
+        self._offboard: Any = None
+        self._telemetry: Any = None
+        self._direct: Any = None
+        self._tasks: list[asyncio.Task[None]] = []
+        self._subscriptions: list[tuple[Callable[[Any], None], Any]] = []  #: (unsubscribe, handle)
+        self._failures: set[asyncio.Future[None]] = set()  #: resolved when the link fails: ends _call's wait
+        self._tick = asyncio.Event()  #: replaced after each update; waiters re-check their condition
+        self._dead: VehicleError | None = None  #: closed: final
+        self._silent: VehicleError | None = None  #: no heartbeat lately: cleared by the next one
+        self.autopilot: Autopilot | None = None
+        self.custom_mode: int | None = None
+        self.armed = False
+        self.heartbeats = 0
+        self.heartbeat_at: float | None = None
+        self._latest: dict[str, tuple[float, Any]] = {}  #: subscription -> (clock time, latest value)
+        self._acks: dict[int, tuple[float, int]] = {}  #: command -> (clock time, MAV_RESULT) of its last ACK
+        self.texts: collections.deque[tuple[float, int, str]] = collections.deque(maxlen=32)
+
+    # ------------------------------------------------------------ connection
+    async def connect(self, timeout: float = 10.0) -> None:
+        """Add the connection, wait for an autopilot, subscribe to telemetry and ask for its streams."""
+        self._mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+        try:
+            try:
+                self._mavsdk.add_any_connection_with_handle(mavsdk_url(self.url))
+            except MavsdkError as exc:
+                raise VehicleError(f"cannot open {self.url}: {exc}") from exc
+            loop = asyncio.get_running_loop()
+            found: asyncio.Future[Any] = loop.create_future()
+            wait = self._mavsdk.first_autopilot_async(timeout, lambda s: loop.call_soon_threadsafe(_settle, found, s))
+            try:
+                system = await asyncio.wait_for(found, timeout + 1.0)
+            finally:
+                self._mavsdk.cancel_first_autopilot(wait)
+            if system is None:
+                raise VehicleError(f"vehicle {self.sysid}: waited {timeout} s for a HEARTBEAT from a vehicle")
+            self.sysid = system.get_system_id()
+            self._action, self._offboard = Action(system), Offboard(system)
+            self._telemetry, self._direct = MavsdkTelemetry(system), MavlinkDirect(system)
+            self.autopilot = {MavsdkAutopilot.PX4: Autopilot.PX4, MavsdkAutopilot.ARDUPILOT: Autopilot.ARDUPILOT}.get(
+                system.autopilot_type(), Autopilot.OTHER)
+            for kind, handler in (("HEARTBEAT", self._on_heartbeat), ("COMMAND_ACK", self._on_command_ack),
+                                  ("STATUSTEXT", self._on_statustext)):
+                handle = self._direct.subscribe_message(kind, self._handler(handler))
+                self._subscriptions.append((self._direct.unsubscribe_message, handle))
+            for name in TELEMETRY:
+                keep = self._handler(functools.partial(self._keep, name))
+                handle = getattr(self._telemetry, f"subscribe_{name}")(keep)
+                self._subscriptions.append((getattr(self._telemetry, f"unsubscribe_{name}"), handle))
+            self._tasks.append(asyncio.create_task(self._watchdog()))
+            await self._wait_for(lambda: self.heartbeats > 0, timeout, "a HEARTBEAT from a vehicle")
+            for name in TELEMETRY:  # ArduCopter streams nothing until asked
+                set_rate = getattr(self._telemetry, f"set_rate_{name}_async")
+                await self._call(f"set_rate_{name}", functools.partial(set_rate, self.stream_hz), TelemetryError)
+            for msg_id in (SYS_STATUS, EXTENDED_SYS_STATE):
+                await self.command("SET_MESSAGE_INTERVAL", SET_MESSAGE_INTERVAL, msg_id, 1e6 / self.stream_hz)
+        except BaseException:
+            await self.close()
+            raise
+
+    async def close(self) -> None:
+        for task in self._tasks:
+            task.cancel()
+        for task in self._tasks:
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        self._tasks = []
+        for unsubscribe, handle in self._subscriptions:
+            unsubscribe(handle)
+        self._subscriptions = []
+        self._fail(VehicleError(f"{self.url}: link closed"), final=True)
+        if self._mavsdk is not None:
+            self._mavsdk.destroy()
+            self._mavsdk = None
+
+    async def wait_ready(self, timeout: float) -> None:
+        """Heartbeat, a 3D GPS fix, local and global position; VehicleError after ``timeout``."""
+        await self._wait_for(lambda: self._not_ready() is None, timeout, "readiness",
+                             lambda: f" ({self._not_ready()})")
+
+    def _not_ready(self) -> str | None:
+        t = self.telemetry()
+        problems = [(t.heartbeat_at is None, "no HEARTBEAT"),
+                    (t.gps_fix < 3, f"GPS fix type {t.gps_fix}, need a 3D fix"), (t.position is None, "no position"),
+                    (t.global_position is None, "no global position")]
+        return next((text for bad, text in problems if bad), None)
+
+    # ------------------------------------------------------------ commands
+    async def arm(self) -> None:
+        await self._confirmed("ARM", self._call("ARM", self._action.arm_async, ActionError, ARM_DISARM),
+                              lambda: self.armed, "is still disarmed")
+
+    async def disarm(self) -> None:
+        await self._confirmed("DISARM", self._call("DISARM", self._action.disarm_async, ActionError, ARM_DISARM),
+                              lambda: not self.armed, "is still armed")
+
+    async def set_mode(self, mode: str) -> None:
+        """Switch to ``mode`` (ArduCopter or PX4 name) with DO_SET_MODE; confirmed from the next HEARTBEAT."""
+        params: tuple[float, ...]
+        if self.autopilot is Autopilot.ARDUPILOT and mode in ARDUCOPTER_MODES:
+            custom, params = ARDUCOPTER_MODES[mode], (float(ARDUCOPTER_MODES[mode]),)
+        elif self.autopilot is Autopilot.PX4 and mode in PX4_MODES:
+            main, sub = PX4_MODES[mode]
+            custom, params = (main << 16) | (sub << 24), (float(main), float(sub))
+        else:
+            raise VehicleError(f"vehicle {self.sysid} ({self.autopilot}): unknown mode {mode!r}")
+        label = f"DO_SET_MODE {mode}"
+        await self._confirmed(label, self.command(label, DO_SET_MODE, CUSTOM_MODE_ENABLED, *params),
+                              lambda: self.custom_mode == custom, "stayed in {mode}")
+
+    async def follow_setpoints(self) -> None:
+        """MAVSDK's offboard (GUIDED on ArduPilot), holding the current position as the first setpoint."""
+        mode = FOLLOW_MODE.get(self.autopilot or Autopilot.OTHER)
+        if mode is not None and self.mode == mode:
+            return
+        here = self.last_position()
+        if here is None:
+            raise VehicleError(f"vehicle {self.sysid}: no position to hold while starting offboard")
+        # PX4 refuses OFFBOARD until setpoints stream, and MAVSDK only streams once offboard started: send a few.
+        for _ in range(SETPOINTS_BEFORE_START):
+            await self.send_position_target(here.ned)
+            await asyncio.sleep(1 / 20)
+        start = self._call("OFFBOARD start", self._offboard.start_async, OffboardError, DO_SET_MODE)
+        await self._confirmed("OFFBOARD start", start,
+                              lambda: mode is None or self.mode == mode, "stayed in {mode}")
+
+    async def takeoff(self, altitude_m: float) -> None:
+        """Climb to ``altitude_m`` above home (ArduPilot: in GUIDED, switched to first); returns once climbing."""
+        if not altitude_m > 0:
+            raise ValueError(f"takeoff altitude must be > 0, got {altitude_m}")
+        if self.autopilot is Autopilot.ARDUPILOT:
+            if self.mode != "GUIDED":
+                await self.set_mode("GUIDED")
+            await self.command("TAKEOFF", NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, altitude_m)
+        else:  # PX4 wants AMSL: home's altitude is the absolute minus the relative altitude
+            t = self.telemetry()
+            if t.global_position is None or t.height_m is None:
+                raise VehicleError(f"vehicle {self.sysid}: no global position, cannot take off")
+            amsl = t.global_position.alt_m - t.height_m + altitude_m
+            await self.command("TAKEOFF", NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, amsl)
+        await self.wait_until(lambda t: t.landed in (LandedState.TAKEOFF, LandedState.IN_AIR)
+                              or (t.height_m or 0.0) > 0.3, self.heartbeat_timeout, "the takeoff to start")
+
+    async def land(self) -> None:
+        """Land where it is; confirmed from the next HEARTBEAT's mode."""
+        mode = LAND_MODE.get(self.autopilot or Autopilot.OTHER)
+        await self._confirmed("LAND", self._call("LAND", self._action.land_async, ActionError, NAV_LAND),
+                              lambda: mode is None or self.mode == mode, "stayed in {mode}")
+
+    async def command(self, label: str, command: int, *params: float) -> None:
+        """COMMAND_LONG through MavlinkDirect; VehicleCommandRejected unless the ACK says ACCEPTED."""
+        p = [*params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0][:7]
+        fields = {"target_system": self.sysid or 0, "target_component": 1, "command": command, "confirmation": 0,
+                  # JSON has no NaN: MavlinkDirect sends null as NaN (PX4: "unset")
+                  **{f"param{i + 1}": None if math.isnan(v) else v for i, v in enumerate(p)}}
+        since = self.clock()
+        message = MavlinkMessage(message_name="COMMAND_LONG", target_system_id=self.sysid or 0,
+                                 target_component_id=1, fields_json=json.dumps(fields))
+        ack = await self._call(label, lambda done: self._direct.send_command_async(message, done), MavlinkDirectError)
+        result = int(json.loads(ack.fields_json)["result"])
+        if result != ACCEPTED:
+            raise VehicleCommandRejected(label, result, await self._reason_since(since))
+
+    async def _confirmed(self, label: str, sent: Awaitable[Any], effect: Callable[[], bool], failure: str) -> None:
+        """Await the command ``sent``, then want ``effect`` within CONFIRM_HEARTBEATS HEARTBEATs."""
+        since = self.clock()
+        await sent
+        seen = self.heartbeats
+        await self._wait_for(lambda: effect() or self.heartbeats >= seen + CONFIRM_HEARTBEATS,
+                             self.heartbeat_timeout, f"a HEARTBEAT after {label}")
+        if not effect():
+            texts = "; ".join(t for at, sev, t in self.texts if sev <= SERIOUS and at >= since)
+            reason = f"acknowledged, but the vehicle {failure.format(mode=self.mode)}"
+            reason += f" ({texts})" if texts else ""
+            raise VehicleCommandRejected(label, ACCEPTED, reason)
+
+    async def _call(self, label: str, start: Start, error: type[MavsdkError], command: int | None = None) -> Any:
+        """Start a MAVSDK ``*_async`` call and await its callback, bounded by ``command_timeout`` and by the link.
+
+        Returns the call's data (MavlinkDirect's ACK) on SUCCESS. A result that means no answer is a
+        VehicleError; any other is a VehicleCommandRejected with the COMMAND_ACK's MAV_RESULT and the
+        vehicle's STATUSTEXT, raised from MAVSDK's own ``error`` for that result.
+        """
+        self._check_alive()
+        since, loop = self.clock(), asyncio.get_running_loop()
+        answer: asyncio.Future[tuple[Any, Any]] = loop.create_future()
+        failure: asyncio.Future[None] = loop.create_future()
+
+        def done(result: Any, *rest: Any) -> None:  # MAVSDK's thread: (result, user_data) or (result, data, user_data)
+            with contextlib.suppress(RuntimeError):  # the loop is closed: nobody waits for this answer any more
+                loop.call_soon_threadsafe(_settle, answer, (result, rest[0] if len(rest) > 1 else None))
+
+        start(done)
+        self._failures.add(failure)
+        try:
+            either: set[asyncio.Future[Any]] = {answer, failure}
+            await asyncio.wait(either, timeout=self.command_timeout, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            self._failures.discard(failure)
+            failure.cancel()
+        self._check_alive()
+        if not answer.done():
+            raise VehicleError(f"{label}: no answer from vehicle {self.sysid} within {self.command_timeout} s")
+        result, data = answer.result()
+        if result.name == "SUCCESS":
+            return data
+        exc = error(result, label)
+        if result.name in UNANSWERED or error is MavlinkDirectError or error is TelemetryError:
+            raise VehicleError(f"{label}: vehicle {self.sysid} did not answer ({result.name})") from exc
+        await self._until(lambda: command in self._acks and self._acks[command][0] >= since, self.text_grace)
+        ack = self._acks.get(command or -1)
+        mav_result = ack[1] if ack is not None and ack[0] >= since else RESULTS.get(result.name, FAILED)
+        raise VehicleCommandRejected(label, mav_result, await self._reason_since(since)) from exc
+
+    async def _reason_since(self, since: float) -> str:
+        """The serious STATUSTEXT since ``since``, waiting ``text_grace`` for one if none came yet."""
+        def serious() -> list[str]:
+            return [t for at, sev, t in self.texts if at >= since and sev <= SERIOUS]
+        await self._until(lambda: bool(serious()), self.text_grace)
+        return (serious() or [""])[-1]
+
+    # ------------------------------------------------------------ setpoints
+    async def send_position_target(self, target: Ned) -> None:
+        """Fly to ``target`` (local NED, or the workspace frame's with ``frame``); MAVSDK repeats it at 20 Hz."""
+        self._check_alive()
+        try:  # these only store the setpoint (and send it once): they do not wait for the vehicle
+            if self.frame is None:
+                self._offboard.set_position_ned(PositionNedYaw(target.north, target.east, target.down, 0.0))
+            else:
+                g = self.frame.ned_to_global(target)
+                self._offboard.set_position_global(
+                    PositionGlobalYaw(g.lat, g.lon, g.alt_m, 0.0, PositionGlobalYaw.AltitudeType.AMSL))
+        except OffboardError as exc:
+            raise VehicleError(f"vehicle {self.sysid}: setpoint not taken ({exc})") from exc
+
+    # ------------------------------------------------------------ telemetry
+    @property
+    def mode(self) -> str | None:
+        if self.custom_mode is None:
+            return None
+        names: dict[str, int] = {}
+        if self.autopilot is Autopilot.ARDUPILOT:
+            names = ARDUCOPTER_MODES
+        elif self.autopilot is Autopilot.PX4:
+            names = {n: (main << 16) | (sub << 24) for n, (main, sub) in PX4_MODES.items()}
+        return next((n for n, c in names.items() if c == self.custom_mode), f"custom_mode={self.custom_mode}")
+
+    def last_position(self) -> Position | None:
+        """The local NED position; with ``frame``, the global position in the workspace frame."""
+        kind = "position_velocity_ned" if self.frame is None else "position"
+        if (entry := self._latest.get(kind)) is None:
+            return None
+        at, value = entry
+        if self.frame is None:
+            p = value.position
+            return None if math.isnan(p.north_m) else Position(Ned(p.north_m, p.east_m, p.down_m), at)
+        g = self.last_global()
+        return None if g is None else Position(self.frame.global_to_ned(g), at)
+
+    def last_global(self) -> GeoPoint | None:
+        p = self._value("position")
+        if p is None or math.isnan(p.latitude_deg):
+            return None
+        return GeoPoint(p.latitude_deg, p.longitude_deg, p.absolute_altitude_m)
+
+    def telemetry(self) -> Telemetry:
+        pv, glob, battery = self._value("position_velocity_ned"), self._value("position"), self._value("battery")
+        gps, landed = self._value("gps_info"), self._value("landed_state")
+        pct = round(battery.remaining_percent) if battery is not None and math.isfinite(battery.remaining_percent) \
+            else None
+        volts = battery.voltage_v if battery is not None and math.isfinite(battery.voltage_v) else None
+        height = glob.relative_altitude_m if glob is not None and math.isfinite(glob.relative_altitude_m) else None
+        velocity = None if pv is None else Ned(pv.velocity.north_m_s, pv.velocity.east_m_s, pv.velocity.down_m_s)
+        return Telemetry(self.autopilot, self.armed, self.mode, self.last_position(), velocity, self.last_global(),
+                         height, pct, volts, 0 if gps is None else int(gps.fix_type),
+                         0 if gps is None else gps.num_satellites,
+                         LandedState(int(landed)) if landed is not None else LandedState.UNDEFINED, self.heartbeat_at)
+
+    async def wait_until(self, predicate: Callable[[Telemetry], bool], timeout: float, what: str) -> Telemetry:
+        await self._wait_for(lambda: predicate(self.telemetry()), timeout, what)
+        return self.telemetry()
+
+    # ------------------------------------------------------------ subscriptions
+    def _handler(self, handle: Callable[[Any], None]) -> Callable[..., None]:
+        """A MAVSDK subscription callback that hands each item to ``handle`` on the event loop."""
+        loop = asyncio.get_running_loop()
+
+        def on_item(item: Any, *user_data: Any) -> None:  # MAVSDK's thread: hand over, nothing more
+            with contextlib.suppress(RuntimeError):  # the loop is closed: the link is gone
+                loop.call_soon_threadsafe(self._on_item, handle, item)
+        return on_item
+
+    def _on_item(self, handle: Callable[[Any], None], item: Any) -> None:
+        if self._dead is None:
+            handle(item)
+            self._notify()
+
+    def _keep(self, name: str, value: Any) -> None:
+        self._latest[name] = (self.clock(), value)
+
+    def _value(self, name: str) -> Any:
+        entry = self._latest.get(name)
+        return None if entry is None else entry[1]
+
+    def _on_heartbeat(self, msg: MavlinkMessage) -> None:
+        if msg.component_id != 1:
+            return
+        fields = json.loads(msg.fields_json)
+        self.custom_mode = int(fields["custom_mode"])
+        self.armed = bool(int(fields["base_mode"]) & SAFETY_ARMED)
+        self.heartbeats += 1
+        self.heartbeat_at = self.clock()
+        self._silent = None
+
+    def _on_command_ack(self, msg: MavlinkMessage) -> None:
+        fields = json.loads(msg.fields_json)
+        self._acks[int(fields["command"])] = (self.clock(), int(fields["result"]))
+
+    def _on_statustext(self, msg: MavlinkMessage) -> None:
+        fields = json.loads(msg.fields_json)
+        self.texts.append((self.clock(), int(fields["severity"]), str(fields["text"])))
+
+    async def _watchdog(self) -> None:
+        """Fails every wait when the vehicle has been silent for ``heartbeat_timeout`` seconds."""
+        async for _ in periodic(min(0.25, self.heartbeat_timeout / 4)):
+            now = self.clock()
+            if self.heartbeat_at is not None and self._silent is None and self._dead is None \
+                    and now - self.heartbeat_at > self.heartbeat_timeout:
+                self._fail(VehicleError(f"vehicle {self.sysid} on {self.url}: no HEARTBEAT for "
+                                        f"{now - self.heartbeat_at:.1f} s (timeout {self.heartbeat_timeout} s)"))
+
+    # ------------------------------------------------------------ plumbing
+    def _notify(self) -> None:
+        self._tick.set()
+        self._tick = asyncio.Event()
+
+    async def _until(self, condition: Callable[[], bool], timeout: float) -> bool:
+        """Whether ``condition`` holds within ``timeout``, re-checked on each update; VehicleError if the link fails."""
+        deadline = asyncio.get_running_loop().time() + timeout
+        while True:
+            self._check_alive()
+            if condition():
+                return True
+            remaining = deadline - asyncio.get_running_loop().time()
+            if remaining <= 0:
+                return False
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._tick.wait(), remaining)
+
+    async def _wait_for(self, condition: Callable[[], bool], timeout: float, what: str,
+                        detail: Callable[[], str] = str) -> None:
+        if not await self._until(condition, timeout):
+            raise VehicleError(f"vehicle {self.sysid}: waited {timeout} s for {what}{detail()}")
+
+    def _check_alive(self) -> None:
+        if error := self._dead or self._silent:
+            raise error
+
+    def _fail(self, error: VehicleError, final: bool = False) -> None:
+        if final:
+            self._dead = self._dead or error
+        else:
+            self._silent = error
+        for future in self._failures:
+            if not future.done():
+                future.set_result(None)
+        self._notify()
+
+
+def _settle(future: asyncio.Future[Any], value: Any) -> None:
+    if not future.done():
+        future.set_result(value)
