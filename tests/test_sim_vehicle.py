@@ -460,3 +460,12 @@ def test_model_px4_answers_ping_requests_and_ardupilot_does_not() -> None:
     assert not deliver(px4, GCS.ping_encode(123456, 8, 1, 1), 1.0)  # a reply to our own ping: nothing
     assert not deliver(VehicleModel(VehicleConfig(personality=ARDUPILOT), place, 0.0),
                        GCS.ping_encode(123456, 7, 0, 0), 1.0)
+
+
+def test_sim_vehicle_refuses_a_workspace_too_fast_for_its_vehicles(tmp_path: Path) -> None:
+    fast = tmp_path / "fast.yaml"
+    fast.write_text("size: [4, 4, 1]\ncell_size_m: 10\ntau_s: 1\ndrones: {a: [0, 0, 0]}\n")
+    done = subprocess.run([sys.executable, "-m", "fleet.cli", "sim-vehicle", "--workspace", str(fast),
+                           "--max-speed", "5"], capture_output=True, text=True, timeout=30, check=False)
+    assert done.returncode == 2
+    assert "tau_s: one cell per tau needs 10.00 m/s" in done.stderr

@@ -14,6 +14,7 @@ import signal
 import sys
 
 from drona_gcs.errors import DronaError
+from drona_gcs.geo import check_speed
 from drona_gcs.workspace import Workspace
 from drona_gcs.workspace_files import load_workspace
 from fleet.sim.codec import parse_key
@@ -45,6 +46,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         config = _config(args)
         workspace: Workspace | None = load_workspace(args.workspace) if args.workspace else None
+        if workspace is not None:  # a cell per tau must be within what the vehicles can fly
+            check_speed(workspace, args.max_speed)
     except (ValueError, DronaError) as exc:
         print(f"drona sim-vehicle: {exc}", file=sys.stderr)
         return 2
