@@ -44,7 +44,6 @@ Each call uses its own Z3 context, so plans may run in parallel threads.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -76,7 +75,8 @@ def plan_smt(workspace: Workspace, start: Cell, goal: Cell, start_step: int,
     """A minimum-cost safe plan found by Z3; raises :class:`NoPlanFound` when none exists.
 
     Same contract as :meth:`drona_gcs.planner.SafePlanner.plan`. ``timeout_ms``
-    bounds the whole call; running out raises :class:`SmtTimeout`.
+    bounds each Z3 call (one per plan length; Z3 keeps the time, the core reads
+    no clock); running out raises :class:`SmtTimeout`.
     """
     check_endpoints(workspace, start, goal)
     if delta < 0:
@@ -101,7 +101,6 @@ def plan_smt(workspace: Workspace, start: Cell, goal: Cell, start_step: int,
                        workspace.distances_from(start), to_goal, uniform)
     stopped = max((o.end_step + delta + 1 for o in others.values()), default=start_step)
     useful = min(limit, max(0, stopped - start_step) + len(workspace.free_cells))
-    deadline = None if timeout_ms is None else time.monotonic() + timeout_ms / 1000
     best: Plan | None = None
     moves = to_goal[start]
     for k in range(moves, useful + 1):
@@ -109,7 +108,7 @@ def plan_smt(workspace: Workspace, start: Cell, goal: Cell, start_step: int,
             break  # no plan of k or more primitives can be cheaper
         if start_step + k < ready:
             continue  # I would sit on the goal while another drone still passes it
-        found = _solve(problem, k, None if uniform or best is None else best.cost, deadline)
+        found = _solve(problem, k, None if uniform or best is None else best.cost, timeout_ms)
         if found is not None and (best is None or found.cost < best.cost - _EPS):
             best = found
             if uniform:
@@ -168,16 +167,13 @@ class _Problem:
     uniform: bool  #: every primitive costs the same
 
 
-def _solve(problem: _Problem, k: int, below: float | None, deadline: float | None) -> Plan | None:
+def _solve(problem: _Problem, k: int, below: float | None, timeout_ms: int | None) -> Plan | None:
     """The cheapest safe plan of exactly ``k`` primitives costing less than ``below``, or None."""
     workspace, model, n, uniform = problem.workspace, problem.model, problem.n, problem.uniform
     ctx = z3.Context()
     solver: Any = z3.Solver(ctx=ctx) if uniform else z3.Optimize(ctx=ctx)
-    if deadline is not None:
-        left = int((deadline - time.monotonic()) * 1000)
-        if left <= 0:
-            raise SmtTimeout(f"Z3 ran out of time before trying plans of length {k}")
-        solver.set("timeout", left)
+    if timeout_ms is not None:
+        solver.set("timeout", timeout_ms)
     xs, ids = _positions(workspace, solver, ctx, k)
     _endpoints(solver, xs, problem.start, problem.goal)
     _obstacles(workspace, solver, ctx, xs)
