@@ -32,9 +32,7 @@ import contextlib
 import json
 import math
 import os
-import random
 import signal
-import socket
 import statistics
 import subprocess
 import sys
@@ -51,6 +49,7 @@ from drona_gcs.stack.executor import ExecutorAction, PlanExecutor
 from drona_gcs.workspace import Workspace
 from fleet.executor import SetpointFleet, SetpointLoop, StepReport
 from fleet.sim.fleet import DEFAULT_HOME, DEFAULT_SPACING_M
+from fleet.sim.ports import free_udp_base
 from fleet.vehicle import mavlink_link
 from fleet.vehicle.mavlink_link import PymavlinkLink
 
@@ -353,7 +352,10 @@ class SimProcess:
 async def linked_fleet(count: int, stream_hz: float,
                        frame: GeoFrame | None = None) -> AsyncIterator[tuple[SimProcess, list[CountingLink]]]:
     """``count`` vehicles in a subprocess and a connected link to each (streams requested)."""
-    base = free_udp_base(count)
+    try:
+        base = free_udp_base(count, HOST)
+    except OSError as exc:
+        raise BenchError(str(exc)) from exc
     links = [CountingLink(f"udpin://{HOST}:{base + i}", target_system=i + 1, stream_hz=stream_hz, frame=frame,
                           heartbeat_timeout=5.0, ack_timeout=2.0) for i in range(count)]
     sim = SimProcess(count, base)
@@ -375,30 +377,6 @@ async def linked_fleet(count: int, stream_hz: float,
         await asyncio.gather(*connecting, return_exceptions=True)
         await asyncio.gather(*(link.close() for link in links), return_exceptions=True)
         await sim.stop()
-
-
-def free_udp_base(count: int) -> int:
-    """A port p with p .. p + count - 1 free for UDP on HOST, below the ephemeral range where possible."""
-    low = 32768
-    with contextlib.suppress(OSError, ValueError, IndexError):
-        low = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
-    first, last = (10000, low - count) if low - count > 12000 else (low, 65535 - count)
-    rng = random.Random()
-    for _ in range(100):
-        base = rng.randrange(first, last)
-        socks: list[socket.socket] = []
-        try:
-            for port in range(base, base + count):
-                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-                socks.append(s)
-                s.bind((HOST, port))
-            return base
-        except OSError:
-            continue
-        finally:
-            for s in socks:
-                s.close()
-    raise BenchError(f"found no {count} consecutive free UDP ports on {HOST}")
 
 
 def _udp_queues(ports: set[int]) -> tuple[int, int] | None:

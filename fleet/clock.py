@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 from collections.abc import AsyncIterator
 
 
@@ -14,3 +15,13 @@ async def periodic(period: float) -> AsyncIterator[None]:
         yield
         next_at = max(next_at + period, loop.time())
         await asyncio.sleep(next_at - loop.time())
+
+
+async def cancel_all(tasks: list[asyncio.Task[None]]) -> None:
+    """Cancel ``tasks`` and wait until each has finished; the list is emptied."""
+    for task in tasks:
+        task.cancel()
+    for task in tasks:
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+    tasks.clear()

@@ -29,6 +29,7 @@ from drona_gcs.geo import Ned
 from fleet.sim.config import VehicleConfig
 from fleet.sim.fleet import FleetConfig, placements, run_fleet
 from fleet.sim.personality import ARDUPILOT, PX4, Personality
+from fleet.sim.ports import free_port
 
 try:
     import mavsdk
@@ -53,13 +54,6 @@ SET_MESSAGE_INTERVAL, SYS_STATUS = 511, 1  #: MAV_CMD and message id
 
 
 # ------------------------------------------------------------------ harness
-def free_port(kind: socket.SocketKind) -> int:
-    with socket.socket(socket.AF_INET, kind) as probe:
-        probe.bind(("127.0.0.1", 0))
-        port: int = probe.getsockname()[1]
-        return port
-
-
 @contextlib.contextmanager
 def mavsdk_log() -> Any:
     """Print MAVSDK's log lines with a wall-clock stamp (pytest shows them for a failed test)."""

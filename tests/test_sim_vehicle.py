@@ -36,6 +36,7 @@ from fleet.sim.fleet import FleetConfig, placements, run_fleet
 from fleet.sim.mav import mavlink2
 from fleet.sim.model import VehicleModel
 from fleet.sim.personality import ARDUPILOT, PX4, px4_mode
+from fleet.sim.ports import free_udp_base
 from fleet.sim.telemetry import battery_status, sys_status
 
 ML = mavutil.mavlink
@@ -47,27 +48,6 @@ OFFBOARD, AUTO_LOITER = px4_mode(6), px4_mode(4, 3)
 
 
 # ------------------------------------------------------------------ harness
-def free_udp_base(count: int) -> int:
-    """A port p such that p .. p + count - 1 are all free for UDP on 127.0.0.1."""
-    for _ in range(50):
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
-            probe.bind(("127.0.0.1", 0))
-            base = probe.getsockname()[1]
-        socks = []
-        try:
-            for port in range(base, base + count):
-                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-                socks.append(s)
-                s.bind(("127.0.0.1", port))
-            return base
-        except OSError:
-            continue
-        finally:
-            for s in socks:
-                s.close()
-    raise RuntimeError("no free UDP ports")
-
-
 def free_tcp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
         probe.bind(("127.0.0.1", 0))

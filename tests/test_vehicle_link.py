@@ -26,6 +26,7 @@ from fleet.sim.config import VehicleConfig
 from fleet.sim.fleet import FleetConfig, placements, run_fleet
 from fleet.sim.mav import mavlink2
 from fleet.sim.personality import PERSONALITIES, Personality
+from fleet.sim.ports import free_port
 from fleet.vehicle.link import Autopilot, LandedState, Telemetry, VehicleLink
 from fleet.vehicle.mavlink_link import PymavlinkLink
 from fleet.vehicle.urls import DEFAULT_BAUD, LinkUrl, LinkUrlError, Scheme, parse_link_url
@@ -72,13 +73,6 @@ def skip_if_cannot(backend: str, test: str, transport: str) -> None:
 
 
 # ------------------------------------------------------------------ harness
-def free_port(kind: int) -> int:
-    with socket.socket(socket.AF_INET, kind) as probe:
-        probe.bind(("127.0.0.1", 0))
-        port: int = probe.getsockname()[1]
-        return port
-
-
 @dataclass
 class Fake:
     url: str

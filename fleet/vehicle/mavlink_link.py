@@ -33,20 +33,14 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from drona_gcs.geo import GeoFrame, GeoPoint, Ned
-from fleet.clock import periodic
+from fleet.clock import cancel_all, periodic
 from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry
+from fleet.vehicle.modes import CONFIRM_HEARTBEATS, FOLLOW_MODE, LAND_MODE, mode_command, mode_name
 from fleet.vehicle.urls import LinkUrl, Transport, open_transport, parse_link_url
 
 log = logging.getLogger(__name__)
 
 Message = Any  # pymavlink's MAVLink_message: untyped
-ARDUCOPTER_MODES = {"STABILIZE": 0, "ALT_HOLD": 2, "AUTO": 3, "GUIDED": 4, "LOITER": 5, "RTL": 6, "LAND": 9,
-                    "POSHOLD": 16, "BRAKE": 17}
-#: PX4 mode name -> (main mode, sub mode); custom_mode = main << 16 | sub << 24.
-PX4_MODES = {"MANUAL": (1, 0), "ALTCTL": (2, 0), "POSCTL": (3, 0), "AUTO.TAKEOFF": (4, 2), "AUTO.LOITER": (4, 3),
-             "AUTO.MISSION": (4, 4), "AUTO.RTL": (4, 5), "AUTO.LAND": (4, 6), "OFFBOARD": (6, 0)}
-FOLLOW_MODE = {Autopilot.ARDUPILOT: "GUIDED", Autopilot.PX4: "OFFBOARD"}
-LAND_MODE = {Autopilot.ARDUPILOT: "LAND", Autopilot.PX4: "AUTO.LAND"}
 #: Streams requested with MAV_CMD_SET_MESSAGE_INTERVAL: message id -> rate as a fraction of ``stream_hz``.
 STREAMS = {mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 1.0, mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 1.0,
            mavlink2.MAVLINK_MSG_ID_BATTERY_STATUS: 1.0, mavlink2.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
@@ -55,12 +49,7 @@ POSITION_ONLY = 0b110111111000  #: type_mask: use x, y, z; ignore velocity, acce
 GCS_COMPONENT = mavlink2.MAV_COMP_ID_MISSIONPLANNER
 _UNKNOWN_U16 = 0xFFFF
 SETPOINT_SENT = "(setpoint sent)"  #: a pseudo message type: waiters on it are resolved as setpoints go out
-CONFIRM_HEARTBEATS = 2  #: PX4 may send one more HEARTBEAT with the old state after its ACK
 _SERIOUS = mavlink2.MAV_SEVERITY_WARNING  #: texts at this severity or worse explain a refusal
-
-
-def _px4_custom(main: int, sub: int) -> int:
-    return (main << 16) | (sub << 24)
 
 
 def _command_name(command: int) -> str:
@@ -130,12 +119,7 @@ class PymavlinkLink:
             raise
 
     async def close(self) -> None:
-        for task in self._tasks:
-            task.cancel()
-        for task in self._tasks:
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
-        self._tasks = []
+        await cancel_all(self._tasks)
         if self._transport is not None:
             self._transport.close()
         self._fail(VehicleError(f"{self.url}: link closed"), final=True)
@@ -187,14 +171,7 @@ class PymavlinkLink:
 
     async def set_mode(self, mode: str) -> None:
         """Switch to ``mode`` (ArduCopter or PX4 name) and confirm it from the next HEARTBEAT."""
-        params: tuple[float, ...]
-        if self.autopilot is Autopilot.ARDUPILOT and mode in ARDUCOPTER_MODES:
-            custom, params = ARDUCOPTER_MODES[mode], (float(ARDUCOPTER_MODES[mode]),)
-        elif self.autopilot is Autopilot.PX4 and mode in PX4_MODES:
-            main, sub = PX4_MODES[mode]
-            custom, params = _px4_custom(main, sub), (float(main), float(sub))
-        else:
-            raise VehicleError(f"vehicle {self.sysid} ({self.autopilot}): unknown mode {mode!r}")
+        custom, params = mode_command(self.autopilot, mode, f"vehicle {self.sysid}")
         flag = float(mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED)
         await self._confirmed(mavlink2.MAV_CMD_DO_SET_MODE, (flag, *params), f"DO_SET_MODE {mode}",
                               lambda: self.custom_mode == custom, lambda: f"stayed in {self.mode}")
@@ -294,14 +271,7 @@ class PymavlinkLink:
     # ------------------------------------------------------------ telemetry
     @property
     def mode(self) -> str | None:
-        if self.custom_mode is None:
-            return None
-        names: dict[str, int] = {}
-        if self.autopilot is Autopilot.ARDUPILOT:
-            names = ARDUCOPTER_MODES
-        elif self.autopilot is Autopilot.PX4:
-            names = {n: _px4_custom(*ms) for n, ms in PX4_MODES.items()}
-        return next((n for n, c in names.items() if c == self.custom_mode), f"custom_mode={self.custom_mode}")
+        return mode_name(self.autopilot, self.custom_mode)
 
     def last_position(self) -> Position | None:
         """LOCAL_POSITION_NED; with ``frame``, GLOBAL_POSITION_INT in the workspace frame."""

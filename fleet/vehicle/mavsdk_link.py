@@ -45,9 +45,9 @@ from mavsdk.plugins.telemetry import TelemetryError
 
 from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from drona_gcs.geo import GeoFrame, GeoPoint, Ned
-from fleet.clock import periodic
+from fleet.clock import cancel_all, periodic
 from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry
-from fleet.vehicle.mavlink_link import ARDUCOPTER_MODES, CONFIRM_HEARTBEATS, FOLLOW_MODE, LAND_MODE, PX4_MODES
+from fleet.vehicle.modes import CONFIRM_HEARTBEATS, FOLLOW_MODE, LAND_MODE, mode_command, mode_name
 from fleet.vehicle.urls import LinkUrl, Scheme, parse_link_url
 
 ACCEPTED, TEMPORARILY_REJECTED, DENIED, UNSUPPORTED, FAILED = 0, 1, 2, 3, 4  #: MAV_RESULT
@@ -147,12 +147,7 @@ class MavsdkLink:
             raise
 
     async def close(self) -> None:
-        for task in self._tasks:
-            task.cancel()
-        for task in self._tasks:
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
-        self._tasks = []
+        await cancel_all(self._tasks)
         for unsubscribe, handle in self._subscriptions:
             unsubscribe(handle)
         self._subscriptions = []
@@ -184,14 +179,7 @@ class MavsdkLink:
 
     async def set_mode(self, mode: str) -> None:
         """Switch to ``mode`` (ArduCopter or PX4 name) with DO_SET_MODE; confirmed from the next HEARTBEAT."""
-        params: tuple[float, ...]
-        if self.autopilot is Autopilot.ARDUPILOT and mode in ARDUCOPTER_MODES:
-            custom, params = ARDUCOPTER_MODES[mode], (float(ARDUCOPTER_MODES[mode]),)
-        elif self.autopilot is Autopilot.PX4 and mode in PX4_MODES:
-            main, sub = PX4_MODES[mode]
-            custom, params = (main << 16) | (sub << 24), (float(main), float(sub))
-        else:
-            raise VehicleError(f"vehicle {self.sysid} ({self.autopilot}): unknown mode {mode!r}")
+        custom, params = mode_command(self.autopilot, mode, f"vehicle {self.sysid}")
         label = f"DO_SET_MODE {mode}"
         await self._confirmed(label, self.command(label, DO_SET_MODE, CUSTOM_MODE_ENABLED, *params),
                               lambda: self.custom_mode == custom, "stayed in {mode}")
@@ -324,14 +312,7 @@ class MavsdkLink:
     # ------------------------------------------------------------ telemetry
     @property
     def mode(self) -> str | None:
-        if self.custom_mode is None:
-            return None
-        names: dict[str, int] = {}
-        if self.autopilot is Autopilot.ARDUPILOT:
-            names = ARDUCOPTER_MODES
-        elif self.autopilot is Autopilot.PX4:
-            names = {n: (main << 16) | (sub << 24) for n, (main, sub) in PX4_MODES.items()}
-        return next((n for n, c in names.items() if c == self.custom_mode), f"custom_mode={self.custom_mode}")
+        return mode_name(self.autopilot, self.custom_mode)
 
     def last_position(self) -> Position | None:
         """The local NED position; with ``frame``, the global position in the workspace frame."""

@@ -1,0 +1,44 @@
+"""Free loopback ports for fake vehicles, benchmarks and tests."""
+
+from __future__ import annotations
+
+import contextlib
+import random
+import socket
+from pathlib import Path
+
+
+def free_port(kind: int = socket.SOCK_DGRAM, host: str = "127.0.0.1") -> int:
+    """A port the OS reports free for ``kind`` (SOCK_DGRAM or SOCK_STREAM) on ``host``."""
+    with socket.socket(socket.AF_INET, kind) as probe:
+        probe.bind((host, 0))
+        port: int = probe.getsockname()[1]
+        return port
+
+
+def free_udp_base(count: int, host: str = "127.0.0.1") -> int:
+    """A port p with p .. p + count - 1 all free for UDP on ``host``.
+
+    Searched below the ephemeral range where possible, so that ports the OS hands
+    out to other sockets meanwhile do not land in the block.
+    """
+    low = 32768
+    with contextlib.suppress(OSError, ValueError, IndexError):
+        low = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    first, last = (10000, low - count) if low - count > 12000 else (low, 65535 - count)
+    rng = random.Random()
+    for _ in range(100):
+        base = rng.randrange(first, last)
+        socks: list[socket.socket] = []
+        try:
+            for port in range(base, base + count):
+                sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                socks.append(sock)
+                sock.bind((host, port))
+            return base
+        except OSError:
+            continue
+        finally:
+            for sock in socks:
+                sock.close()
+    raise OSError(f"found no {count} consecutive free UDP ports on {host}")
