@@ -76,7 +76,7 @@ class DroneStack:
     def now(self) -> int:
         return max(self.executor.step, 0)
 
-    def receive(self, message: Message, now: int | None = None) -> list[DroneAction]:
+    def receive(self, message: Message) -> list[DroneAction]:
         stamp = getattr(message, "task_id", None) or getattr(message, "in_reply_to", None)
         if stamp is not None:
             self.clock.observe(stamp.stamp)

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 from drona_gcs.errors import DronaError
 from drona_gcs.motion import Trajectory
 from drona_gcs.safety import check_pair
-from drona_gcs.stack.mail import MailDelivered, MailRequest, MailStarted
+from drona_gcs.stack.mail import MailDelivered, MailStarted
 from drona_gcs.stack.protocol import StartExecuting
 from drona_gcs.workspace import Cell
 
@@ -48,9 +48,6 @@ class Monitors:
             self._in_order(drone, action)
         elif isinstance(action, MailDelivered):
             self.delivered.add(action.request.id)
-
-    def assigned(self, drone: str, request: MailRequest) -> None:
-        """Nothing to check on arrival; kept so the trace and a future dispatch monitor hook here."""
 
     # (a)
     def _consistent(self, drone: str, action: StartExecuting, world: World) -> None:

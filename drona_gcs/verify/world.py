@@ -254,7 +254,6 @@ class World:
         drone = self.config.assignees[self.injected]
         self.injected += 1
         self.last_injection_step = min(self.steps.values())
-        self.monitors.assigned(drone, request)
         self.trace.append(f"env -> {drone}: mail {request.id} p{request.priority} "
                           f"{list(request.pickup)}->{list(request.dropoff)}")
         self._carry_out(drone, self.stacks[drone].assign(request))
