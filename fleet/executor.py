@@ -20,7 +20,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from drona_gcs.geo import GeoFrame
-from drona_gcs.stack.executor import ExecutorAction, PlanExecutor, Setpoint
+from drona_gcs.stack.executor import PlanExecutor, Setpoint
 from drona_gcs.workspace import Cell
 from fleet.vehicle.link import SetpointSink
 
@@ -37,7 +37,8 @@ class StepReport:
 
 class SetpointLoop:
     def __init__(self, sink: SetpointSink, frame: GeoFrame, executor: PlanExecutor, epoch: float, tau: float,
-                 clock: Callable[[], float], rate_hz: float = 10.0, lag_tolerance_m: float | None = None) -> None:
+                 clock: Callable[[], float], rate_hz: float = 10.0, lag_tolerance_m: float | None = None,
+                 tick: Callable[[int], Sequence[object]] | None = None) -> None:
         if tau <= 0 or rate_hz <= 0:
             raise ValueError("tau and rate_hz must be > 0")
         self.sink, self.frame, self.executor = sink, frame, executor
@@ -47,12 +48,14 @@ class SetpointLoop:
         self.tolerance = lag_tolerance_m if lag_tolerance_m is not None else frame.ws.cell_size_m
         self.target = executor.cell
         self.last_sent = -math.inf
+        #: takes a boundary: the executor's own tick, or the whole drone stack's step (which ticks it)
+        self.tick: Callable[[int], Sequence[object]] = tick or executor.tick
 
     def step_at(self, t: float) -> int:
         """The step under way at local time ``t``."""
         return math.floor((t - self.epoch) / self.tau)
 
-    async def run(self, on_step: Callable[[StepReport, Sequence[ExecutorAction]], None],
+    async def run(self, on_step: Callable[[StepReport, Sequence[object]], None],
                   stop: asyncio.Event) -> None:
         """Until ``stop`` is set: take every boundary, stream the target between them."""
         await SetpointFleet([self]).run(lambda _, report, actions: on_step(report, actions), stop)
@@ -66,11 +69,11 @@ class SetpointLoop:
         await self.sink.send_position_target(self.frame.cell_to_ned(self.target))
         self.last_sent = self.clock()
 
-    def take(self, step: int, boundary: float) -> tuple[StepReport, Sequence[ExecutorAction]]:
+    def take(self, step: int, boundary: float) -> tuple[StepReport, Sequence[object]]:
         """Take boundary ``step`` (no I/O): the executor moves the target to its next cell."""
         late = self.clock() - boundary
         previous = self.target
-        actions = self.executor.tick(step)
+        actions = self.tick(step)
         self.target = next(a.cell for a in actions if isinstance(a, Setpoint))
         return self._report(step, previous, self.target, late), actions
 
@@ -103,7 +106,7 @@ class SetpointFleet:
             raise ValueError("the loops of one process share the fleet epoch and tau")
         self.loops, self.clock, self.epoch, self.tau = list(loops), first.clock, first.epoch, first.tau
 
-    async def run(self, on_step: Callable[[int, StepReport, Sequence[ExecutorAction]], None],
+    async def run(self, on_step: Callable[[int, StepReport, Sequence[object]], None],
                   stop: asyncio.Event) -> None:
         """Until ``stop`` is set; ``on_step(i, report, actions)`` for loop ``i`` at each boundary."""
         step = max(self.loops[0].step_at(self.clock()), *(loop.executor.step + 1 for loop in self.loops))

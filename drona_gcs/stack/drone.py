@@ -17,6 +17,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import lru_cache
 
+from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.planner.heuristic import UNREACHABLE, GoalDistance
 from drona_gcs.stack.battery import BatteryLow, BatteryModel, BatteryMonitor, BatteryRecharged
@@ -89,11 +90,16 @@ class DroneStack:
     def peer_left(self, drone: str) -> list[DroneAction]:
         return self._protocol(PeerLeft(drone))
 
-    def peer_joined(self, drone: str, cell: Cell) -> list[DroneAction]:
-        return self._protocol(PeerJoined(drone, cell))
+    def peer_joined(self, drone: str, cell: Cell, trajectory: Trajectory | None = None) -> list[DroneAction]:
+        return self._protocol(PeerJoined(drone, cell, trajectory))
 
-    def step(self, step: int, battery_level: float, physical_time: int = 0) -> list[DroneAction]:
-        """Step boundary ``step``: move, feel the battery, then let the task planner decide."""
+    def step(self, step: int, battery_level: float, physical_time: int = 0,
+             may_plan: bool = True) -> list[DroneAction]:
+        """Step boundary ``step``: move, feel the battery, then let the task planner decide.
+
+        With ``may_plan`` False (the runtime found the clock-skew bound broken)
+        no new task starts: the drone finishes what it flies and holds.
+        """
         actions: list[DroneAction] = []
         for done in self.executor.tick(step):
             actions.append(done)
@@ -106,7 +112,7 @@ class DroneStack:
                 self.mail.battery_low()
             else:
                 self.mail.battery_recharged()
-        if self.protocol.state is State.WAIT_FOR_TASK:
+        if may_plan and self.protocol.state is State.WAIT_FOR_TASK:
             for decided in self.mail.decide(step, battery_level, self.taken_cells()):
                 actions.append(decided)
                 if isinstance(decided, GoTo):

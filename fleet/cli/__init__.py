@@ -19,6 +19,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("fleet.cli.bench", "benchmarks (bench planner, bench mavlink)"),
     "verify": ("fleet.cli.verify", "systematic tester: explore schedules of the real stack for bugs"),
     "sim-vehicle": ("fleet.cli.sim_vehicle", "fake ArduCopter/PX4 vehicles speaking MAVLink over UDP or TCP"),
+    "serve": ("fleet.cli.serve", "the mail-request service and dashboard (FastAPI)"),
+    "agent": ("fleet.cli.agent", "run drones' stacks against their vehicles, coordinating over Zenoh"),
+    "mail": ("fleet.cli.mail", "give the fleet a mail over Zenoh, and optionally follow it until delivered"),
+    "router": ("fleet.cli.router", "a Zenoh router for agents in client mode"),
+    "audit": ("fleet.cli.audit", "judge a recorded run (--record files) for collisions under Delta"),
 }
 
 

@@ -1,0 +1,52 @@
+"""Clock offsets between drones, and the check of the paper's bound beta.
+
+The safety argument (Delta = ceil(beta / tau)) assumes every two drones'
+clocks differ by at most beta. We check it: each agent asks its peers for
+their clock (a Zenoh query) and, NTP-style, takes the offset as the peer's
+time minus the midpoint of the round trip; the estimate is off by at most
+half the round trip. The bound is broken only when the skew is *provably*
+above beta: ``|offset| - rtt/2 > beta``. (A point estimate would raise false
+alarms on any fleet with beta 0, and loopback round trips are ~0.1 ms.)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class OffsetSample:
+    offset_s: float  #: peer clock minus mine
+    error_s: float  #: half the round trip: the estimate's bound
+
+    @classmethod
+    def measure(cls, sent: float, peer_time: float, received: float) -> OffsetSample:
+        return cls(peer_time - (sent + received) / 2, max(0.0, received - sent) / 2)
+
+    def exceeds(self, beta_s: float) -> bool:
+        return abs(self.offset_s) - self.error_s > beta_s
+
+
+@dataclass
+class ClockCheck:
+    beta_s: float
+    peers: dict[str, OffsetSample] = field(default_factory=dict)
+
+    def observe(self, peer: str, sample: OffsetSample) -> None:
+        self.peers[peer] = sample
+
+    def forget(self, peer: str) -> None:
+        self.peers.pop(peer, None)
+
+    def violations(self) -> dict[str, OffsetSample]:
+        """The peers whose clock is provably more than beta from mine."""
+        return {p: s for p, s in self.peers.items() if s.exceeds(self.beta_s)}
+
+    def alarm(self) -> str | None:
+        bad = self.violations()
+        if not bad:
+            return None
+        worst = max(bad.items(), key=lambda item: abs(item[1].offset_s))
+        return (f"clock skew: {worst[0]}'s clock is {worst[1].offset_s * 1000:+.1f} ms "
+                f"(+/- {worst[1].error_s * 1000:.1f}) from mine, beyond beta {self.beta_s * 1000:.0f} ms: "
+                f"not planning until it is back within")

@@ -1,0 +1,376 @@
+"""One drone's agent: the core stack wired to Zenoh, to its vehicle and to the local clock.
+
+Everything the stack decides comes back as actions, carried out here:
+protocol messages go out on ``proto/<peer>`` (one put per peer: a round is
+2(N-1) messages), mail progress on ``mail/status/<id>``, the drone's state on
+``state/<me>`` at every step boundary. What comes in — peers' messages,
+mail orders, membership changes — is handed to the stack on the event loop,
+one event at a time, exactly as the systematic tester hands it.
+
+Membership is Zenoh liveliness: a peer whose token goes is the protocol's
+``PeerLeft`` (it stays in Psi as an obstacle), one whose token appears is
+``PeerJoined`` with the cell and plan it announces in its state. At start-up,
+peers not alive are marked left, so nobody waits for a drone that never came.
+
+When a peer leaves, the live drone with the smallest name (its *heir*)
+takes over the mail the departed drone had not picked up yet, and reports
+the mail it was carrying as failed: mail is never silently lost.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import TextIO
+
+from drona_gcs.errors import ProblemError
+from drona_gcs.geo import GeoFrame
+from drona_gcs.stack.battery import BatteryLow, BatteryRecharged
+from drona_gcs.stack.drone import DroneAction, DroneStack
+from drona_gcs.stack.mail import GoTo, MailDelivered, MailPickedUp, MailRejected, MailRequest, MailStarted
+from drona_gcs.stack.protocol import Broadcast, Send, StartExecuting, State, TaskFailed
+from drona_gcs.workspace import Cell, Workspace
+from fleet.agent.clocksync import ClockCheck, OffsetSample
+from fleet.agent.vehicle import VehicleSupervisor
+from fleet.executor import StepReport
+from fleet.transport.keys import FleetKeys
+from fleet.transport.node import Query, ZenohNode
+from fleet.transport.wire import (
+    ClockPing,
+    ClockPong,
+    DroneState,
+    Health,
+    MailAck,
+    MailOrder,
+    MailStatus,
+    MailStatusReport,
+    MailView,
+    TaskView,
+    WireError,
+    WireTrajectory,
+    decode,
+    encode,
+    from_core,
+    to_core,
+)
+from fleet.vehicle.link import VehicleLink
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Metrics:
+    """What the coordination benchmark reads: task arrival to plan scheduled, per plan."""
+
+    latencies_s: list[float] = field(default_factory=list)
+    messages_sent: int = 0
+    plans: int = 0
+    failures: int = 0
+
+
+class DroneAgent:
+    def __init__(self, stack: DroneStack, node: ZenohNode, keys: FleetKeys, link: VehicleLink,
+                 frame: GeoFrame, clock: Callable[[], float], record: TextIO | None = None) -> None:
+        self.me, self.stack, self.node, self.keys = stack.me, stack, node, keys
+        self.link, self.frame, self.clock, self.record = link, frame, clock, record
+        self.ws: Workspace = stack.config.workspace
+        self.delta = stack.config.planner.delta
+        self.clocks = ClockCheck(self.ws.beta_s)
+        self.alarms: dict[str, str] = {}
+        self.vehicle = VehicleSupervisor(self.me, link, frame.layer_height_m(stack.executor.cell[2]),
+                                         lambda text: self._alarm("vehicle", text))
+        self.peer_states: dict[str, DroneState] = {}
+        self.alive: set[str] = set()
+        self.mail_seq = 0
+        self.finished_mail: set[str] = set()  #: delivered or handed back: a repeated order is acknowledged only
+        self.actual: Cell | None = None
+        self.battery_pct = 100.0
+        self.may_plan = True
+        self.accepting = True  #: False once shutting down: no new mail, no new tasks
+        self.task_since: float | None = None
+        self.metrics = Metrics()
+
+    # ------------------------------------------------------------ start-up
+    async def start(self) -> None:
+        """Declare everything, then join: answer before anyone can ask."""
+        node, keys = self.node, self.keys
+        node.subscribe(keys.proto(self.me), self._on_protocol)
+        node.subscribe(keys.state(), self._on_peer_state)
+        node.queryable(keys.assign(self.me), self._on_mail_order)
+        node.queryable(keys.state(self.me), self._on_state_query)
+        node.queryable(keys.clock(self.me), self._on_clock_query)
+        node.watch_liveliness(keys.alive(), self._on_liveliness)
+        node.token(keys.alive(self.me))
+        present = {keys.last_chunk(k) for k in await node.alive(keys.alive())}
+        for peer in self.stack.protocol.peers:
+            if peer != self.me and peer not in present | self.alive:
+                self.stack.peer_left(peer)  # not running: kept where it stands, not waited for
+        self.publish_state()
+
+    # ------------------------------------------------------ step boundary
+    def tick(self, step: int) -> Sequence[object]:
+        """The setpoint loop's boundary: the whole stack steps (executor, battery, task planner)."""
+        level = self._battery()
+        actions = self.stack.step(step, level, may_plan=self.may_plan and self.accepting)
+        self._carry_out(actions)
+        return actions
+
+    def on_step(self, report: StepReport, actions: Sequence[object]) -> None:
+        """After the boundary's setpoints went out: judge the vehicle, record it, publish the state."""
+        self.actual = self._actual_cell()
+        if self.actual is None:
+            log.debug("%s: no cell at step %d: position %s", self.me, report.step, self.link.last_position())
+        if self.record is not None and self.actual is not None:
+            # At boundary k the vehicle should be where step k - 1 took it.
+            self.record.write(f'{{"step": {report.step - 1}, "drone": "{self.me}", '
+                              f'"cell": [{self.actual[0]}, {self.actual[1]}, {self.actual[2]}], '
+                              f'"delta": {self.delta}}}\n')
+        lagging = report.lagging and self.vehicle.settled
+        self._alarm("lag", f"vehicle {report.error_m:.1f} m from its cell" if lagging else None)
+        # A plan scheduled but not begun still needs the climb: the lead steps are for it.
+        self.vehicle.want_airborne(not self.stack.landed or self.stack.protocol.state is State.EXECUTING)
+        self.publish_state()
+
+    def _battery(self) -> float:
+        pct = self.link.telemetry().battery_pct
+        if pct is not None:
+            self.battery_pct = float(pct)
+        return self.battery_pct
+
+    def _actual_cell(self) -> Cell | None:
+        """Where telemetry puts the vehicle; landed (below the grid) it is in its cell's column."""
+        position = self.link.last_position()
+        if position is None:
+            return None
+        fix = self.frame.locate(position.ned)
+        if fix.cell is not None:
+            return fix.cell
+        east, north = position.ned.east, position.ned.north
+        size = self.ws.cell_size_m
+        cell = (math.floor(east / size), math.floor(north / size), 0)
+        below = -position.ned.down < self.ws.geo.layer0_alt_m
+        return cell if below and self.ws.in_bounds(cell) else None
+
+    # -------------------------------------------------------------- actions
+    def _carry_out(self, actions: Sequence[DroneAction]) -> None:
+        for action in actions:
+            if isinstance(action, Send):
+                self._send(action.to, action.message)
+            elif isinstance(action, Broadcast):
+                for peer in sorted(self.stack.protocol.members):
+                    self._send(peer, action.message)
+            elif isinstance(action, GoTo):
+                self.task_since = self.clock()
+            elif isinstance(action, StartExecuting):
+                self._started(action)
+            elif isinstance(action, TaskFailed):
+                self.metrics.failures += 1
+                log.warning("%s: no plan for task %s: %s", self.me, action.task.id, action.reason)
+            elif isinstance(action, (MailStarted, MailPickedUp, MailDelivered, MailRejected)):
+                self._mail_progress(action)
+            elif isinstance(action, (BatteryLow, BatteryRecharged)):
+                log.info("%s: battery %s", self.me, type(action).__name__)
+
+    def _send(self, to: str, message: object) -> None:
+        payload = encode(self.me, self.clock(), from_core(message))  # type: ignore[arg-type]
+        self.node.put(self.keys.proto(to), payload)
+        self.metrics.messages_sent += 1
+
+    def _started(self, action: StartExecuting) -> None:
+        if self.task_since is not None:
+            self.metrics.latencies_s.append(self.clock() - self.task_since)
+            self.task_since = None
+        self.metrics.plans += 1
+        self.vehicle.want_airborne(True)
+        self.publish_state()
+
+    def _mail_progress(self, action: MailStarted | MailPickedUp | MailDelivered | MailRejected) -> None:
+        status = {MailStarted: MailStatus.STARTED, MailPickedUp: MailStatus.PICKED_UP,
+                  MailDelivered: MailStatus.DELIVERED, MailRejected: MailStatus.REJECTED}[type(action)]
+        reason = action.reason if isinstance(action, MailRejected) else ""
+        if status in (MailStatus.DELIVERED, MailStatus.REJECTED):
+            self.finished_mail.add(action.request.id)
+        self.report_mail(action.request.id, status, reason)
+
+    def report_mail(self, mail_id: str, status: MailStatus, reason: str = "", drone: str | None = None) -> None:
+        report = MailStatusReport(id=mail_id, drone=drone or self.me, status=status, step=self.stack.now,
+                                  reason=reason)
+        self.node.put(self.keys.status(mail_id), encode(self.me, self.clock(), report))
+        log.info("%s: mail %s %s%s", self.me, mail_id, status.value, f" ({reason})" if reason else "")
+
+    # ------------------------------------------------------------- inbound
+    def _on_protocol(self, key: str, payload: bytes) -> None:
+        try:
+            envelope = decode(payload)
+            message = to_core(envelope)
+        except WireError as exc:
+            log.warning("%s: dropped a message on %s: %s", self.me, key, exc)
+            return
+        if envelope.sender not in self.stack.protocol.peers or envelope.sender == self.me:
+            log.warning("%s: dropped a message from %r, not a peer of this fleet", self.me, envelope.sender)
+            return
+        self._carry_out(self.stack.receive(message))
+
+    def _on_peer_state(self, key: str, payload: bytes) -> None:
+        try:
+            body = decode(payload).body
+        except WireError as exc:
+            log.warning("%s: dropped a state on %s: %s", self.me, key, exc)
+            return
+        if isinstance(body, DroneState) and body.drone != self.me:
+            self.peer_states[body.drone] = body
+
+    def _on_liveliness(self, key: str, alive: bool) -> None:
+        peer = self.keys.last_chunk(key)
+        if peer == self.me:
+            return
+        if peer not in self.stack.protocol.peers:
+            log.warning("%s: drone %r is alive on the fleet's keys but not in the workspace: ignored", self.me, peer)
+            return
+        if alive:
+            self.alive.add(peer)
+            self._joined(peer)
+        else:
+            self.alive.discard(peer)
+            self.clocks.forget(peer)
+            self._carry_out(self.stack.peer_left(peer))
+            self._adopt_mail_of(peer)
+
+    def _joined(self, peer: str) -> None:
+        """A peer (re)joined: take it at the cell and plan it last announced, else where it started."""
+        state = self.peer_states.get(peer)
+        cell: Cell = tuple(state.cell) if state else self.stack.protocol.peers[peer]  # type: ignore[assignment]
+        trajectory = state.trajectory.core() if state and state.trajectory else None
+        self._carry_out(self.stack.peer_joined(peer, cell, trajectory))
+
+    # ------------------------------------------------------------------ mail
+    def _on_mail_order(self, key: str, payload: bytes, query: Query) -> None:
+        order_id = "?"
+        try:
+            body = decode(payload).body
+            if not isinstance(body, MailOrder):
+                raise WireError(f"expected a mail order, got {body.kind}")
+            order_id = body.id
+            accepted = self.take_mail(body)
+            ack = MailAck(id=body.id, drone=self.me, accepted=True, reason="" if accepted else "already held")
+        except (WireError, ProblemError) as exc:
+            ack = MailAck(id=order_id, drone=self.me, accepted=False, reason=str(exc))
+        query.reply(self.keys.assign(self.me), encode(self.me, self.clock(), ack))
+
+    def take_mail(self, order: MailOrder) -> bool:
+        """Queue ``order``; False if this drone already has it (a repeated order). ProblemError if unusable."""
+        if not self.accepting:
+            raise ProblemError(f"drone {self.me} is shutting down")
+        if order.id in self.finished_mail or any(m.id == order.id for m in self._held_mail()):
+            return False
+        pickup, dropoff = self._mail_cell("pickup", order.pickup), self._mail_cell("dropoff", order.dropoff)
+        self.mail_seq += 1
+        self.stack.assign(MailRequest(order.id, pickup, dropoff, order.priority, seq=self.mail_seq))
+        self.report_mail(order.id, MailStatus.ACCEPTED)
+        self.publish_state()
+        return True
+
+    def _mail_cell(self, name: str, values: list[int]) -> Cell:
+        cell: Cell = (values[0], values[1], values[2])
+        ws = self.ws
+        if not ws.in_bounds(cell):
+            raise ProblemError(f"{name} {values} is outside the {'x'.join(map(str, ws.size))} grid")
+        if cell in ws.obstacles:
+            raise ProblemError(f"{name} {values} is on an obstacle")
+        if cell not in ws.main_region:
+            raise ProblemError(f"{name} {values} cannot be reached from the rest of the grid")
+        if cell in ws.charging_stations or cell in ws.parking:
+            raise ProblemError(f"{name} {values} is a charging station or parking cell, where drones rest")
+        return cell
+
+    def _held_mail(self) -> list[MailView]:
+        planner = self.stack.mail
+        held = []
+        if planner.current is not None:
+            held.append(_view(planner.current, "carrying" if planner.carrying else "current"))
+        held += [_view(r, "queued") for r in sorted(planner.queue, key=lambda r: r.rank)]
+        return held
+
+    def _adopt_mail_of(self, peer: str) -> None:
+        """The heir (smallest live name) takes over what ``peer`` held and had not picked up."""
+        state = self.peer_states.pop(peer, None)
+        if state is None or not state.mail or min(self.alive | {self.me}) != self.me:
+            return
+        for mail in state.mail:
+            if mail.stage == "carrying":
+                self.report_mail(mail.id, MailStatus.FAILED, f"drone {peer} left carrying it", drone=peer)
+                continue
+            order = MailOrder(id=mail.id, pickup=mail.pickup, dropoff=mail.dropoff, priority=mail.priority)
+            try:
+                if self.take_mail(order):
+                    self.report_mail(mail.id, MailStatus.REASSIGNED, f"drone {peer} left")
+            except ProblemError as exc:
+                self.report_mail(mail.id, MailStatus.FAILED, f"drone {peer} left; cannot take it over: {exc}")
+
+    # ----------------------------------------------------------------- state
+    def state(self) -> DroneState:
+        stack = self.stack
+        protocol, planner = stack.protocol, stack.mail
+        task = None
+        if planner.goal is not None:
+            current = planner.current.id if planner.current is not None else None
+            task = TaskView(goal=list(planner.goal), purpose=planner.phase.value, mail_id=current)
+        trajectory = protocol.trajectory if protocol.state is State.EXECUTING else None
+        geo = self.link.last_global()
+        alarms = sorted(self.alarms.values())
+        return DroneState(
+            drone=self.me, step=stack.now, cell=list(stack.executor.cell),
+            actual=list(self.actual) if self.actual else None,
+            position=(geo.lat, geo.lon, geo.alt_m) if geo else None, battery_pct=self.battery_pct,
+            mode=protocol.state.value, phase=planner.phase.value, landed=stack.landed, task=task,
+            trajectory=WireTrajectory.of(trajectory) if trajectory else None, mail=self._held_mail(),
+            health=Health(ok=not alarms, alarms=alarms),
+            clock_offset_s={p: round(s.offset_s, 6) for p, s in sorted(self.clocks.peers.items())})
+
+    def publish_state(self) -> None:
+        self.node.put(self.keys.state(self.me), encode(self.me, self.clock(), self.state()))
+
+    def _on_state_query(self, key: str, payload: bytes, query: Query) -> None:
+        query.reply(self.keys.state(self.me), encode(self.me, self.clock(), self.state()))
+
+    # ----------------------------------------------------------------- clock
+    def _on_clock_query(self, key: str, payload: bytes, query: Query) -> None:
+        query.reply(self.keys.clock(self.me), encode(self.me, self.clock(), ClockPong()))
+
+    async def check_clocks(self) -> None:
+        """One round of offset measurements against every live peer; alarm and hold beyond beta."""
+        sent = self.clock()
+        replies = await self.node.get(self.keys.clock(), encode(self.me, sent, ClockPing()), 1.0, self.clock)
+        for reply in replies:
+            try:
+                envelope = decode(reply.payload)
+            except WireError as exc:
+                log.warning("%s: dropped a clock reply: %s", self.me, exc)
+                continue
+            if envelope.sender != self.me and envelope.sender in self.alive:
+                self.clocks.observe(envelope.sender, OffsetSample.measure(sent, envelope.sent_at, reply.at))
+        alarm = self.clocks.alarm()
+        if (alarm is None) != self.may_plan:
+            log.warning("%s: %s", self.me, alarm or "clock skew back within beta: planning again")
+        self.may_plan = alarm is None
+        self._alarm("clock", alarm)
+
+    def _alarm(self, kind: str, text: str | None) -> None:
+        if text is None:
+            self.alarms.pop(kind, None)
+        else:
+            self.alarms[kind] = text
+
+    # -------------------------------------------------------------- shutdown
+    @property
+    def busy(self) -> bool:
+        """Flying a plan or coordinating one: not yet safe to leave."""
+        return self.stack.protocol.state is not State.WAIT_FOR_TASK or self.stack.executor.flying
+
+
+def _view(request: MailRequest, stage: str) -> MailView:
+    return MailView(id=request.id, pickup=list(request.pickup), dropoff=list(request.dropoff),
+                    priority=request.priority, stage=stage)  # type: ignore[arg-type]
+

@@ -1,0 +1,244 @@
+"""The agent process: one or more drones (``--count``), one TaskGroup, one setpoint timer.
+
+Start-up, per drone and concurrently: open its own Zenoh session, connect its
+vehicle, wait until the vehicle is ready; then every drone joins the fleet.
+Steps are counted on the process's clock from the fleet epoch.
+
+Shutdown (SIGINT or SIGTERM): no new mail or tasks; drones flying a plan
+finish it (peers planned around it) and coordinations under way end; then
+the drones land in their own column, publish a last state and leave (every
+Zenoh declaration undeclared, then the session closed). A second signal skips
+the wait: the drones hold where they are and leave at once.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+import signal
+import time
+from collections.abc import Awaitable, Callable, Sequence
+from dataclasses import dataclass, field
+from typing import TextIO
+
+from drona_gcs.geo import GeoFrame
+from drona_gcs.planner import SafePlanner
+from drona_gcs.stack.battery import BatteryModel
+from drona_gcs.stack.drone import DroneStack, StackConfig
+from drona_gcs.workspace import Workspace
+from fleet.agent.drone import DroneAgent
+from fleet.agent.settings import AgentSettings
+from fleet.clock import cancel_all
+from fleet.executor import SetpointFleet, SetpointLoop, StepReport
+from fleet.transport.keys import FleetKeys, check_name
+from fleet.transport.node import ZenohNode, ZenohSettings, agent_endpoint
+from fleet.vehicle.link import VehicleLink
+from fleet.vehicle.mavlink_link import PymavlinkLink
+
+log = logging.getLogger(__name__)
+
+SIM_VEHICLE_BASE_PORT = 14540  #: `drona sim-vehicle` sends vehicle i's MAVLink to this port + i
+CLIMB_RATE_M_S = 1.5  #: a cautious take-off climb rate, for the default lead time
+ARM_AND_MODE_S = 2.0  #: mode change, arming and take-off command acknowledged
+LANDING_BOUND_S = 30.0  #: at shutdown, how long the drones may take to land
+
+
+@dataclass
+class Host:
+    settings: AgentSettings
+    workspace: Workspace
+    names: list[str]
+    agents: list[DroneAgent] = field(default_factory=list)
+    stop_stepping: asyncio.Event = field(default_factory=asyncio.Event)
+    draining: asyncio.Event = field(default_factory=asyncio.Event)
+    hurry: asyncio.Event = field(default_factory=asyncio.Event)
+    drained: asyncio.Event = field(default_factory=asyncio.Event)
+
+    def clock(self) -> float:
+        return time.time() + self.settings.clock_offset_s
+
+
+def select_drones(settings: AgentSettings, workspace: Workspace) -> list[str]:
+    """``--drone`` and the ``count - 1`` drones after it in the workspace (the first ``count`` without it)."""
+    drones = list(workspace.drones)
+    first = 0
+    if settings.drone is not None:
+        check_name("drone", settings.drone)
+        if settings.drone not in workspace.drones:
+            raise ValueError(f"drone {settings.drone!r} is not in the workspace (it has {', '.join(drones)})")
+        first = drones.index(settings.drone)
+    names = drones[first:first + settings.count]
+    if len(names) < settings.count:
+        raise ValueError(f"--count {settings.count} from {drones[first]!r}: the workspace has only "
+                         f"{len(names)} drones from there ({', '.join(drones)})")
+    return names
+
+
+def default_lead_steps(workspace: Workspace) -> int:
+    """Delta + 1, plus the steps a landed drone needs to climb into the grid."""
+    climb_s = ARM_AND_MODE_S + workspace.geo.layer0_alt_m / CLIMB_RATE_M_S
+    return workspace.delta + 1 + math.ceil(climb_s / workspace.tau_s)
+
+
+def zenoh_settings(settings: AgentSettings, workspace: Workspace, drone: str, offset: int) -> ZenohSettings:
+    """Explicit endpoints (the ``offset``-th agent of a process listens ``offset`` ports up), a
+    config file, or the one-machine default: drone i listens on 7448 + i and connects to the others."""
+    listen = tuple(_shift_port(ep, offset) for ep in settings.listen)
+    connect = tuple(settings.connect)
+    if settings.zenoh_config is None and not listen and not connect:
+        drones = list(workspace.drones)
+        index = drones.index(drone)
+        listen = (agent_endpoint(index),)
+        connect = tuple(agent_endpoint(i) for i in range(len(drones)) if i != index)
+    return ZenohSettings(listen=listen, connect=connect, config_file=settings.zenoh_config, lease_s=settings.lease_s)
+
+
+def _shift_port(endpoint: str, offset: int) -> str:
+    if offset == 0:
+        return endpoint
+    head, _, port = endpoint.rpartition(":")
+    if not port.isdigit():
+        raise ValueError(f"listen endpoint {endpoint!r} needs a port to give each of --count agents its own")
+    return f"{head}:{int(port) + offset}"
+
+
+def vehicle_url(settings: AgentSettings, workspace: Workspace, drone: str) -> str:
+    if settings.vehicle is not None:
+        return settings.vehicle
+    return f"udpin://127.0.0.1:{SIM_VEHICLE_BASE_PORT + list(workspace.drones).index(drone)}"
+
+
+async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host], None] | None = None) -> None:
+    settings, ws = host.settings, host.workspace
+    frame = GeoFrame(ws)
+    planner = SafePlanner(ws, delta=ws.delta)
+    battery = BatteryModel(drain_per_step=settings.drain_per_step, safe_threshold=settings.safe_threshold)
+    lead = settings.lead_steps or default_lead_steps(ws)
+    config = StackConfig(ws, planner, battery, lead_steps=lead)
+    keys = FleetKeys(settings.fleet)
+    nodes: list[ZenohNode] = []
+    links: list[VehicleLink] = []
+    try:
+        opened = await asyncio.gather(*(_open(host, frame, name, i) for i, name in enumerate(host.names)),
+                                      return_exceptions=True)
+        for item in opened:
+            if isinstance(item, tuple):
+                nodes.append(item[0])
+                links.append(item[1])
+        failure = next((item for item in opened if isinstance(item, BaseException)), None)
+        if failure is not None:
+            raise failure
+        for node, link, name in zip(nodes, links, host.names, strict=True):
+            stack = DroneStack(name, config, ws.drones)
+            host.agents.append(DroneAgent(stack, node, keys, link, frame, host.clock, record))
+        for agent in host.agents:
+            await agent.start()
+        log.info("drones %s up: fleet %r, tau %.3g s, Delta %d, lead %d steps", ", ".join(host.names),
+                 settings.fleet, ws.tau_s, ws.delta, lead)
+        if on_ready is not None:
+            on_ready(host)
+        await _fly(host, frame, record)
+    finally:
+        await asyncio.gather(*(node.close() for node in nodes), return_exceptions=True)
+        await asyncio.gather(*(link.close() for link in links), return_exceptions=True)
+        log.info("drones %s left the fleet", ", ".join(host.names))
+
+
+async def _open(host: Host, frame: GeoFrame, name: str, offset: int) -> tuple[ZenohNode, VehicleLink]:
+    settings, ws = host.settings, host.workspace
+    node = await ZenohNode.open(zenoh_settings(settings, ws, name, offset), name)
+    link = PymavlinkLink(vehicle_url(settings, ws, name), frame=frame)
+    try:
+        await link.connect()
+        await link.wait_ready(settings.ready_timeout_s)
+    except BaseException:
+        await link.close()
+        await node.close()
+        raise
+    return node, link
+
+
+async def _fly(host: Host, frame: GeoFrame, record: TextIO | None) -> None:
+    settings, ws = host.settings, host.workspace
+    loops = [SetpointLoop(agent.link, frame, agent.stack.executor, settings.epoch, ws.tau_s, host.clock,
+                          settings.rate_hz, tick=agent.tick) for agent in host.agents]
+
+    def on_step(i: int, report: StepReport, actions: Sequence[object]) -> None:
+        host.agents[i].on_step(report, actions)
+        if i == len(host.agents) - 1:
+            if record is not None:
+                record.flush()
+            if host.draining.is_set() and not any(agent.busy for agent in host.agents):
+                host.drained.set()
+
+    async with asyncio.TaskGroup() as group:
+        group.create_task(SetpointFleet(loops).run(on_step, host.stop_stepping))
+        supervisors = [group.create_task(agent.vehicle.run()) for agent in host.agents]
+        clocks = group.create_task(_check_clocks(host))
+        await host.draining.wait()
+        for agent in host.agents:
+            agent.accepting = False
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(_first(host.drained, host.hurry), _drain_bound(host))
+        await _land_all(host)
+        host.stop_stepping.set()
+        for agent in host.agents:
+            agent.vehicle.stop()
+            agent.publish_state()
+        await cancel_all([clocks, *supervisors])
+
+
+def _drain_bound(host: Host) -> float:
+    """Long enough for every plan under way to finish, with a few steps to spare."""
+    ends = [agent.stack.protocol.trajectory.end_step for agent in host.agents
+            if agent.stack.protocol.trajectory is not None]
+    now = max(agent.stack.now for agent in host.agents)
+    return (max([*ends, now]) - now + 4) * host.workspace.tau_s + 2.0
+
+
+async def _land_all(host: Host) -> None:
+    """Each drone lands in its own column (bounded; skipped on a second signal)."""
+    if host.hurry.is_set():
+        return
+    for agent in host.agents:
+        agent.vehicle.want_airborne(False)
+    landed = asyncio.gather(*(agent.vehicle.reached.wait() for agent in host.agents))
+    with contextlib.suppress(TimeoutError):
+        await asyncio.wait_for(_first_of(landed, host.hurry.wait()), LANDING_BOUND_S)
+
+
+async def _first(*events: asyncio.Event) -> None:
+    await _first_of(*(event.wait() for event in events))
+
+
+async def _first_of(*waits: Awaitable[object]) -> None:
+    waiters = [asyncio.ensure_future(w) for w in waits]
+    try:
+        await asyncio.wait(waiters, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        await cancel_all(waiters)
+
+
+async def _check_clocks(host: Host) -> None:
+    period = host.settings.clock_check_s
+    while True:
+        await asyncio.gather(*(agent.check_clocks() for agent in host.agents))
+        await asyncio.sleep(period)  # a measurement period, not a wait for an event
+
+
+def install_signals(host: Host) -> None:
+    """First SIGINT/SIGTERM: drain and land; a second one: leave now."""
+    loop = asyncio.get_running_loop()
+
+    def on_signal() -> None:
+        if host.draining.is_set():
+            log.warning("second signal: leaving now, drones hold where they are")
+            host.hurry.set()
+        else:
+            log.info("stopping: finishing the plans under way, then landing")
+        host.draining.set()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, on_signal)

@@ -1,0 +1,62 @@
+"""The agent process's settings: one pydantic-settings class, from flags and ``DRONA_*`` variables.
+
+Flags win over the environment (``drona agent --fleet x`` over ``DRONA_FLEET``);
+lists come comma-separated (``DRONA_CONNECT=tcp/10.0.0.2:7448,tcp/10.0.0.3:7448``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+from pydantic import Field, field_validator, model_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+from fleet.transport.keys import check_name
+
+Endpoints = Annotated[list[str], NoDecode]
+
+
+class AgentSettings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="DRONA_", extra="forbid")
+
+    workspace: Path
+    drone: str | None = None  #: the drone to run; with count > 1, the first of ``count`` consecutive ones
+    count: Annotated[int, Field(ge=1)] = 1
+    vehicle: str | None = None  #: MAVLink URL; default udpin://127.0.0.1:(14540 + i), as `drona sim-vehicle`
+    fleet: str = "default"
+    zenoh_config: Path | None = None
+    listen: Endpoints = Field(default_factory=list)
+    connect: Endpoints = Field(default_factory=list)
+    lease_s: Annotated[float, Field(gt=0)] = 10.0
+    epoch: float = 0.0  #: fleet epoch, Unix seconds: step k starts at epoch + k * tau
+    record: Path | None = None
+    clock_offset_s: float = 0.0  #: simulation only: shift this process's clock to test the skew check
+    lead_steps: Annotated[int, Field(ge=1)] | None = None  #: steps between planning and a plan's start
+    rate_hz: Annotated[float, Field(gt=0)] = 10.0  #: setpoint stream rate
+    drain_per_step: Annotated[float, Field(gt=0)] = 1.0  #: battery points a step of flight costs (planning model)
+    safe_threshold: Annotated[float, Field(ge=0, lt=100)] = 20.0
+    clock_check_s: Annotated[float, Field(gt=0)] = 2.0  #: how often to measure the peers' clock offsets
+    ready_timeout_s: Annotated[float, Field(gt=0)] = 60.0  #: the vehicle's readiness at start-up
+    log_level: str = "INFO"
+
+    @field_validator("listen", "connect", mode="before")
+    @classmethod
+    def _split(cls, value: object) -> object:
+        if isinstance(value, str):
+            return [part.strip() for part in value.split(",") if part.strip()]
+        return value
+
+    @field_validator("fleet")
+    @classmethod
+    def _fleet_name(cls, value: str) -> str:
+        return check_name("fleet", value)
+
+    @model_validator(mode="after")
+    def _one_vehicle_per_drone(self) -> AgentSettings:
+        if self.count > 1 and self.vehicle is not None:
+            raise ValueError("--vehicle names one vehicle: with --count > 1 each drone i uses the default "
+                             "udpin://127.0.0.1:(14540 + i)")
+        if self.zenoh_config is not None and not self.zenoh_config.is_file():
+            raise ValueError(f"zenoh_config: no such file {self.zenoh_config}")
+        return self

@@ -1,0 +1,89 @@
+"""Take-off and landing: keep the vehicle in the air exactly when the stack says it flies.
+
+The stack reasons in cells; a landed drone sits under its cell (the grid
+starts at layer 0's altitude), so taking off or landing in its own column
+crosses no other drone's cell. The agent states what it wants with
+:meth:`VehicleSupervisor.want_airborne`; :meth:`run` carries it out in order,
+one command sequence at a time, and reports failures as alarms rather than
+dying: a vehicle that refuses to arm must not take the agent down with it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Callable
+
+from drona_gcs.errors import VehicleError
+from fleet.vehicle.link import Autopilot, LandedState, VehicleLink
+
+log = logging.getLogger(__name__)
+
+
+class VehicleSupervisor:
+    def __init__(self, name: str, link: VehicleLink, takeoff_alt_m: float, on_alarm: Callable[[str | None], None],
+                 command_timeout_s: float = 30.0) -> None:
+        self.name, self.link, self.takeoff_alt_m = name, link, takeoff_alt_m
+        self.on_alarm, self.command_timeout_s = on_alarm, command_timeout_s
+        self.wanted = False
+        self.airborne = False  #: the last sequence that completed left it in the air
+        self._changed = asyncio.Event()
+        self._stopping = False
+        self.reached = asyncio.Event()  #: set while the vehicle is where it is wanted (air or ground)
+        self.reached.set()
+
+    def want_airborne(self, wanted: bool) -> None:
+        if wanted != self.wanted:
+            self.wanted = wanted
+            self.reached.clear()
+            self._changed.set()
+
+    @property
+    def settled(self) -> bool:
+        """In the air and meant to be: its position is worth judging against the plan."""
+        return self.airborne and self.wanted
+
+    def stop(self) -> None:
+        self._stopping = True
+        self._changed.set()
+
+    async def run(self) -> None:
+        """Until :meth:`stop`: bring the vehicle to what is wanted, each time the wish changes."""
+        while not self._stopping:
+            if self.wanted != self.airborne:
+                await self._carry_out(self.wanted)
+                continue
+            self._changed.clear()
+            await self._changed.wait()
+
+    async def _carry_out(self, airborne: bool) -> None:
+        try:
+            await asyncio.wait_for(self._launch() if airborne else self._land(), self.command_timeout_s)
+        except (VehicleError, TimeoutError) as exc:
+            what = "take off" if airborne else "land"
+            self.on_alarm(f"vehicle: cannot {what}: {exc}")
+            log.warning("%s: cannot %s: %s", self.name, what, exc)
+            await asyncio.sleep(1.0)  # a retry pause: the next attempt must not flood the autopilot
+            return
+        self.airborne = airborne
+        self.on_alarm(None)
+        if self.airborne == self.wanted:
+            self.reached.set()
+
+    async def _launch(self) -> None:
+        link = self.link
+        await link.follow_setpoints()
+        if not link.telemetry().armed:
+            await link.arm()
+        if link.telemetry().autopilot is Autopilot.ARDUPILOT:  # PX4 climbs to the streamed setpoint by itself
+            await link.takeoff(self.takeoff_alt_m)
+        await link.wait_until(lambda t: t.landed is LandedState.IN_AIR or (t.height_m or 0.0) > 0.5,
+                              self.command_timeout_s, "the climb")
+
+    async def _land(self) -> None:
+        link = self.link
+        await link.land()
+        await link.wait_until(lambda t: t.landed is LandedState.ON_GROUND or not t.armed,
+                              self.command_timeout_s, "the touchdown")
+        if link.telemetry().armed:  # disarmed on the ground: a charger only charges a disarmed vehicle
+            await link.disarm()

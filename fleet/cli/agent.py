@@ -1,0 +1,104 @@
+"""``drona agent``: run one drone's stack (or ``--count N`` of them) against its vehicle, over Zenoh.
+
+Every flag can also come from the environment (``DRONA_<FLAG>``, see
+deploy/systemd/agent.env.example); a flag wins over its variable. With no
+Zenoh flags, drone i of the workspace listens on tcp/127.0.0.1:(7448 + i) and
+connects to the others, and its vehicle is expected where ``drona sim-vehicle``
+sends it (udpin://127.0.0.1:(14540 + i)): on one machine the defaults find each
+other. Exit codes: 0 after a clean shutdown, 2 for bad settings or a vehicle
+or network that cannot be reached at start-up.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import logging
+import sys
+from pathlib import Path
+from typing import TextIO
+
+from pydantic import ValidationError
+
+from drona_gcs.errors import DronaError
+from drona_gcs.workspace_files import load_workspace
+from fleet.agent.host import Host, install_signals, run_host, select_drones
+from fleet.agent.settings import AgentSettings
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add = parser.add_argument
+    add("--workspace", help="workspace file (YAML, JSON or DRONA XML) [DRONA_WORKSPACE]")
+    add("--drone", help="drone id; with --count, the first of consecutive drones (default: the first) [DRONA_DRONE]")
+    add("--count", type=int, help="drones hosted by this process, each with its own Zenoh session (default 1)")
+    add("--vehicle", help="MAVLink URL of the vehicle: udpin://HOST:PORT, udpout://..., tcp://HOST:PORT, "
+                          "serial://DEV:BAUD (default udpin://127.0.0.1:(14540 + i)) [DRONA_VEHICLE]")
+    add("--fleet", help="fleet name: keys live under drona/<fleet>/ (default 'default') [DRONA_FLEET]")
+    add("--zenoh-config", type=Path, help="Zenoh JSON5 configuration file [DRONA_ZENOH_CONFIG]")
+    add("--listen", action="append", metavar="EP", help="Zenoh endpoint to listen on (repeatable) [DRONA_LISTEN]")
+    add("--connect", action="append", metavar="EP", help="Zenoh endpoint to connect to (repeatable) [DRONA_CONNECT]")
+    add("--lease", dest="lease_s", type=float, help="Zenoh lease, s: a cut link is seen after it (default 10)")
+    add("--epoch", type=float, help="fleet epoch, Unix seconds: step k starts at epoch + k tau (default 0)")
+    add("--record", type=Path, help="write every drone's actual cell at every step here, as JSON Lines")
+    add("--lead-steps", type=int, help="steps from planning to a plan's start (default: Delta + 1 + climb)")
+    add("--clock-offset", dest="clock_offset_s", type=float,
+        help="simulation only: shift this process's clock by S seconds (tests the skew check)")
+    add("--drain-per-step", type=float, help="battery points one step of flight costs, for planning (default 1)")
+    add("--log-level", help="DEBUG, INFO (default), WARNING")
+
+
+def settings_from(args: argparse.Namespace) -> AgentSettings:
+    given = {k: v for k, v in vars(args).items() if v is not None and not k.startswith("_") and k != "command"}
+    return AgentSettings(**given)
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        settings = settings_from(args)
+        workspace = load_workspace(settings.workspace)
+        names = select_drones(settings, workspace)
+    except ValidationError as exc:
+        print(f"drona agent: {_first_problem(exc)}", file=sys.stderr)
+        return 2
+    except (ValueError, DronaError, OSError) as exc:
+        print(f"drona agent: {exc}", file=sys.stderr)
+        return 2
+    logging.basicConfig(level=settings.log_level.upper(), stream=sys.stderr,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    host = Host(settings, workspace, names)
+    try:
+        asyncio.run(_main(host))
+    except (DronaError, OSError, ExceptionGroup) as exc:
+        problems = _leaves(exc)
+        if not all(isinstance(p, (DronaError, OSError)) for p in problems):
+            raise
+        for problem in problems:
+            print(f"drona agent: {problem}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def _leaves(exc: BaseException) -> list[BaseException]:
+    if isinstance(exc, BaseExceptionGroup):
+        return [leaf for inner in exc.exceptions for leaf in _leaves(inner)]
+    return [exc]
+
+
+async def _main(host: Host) -> None:
+    install_signals(host)
+    with contextlib.ExitStack() as files:
+        record: TextIO | None = None
+        if host.settings.record is not None:
+            record = files.enter_context(host.settings.record.open("a", encoding="utf-8"))
+        await run_host(host, record, on_ready=_announce)
+
+
+def _announce(host: Host) -> None:
+    print(f"drona agent: {', '.join(host.names)} flying (fleet {host.settings.fleet})", file=sys.stderr, flush=True)
+
+
+def _first_problem(exc: ValidationError) -> str:
+    error = exc.errors()[0]
+    where = ".".join(str(part) for part in error["loc"]) or "settings"
+    return f"{where}: {error['msg']}"

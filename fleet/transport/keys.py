@@ -1,0 +1,58 @@
+"""Key expressions: everything a fleet says lives under ``drona/<fleet>/``.
+
+=============================  =============================================
+``alive/<drone>``              liveliness token: the drone is a member
+``proto/<drone>``              Protocol 1 messages to the drone
+``state/<drone>``              the drone's state (published each step; queryable)
+``mail/assign/<drone>``        query: give the drone a mail (reply: mail_ack)
+``mail/status/<mail id>``      mail status reports
+``clock/<drone>``              query: the drone's clock (offset estimation)
+=============================  =============================================
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
+
+
+def check_name(what: str, name: str) -> str:
+    """A fleet, drone or mail name usable as one chunk of a key expression."""
+    if not _NAME.match(name):
+        raise ValueError(f"{what} {name!r} must be letters, digits, '_', '.' or '-' (it is a Zenoh key chunk)")
+    return name
+
+
+@dataclass(frozen=True)
+class FleetKeys:
+    fleet: str = "default"
+
+    def __post_init__(self) -> None:
+        check_name("fleet", self.fleet)
+
+    @property
+    def root(self) -> str:
+        return f"drona/{self.fleet}"
+
+    def alive(self, drone: str = "*") -> str:
+        return f"{self.root}/alive/{drone}"
+
+    def proto(self, drone: str) -> str:
+        return f"{self.root}/proto/{drone}"
+
+    def state(self, drone: str = "*") -> str:
+        return f"{self.root}/state/{drone}"
+
+    def assign(self, drone: str) -> str:
+        return f"{self.root}/mail/assign/{drone}"
+
+    def status(self, mail: str = "*") -> str:
+        return f"{self.root}/mail/status/{mail}"
+
+    def clock(self, drone: str = "*") -> str:
+        return f"{self.root}/clock/{drone}"
+
+    def last_chunk(self, key: str) -> str:
+        return key.rsplit("/", 1)[-1]

@@ -1,0 +1,219 @@
+"""What travels over Zenoh: versioned, validated JSON messages.
+
+Every payload is one :class:`Envelope`: the format version ``v``, the
+``sender`` and its clock time ``sent_at`` (seconds since the Unix epoch on the
+sender's clock), and one ``body`` tagged by ``kind``. A payload that is not
+valid JSON, has another version, names a kind we do not know, or carries a
+field that is missing, mistyped or unknown raises :class:`WireError`; the
+receiving side logs it and drops it (a foreign or malformed message is never
+fatal).
+
+The bodies, by key (see :mod:`fleet.transport.keys`):
+
+* ``proto/<drone>``: ``req_traj`` and ``cur_traj``, Protocol 1's two messages.
+* ``state/<drone>``: ``state``, what a drone publishes at every step boundary
+  and answers queries with (cell, trajectory, battery, task, queue, health).
+* ``mail/assign/<drone>``: a query whose payload is a ``mail`` order; the
+  drone replies ``mail_ack`` (accepted, or refused with the reason).
+* ``mail/status/<mail id>``: ``mail_status`` reports as a mail moves.
+* ``clock/<drone>``: a query with a ``clock_ping``; the reply is a
+  ``clock_pong`` with the peer's clock (offset estimation).
+"""
+
+from __future__ import annotations
+
+import enum
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from drona_gcs.errors import DronaError
+from drona_gcs.motion import Trajectory
+from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj, TaskId
+from drona_gcs.workspace import Cell
+
+VERSION = 1
+
+CellList = Annotated[list[int], Field(min_length=3, max_length=3)]
+
+
+class WireError(DronaError):
+    """A payload that is not a valid message of this version."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
+
+
+class WireTaskId(_Strict):
+    stamp: int
+    drone: str
+    seq: int
+
+    @classmethod
+    def of(cls, task_id: TaskId) -> WireTaskId:
+        return cls(stamp=task_id.stamp, drone=task_id.drone, seq=task_id.seq)
+
+    def core(self) -> TaskId:
+        return TaskId(self.stamp, self.drone, self.seq)
+
+
+class WireTrajectory(_Strict):
+    start_step: int
+    cells: Annotated[list[CellList], Field(min_length=1)]
+
+    @classmethod
+    def of(cls, trajectory: Trajectory) -> WireTrajectory:
+        return cls(start_step=trajectory.start_step, cells=[list(c) for c in trajectory.cells])
+
+    def core(self) -> Trajectory:
+        return Trajectory(self.start_step, tuple(_cell(c) for c in self.cells))
+
+
+# ------------------------------------------------------------- protocol
+class ReqTraj(_Strict):
+    kind: Literal["req_traj"] = "req_traj"
+    task_id: WireTaskId
+
+
+class CurTraj(_Strict):
+    kind: Literal["cur_traj"] = "cur_traj"
+    in_reply_to: WireTaskId
+    trajectory: WireTrajectory
+
+
+# ---------------------------------------------------------------- state
+class Health(_Strict):
+    ok: bool = True
+    alarms: list[str] = Field(default_factory=list)
+
+
+class TaskView(_Strict):
+    goal: CellList
+    purpose: str
+    mail_id: str | None = None
+
+
+class MailView(_Strict):
+    """A mail a drone holds: queued, current (flying to its pickup) or on board."""
+
+    id: str
+    pickup: CellList
+    dropoff: CellList
+    priority: int
+    stage: Literal["queued", "current", "carrying"]
+
+
+class DroneState(_Strict):
+    kind: Literal["state"] = "state"
+    drone: str
+    step: int
+    cell: CellList  #: where the stack holds the drone (its executor's cell)
+    actual: CellList | None = None  #: where telemetry puts the vehicle
+    position: tuple[float, float, float] | None = None  #: lat, lon, alt_m (AMSL)
+    battery_pct: float | None = None
+    mode: str  #: the protocol's state
+    phase: str  #: the task planner's phase
+    landed: bool
+    task: TaskView | None = None
+    trajectory: WireTrajectory | None = None
+    mail: list[MailView] = Field(default_factory=list)
+    health: Health = Field(default_factory=Health)
+    clock_offset_s: dict[str, float] = Field(default_factory=dict)  #: measured offset of each peer's clock
+
+
+# ----------------------------------------------------------------- mail
+class MailOrder(_Strict):
+    kind: Literal["mail"] = "mail"
+    id: Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.:-]+$")]
+    pickup: CellList
+    dropoff: CellList
+    priority: Annotated[int, Field(ge=0, le=9)]
+    note: str | None = None
+
+
+class MailAck(_Strict):
+    kind: Literal["mail_ack"] = "mail_ack"
+    id: str
+    drone: str
+    accepted: bool
+    reason: str = ""
+
+
+class MailStatus(enum.Enum):
+    ACCEPTED = "accepted"
+    STARTED = "started"
+    PICKED_UP = "picked_up"
+    DELIVERED = "delivered"
+    REJECTED = "rejected"  #: the drone cannot fly it (handed back)
+    FAILED = "failed"  #: lost (with a drone that left while carrying it)
+    REASSIGNED = "reassigned"  #: a drone took over the mail of one that left
+
+
+class MailStatusReport(_Strict):
+    kind: Literal["mail_status"] = "mail_status"
+    id: str
+    drone: str
+    status: MailStatus
+    step: int
+    reason: str = ""
+
+
+# ---------------------------------------------------------------- clock
+class ClockPing(_Strict):
+    kind: Literal["clock_ping"] = "clock_ping"
+
+
+class ClockPong(_Strict):
+    kind: Literal["clock_pong"] = "clock_pong"
+
+
+Body = Annotated[
+    ReqTraj | CurTraj | DroneState | MailOrder | MailAck | MailStatusReport | ClockPing | ClockPong,
+    Field(discriminator="kind"),
+]
+
+
+class Envelope(_Strict):
+    v: Literal[1] = VERSION
+    sender: Annotated[str, Field(min_length=1)]
+    sent_at: float
+    body: Body
+
+
+def encode(sender: str, sent_at: float, body: Body) -> bytes:
+    return Envelope(sender=sender, sent_at=sent_at, body=body).model_dump_json().encode()
+
+
+def decode(payload: bytes) -> Envelope:
+    """The envelope in ``payload``; :class:`WireError` naming what is wrong otherwise."""
+    try:
+        return Envelope.model_validate_json(payload)
+    except ValidationError as exc:
+        problems = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'payload'}: {e['msg']}" for e in exc.errors()[:3])
+        raise WireError(f"malformed message: {problems}") from exc
+
+
+# ------------------------------------------------------ core <-> wire
+def from_core(message: Message) -> ReqTraj | CurTraj:
+    if isinstance(message, ReqForCurrentTraj):
+        return ReqTraj(task_id=WireTaskId.of(message.task_id))
+    return CurTraj(in_reply_to=WireTaskId.of(message.in_reply_to), trajectory=WireTrajectory.of(message.trajectory))
+
+
+def to_core(envelope: Envelope) -> Message:
+    """The protocol message in ``envelope`` (the sender is the envelope's)."""
+    body = envelope.body
+    if isinstance(body, ReqTraj):
+        return ReqForCurrentTraj(body.task_id.core(), envelope.sender)
+    if isinstance(body, CurTraj):
+        try:
+            return CurrentTraj(envelope.sender, body.trajectory.core(), body.in_reply_to.core())
+        except DronaError as exc:
+            raise WireError(f"cur_traj from {envelope.sender!r}: {exc}") from exc
+    raise WireError(f"{body.kind} is not a protocol message")
+
+
+def _cell(values: list[int]) -> Cell:
+    x, y, z = values
+    return (x, y, z)
