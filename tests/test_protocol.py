@@ -252,14 +252,18 @@ def test_a_duplicated_reply_is_harmless() -> None:
 
 
 # ========================================================== membership changes
-def test_a_peer_leaving_is_no_longer_waited_for_but_stays_an_obstacle() -> None:
+def test_a_peer_leaving_is_no_longer_waited_for_but_its_whole_plan_stays_an_obstacle() -> None:
     proto = machine()
     proto.handle(NewTask(Task(ID_A, GOAL)), 0)
     b_plan = traj(1, (4, 4), (4, 3), (4, 2), (4, 1))  # b answered, then lost its link
     proto.handle(CurrentTraj("b", b_plan, ID_A), 0)
     assert proto.handle(PeerLeft("b"), 1) == []  # still waiting for c
     action = started(proto.handle(CurrentTraj("c", location_of("c"), ID_A), 1))
-    assert action.psi == {"b": b_plan, "c": location_of("c")}
+    # b may have stopped anywhere along its plan: each of its cells is held for good.
+    held = {name: Trajectory.stationary(cell, 1) for name, cell in
+            (("b#0", (4, 4, 0)), ("b#1", (4, 3, 0)), ("b#2", (4, 2, 0)), ("b", (4, 1, 0)))}
+    assert action.psi == {**held, "c": location_of("c")}
+    assert not set(action.trajectory.cells) & set(b_plan.cells)
     assert action.trajectory.last == GOAL
     assert check_trajectory(OPEN, action.trajectory, action.psi, 0) == []
 

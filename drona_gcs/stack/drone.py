@@ -128,8 +128,9 @@ class DroneStack:
 
     def taken_cells(self) -> set[Cell]:
         """Cells where other drones rest, as far as this drone knows."""
-        known = {**self.protocol.known, **self.protocol.ghosts}
-        return {traj.last for drone, traj in known.items() if drone != self.me}
+        resting = {traj.last for drone, traj in self.protocol.known.items()
+                   if drone != self.me and drone not in self.protocol.ghosts}
+        return resting | {traj.last for traj in self.protocol.ghost_obstacles().values()}
 
     # ---------------------------------------------------------- wiring
     def _protocol(self, event: Event) -> list[DroneAction]:

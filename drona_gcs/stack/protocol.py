@@ -28,8 +28,9 @@ settled here:
   start it has already passed. Other drones' executors may be up to Delta
   steps ahead or behind; the planner's skew window covers exactly that.
 * **Membership can change.** ``PeerLeft`` means the drone's liveliness was
-  lost: it is no longer waited for, and its last known trajectory (its last
-  cell forever after) stays in Psi as an obstacle: safety first. ``PeerJoined``
+  lost: it is no longer waited for, and it stays in Psi as an obstacle:
+  safety first. Since it may have stopped anywhere along its last known
+  trajectory, every cell of that trajectory is held for good. ``PeerJoined``
   (again) makes it a peer; if I am coordinating, I ask it too.
 * **No plan found:** I stay where I am, answer my pending peers with my
   location, and report ``TaskFailed`` so the task planner retries or
@@ -164,6 +165,17 @@ class CoordinationProtocol:
             return self.trajectory
         return Trajectory.stationary(self.location, now)
 
+    def ghost_obstacles(self) -> dict[str, Trajectory]:
+        """Departed drones, for planning. One that left in the middle of a plan may have stopped
+        anywhere along it (its agent died; its autopilot holds), so every cell of that plan is
+        held for good, as if a drone rested there."""
+        held: dict[str, Trajectory] = {}
+        for drone, trajectory in self.ghosts.items():
+            for i, cell in enumerate(dict.fromkeys(trajectory.cells)):
+                name = drone if cell == trajectory.last else f"{drone}#{i}"
+                held[name] = Trajectory.stationary(cell, trajectory.start_step)
+        return held
+
     # ----------------------------------------------------------- handlers
     def _on_new_task(self, event: NewTask, now: int) -> list[Action]:
         self.task, self.state = event.task, State.COORDINATING
@@ -238,7 +250,7 @@ class CoordinationProtocol:
             return []
         assert self.task is not None
         task = self.task
-        psi = {**self.ghosts, **{p: self.received[p] for p in self.members}}
+        psi = {**self.ghost_obstacles(), **{p: self.received[p] for p in self.members}}
         start_step = now + self.lead_steps
         max_length = task.max_length(start_step)
         try:

@@ -59,6 +59,8 @@ from fleet.vehicle.link import VehicleLink
 
 log = logging.getLogger(__name__)
 
+ARRIVAL_FRACTION = 0.2  #: over a cell: within this fraction of a cell of its centre (before landing)
+
 
 @dataclass
 class Metrics:
@@ -79,8 +81,9 @@ class DroneAgent:
         self.delta = stack.config.planner.delta
         self.clocks = ClockCheck(self.ws.beta_s)
         self.alarms: dict[str, str] = {}
-        self.vehicle = VehicleSupervisor(self.me, link, frame.layer_height_m(stack.executor.cell[2]),
-                                         lambda text: self._alarm("vehicle", text))
+        self.vehicle = VehicleSupervisor(
+            self.me, link, frame.layer_height_m(stack.executor.cell[2]), lambda text: self._alarm("vehicle", text),
+            target=lambda: frame.cell_to_ned(stack.executor.cell), arrival_m=ARRIVAL_FRACTION * self.ws.cell_size_m)
         self.peer_states: dict[str, DroneState] = {}
         self.alive: set[str] = set()
         self.mail_seq = 0
@@ -183,6 +186,11 @@ class DroneAgent:
             self.metrics.latencies_s.append(self.clock() - self.task_since)
             self.task_since = None
         self.metrics.plans += 1
+        t = action.trajectory
+        log.info("%s: task %s to %s planned from step %d: %s; avoided %s", self.me, action.task.id,
+                 list(action.task.goal), t.start_step, " ".join(f"{c[0]},{c[1]},{c[2]}" for c in t.cells),
+                 "; ".join(f"{d}@{p.start_step}:{' '.join(f'{c[0]},{c[1]}' for c in p.cells)}"
+                           for d, p in sorted(action.psi.items())))
         self.vehicle.want_airborne(True)
         self.publish_state()
 

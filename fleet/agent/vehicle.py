@@ -12,18 +12,21 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 from collections.abc import Callable
 
 from drona_gcs.errors import VehicleError
-from fleet.vehicle.link import Autopilot, LandedState, VehicleLink
+from drona_gcs.geo import Ned
+from fleet.vehicle.link import Autopilot, LandedState, Telemetry, VehicleLink
 
 log = logging.getLogger(__name__)
 
 
 class VehicleSupervisor:
     def __init__(self, name: str, link: VehicleLink, takeoff_alt_m: float, on_alarm: Callable[[str | None], None],
-                 command_timeout_s: float = 30.0) -> None:
+                 target: Callable[[], Ned], arrival_m: float, command_timeout_s: float = 30.0) -> None:
         self.name, self.link, self.takeoff_alt_m = name, link, takeoff_alt_m
+        self.target, self.arrival_m = target, arrival_m
         self.on_alarm, self.command_timeout_s = on_alarm, command_timeout_s
         self.wanted = False
         self.airborne = False  #: the last sequence that completed left it in the air
@@ -70,6 +73,12 @@ class VehicleSupervisor:
         if self.airborne == self.wanted:
             self.reached.set()
 
+    def _over_target(self, telemetry: Telemetry) -> bool:
+        if telemetry.position is None:
+            return False
+        here, there = telemetry.position.ned, self.target()
+        return math.hypot(here.north - there.north, here.east - there.east) <= self.arrival_m
+
     async def _launch(self) -> None:
         link = self.link
         await link.follow_setpoints()
@@ -82,6 +91,9 @@ class VehicleSupervisor:
 
     async def _land(self) -> None:
         link = self.link
+        # Land only once over the cell: LAND comes down where the vehicle is, and one still
+        # catching up with its last setpoint would come down in the cell it was leaving.
+        await link.wait_until(self._over_target, self.command_timeout_s, "the arrival over the landing cell")
         await link.land()
         await link.wait_until(lambda t: t.landed is LandedState.ON_GROUND or not t.armed,
                               self.command_timeout_s, "the touchdown")

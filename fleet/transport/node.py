@@ -31,6 +31,7 @@ log = logging.getLogger(__name__)
 AGENT_BASE_PORT = 7448
 ROUTER_PORT = 7447
 DEFAULT_HOST = "127.0.0.1"
+RETRY = {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 2}
 
 
 class TransportError(DronaError):
@@ -61,8 +62,9 @@ class ZenohSettings:
                 cfg.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
             if self.config_file is None:
                 cfg.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast))
-                # Fail fast on endpoints that are not up yet; Zenoh keeps retrying them.
-                cfg.insert_json5("connect/timeout_ms", json.dumps({"router": -1, "peer": 0, "client": 0}))
+                # Endpoints not up yet are retried in the background; retry often, so a fleet
+                # started in any order meshes within a second (Zenoh's default backs off to 4 s).
+                cfg.insert_json5("connect/retry", json.dumps(RETRY))
             if self.lease_s is not None:
                 lease_ms = round(self.lease_s * 1000)
                 cfg.insert_json5("transport/link/tx/lease", json.dumps(lease_ms))

@@ -1,0 +1,233 @@
+"""A fleet in separate processes for the integration tests: `drona sim-vehicle` plus one `drona agent` each.
+
+Everything runs on 127.0.0.1 with ports the OS reports free, under a fleet
+name of its own. The :class:`Observer` is an outside Zenoh session (like
+`drona mail` or the service) that gives mail, follows the status reports and
+states, and sees drones come and go.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import uuid
+from collections import defaultdict
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from drona_gcs.audit import Audit, audit
+from drona_gcs.workspace_files import load_workspace
+from fleet.sim.ports import free_port, free_udp_base
+from fleet.transport.fleet_client import FleetClient
+from fleet.transport.keys import FleetKeys
+from fleet.transport.node import ZenohNode, ZenohSettings
+from fleet.transport.wire import DroneState, MailOrder, MailStatus, MailStatusReport, WireError, decode
+
+DRONA = [sys.executable, "-m", "fleet.cli"]
+SPEEDUP = 6.0  #: the fake vehicles' simulated seconds per second: they track a cell per tau easily
+LEAD_STEPS = 4  #: Delta + 1 + 2 steps to climb (vehicles at SPEEDUP climb in well under a second)
+
+
+def workspace_yaml(drones: int) -> str:
+    """A 10x10 grid with a wall in the middle, two chargers, a parking cell per drone on the rim."""
+    starts = [(1 + 2 * (i % 4), 1 + 7 * (i // 4)) for i in range(drones)]
+    parking = [(0, 2 + 2 * (i % 4)) if i < 4 else (9, 2 + 2 * (i % 4)) for i in range(drones)]
+    lines = [
+        "name: integration", "size: [10, 10, 1]", "cell_size_m: 1.0", "tau_s: 0.5", "beta_s: 0.2",
+        "geo_origin: {lat: 47.397742, lon: 8.545594, alt_m: 488.0, layer0_alt_m: 2.0}",
+        "obstacles:", "  - box: [[4, 4, 0], [5, 5, 0]]",
+        "charging_stations: [[0, 0, 0], [9, 9, 0]]",
+        "parking: [" + ", ".join(f"[{x}, {y}, 0]" for x, y in parking) + "]",
+        "drones:", *(f"  d{i + 1}: [{x}, {y}, 0]" for i, (x, y) in enumerate(starts)),
+    ]
+    return "\n".join(lines) + "\n"
+
+
+@dataclass
+class FleetProcesses:
+    tmp: Path
+    drones: list[str]
+    fleet: str = field(default_factory=lambda: f"it-{uuid.uuid4().hex[:8]}")
+    offsets: dict[str, float] = field(default_factory=dict)  #: injected clock offsets, s
+    sim: subprocess.Popen[bytes] | None = None
+    agents: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.workspace = self.tmp / "ws.yaml"
+        self.workspace.write_text(workspace_yaml(len(self.drones)))
+        self.vehicle_base = free_udp_base(len(self.drones))
+        self.ports = {d: free_port(socket.SOCK_STREAM) for d in self.drones}
+
+    def endpoint(self, drone: str) -> str:
+        return f"tcp/127.0.0.1:{self.ports[drone]}"
+
+    def record(self, drone: str) -> Path:
+        return self.tmp / f"record-{drone}.jsonl"
+
+    def start(self) -> None:
+        self.sim = self._spawn("sim", [*DRONA, "sim-vehicle", "--workspace", str(self.workspace), "--count",
+                                       str(len(self.drones)), "--base-port", str(self.vehicle_base),
+                                       "--speedup", str(SPEEDUP), "--ready-after", "0.5"])
+        for i, drone in enumerate(self.drones):
+            self.agents[drone] = self._spawn(drone, self.agent_command(drone, i))
+
+    def agent_command(self, drone: str, index: int) -> list[str]:
+        command = [*DRONA, "agent", "--workspace", str(self.workspace), "--drone", drone,
+                   "--vehicle", f"udpin://127.0.0.1:{self.vehicle_base + index}", "--fleet", self.fleet,
+                   "--listen", self.endpoint(drone), "--record", str(self.record(drone)),
+                   "--lead-steps", str(LEAD_STEPS), "--lease", "3"]
+        for other in self.drones:
+            if other != drone:
+                command += ["--connect", self.endpoint(other)]
+        if drone in self.offsets:
+            command += ["--clock-offset", str(self.offsets[drone])]
+        return command
+
+    def _spawn(self, name: str, command: list[str]) -> subprocess.Popen[bytes]:
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        with (self.tmp / f"{name}.log").open("ab") as log:  # the child keeps its own handle
+            return subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env)
+
+    def signal(self, drone: str, sig: int) -> None:
+        self.agents[drone].send_signal(sig)
+
+    def stop(self, timeout: float = 30.0) -> dict[str, int | None]:
+        """SIGINT every agent (graceful: finish, land, leave), then the vehicles; the agents' exit codes."""
+        codes: dict[str, int | None] = {}
+        for drone, process in self.agents.items():
+            if process.poll() is None:
+                process.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + timeout
+        for drone, process in self.agents.items():
+            try:
+                codes[drone] = process.wait(max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                process.kill()
+                codes[drone] = None
+        if self.sim is not None and self.sim.poll() is None:
+            self.sim.send_signal(signal.SIGINT)
+            try:
+                self.sim.wait(10)
+            except subprocess.TimeoutExpired:
+                self.sim.kill()
+        return codes
+
+    def kill_all(self) -> None:
+        for process in [*self.agents.values(), *([self.sim] if self.sim else [])]:
+            if process.poll() is None:
+                process.kill()
+                process.wait(10)
+
+    def audit(self) -> Audit:
+        records = []
+        for drone in self.drones:
+            path = self.record(drone)
+            if path.exists():
+                records += [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+        return audit(load_workspace(self.workspace), records)
+
+    def logs(self) -> str:
+        return "\n".join(f"--- {p.name}\n{p.read_text(errors='replace')[-3000:]}" for p in sorted(self.tmp.glob("*.log")))
+
+
+class Observer:
+    """An outside session on the fleet: gives mail, keeps every status report and the latest states."""
+
+    def __init__(self, fleet: FleetProcesses) -> None:
+        self.fleet = fleet
+        self.keys = FleetKeys(fleet.fleet)
+        self.reports: list[MailStatusReport] = []
+        self.states: dict[str, DroneState] = {}
+        self.min_battery: dict[str, float] = defaultdict(lambda: 100.0)
+        self.alive: set[str] = set()
+        self.changed = asyncio.Event()
+
+    async def __aenter__(self) -> Observer:
+        connect = tuple(self.fleet.endpoint(d) for d in self.fleet.drones)
+        self.node = await ZenohNode.open(ZenohSettings(connect=connect), "observer")
+        self.node.subscribe(self.keys.status(), self._on_report)
+        self.node.subscribe(self.keys.state(), self._on_state)
+        self.node.watch_liveliness(self.keys.alive(), self._on_alive)
+        self.client = FleetClient(self.node, self.keys, "observer")
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.node.close()
+
+    def _on_report(self, key: str, payload: bytes) -> None:
+        body = _body(payload)
+        if isinstance(body, MailStatusReport):
+            self.reports.append(body)
+            self.changed.set()
+
+    def _on_state(self, key: str, payload: bytes) -> None:
+        body = _body(payload)
+        if isinstance(body, DroneState):
+            self.states[body.drone] = body
+            if body.battery_pct is not None:
+                self.min_battery[body.drone] = min(self.min_battery[body.drone], body.battery_pct)
+            self.changed.set()
+
+    def _on_alive(self, key: str, alive: bool) -> None:
+        drone = self.keys.last_chunk(key)
+        (self.alive.add if alive else self.alive.discard)(drone)
+        self.changed.set()
+
+    async def until(self, condition: object, timeout: float, what: str) -> None:
+        """Wait (on events, not polling) until ``condition()`` holds; AssertionError naming ``what``."""
+        assert callable(condition)
+        deadline = time.monotonic() + timeout
+        while not condition():
+            self.changed.clear()
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise AssertionError(f"timed out after {timeout:g} s waiting for {what}\n{self.fleet.logs()}")
+            try:
+                await asyncio.wait_for(self.changed.wait(), left)
+            except TimeoutError:
+                continue
+
+    async def give(self, order: MailOrder, drone: str) -> None:
+        ack = await self.client.assign(drone, order)
+        assert ack.accepted, f"{drone} refused {order.id}: {ack.reason}"
+
+    def statuses(self, mail_id: str) -> list[MailStatus]:
+        return [r.status for r in self.reports if r.id == mail_id]
+
+    def delivered(self, mail_ids: Sequence[str]) -> bool:
+        return all(MailStatus.DELIVERED in self.statuses(m) for m in mail_ids)
+
+    def priority_violations(self, orders: dict[str, MailOrder]) -> list[str]:
+        """Per drone: a mail started while a more urgent one had already been accepted and waited."""
+        found = []
+        accepted: dict[tuple[str, str], int] = {}
+        started: dict[tuple[str, str], int] = {}
+        for r in self.reports:
+            if r.status is MailStatus.ACCEPTED:
+                accepted.setdefault((r.drone, r.id), r.step)
+            elif r.status is MailStatus.STARTED:
+                started.setdefault((r.drone, r.id), r.step)
+        for (drone, mail), step in started.items():
+            for (other_drone, other), since in accepted.items():
+                if other_drone != drone or other == mail or since >= step:
+                    continue
+                other_start = started.get((drone, other))
+                waiting = other_start is None or other_start > step
+                if waiting and orders[other].priority > orders[mail].priority:
+                    found.append(f"{drone} started {mail} (p{orders[mail].priority}) at step {step} while "
+                                 f"{other} (p{orders[other].priority}) waited since step {since}")
+        return found
+
+
+def _body(payload: bytes) -> object:
+    try:
+        return decode(payload).body
+    except WireError:
+        return None

@@ -1,0 +1,137 @@
+"""Agents in separate processes, each with its own fake vehicle, over real Zenoh and MAVLink on loopback.
+
+Judged independently of the agents: collisions from the cells the vehicles'
+telemetry put them in (the ``--record`` files, checked under Delta by the
+safety checker), deliveries and their order from the status reports, battery
+from the published states.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import random
+import signal
+from pathlib import Path
+
+import pytest
+
+from fleet.transport.wire import MailOrder, MailStatus
+from tests.integration.harness import FleetProcesses, Observer
+
+pytestmark = pytest.mark.slow
+
+SAFE_THRESHOLD = 20.0
+
+
+def random_orders(count: int, seed: int, fleet: FleetProcesses) -> list[MailOrder]:
+    rng = random.Random(seed)
+    free = [(x, y) for x in range(1, 9) for y in range(1, 9) if not (4 <= x <= 5 and 4 <= y <= 5)]
+    orders = []
+    for i in range(count):
+        pickup, dropoff = rng.sample(free, 2)
+        orders.append(MailOrder(id=f"m{i}", pickup=[*pickup, 0], dropoff=[*dropoff, 0], priority=rng.randint(0, 9)))
+    return orders
+
+
+async def deliver_all(fleet: FleetProcesses, orders: list[MailOrder], timeout: float) -> Observer:
+    async with Observer(fleet) as obs:
+        await obs.until(lambda: obs.alive >= set(fleet.drones), 60, "every agent to join")
+        # Each drone gets its share in one burst, so its queue has mail of several priorities.
+        for i, order in enumerate(orders):
+            await obs.give(order, fleet.drones[i % len(fleet.drones)])
+        await obs.until(lambda: obs.delivered([o.id for o in orders]), timeout, "every mail delivered")
+        return obs
+
+
+def check_run(fleet: FleetProcesses, obs: Observer, orders: list[MailOrder]) -> None:
+    codes = fleet.stop()
+    assert all(code == 0 for code in codes.values()), f"agents exited {codes}\n{fleet.logs()}"
+    result = fleet.audit()
+    assert set(result.trajectories) == set(fleet.drones)
+    assert all(t.end_step - t.start_step > 20 for t in result.trajectories.values())  # the run was recorded
+    assert result.safe, f"collisions in the flown cells: {result.violations[:5]}"
+    assert obs.priority_violations({o.id: o for o in orders}) == []
+    assert min(obs.min_battery.values()) >= SAFE_THRESHOLD
+
+
+@pytest.mark.parametrize("drones, mails", [(4, 8), (8, 12)])
+def test_agents_deliver_every_mail_without_collisions(tmp_path: Path, drones: int, mails: int) -> None:
+    fleet = FleetProcesses(tmp_path, [f"d{i + 1}" for i in range(drones)])
+    orders = random_orders(mails, seed=drones, fleet=fleet)
+    fleet.start()
+    try:
+        obs = asyncio.run(deliver_all(fleet, orders, timeout=150))
+        check_run(fleet, obs, orders)
+    finally:
+        fleet.kill_all()
+
+
+def test_an_agent_killed_mid_coordination_neither_blocks_the_others_nor_loses_its_mail(tmp_path: Path) -> None:
+    fleet = FleetProcesses(tmp_path, ["d1", "d2", "d3", "d4"])
+    doomed = MailOrder(id="doomed", pickup=[2, 6, 0], dropoff=[7, 6, 0], priority=5)
+    later = [MailOrder(id="after", pickup=[8, 3, 0], dropoff=[6, 7, 0], priority=3)]
+    fleet.start()
+    try:
+        async def scenario() -> Observer:
+            async with Observer(fleet) as obs:
+                await obs.until(lambda: obs.alive >= set(fleet.drones), 60, "every agent to join")
+                # Idle drones fly to their parking cells first; d3 must be parked before it freezes.
+                await obs.until(lambda: len(obs.states) == 4 and all(
+                    s.landed and s.mode == "WaitForTaskRequest" for s in obs.states.values()), 60, "all parked")
+                fleet.signal("d3", signal.SIGSTOP)  # d3 will not answer: d2's coordination stalls on it
+                await obs.give(doomed, "d2")
+                await obs.until(lambda: obs.states["d2"].mode == "CoordinateAndGeneratePlan", 5, "d2 coordinating")
+                fleet.signal("d2", signal.SIGKILL)  # killed while it waits for d3
+                fleet.signal("d3", signal.SIGCONT)
+                await obs.until(lambda: "d2" not in obs.alive, 10, "d2's liveliness to go")
+                await obs.give(later[0], "d4")
+                await obs.until(lambda: obs.delivered(["doomed", "after"]), 120, "both mails delivered")
+                return obs
+
+        obs = asyncio.run(scenario())
+        taken_over = [r for r in obs.reports if r.id == "doomed" and r.status is MailStatus.REASSIGNED]
+        assert taken_over and taken_over[0].drone != "d2"
+        delivered_by = {r.drone for r in obs.reports if r.id == "doomed" and r.status is MailStatus.DELIVERED}
+        assert delivered_by == {taken_over[0].drone}
+        codes = fleet.stop()
+        assert codes["d2"] == -signal.SIGKILL
+        assert all(codes[d] == 0 for d in ("d1", "d3", "d4")), f"{codes}\n{fleet.logs()}"
+        result = fleet.audit()
+        assert result.safe, f"collisions in the flown cells: {result.violations[:5]}"
+    finally:
+        fleet.kill_all()
+
+
+def test_clock_offsets_within_beta_stay_safe(tmp_path: Path) -> None:
+    # beta is 0.2 s: every two clocks within it (the fleet's steps differ by up to Delta = 1).
+    fleet = FleetProcesses(tmp_path, ["d1", "d2", "d3", "d4"],
+                           offsets={"d1": 0.0, "d2": 0.18, "d3": 0.07, "d4": 0.12})
+    orders = random_orders(6, seed=11, fleet=fleet)
+    fleet.start()
+    try:
+        obs = asyncio.run(deliver_all(fleet, orders, timeout=150))
+        assert all(s.health.ok for s in obs.states.values()), [s.health for s in obs.states.values()]
+        check_run(fleet, obs, orders)
+    finally:
+        fleet.kill_all()
+
+
+def test_a_clock_offset_beyond_beta_is_detected_and_stops_planning(tmp_path: Path) -> None:
+    fleet = FleetProcesses(tmp_path, ["d1", "d2", "d3"], offsets={"d3": 0.6})
+    fleet.start()
+    try:
+        async def scenario() -> Observer:
+            async with Observer(fleet) as obs:
+                await obs.until(lambda: obs.alive >= set(fleet.drones), 60, "every agent to join")
+                await obs.until(lambda: all(not s.health.ok for s in obs.states.values())
+                                and len(obs.states) == 3, 20, "every drone to raise the clock alarm")
+                await obs.give(MailOrder(id="held", pickup=[2, 2, 0], dropoff=[7, 7, 0], priority=9), "d1")
+                await asyncio.sleep(3.0)  # a window in which d1 would have started the mail
+                return obs
+
+        obs = asyncio.run(scenario())
+        assert obs.statuses("held") == [MailStatus.ACCEPTED]
+        assert all(any("clock skew" in a for a in s.health.alarms) for s in obs.states.values())
+        assert "d3" in " ".join(obs.states["d1"].health.alarms)
+    finally:
+        fleet.kill_all()
