@@ -101,7 +101,7 @@ class FleetProcesses:
     def stop(self, timeout: float = 30.0) -> dict[str, int | None]:
         """SIGINT every agent (graceful: finish, land, leave), then the vehicles; the agents' exit codes."""
         codes: dict[str, int | None] = {}
-        for drone, process in self.agents.items():
+        for process in self.agents.values():
             if process.poll() is None:
                 process.send_signal(signal.SIGINT)
         deadline = time.monotonic() + timeout
@@ -134,7 +134,8 @@ class FleetProcesses:
         return audit(load_workspace(self.workspace), records)
 
     def logs(self) -> str:
-        return "\n".join(f"--- {p.name}\n{p.read_text(errors='replace')[-3000:]}" for p in sorted(self.tmp.glob("*.log")))
+        tails = (f"--- {p.name}\n{p.read_text(errors='replace')[-3000:]}" for p in sorted(self.tmp.glob("*.log")))
+        return "\n".join(tails)
 
 
 class Observer:
