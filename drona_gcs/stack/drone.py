@@ -13,7 +13,7 @@ the actions below, which the runtime carries out.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -69,7 +69,8 @@ class DroneStack:
         self.protocol = CoordinationProtocol(me, start, dict(peers), planner.plan, lead, config.bugs)
         self.executor = PlanExecutor(start)
         self.monitor = BatteryMonitor(config.low_mark, config.recharged_mark)
-        self.mail = MailPlanner(start, ws.charging_stations, ws.parking, _distance_function(planner),
+        self.mail = MailPlanner(start, ws.charging_stations, own_parking(ws.parking, list(peers), me),
+                                _distance_function(planner),
                                 config.battery, recharged_level=config.recharged_mark, bugs=config.bugs)
 
     # ------------------------------------------------------------ inputs
@@ -142,6 +143,14 @@ class DroneStack:
             elif isinstance(action, TaskFailed):
                 self.mail.leg_failed(self.now)
         return actions
+
+
+def own_parking(parking: Sequence[Cell], drones: Sequence[str], me: str) -> Sequence[Cell]:
+    """With a parking cell for every drone, each has its own (the i-th drone the i-th cell): idle
+    drones never race for one, which would cost whole coordination rounds that end in no plan."""
+    if len(parking) >= len(drones):
+        return (parking[drones.index(me)],)
+    return parking
 
 
 def _distance_function(planner: SafePlanner) -> Distance:

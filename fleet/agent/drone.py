@@ -1,15 +1,17 @@
 """One drone's agent: the core stack wired to Zenoh, to its vehicle and to the local clock.
 
 Everything the stack decides comes back as actions, carried out here:
-protocol messages go out on ``proto/<peer>`` (one put per peer: a round is
-2(N-1) messages), mail progress on ``mail/status/<id>``, the drone's state on
-``state/<me>`` at every step boundary. What comes in — peers' messages,
-mail orders, membership changes — is handed to the stack on the event loop,
-one event at a time, exactly as the systematic tester hands it.
+protocol messages go out on ``proto/<peer>``, requests to everyone on
+``proto/all`` (one put that Zenoh fans out; a round is still 2(N-1)
+messages), mail progress on ``mail/status/<id>``, the mail held on
+``held/<me>`` when it changes, the drone's state on ``state/<me>`` at every
+step boundary. What comes in — peers' messages, mail orders, membership
+changes — is handed to the stack on the event loop, one event at a time,
+exactly as the systematic tester hands it.
 
 Membership is Zenoh liveliness: a peer whose token goes is the protocol's
 ``PeerLeft`` (it stays in Psi as an obstacle), one whose token appears is
-``PeerJoined`` with the cell and plan it announces in its state. At start-up,
+``PeerJoined`` where it was last heard of. At start-up,
 peers not alive are marked left, so nobody waits for a drone that never came.
 
 When a peer leaves, the live drone with the smallest name (its *heir*)
@@ -19,6 +21,7 @@ the mail it was carrying as failed: mail is never silently lost.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import math
 from collections.abc import Callable, Sequence
@@ -42,6 +45,7 @@ from fleet.transport.wire import (
     ClockPong,
     DroneState,
     Health,
+    HeldMail,
     MailAck,
     MailOrder,
     MailStatus,
@@ -59,6 +63,7 @@ from fleet.vehicle.link import VehicleLink
 
 log = logging.getLogger(__name__)
 
+BROADCAST = "all"  #: proto/all: a message to every drone of the fleet (no drone may be called "all")
 ARRIVAL_FRACTION = 0.2  #: over a cell: within this fraction of a cell of its centre (before landing)
 
 
@@ -84,7 +89,8 @@ class DroneAgent:
         self.vehicle = VehicleSupervisor(
             self.me, link, frame.layer_height_m(stack.executor.cell[2]), lambda text: self._alarm("vehicle", text),
             target=lambda: frame.cell_to_ned(stack.executor.cell), arrival_m=ARRIVAL_FRACTION * self.ws.cell_size_m)
-        self.peer_states: dict[str, DroneState] = {}
+        self.peer_mail: dict[str, list[MailView]] = {}  #: what each peer last said it holds
+        self.published_mail: list[MailView] | None = None
         self.alive: set[str] = set()
         self.mail_seq = 0
         self.finished_mail: set[str] = set()  #: delivered or handed back: a repeated order is acknowledged only
@@ -94,18 +100,23 @@ class DroneAgent:
         self.accepting = True  #: False once shutting down: no new mail, no new tasks
         self.task_since: float | None = None
         self.metrics = Metrics()
+        self._state_scheduled = False
 
     # ------------------------------------------------------------ start-up
     async def start(self) -> None:
         """Declare everything, then join: answer before anyone can ask."""
         node, keys = self.node, self.keys
         node.subscribe(keys.proto(self.me), self._on_protocol)
-        node.subscribe(keys.state(), self._on_peer_state)
+        node.subscribe(keys.proto(BROADCAST), self._on_protocol)
+        node.subscribe(keys.held(), self._on_peer_mail)
+        node.queryable(keys.held(self.me), self._on_held_query)
         node.queryable(keys.assign(self.me), self._on_mail_order)
         node.queryable(keys.state(self.me), self._on_state_query)
         node.queryable(keys.clock(self.me), self._on_clock_query)
         node.watch_liveliness(keys.alive(), self._on_liveliness)
         node.token(keys.alive(self.me))
+        for reply in await node.get(keys.held(), b"", 1.0):
+            self._on_peer_mail(reply.key, reply.payload)
         present = {keys.last_chunk(k) for k in await node.alive(keys.alive())}
         for peer in self.stack.protocol.peers:
             if peer != self.me and peer not in present | self.alive:
@@ -134,7 +145,8 @@ class DroneAgent:
         self._alarm("lag", f"vehicle {report.error_m:.1f} m from its cell" if lagging else None)
         # A plan scheduled but not begun still needs the climb: the lead steps are for it.
         self.vehicle.want_airborne(not self.stack.landed or self.stack.protocol.state is State.EXECUTING)
-        self.publish_state()
+        # Half a period later: at the boundary every drone of the fleet is busy, and answers come first.
+        self.publish_state_soon(self.ws.tau_s / 2)
 
     def _battery(self) -> float:
         pct = self.link.telemetry().battery_pct
@@ -162,8 +174,8 @@ class DroneAgent:
             if isinstance(action, Send):
                 self._send(action.to, action.message)
             elif isinstance(action, Broadcast):
-                for peer in sorted(self.stack.protocol.members):
-                    self._send(peer, action.message)
+                # One put that Zenoh fans out to every peer (N - 1 messages on the wire, one call here).
+                self._send(BROADCAST, action.message, copies=len(self.stack.protocol.members))
             elif isinstance(action, GoTo):
                 self.task_since = self.clock()
             elif isinstance(action, StartExecuting):
@@ -176,10 +188,10 @@ class DroneAgent:
             elif isinstance(action, (BatteryLow, BatteryRecharged)):
                 log.info("%s: battery %s", self.me, type(action).__name__)
 
-    def _send(self, to: str, message: object) -> None:
+    def _send(self, to: str, message: object, copies: int = 1) -> None:
         payload = encode(self.me, self.clock(), from_core(message))  # type: ignore[arg-type]
         self.node.put(self.keys.proto(to), payload)
-        self.metrics.messages_sent += 1
+        self.metrics.messages_sent += copies
 
     def _started(self, action: StartExecuting) -> None:
         if self.task_since is not None:
@@ -192,7 +204,7 @@ class DroneAgent:
                  "; ".join(f"{d}@{p.start_step}:{' '.join(f'{c[0]},{c[1]}' for c in p.cells)}"
                            for d, p in sorted(action.psi.items())))
         self.vehicle.want_airborne(True)
-        self.publish_state()
+        self.publish_state_soon()  # after the answers to the peers that waited for this plan
 
     def _mail_progress(self, action: MailStarted | MailPickedUp | MailDelivered | MailRejected) -> None:
         status = {MailStarted: MailStatus.STARTED, MailPickedUp: MailStatus.PICKED_UP,
@@ -201,6 +213,7 @@ class DroneAgent:
         if status in (MailStatus.DELIVERED, MailStatus.REJECTED):
             self.finished_mail.add(action.request.id)
         self.report_mail(action.request.id, status, reason)
+        self.publish_held()
 
     def report_mail(self, mail_id: str, status: MailStatus, reason: str = "", drone: str | None = None) -> None:
         report = MailStatusReport(id=mail_id, drone=drone or self.me, status=status, step=self.stack.now,
@@ -221,14 +234,25 @@ class DroneAgent:
             return
         self._carry_out(self.stack.receive(message))
 
-    def _on_peer_state(self, key: str, payload: bytes) -> None:
+    def _on_peer_mail(self, key: str, payload: bytes) -> None:
         try:
             body = decode(payload).body
         except WireError as exc:
-            log.warning("%s: dropped a state on %s: %s", self.me, key, exc)
+            log.warning("%s: dropped a mail list on %s: %s", self.me, key, exc)
             return
-        if isinstance(body, DroneState) and body.drone != self.me:
-            self.peer_states[body.drone] = body
+        if isinstance(body, HeldMail) and body.drone != self.me and body.drone in self.stack.protocol.peers:
+            self.peer_mail[body.drone] = body.mail
+
+    def _on_held_query(self, key: str, payload: bytes, query: Query) -> None:
+        held = HeldMail(drone=self.me, mail=self._held_mail())
+        query.reply(self.keys.held(self.me), encode(self.me, self.clock(), held))
+
+    def publish_held(self) -> None:
+        """Say what mail I hold, when it changed: my heir needs it if I go."""
+        held = self._held_mail()
+        if held != self.published_mail:
+            self.published_mail = held
+            self.node.put(self.keys.held(self.me), encode(self.me, self.clock(), HeldMail(drone=self.me, mail=held)))
 
     def _on_liveliness(self, key: str, alive: bool) -> None:
         peer = self.keys.last_chunk(key)
@@ -247,11 +271,11 @@ class DroneAgent:
             self._adopt_mail_of(peer)
 
     def _joined(self, peer: str) -> None:
-        """A peer (re)joined: take it at the cell and plan it last announced, else where it started."""
-        state = self.peer_states.get(peer)
-        cell: Cell = tuple(state.cell) if state else self.stack.protocol.peers[peer]  # type: ignore[assignment]
-        trajectory = state.trajectory.core() if state and state.trajectory else None
-        self._carry_out(self.stack.peer_joined(peer, cell, trajectory))
+        """A peer (re)joined: take it where it was last heard of (its start, if never). A coordinating
+        drone asks it at once, and its answer is what any plan is made with."""
+        last = self.stack.protocol.known.get(peer)
+        cell = last.last if last is not None else self.stack.protocol.peers[peer]
+        self._carry_out(self.stack.peer_joined(peer, cell, last))
 
     # ------------------------------------------------------------------ mail
     def _on_mail_order(self, key: str, payload: bytes, query: Query) -> None:
@@ -277,6 +301,7 @@ class DroneAgent:
         self.mail_seq += 1
         self.stack.assign(MailRequest(order.id, pickup, dropoff, order.priority, seq=self.mail_seq))
         self.report_mail(order.id, MailStatus.ACCEPTED)
+        self.publish_held()
         self.publish_state()
         return True
 
@@ -303,10 +328,10 @@ class DroneAgent:
 
     def _adopt_mail_of(self, peer: str) -> None:
         """The heir (smallest live name) takes over what ``peer`` held and had not picked up."""
-        state = self.peer_states.pop(peer, None)
-        if state is None or not state.mail or min(self.alive | {self.me}) != self.me:
+        held = self.peer_mail.pop(peer, [])
+        if not held or min(self.alive | {self.me}) != self.me:
             return
-        for mail in state.mail:
+        for mail in held:
             if mail.stage == "carrying":
                 self.report_mail(mail.id, MailStatus.FAILED, f"drone {peer} left carrying it", drone=peer)
                 continue
@@ -335,10 +360,19 @@ class DroneAgent:
             mode=protocol.state.value, phase=planner.phase.value, landed=stack.landed, task=task,
             trajectory=WireTrajectory.of(trajectory) if trajectory else None, mail=self._held_mail(),
             health=Health(ok=not alarms, alarms=alarms),
-            clock_offset_s={p: round(s.offset_s, 6) for p, s in sorted(self.clocks.peers.items())})
+            clock_offset_s={p: round(s.offset_s, 6) for p, s in sorted(self.clocks.peers.items())},
+            plans=self.metrics.plans, messages_sent=self.metrics.messages_sent,
+            coordination_ms=round(self.metrics.latencies_s[-1] * 1000, 3) if self.metrics.latencies_s else None)
 
     def publish_state(self) -> None:
+        self._state_scheduled = False
         self.node.put(self.keys.state(self.me), encode(self.me, self.clock(), self.state()))
+
+    def publish_state_soon(self, delay_s: float = 0.0) -> None:
+        """Publish the state once the work at hand is done (once, however often asked meanwhile)."""
+        if not self._state_scheduled:
+            self._state_scheduled = True
+            asyncio.get_running_loop().call_later(delay_s, self.publish_state)
 
     def _on_state_query(self, key: str, payload: bytes, query: Query) -> None:
         query.reply(self.keys.state(self.me), encode(self.me, self.clock(), self.state()))

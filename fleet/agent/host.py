@@ -28,7 +28,7 @@ from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.battery import BatteryModel
 from drona_gcs.stack.drone import DroneStack, StackConfig
 from drona_gcs.workspace import Workspace
-from fleet.agent.drone import DroneAgent
+from fleet.agent.drone import BROADCAST, DroneAgent
 from fleet.agent.settings import AgentSettings
 from fleet.clock import cancel_all
 from fleet.executor import SetpointFleet, SetpointLoop, StepReport
@@ -39,7 +39,6 @@ from fleet.vehicle.mavlink_link import PymavlinkLink
 
 log = logging.getLogger(__name__)
 
-SIM_VEHICLE_BASE_PORT = 14540  #: `drona sim-vehicle` sends vehicle i's MAVLink to this port + i
 CLIMB_RATE_M_S = 1.5  #: a cautious take-off climb rate, for the default lead time
 ARM_AND_MODE_S = 2.0  #: mode change, arming and take-off command acknowledged
 LANDING_BOUND_S = 30.0  #: at shutdown, how long the drones may take to land
@@ -63,6 +62,10 @@ class Host:
 def select_drones(settings: AgentSettings, workspace: Workspace) -> list[str]:
     """``--drone`` and the ``count - 1`` drones after it in the workspace (the first ``count`` without it)."""
     drones = list(workspace.drones)
+    for drone in drones:
+        check_name("drone", drone)
+        if drone == BROADCAST:
+            raise ValueError(f"a drone may not be called {BROADCAST!r}: proto/{BROADCAST} reaches every drone")
     first = 0
     if settings.drone is not None:
         check_name("drone", settings.drone)
@@ -107,7 +110,7 @@ def _shift_port(endpoint: str, offset: int) -> str:
 def vehicle_url(settings: AgentSettings, workspace: Workspace, drone: str) -> str:
     if settings.vehicle is not None:
         return settings.vehicle
-    return f"udpin://127.0.0.1:{SIM_VEHICLE_BASE_PORT + list(workspace.drones).index(drone)}"
+    return f"udpin://127.0.0.1:{settings.vehicle_base_port + list(workspace.drones).index(drone)}"
 
 
 async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host], None] | None = None) -> None:
@@ -149,7 +152,7 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
 async def _open(host: Host, frame: GeoFrame, name: str, offset: int) -> tuple[ZenohNode, VehicleLink]:
     settings, ws = host.settings, host.workspace
     node = await ZenohNode.open(zenoh_settings(settings, ws, name, offset), name)
-    link = PymavlinkLink(vehicle_url(settings, ws, name), frame=frame)
+    link = PymavlinkLink(vehicle_url(settings, ws, name), frame=frame, stream_hz=settings.telemetry_hz)
     try:
         await link.connect()
         await link.wait_ready(settings.ready_timeout_s)

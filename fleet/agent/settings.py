@@ -23,7 +23,8 @@ class AgentSettings(BaseSettings):
     workspace: Path
     drone: str | None = None  #: the drone to run; with count > 1, the first of ``count`` consecutive ones
     count: Annotated[int, Field(ge=1)] = 1
-    vehicle: str | None = None  #: MAVLink URL; default udpin://127.0.0.1:(14540 + i), as `drona sim-vehicle`
+    vehicle: str | None = None  #: MAVLink URL; default udpin://127.0.0.1:(base + i), as `drona sim-vehicle`
+    vehicle_base_port: Annotated[int, Field(ge=1, le=65535)] = 14540  #: base of the default vehicle URLs
     fleet: str = "default"
     zenoh_config: Path | None = None
     listen: Endpoints = Field(default_factory=list)
@@ -34,9 +35,10 @@ class AgentSettings(BaseSettings):
     clock_offset_s: float = 0.0  #: simulation only: shift this process's clock to test the skew check
     lead_steps: Annotated[int, Field(ge=1)] | None = None  #: steps between planning and a plan's start
     rate_hz: Annotated[float, Field(gt=0)] = 10.0  #: setpoint stream rate
+    telemetry_hz: Annotated[float, Field(gt=0)] = 10.0  #: the rate asked of the vehicle's position streams
     drain_per_step: Annotated[float, Field(gt=0)] = 1.0  #: battery points a step of flight costs (planning model)
     safe_threshold: Annotated[float, Field(ge=0, lt=100)] = 20.0
-    clock_check_s: Annotated[float, Field(gt=0)] = 2.0  #: how often to measure the peers' clock offsets
+    clock_check_s: Annotated[float, Field(gt=0)] = 5.0  #: how often to measure the peers' clock offsets
     ready_timeout_s: Annotated[float, Field(gt=0)] = 60.0  #: the vehicle's readiness at start-up
     log_level: str = "INFO"
 

@@ -84,7 +84,9 @@ class VehicleSupervisor:
         await link.follow_setpoints()
         if not link.telemetry().armed:
             await link.arm()
-        if link.telemetry().autopilot is Autopilot.ARDUPILOT:  # PX4 climbs to the streamed setpoint by itself
+        t = link.telemetry()
+        flying = t.landed is LandedState.IN_AIR or (t.height_m or 0.0) > 0.5
+        if t.autopilot is Autopilot.ARDUPILOT and not flying:  # PX4 climbs to the streamed setpoint by itself
             await link.takeoff(self.takeoff_alt_m)
         await link.wait_until(lambda t: t.landed is LandedState.IN_AIR or (t.height_m or 0.0) > 0.5,
                               self.command_timeout_s, "the climb")

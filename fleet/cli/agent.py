@@ -34,6 +34,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add("--count", type=int, help="drones hosted by this process, each with its own Zenoh session (default 1)")
     add("--vehicle", help="MAVLink URL of the vehicle: udpin://HOST:PORT, udpout://..., tcp://HOST:PORT, "
                           "serial://DEV:BAUD (default udpin://127.0.0.1:(14540 + i)) [DRONA_VEHICLE]")
+    add("--vehicle-base-port", type=int, help="default vehicle URLs: udpin://127.0.0.1:(this + i) (default 14540, "
+                                              "as `drona sim-vehicle`)")
     add("--fleet", help="fleet name: keys live under drona/<fleet>/ (default 'default') [DRONA_FLEET]")
     add("--zenoh-config", type=Path, help="Zenoh JSON5 configuration file [DRONA_ZENOH_CONFIG]")
     add("--listen", action="append", metavar="EP", help="Zenoh endpoint to listen on (repeatable) [DRONA_LISTEN]")
@@ -44,6 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add("--lead-steps", type=int, help="steps from planning to a plan's start (default: Delta + 1 + climb)")
     add("--clock-offset", dest="clock_offset_s", type=float,
         help="simulation only: shift this process's clock by S seconds (tests the skew check)")
+    add("--telemetry-hz", type=float, help="rate asked of the vehicle's position and battery streams (default 10)")
     add("--drain-per-step", type=float, help="battery points one step of flight costs, for planning (default 1)")
     add("--log-level", help="DEBUG, INFO (default), WARNING")
 

@@ -1,6 +1,7 @@
 """``drona bench planner``: the paper's planner workload (Tables 1 and 2), timed in CPU time.
 
-(``drona bench mavlink`` is :mod:`fleet.bench_mavlink`: fake vehicles and MAVLink links on loopback.)
+(``drona bench mavlink`` is :mod:`fleet.bench_mavlink`: fake vehicles and MAVLink links on loopback;
+``drona bench coordination`` is :mod:`fleet.bench_coordination`: agents over Zenoh on loopback.)
 
 For each grid size W and drone count R of Table 2, at Delta 0 and 1: a random
 W x W grid with 20% obstacles (pockets filled), R drones at random free
@@ -61,7 +62,7 @@ class Row:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("what", choices=["planner", "mavlink"], help="what to benchmark")
+    parser.add_argument("what", choices=["planner", "mavlink", "coordination"], help="what to benchmark")
     parser.add_argument("--quick", action="store_true", help="a short run: 40 tasks a cell, Z3 on 16x16 only "
                         "(mavlink: 16 vehicles for 5 s, 8 loops for 5 boundaries)")
     parser.add_argument("--json", action="store_true", help="print JSON Lines rows instead of a table")
@@ -73,6 +74,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-smt", action="store_true", help="skip the Z3 generator (Table 1)")
     parser.add_argument("--seed", type=int, default=2017)
     _add_mavlink_arguments(parser)
+    group = parser.add_argument_group("bench coordination")
+    group.add_argument("--agents", type=int, help="agents, each with its own Zenoh session and fake vehicle "
+                       "(default 32; 8 with --quick); --seconds: how long to keep them busy (default 60; 15)")
+    group.add_argument("--processes", type=int, help="agent processes the agents are spread over (default 4)")
+    group.add_argument("--steady-after", type=float, default=10.0,
+                       help="also report the plans after this many seconds, past the opening burst (default 10)")
 
 
 def _add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
@@ -94,6 +101,10 @@ def run(args: argparse.Namespace) -> int:
         from fleet import bench_mavlink
 
         return bench_mavlink.run(args)
+    if args.what == "coordination":
+        from fleet import bench_coordination
+
+        return bench_coordination.run(args)
     try:
         grids = _ints(args.grids) if args.grids else None
         drones = _ints(args.drones) if args.drones else None

@@ -19,7 +19,9 @@ import importlib
 import logging
 import socket
 import sys
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from types import FrameType
 from typing import Any
 
 import uvicorn
@@ -145,17 +147,37 @@ async def _serve(app: Any, host: str, port: int, log_level: str) -> int:
         return 2
     bound = sock.getsockname()[1]
     config = uvicorn.Config(app, log_level=log_level, timeout_graceful_shutdown=1, access_log=False)
-    server = _AnnouncingServer(config, f"http://{host}:{bound}")
+    server = _AnnouncingServer(config, f"http://{host}:{bound}", lambda: _end_streams(app))
     await server.serve(sockets=[sock])
     return 0
 
 
-class _AnnouncingServer(uvicorn.Server):
-    """A uvicorn server that prints where it listens once it is up (tests wait for that line)."""
+def _end_streams(app: Any) -> None:
+    """Stopping: end the /v1/events streams, which would otherwise hold the shutdown up."""
+    service = getattr(app.state, "service", None)
+    if service is not None:
+        service.bus.close()
 
-    def __init__(self, config: uvicorn.Config, url: str) -> None:
+
+class _AnnouncingServer(uvicorn.Server):
+    """A uvicorn server that prints where it listens once it is up (tests wait for that line),
+    ends the event streams when told to stop, and then exits 0."""
+
+    def __init__(self, config: uvicorn.Config, url: str, on_exit: Callable[[], None]) -> None:
         super().__init__(config)
         self.url = url
+        self.on_exit = on_exit
+
+    def handle_exit(self, sig: int, frame: FrameType | None) -> None:
+        super().handle_exit(sig, frame)
+        with contextlib.suppress(RuntimeError):  # no loop running: nothing to end
+            asyncio.get_running_loop().call_soon_threadsafe(self.on_exit)
+
+    @contextlib.contextmanager
+    def capture_signals(self) -> Iterator[None]:
+        with super().capture_signals():
+            yield
+            self._captured_signals.clear()  # stopped cleanly on SIGINT/SIGTERM: exit 0, not by the signal
 
     async def startup(self, sockets: list[socket.socket] | None = None) -> None:
         await super().startup(sockets)

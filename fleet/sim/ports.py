@@ -17,7 +17,12 @@ def free_port(kind: int = socket.SOCK_DGRAM, host: str = "127.0.0.1") -> int:
 
 
 def free_udp_base(count: int, host: str = "127.0.0.1") -> int:
-    """A port p with p .. p + count - 1 all free for UDP on ``host``.
+    """A port p with p .. p + count - 1 all free for UDP on ``host``."""
+    return free_port_block(count, socket.SOCK_DGRAM, host)
+
+
+def free_port_block(count: int, kind: int, host: str = "127.0.0.1") -> int:
+    """A port p with p .. p + count - 1 all free for ``kind`` (SOCK_DGRAM or SOCK_STREAM) on ``host``.
 
     Searched below the ephemeral range where possible, so that ports the OS hands
     out to other sockets meanwhile do not land in the block.
@@ -32,7 +37,7 @@ def free_udp_base(count: int, host: str = "127.0.0.1") -> int:
         socks: list[socket.socket] = []
         try:
             for port in range(base, base + count):
-                sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                sock = socket.socket(socket.AF_INET, kind)
                 socks.append(sock)
                 sock.bind((host, port))
             return base
@@ -41,4 +46,4 @@ def free_udp_base(count: int, host: str = "127.0.0.1") -> int:
         finally:
             for sock in socks:
                 sock.close()
-    raise OSError(f"found no {count} consecutive free UDP ports on {host}")
+    raise OSError(f"found no {count} consecutive free ports on {host}")

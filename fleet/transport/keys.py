@@ -2,8 +2,9 @@
 
 =============================  =============================================
 ``alive/<drone>``              liveliness token: the drone is a member
-``proto/<drone>``              Protocol 1 messages to the drone
+``proto/<drone>``              Protocol 1 messages to the drone (``proto/all``: to every drone)
 ``state/<drone>``              the drone's state (published each step; queryable)
+``held/<drone>``               the mail the drone holds (published on change; queryable)
 ``mail/assign/<drone>``        query: give the drone a mail (reply: mail_ack)
 ``mail/status/<mail id>``      mail status reports
 ``clock/<drone>``              query: the drone's clock (offset estimation)
@@ -44,6 +45,9 @@ class FleetKeys:
 
     def state(self, drone: str = "*") -> str:
         return f"{self.root}/state/{drone}"
+
+    def held(self, drone: str = "*") -> str:
+        return f"{self.root}/held/{drone}"
 
     def assign(self, drone: str) -> str:
         return f"{self.root}/mail/assign/{drone}"

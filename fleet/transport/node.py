@@ -163,7 +163,7 @@ class ZenohNode:
         publisher = self._publishers.get(key)
         if publisher is None:
             publisher = self.session.declare_publisher(
-                key, congestion_control=zenoh.CongestionControl.BLOCK, express=True)
+                key, congestion_control=zenoh.CongestionControl.BLOCK)
             self._publishers[key] = publisher
             self._declared.append(publisher)
         publisher.put(payload)

@@ -13,6 +13,8 @@ The bodies, by key (see :mod:`fleet.transport.keys`):
 * ``proto/<drone>``: ``req_traj`` and ``cur_traj``, Protocol 1's two messages.
 * ``state/<drone>``: ``state``, what a drone publishes at every step boundary
   and answers queries with (cell, trajectory, battery, task, queue, health).
+* ``held/<drone>``: ``held``, the mail a drone holds, when it changes (and
+  on query): what its heir takes over if it leaves.
 * ``mail/assign/<drone>``: a query whose payload is a ``mail`` order; the
   drone replies ``mail_ack`` (accepted, or refused with the reason).
 * ``mail/status/<mail id>``: ``mail_status`` reports as a mail moves.
@@ -120,6 +122,17 @@ class DroneState(_Strict):
     mail: list[MailView] = Field(default_factory=list)
     health: Health = Field(default_factory=Health)
     clock_offset_s: dict[str, float] = Field(default_factory=dict)  #: measured offset of each peer's clock
+    plans: int = 0  #: plans made so far
+    messages_sent: int = 0  #: protocol messages sent so far
+    coordination_ms: float | None = None  #: the last plan's: task arrival to plan scheduled
+
+
+class HeldMail(_Strict):
+    """The mail a drone holds, published when it changes: a drone's heir takes it over if it leaves."""
+
+    kind: Literal["held"] = "held"
+    drone: str
+    mail: list[MailView]
 
 
 # ----------------------------------------------------------------- mail
@@ -169,7 +182,7 @@ class ClockPong(_Strict):
 
 
 Body = Annotated[
-    ReqTraj | CurTraj | DroneState | MailOrder | MailAck | MailStatusReport | ClockPing | ClockPong,
+    ReqTraj | CurTraj | DroneState | HeldMail | MailOrder | MailAck | MailStatusReport | ClockPing | ClockPong,
     Field(discriminator="kind"),
 ]
 

@@ -1,0 +1,238 @@
+"""``drona bench coordination``: end-to-end coordination latency of N agents over Zenoh on loopback.
+
+The agents (each with its own Zenoh session, as ``drona agent --count N``) run
+in this process against N fake vehicles in a ``drona sim-vehicle``
+subprocess; an outside session keeps every drone busy with mail over Zenoh.
+Latency is measured per plan, from the task's arrival (the task planner's
+decision at a step boundary) to the plan scheduled (the protocol's
+StartExecuting, after every peer answered): Protocol 1 over the network,
+waiting on peers that coordinate at the same time, and the planner.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import os
+import random
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from drona_gcs.workspace import Cell, Workspace
+from drona_gcs.workspace_files import load_workspace
+from fleet.sim.ports import free_port_block, free_udp_base
+from fleet.transport.fleet_client import FleetClient
+from fleet.transport.keys import FleetKeys
+from fleet.transport.node import ZenohNode, ZenohSettings
+from fleet.transport.wire import DroneState, MailOrder, MailStatus, MailStatusReport, WireError, decode
+
+VEHICLE_SPEEDUP = 2.0  #: enough to track a cell per tau; telemetry rates scale with it, as in SITL
+TELEMETRY_HZ = 4.0  #: position twice per step at tau 0.5 s
+
+
+@dataclass(frozen=True)
+class CoordinationResult:
+    agents: int
+    seconds: float
+    plans: int
+    p50_ms: float
+    p99_ms: float
+    max_ms: float
+    steady_plans: int  #: plans after the first burst (every drone given mail at once) has settled
+    steady_p50_ms: float
+    steady_p99_ms: float
+    steady_max_ms: float
+    messages_per_round: float
+    cpu_ms_per_s_per_agent: float
+    vehicles_cpu_s_per_s: float
+    delivered: int
+
+
+def bench_workspace(agents: int) -> str:
+    """A square grid with room for every drone, parking on the rim and two chargers."""
+    side = max(12, 2 * int(agents**0.5) + 8)
+    starts = [(2 + 2 * (i % ((side - 4) // 2)), 2 + 2 * (i // ((side - 4) // 2))) for i in range(agents)]
+    rim = [(x, 0) for x in range(1, side - 1, 2)] + [(x, side - 1) for x in range(1, side - 1, 2)]
+    rim += [(0, y) for y in range(2, side - 2, 2)] + [(side - 1, y) for y in range(2, side - 2, 2)]
+    return "\n".join([
+        f"name: bench-{agents}", f"size: [{side}, {side}, 1]", "cell_size_m: 1.0", "tau_s: 0.5", "beta_s: 0.2",
+        "geo_origin: {lat: 47.397742, lon: 8.545594, alt_m: 488.0, layer0_alt_m: 2.0}",
+        f"charging_stations: [[0, 0, 0], [{side - 1}, {side - 1}, 0]]",
+        "parking: [" + ", ".join(f"[{x}, {y}, 0]" for x, y in rim[:agents]) + "]",
+        "drones:", *(f"  d{i + 1}: [{x}, {y}, 0]" for i, (x, y) in enumerate(starts)),
+    ]) + "\n"
+
+
+async def run_bench(agents: int, processes: int, seconds: float, steady_after: float, workdir: Path,
+                    seed: int = 1) -> CoordinationResult:
+    ws_file = workdir / f"bench-{agents}.yaml"
+    ws_file.write_text(bench_workspace(agents))
+    workspace = load_workspace(ws_file)
+    names = list(workspace.drones)[:agents]
+    base, port = free_udp_base(agents), free_port_block(agents, socket.SOCK_STREAM)
+    fleet = f"bench-{port}"
+    children = [_spawn(["sim-vehicle", "--workspace", str(ws_file), "--count", str(agents), "--base-port",
+                        str(base), "--speedup", str(VEHICLE_SPEEDUP), "--ready-after", "0.5"])]
+    share = -(-agents // processes)
+    for first in range(0, agents, share):
+        count = min(share, agents - first)
+        # Agent i listens on port + i and connects to agent 0's port; gossip meshes the rest.
+        children.append(_spawn(["agent", "--workspace", str(ws_file), "--drone", names[first], "--count", str(count),
+                                "--fleet", fleet, "--listen", f"tcp/127.0.0.1:{port + first}",
+                                "--connect", f"tcp/127.0.0.1:{port}", "--vehicle-base-port", str(base),
+                                "--lead-steps", "4", "--telemetry-hz", str(TELEMETRY_HZ), "--log-level", "WARNING"]))
+    try:
+        return await _measure(children, workspace, names, fleet, port, seconds, steady_after, seed)
+    finally:
+        # The agents first (they land and leave), then the vehicles they land.
+        for group in (children[1:], children[:1]):
+            for child in group:
+                child.send_signal(signal.SIGINT)
+            for child in group:
+                try:
+                    child.wait(60)
+                except subprocess.TimeoutExpired:
+                    child.kill()
+                    child.wait()
+
+
+async def _measure(children: list[subprocess.Popen[bytes]], workspace: Workspace, names: list[str], fleet: str,
+                   port: int, seconds: float, steady_after: float, seed: int) -> CoordinationResult:
+    keys = FleetKeys(fleet)
+    node = await ZenohNode.open(ZenohSettings(connect=(f"tcp/127.0.0.1:{port}",)), "bench")
+    latencies: dict[tuple[str, int], tuple[float, float]] = {}  #: (drone, plan) -> (when seen, ms)
+    alive: set[str] = set()
+    all_up = asyncio.Event()
+
+    def on_state(key: str, payload: bytes) -> None:
+        with contextlib.suppress(WireError):
+            body = decode(payload).body
+            if isinstance(body, DroneState) and body.coordination_ms is not None and measuring.is_set():
+                latencies.setdefault((body.drone, body.plans), (time.monotonic(), body.coordination_ms))
+
+    def on_alive(key: str, up: bool) -> None:
+        (alive.add if up else alive.discard)(keys.last_chunk(key))
+        if alive >= set(names):
+            all_up.set()
+
+    measuring = asyncio.Event()
+    try:
+        node.subscribe(keys.state(), on_state)
+        node.watch_liveliness(keys.alive(), on_alive)
+        await asyncio.wait_for(all_up.wait(), 120)
+        measuring.set()
+        cpu0 = [_cpu_of(c.pid) for c in children]
+        started = time.monotonic()
+        delivered, sent, plans = await _keep_busy(node, keys, workspace, names, seconds, seed)
+        elapsed = time.monotonic() - started
+        cpu = [_cpu_of(c.pid) - c0 for c, c0 in zip(children, cpu0, strict=True)]
+    finally:
+        await node.close()
+    values = sorted(ms for _, ms in latencies.values())
+    steady = sorted(ms for seen, ms in latencies.values() if seen >= started + steady_after)
+    return CoordinationResult(
+        len(names), elapsed, len(values), _percentile(values, 0.5), _percentile(values, 0.99), _percentile(values, 1),
+        len(steady), _percentile(steady, 0.5), _percentile(steady, 0.99), _percentile(steady, 1),
+        sent / plans if plans else float("nan"), 1000 * sum(cpu[1:]) / elapsed / len(names), cpu[0] / elapsed,
+        delivered)
+
+
+def _spawn(arguments: list[str]) -> subprocess.Popen[bytes]:
+    return subprocess.Popen([sys.executable, "-m", "fleet.cli", *arguments], stdout=subprocess.DEVNULL)
+
+
+async def _keep_busy(node: ZenohNode, keys: FleetKeys, workspace: Workspace, names: list[str], seconds: float,
+                     seed: int) -> tuple[int, int, int]:
+    """Two mails per drone at first, and one more each time one is delivered, for ``seconds``.
+    Returns the mails delivered, and the protocol messages sent and plans made meanwhile (from the states)."""
+    rng = random.Random(seed)
+    free = sorted(workspace.main_region - set(workspace.parking) - set(workspace.charging_stations))
+    client = FleetClient(node, keys, "bench")
+    deliveries: asyncio.Queue[str] = asyncio.Queue()
+    count = delivered = 0
+
+    def on_report(key: str, payload: bytes) -> None:
+        with contextlib.suppress(WireError):
+            body = decode(payload).body
+            if isinstance(body, MailStatusReport) and body.status is MailStatus.DELIVERED:
+                deliveries.put_nowait(body.drone)
+
+    async def give(drone: str) -> None:
+        nonlocal count
+        pickup, dropoff = rng.sample(free, 2)
+        count += 1
+        await client.assign(drone, MailOrder(id=f"b{count}", pickup=_list(pickup), dropoff=_list(dropoff),
+                                             priority=rng.randint(0, 9)))
+
+    node.subscribe(keys.status(), on_report)
+    before = await client.states()
+    for drone in names:
+        for _ in range(2):
+            await give(drone)
+    deadline = time.monotonic() + seconds
+    while (left := deadline - time.monotonic()) > 0:
+        try:
+            drone = await asyncio.wait_for(deliveries.get(), left)
+        except TimeoutError:
+            break
+        delivered += 1
+        await give(drone)
+    after = await client.states()
+    sent = sum(s.messages_sent - before[d].messages_sent for d, s in after.items() if d in before)
+    plans = sum(s.plans - before[d].plans for d, s in after.items() if d in before)
+    return delivered, sent, plans
+
+
+def _list(cell: Cell) -> list[int]:
+    return [cell[0], cell[1], cell[2]]
+
+
+def _percentile(values: list[float], q: float) -> float:
+    if not values:
+        return float("nan")
+    return values[min(len(values) - 1, int(q * len(values)))] if q < 1 else values[-1]
+
+
+def _cpu_of(pid: int) -> float:
+    """CPU seconds used so far by process ``pid`` (Linux /proc)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def run(args: argparse.Namespace) -> int:
+    agents = args.agents or (8 if args.quick else 32)
+    seconds = args.seconds or (15.0 if args.quick else 60.0)
+    if agents < 2 or seconds <= 0:
+        print("drona bench coordination: --agents must be >= 2 and --seconds > 0", file=sys.stderr)
+        return 2
+    if not args.json:
+        print(f"drona bench coordination: {agents} agents (own Zenoh session each) in "
+              f"{max(1, min(args.processes or 4, agents))} `drona agent --count` processes, {agents} fake vehicles "
+              f"in a `drona sim-vehicle`, loopback; mail for {seconds:g} s", flush=True)
+    processes = max(1, min(args.processes or 4, agents))
+    with tempfile.TemporaryDirectory() as workdir:
+        result = asyncio.run(run_bench(agents, processes, seconds, args.steady_after, Path(workdir)))
+    if args.json:
+        print(json.dumps(asdict(result)))
+        return 0
+    print(f"plans {result.plans} in {result.seconds:.1f} s ({result.delivered} mails delivered)\n"
+          f"coordination latency, task arrival to plan scheduled: p50 {result.p50_ms:.2f} ms, "
+          f"p99 {result.p99_ms:.2f} ms, max {result.max_ms:.2f} ms (target p50 <= 20, p99 <= 100)\n"
+          f"  after the first {args.steady_after:g} s (the opening burst: every drone given mail at once): "
+          f"{result.steady_plans} plans, p50 {result.steady_p50_ms:.2f} ms, p99 {result.steady_p99_ms:.2f} ms, "
+          f"max {result.steady_max_ms:.2f} ms\n"
+          f"protocol messages per round {result.messages_per_round:.1f} (2(N-1) = {2 * (agents - 1)})\n"
+          f"CPU per agent {result.cpu_ms_per_s_per_agent:.1f} ms/s (the agent processes / agents; the vehicles' "
+          f"process {result.vehicles_cpu_s_per_s:.2f} s/s)")
+    return 0
