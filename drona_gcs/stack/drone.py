@@ -88,6 +88,10 @@ class DroneStack:
         self.mail.assign(request)
         return []
 
+    def cancel(self, mail_id: str) -> bool:
+        """Drop a mail that waits in the queue (False if it is under way or unknown)."""
+        return self.mail.cancel(mail_id)
+
     def peer_left(self, drone: str) -> list[DroneAction]:
         return self._protocol(PeerLeft(drone))
 

@@ -142,6 +142,13 @@ class MailPlanner:
             return  # a duplicate assignment is harmless
         self.queue.append(request)
 
+    def cancel(self, mail_id: str) -> bool:
+        """Drop a mail still waiting in the queue; one already under way is flown to the end."""
+        kept = [r for r in self.queue if r.id != mail_id]
+        dropped = len(kept) != len(self.queue)
+        self.queue = kept
+        return dropped
+
     def battery_low(self) -> None:
         self.low = True
 

@@ -47,6 +47,7 @@ from fleet.transport.wire import (
     Health,
     HeldMail,
     MailAck,
+    MailCancel,
     MailOrder,
     MailStatus,
     MailStatusReport,
@@ -100,6 +101,7 @@ class DroneAgent:
         self.accepting = True  #: False once shutting down: no new mail, no new tasks
         self.task_since: float | None = None
         self.metrics = Metrics()
+        self.adopt_mail = True  #: off when a service dispatches the mail (it reassigns a lost drone's)
         self._state_scheduled = False
 
     # ------------------------------------------------------------ start-up
@@ -111,6 +113,7 @@ class DroneAgent:
         node.subscribe(keys.held(), self._on_peer_mail)
         node.queryable(keys.held(self.me), self._on_held_query)
         node.queryable(keys.assign(self.me), self._on_mail_order)
+        node.queryable(keys.cancel(self.me), self._on_mail_cancel)
         node.queryable(keys.state(self.me), self._on_state_query)
         node.queryable(keys.clock(self.me), self._on_clock_query)
         node.watch_liveliness(keys.alive(), self._on_liveliness)
@@ -229,7 +232,9 @@ class DroneAgent:
         except WireError as exc:
             log.warning("%s: dropped a message on %s: %s", self.me, key, exc)
             return
-        if envelope.sender not in self.stack.protocol.peers or envelope.sender == self.me:
+        if envelope.sender == self.me:
+            return  # my own request to everyone (proto/all) comes back to me too
+        if envelope.sender not in self.stack.protocol.peers:
             log.warning("%s: dropped a message from %r, not a peer of this fleet", self.me, envelope.sender)
             return
         self._carry_out(self.stack.receive(message))
@@ -291,6 +296,22 @@ class DroneAgent:
             ack = MailAck(id=order_id, drone=self.me, accepted=False, reason=str(exc))
         query.reply(self.keys.assign(self.me), encode(self.me, self.clock(), ack))
 
+    def _on_mail_cancel(self, key: str, payload: bytes, query: Query) -> None:
+        try:
+            body = decode(payload).body
+            if not isinstance(body, MailCancel):
+                raise WireError(f"expected a mail cancel, got {body.kind}")
+        except WireError as exc:
+            log.warning("%s: dropped a cancel on %s: %s", self.me, key, exc)
+            return
+        dropped = self.stack.cancel(body.id)
+        if dropped:
+            self.finished_mail.add(body.id)
+            self.report_mail(body.id, MailStatus.CANCELLED)
+            self.publish_held()
+        ack = MailAck(id=body.id, drone=self.me, accepted=dropped, reason="" if dropped else "under way or unknown")
+        query.reply(self.keys.cancel(self.me), encode(self.me, self.clock(), ack))
+
     def take_mail(self, order: MailOrder) -> bool:
         """Queue ``order``; False if this drone already has it (a repeated order). ProblemError if unusable."""
         if not self.accepting:
@@ -329,7 +350,7 @@ class DroneAgent:
     def _adopt_mail_of(self, peer: str) -> None:
         """The heir (smallest live name) takes over what ``peer`` held and had not picked up."""
         held = self.peer_mail.pop(peer, [])
-        if not held or min(self.alive | {self.me}) != self.me:
+        if not held or not self.adopt_mail or min(self.alive | {self.me}) != self.me:
             return
         for mail in held:
             if mail.stage == "carrying":

@@ -135,7 +135,9 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
             raise failure
         for node, link, name in zip(nodes, links, host.names, strict=True):
             stack = DroneStack(name, config, ws.drones)
-            host.agents.append(DroneAgent(stack, node, keys, link, frame, host.clock, record))
+            agent = DroneAgent(stack, node, keys, link, frame, host.clock, record)
+            agent.adopt_mail = settings.adopt_mail
+            host.agents.append(agent)
         for agent in host.agents:
             await agent.start()
         log.info("drones %s up: fleet %r, tau %.3g s, Delta %d, lead %d steps", ", ".join(host.names),

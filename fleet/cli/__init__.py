@@ -23,6 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "agent": ("fleet.cli.agent", "run drones' stacks against their vehicles, coordinating over Zenoh"),
     "mail": ("fleet.cli.mail", "give the fleet a mail over Zenoh, and optionally follow it until delivered"),
     "router": ("fleet.cli.router", "a Zenoh router for agents in client mode"),
+    "demo": ("fleet.cli.demo", "a fleet in one command: service and dashboard, agents and fake vehicles"),
     "audit": ("fleet.cli.audit", "judge a recorded run (--record files) for collisions under Delta"),
 }
 

@@ -48,6 +48,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="simulation only: shift this process's clock by S seconds (tests the skew check)")
     add("--telemetry-hz", type=float, help="rate asked of the vehicle's position and battery streams (default 10)")
     add("--drain-per-step", type=float, help="battery points one step of flight costs, for planning (default 1)")
+    add("--no-adopt-mail", dest="adopt_mail", action="store_const", const=False,
+        help="do not take over a departed drone's mail (when `drona serve` dispatches, it reassigns it)")
     add("--log-level", help="DEBUG, INFO (default), WARNING")
 
 

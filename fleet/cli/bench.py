@@ -62,7 +62,7 @@ class Row:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("what", choices=["planner", "mavlink", "coordination"], help="what to benchmark")
+    parser.add_argument("what", choices=["planner", "mavlink", "coordination", "api"], help="what to benchmark")
     parser.add_argument("--quick", action="store_true", help="a short run: 40 tasks a cell, Z3 on 16x16 only "
                         "(mavlink: 16 vehicles for 5 s, 8 loops for 5 boundaries)")
     parser.add_argument("--json", action="store_true", help="print JSON Lines rows instead of a table")
@@ -78,6 +78,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--agents", type=int, help="agents, each with its own Zenoh session and fake vehicle "
                        "(default 32; 8 with --quick); --seconds: how long to keep them busy (default 60; 15)")
     group.add_argument("--processes", type=int, help="agent processes the agents are spread over (default 4)")
+    from api import bench as api_bench  # its own group: --rate, --connections, --sim-drones, --url, --token
+
+    api_bench.add_arguments(parser)
     group.add_argument("--steady-after", type=float, default=10.0,
                        help="also report the plans after this many seconds, past the opening burst (default 10)")
 
@@ -101,6 +104,10 @@ def run(args: argparse.Namespace) -> int:
         from fleet import bench_mavlink
 
         return bench_mavlink.run(args)
+    if args.what == "api":
+        from api import bench as api_bench
+
+        return api_bench.run(args)
     if args.what == "coordination":
         from fleet import bench_coordination
 

@@ -48,6 +48,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sim-drones", type=int, help="simulated gateway: number of drones "
                         "(default: the workspace's drones, or 4)")
     parser.add_argument("--sim-step", type=float, default=0.2, help="simulated gateway: seconds per step (default 0.2)")
+    parser.add_argument("--fleet", default="default", help="zenoh gateway: fleet name (default 'default')")
+    parser.add_argument("--connect", action="append", metavar="EP", help="zenoh gateway: endpoint of an agent or "
+                        "router (repeatable; default: where `drona agent` listens on this machine)")
+    parser.add_argument("--zenoh-config", type=Path, help="zenoh gateway: Zenoh JSON5 configuration file")
     parser.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
 
 

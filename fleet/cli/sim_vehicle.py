@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
         config = _config(args)
         workspace: Workspace | None = load_workspace(args.workspace) if args.workspace else None
         if workspace is not None:  # a cell per tau must be within what the vehicles can fly
-            check_speed(workspace, args.max_speed)
+            check_speed(workspace, args.max_speed * args.speedup)  # simulated seconds run faster
     except (ValueError, DronaError) as exc:
         print(f"drona sim-vehicle: {exc}", file=sys.stderr)
         return 2

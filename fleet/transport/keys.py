@@ -6,6 +6,7 @@
 ``state/<drone>``              the drone's state (published each step; queryable)
 ``held/<drone>``               the mail the drone holds (published on change; queryable)
 ``mail/assign/<drone>``        query: give the drone a mail (reply: mail_ack)
+``mail/cancel/<drone>``        query: drop a mail still waiting (reply: mail_ack)
 ``mail/status/<mail id>``      mail status reports
 ``clock/<drone>``              query: the drone's clock (offset estimation)
 =============================  =============================================
@@ -51,6 +52,9 @@ class FleetKeys:
 
     def assign(self, drone: str) -> str:
         return f"{self.root}/mail/assign/{drone}"
+
+    def cancel(self, drone: str) -> str:
+        return f"{self.root}/mail/cancel/{drone}"
 
     def status(self, mail: str = "*") -> str:
         return f"{self.root}/mail/status/{mail}"

@@ -17,6 +17,8 @@ The bodies, by key (see :mod:`fleet.transport.keys`):
   on query): what its heir takes over if it leaves.
 * ``mail/assign/<drone>``: a query whose payload is a ``mail`` order; the
   drone replies ``mail_ack`` (accepted, or refused with the reason).
+* ``mail/cancel/<drone>``: a query with a ``mail_cancel``; ``mail_ack``
+  accepted if the mail was still waiting (it is dropped), refused if under way.
 * ``mail/status/<mail id>``: ``mail_status`` reports as a mail moves.
 * ``clock/<drone>``: a query with a ``clock_ping``; the reply is a
   ``clock_pong`` with the peer's clock (offset estimation).
@@ -145,6 +147,11 @@ class MailOrder(_Strict):
     note: str | None = None
 
 
+class MailCancel(_Strict):
+    kind: Literal["mail_cancel"] = "mail_cancel"
+    id: str
+
+
 class MailAck(_Strict):
     kind: Literal["mail_ack"] = "mail_ack"
     id: str
@@ -161,6 +168,7 @@ class MailStatus(enum.Enum):
     REJECTED = "rejected"  #: the drone cannot fly it (handed back)
     FAILED = "failed"  #: lost (with a drone that left while carrying it)
     REASSIGNED = "reassigned"  #: a drone took over the mail of one that left
+    CANCELLED = "cancelled"  #: dropped from the queue on request
 
 
 class MailStatusReport(_Strict):
@@ -182,7 +190,8 @@ class ClockPong(_Strict):
 
 
 Body = Annotated[
-    ReqTraj | CurTraj | DroneState | HeldMail | MailOrder | MailAck | MailStatusReport | ClockPing | ClockPong,
+    ReqTraj | CurTraj | DroneState | HeldMail | MailOrder | MailCancel | MailAck | MailStatusReport | ClockPing
+    | ClockPong,
     Field(discriminator="kind"),
 ]
 

@@ -1,0 +1,140 @@
+"""The fleet gateway: the only way the service reaches the drones.
+
+The service never touches the network itself. A gateway (Zenoh in production:
+``fleet.transport``; an in-memory simulation in the tests) carries mail orders
+to the agents and brings back what they say, as the frozen dataclasses below.
+
+Threading: every method is called on the service's event loop, and the gateway
+calls the listener's methods **on that loop too** (a gateway fed by another
+thread hands samples over with ``loop.call_soon_threadsafe``). Listener methods
+return at once; the service does the work in its own tasks.
+
+Life: the service calls :meth:`FleetGateway.listen` once, then runs
+:meth:`FleetGateway.run` in its task group for as long as it serves; run
+returns only if the gateway is finished (it is normally cancelled at shutdown,
+and closes its links then).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Literal, Protocol
+
+from drona_gcs.workspace import Cell
+
+#: What an agent says about a mail it was given.
+ReportStatus = Literal["accepted", "started", "picked_up", "delivered", "rejected", "failed"]
+REPORT_STATUSES: tuple[ReportStatus, ...] = ("accepted", "started", "picked_up", "delivered", "rejected", "failed")
+
+
+@dataclass(frozen=True)
+class MailOrder:
+    """A mail handed to a drone: go to ``pickup``, carry it to ``dropoff``. 9 is the most urgent."""
+
+    id: str
+    pickup: Cell
+    dropoff: Cell
+    priority: int
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class Position:
+    """WGS84 latitude and longitude (degrees) and altitude AMSL (m)."""
+
+    lat: float
+    lon: float
+    alt_m: float
+
+
+@dataclass(frozen=True)
+class TaskView:
+    """The motion task a drone is on: its goal, why (a mail planner phase) and for which mail."""
+
+    goal: Cell
+    purpose: str  #: drona_gcs.stack.mail.Phase value: to_pickup, to_dropoff, to_charger, to_parking
+    mail_id: str | None = None
+
+
+@dataclass(frozen=True)
+class TrajectoryView:
+    """The planned trajectory: ``cells[k]`` is where the drone is at step ``start_step + k``."""
+
+    start_step: int
+    cells: tuple[Cell, ...]
+
+
+@dataclass(frozen=True)
+class Health:
+    ok: bool
+    alarms: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class DroneView:
+    """The latest state of one drone, as its agent publishes it."""
+
+    id: str
+    cell: Cell
+    position: Position
+    battery_pct: float
+    mode: str  #: the autopilot's flight mode
+    phase: str  #: drona_gcs.stack.mail.Phase value (idle, to_pickup, ...)
+    task: TaskView | None
+    trajectory: TrajectoryView | None
+    queue: tuple[str, ...]  #: ids of the mails waiting on board the drone's planner
+    carrying: str | None  #: id of the mail on board
+    health: Health
+    step: int  #: the drone's step counter
+    alive: bool = True
+
+    def mentions(self, mail_id: str) -> bool:
+        """Whether the drone shows ``mail_id`` as queued, on board or the goal of its task."""
+        return (mail_id in self.queue or self.carrying == mail_id
+                or (self.task is not None and self.task.mail_id == mail_id))
+
+
+@dataclass(frozen=True)
+class MailStatusReport:
+    """An agent's word about a mail; ``at`` is the agent's wall clock (Unix seconds)."""
+
+    mail_id: str
+    drone: str
+    status: ReportStatus
+    reason: str = ""
+    step: int = 0
+    at: float = 0.0
+
+
+class FleetListener(Protocol):
+    """What the service gives the gateway to push fleet events in (called on the event loop)."""
+
+    def on_drone_state(self, view: DroneView) -> None: ...
+
+    def on_drone_lost(self, drone: str) -> None: ...
+
+    def on_mail_status(self, report: MailStatusReport) -> None: ...
+
+
+class FleetGateway(Protocol):
+    def listen(self, listener: FleetListener) -> None:
+        """Register the service's listener (called once, before :meth:`run`)."""
+        ...
+
+    async def run(self) -> None:
+        """Keep the links up and push events to the listener until cancelled."""
+        ...
+
+    async def assign(self, drone: str, mail: MailOrder) -> None:
+        """Hand ``mail`` to ``drone``; raises :class:`api.errors.AssignRefused` (with the reason) if the
+        drone refused it or could not be reached in time. Returns once the drone has it."""
+        ...
+
+    async def cancel(self, drone: str, mail_id: str) -> None:
+        """Ask ``drone`` to drop ``mail_id``: best effort, never raises for an unreachable drone."""
+        ...
+
+    def drones(self) -> Mapping[str, DroneView]:
+        """The latest view of every live drone, by id."""
+        ...

@@ -1,0 +1,136 @@
+"""``create_app``: the FastAPI app, and the lifespan that runs its background work in one task group.
+
+The task group holds the store's writer, the dispatcher (and the exchanges it
+starts with drones), the gateway and the WAL checkpointer. Shutdown cancels
+them all; the writer closes the database last.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import sqlite3
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
+from typing import Any
+
+from fastapi import FastAPI, Request, Response
+from fastapi.exception_handlers import http_exception_handler
+from fastapi.openapi.utils import get_openapi
+from fastapi.routing import APIRoute
+from fastapi.staticfiles import StaticFiles
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from api.deps import BEARER_SCHEME, Service
+from api.dispatcher import Dispatcher
+from api.errors import ConfigError
+from api.events import EventBus
+from api.fastlane import FastLane
+from api.gateway import FleetGateway
+from api.models import MailCreate, MailPublic, WorkspacePublic
+from api.routes import dashboard, events, fleet, health, mail
+from api.settings import ApiSettings
+from api.store import Change, Store
+from api.validation import MailChecker
+from drona_gcs.workspace import Workspace
+from drona_gcs.workspace_files import load_workspace
+from fleet.clock import periodic
+
+log = logging.getLogger(__name__)
+#: Largest request body accepted (a mail request is well under 1 KiB).
+MAX_BODY_BYTES = 64 * 1024
+
+
+class _Shutdown(Exception):
+    """Raised into the task group at shutdown, to cancel its tasks."""
+
+
+def create_app(settings: ApiSettings, gateway: FleetGateway, workspace: Workspace | None = None) -> FastAPI:
+    """The service for ``workspace`` (default: ``settings.workspace``), reaching the drones through ``gateway``."""
+    if workspace is None:
+        if settings.workspace is None:
+            raise ConfigError("no workspace: set DRONA_API_WORKSPACE or pass --workspace")
+        workspace = load_workspace(settings.workspace)
+    ws = workspace
+    tokens = settings.token_table()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        store = Store(settings.db, synchronous=settings.synchronous, max_batch=settings.max_batch)
+        bus = EventBus(settings.sse_queue)
+        checker = MailChecker(ws)
+        dispatcher = Dispatcher(store, gateway, checker.distance, bus, settings)
+        store.listeners += [dispatcher.on_commit, _publisher(bus)]
+        gateway.listen(dispatcher)
+        dispatcher.resume()
+        service = Service(settings, ws, WorkspacePublic.of(ws), tokens, checker, store, bus, gateway, dispatcher)
+        app.state.service = service
+        try:
+            async with asyncio.TaskGroup() as tasks:
+                tasks.create_task(store.run(), name="store-writer")
+                tasks.create_task(dispatcher.run(tasks), name="dispatcher")
+                tasks.create_task(gateway.run(), name="gateway")
+                tasks.create_task(_checkpointer(store, settings.checkpoint_s), name="checkpointer")
+                service.ready = True
+                log.info("serving %s with %s", settings.db, type(gateway).__name__)
+                yield
+                service.ready = False
+                raise _Shutdown
+        except* _Shutdown:
+            pass
+
+    app = FastAPI(title="drona-gcs", version="1", lifespan=lifespan, max_body_size=MAX_BODY_BYTES,
+                  description="Mail requests for a DRONA drone fleet: submit, follow, cancel; the fleet's live state.")
+    for module in (mail, fleet, events, health, dashboard):
+        app.include_router(module.router)
+    app.mount("/static", StaticFiles(directory=dashboard.STATIC_DIR), name="static")
+    app.add_middleware(FastLane, method="POST", path="/v1/mail", endpoint=mail.submit)
+    app.openapi = lambda: _openapi(app)  # type: ignore[method-assign]
+    app.add_exception_handler(StarletteHTTPException, _http_error)
+    return app
+
+
+async def _http_error(request: Request, exc: Exception) -> Response:
+    """FastAPI's answer, except that a 405's ``Allow`` lists the methods of every route on the path
+    (Starlette names only those of the first route it matched: GET /v1/mail hid POST /v1/mail)."""
+    assert isinstance(exc, StarletteHTTPException)
+    if exc.status_code == 405:
+        path = request.url.path
+        allowed = sorted({m for r in request.app.routes if isinstance(r, APIRoute) and r.path_regex.fullmatch(path)
+                          for m in r.methods or ()})
+        exc = StarletteHTTPException(405, exc.detail, headers={"Allow": ", ".join(allowed)})
+    return await http_exception_handler(request, exc)
+
+
+def _openapi(app: FastAPI) -> dict[str, Any]:
+    """FastAPI's document, with the bearer scheme on every /v1 operation (auth is one plain dependency)."""
+    if app.openapi_schema is None:
+        schema = get_openapi(title=app.title, version=app.version, description=app.description, routes=app.routes)
+        components = schema.setdefault("components", {})
+        components.setdefault("securitySchemes", {})["bearer"] = BEARER_SCHEME
+        components.setdefault("schemas", {})["MailCreate"] = MailCreate.model_json_schema(
+            ref_template="#/components/schemas/{model}")
+        for path, operations in schema["paths"].items():
+            if path.startswith("/v1/"):
+                for operation in operations.values():
+                    operation["security"] = [{"bearer": []}]
+        app.openapi_schema = schema
+    return app.openapi_schema
+
+
+def _publisher(bus: EventBus) -> Callable[[Change], None]:
+    def publish(change: Change) -> None:
+        bus.publish("mail", lambda: MailPublic.of(change.record).model_dump_json())
+
+    return publish
+
+
+async def _checkpointer(store: Store, every_s: float) -> None:
+    async for _ in periodic(every_s):
+        try:
+            busy, frames, done = await store.checkpoint()
+        except sqlite3.Error as exc:  # tried again at the next period
+            log.warning("WAL checkpoint failed: %s", exc)
+            continue
+        if busy:
+            log.info("WAL checkpoint left %d of %d frames (readers busy)", frames - done, frames)

@@ -1,0 +1,145 @@
+"""Request and response bodies of ``/v1``: strict, and unknown fields refused.
+
+Requests are validated in pydantic's strict mode (a priority ``"3"`` or ``3.0`` is
+refused, not coerced). Cells are JSON arrays ``[x, y, z]`` of integers.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Annotated, Any
+
+from pydantic import BaseModel, ConfigDict, Field, StrictInt, StrictStr
+
+from api.gateway import DroneView
+from api.lifecycle import Status
+from api.store import AuditEntry, MailRecord
+from drona_gcs.workspace import Workspace
+
+CellIn = Annotated[list[StrictInt], Field(min_length=3, max_length=3, description="[x, y, z]", examples=[[1, 2, 0]])]
+CellOut = Annotated[list[int], Field(min_length=3, max_length=3, description="[x, y, z]")]
+#: Most characters of a note.
+NOTE_MAX = 500
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+
+class MailCreate(_Strict):
+    pickup: CellIn
+    dropoff: CellIn
+    priority: Annotated[StrictInt, Field(ge=0, le=9, description="0..9, 9 the most urgent")]
+    note: Annotated[StrictStr, Field(max_length=NOTE_MAX)] = ""
+
+
+#: The body, header and 422 of POST /v1/mail in the OpenAPI document (the route parses the request itself).
+MAIL_CREATE_EXTRA: dict[str, Any] = {
+    "requestBody": {"required": True, "content": {"application/json": {
+        "schema": {"$ref": "#/components/schemas/MailCreate"}}}},
+    "parameters": [{"name": "Idempotency-Key", "in": "header", "required": False,
+                    "description": "retrying with the same key (and body) answers with the mail made the first time",
+                    "schema": {"type": "string", "pattern": "^[\\x21-\\x7e]{1,200}$"}}],
+    "responses": {"422": {"description": "a field is wrong: loc names it, msg says why", "content": {
+        "application/json": {"schema": {"$ref": "#/components/schemas/HTTPValidationError"}}}}},
+}
+
+
+class AuditPublic(BaseModel):
+    status: Status
+    at: datetime
+    drone: str | None
+    reason: str
+
+
+class MailPublic(BaseModel):
+    id: str
+    status: Status
+    created_at: datetime
+    updated_at: datetime
+    pickup: CellOut
+    dropoff: CellOut
+    priority: int
+    note: str
+    drone: str | None = Field(description="the drone that holds or held it")
+    reason: str = Field(description="why it is in its status (requeued, failed, cancelled), else empty")
+    owner: str
+
+    @classmethod
+    def of(cls, r: MailRecord) -> MailPublic:
+        # Built from our own record: no need to validate (model_construct is several times faster).
+        return cls.model_construct(id=r.id, status=r.status, created_at=_time(r.created_at),
+                                   updated_at=_time(r.updated_at), pickup=list(r.pickup), dropoff=list(r.dropoff),
+                                   priority=r.priority, note=r.note, drone=r.drone, reason=r.reason, owner=r.owner)
+
+
+class MailDetail(MailPublic):
+    history: list[AuditPublic] = Field(description="every status it went through, oldest first")
+
+    @classmethod
+    def with_history(cls, r: MailRecord, history: list[AuditEntry]) -> MailDetail:
+        entries = [AuditPublic.model_construct(status=h.status, at=_time(h.at), drone=h.drone, reason=h.reason)
+                   for h in history]
+        return cls.model_construct(**MailPublic.of(r).__dict__, history=entries)
+
+
+class MailPage(BaseModel):
+    items: list[MailPublic]
+    next_cursor: str | None = Field(description="pass as ?cursor= for the next (older) page; null at the end")
+
+
+class FleetPublic(BaseModel):
+    drones: list[DroneView]
+
+
+class GeoOriginPublic(BaseModel):
+    lat: float
+    lon: float
+    alt_m: float
+    layer0_alt_m: float
+    layer_height_m: float
+
+
+class WorkspacePublic(BaseModel):
+    name: str
+    size: CellOut
+    obstacles: list[CellOut]
+    charging_stations: list[CellOut]
+    parking: list[CellOut]
+    pickups: list[CellOut]
+    dropoffs: list[CellOut]
+    drones: dict[str, CellOut] = Field(description="start cell of each drone")
+    cell_size_m: float
+    tau_s: float
+    delta: int
+    geo_origin: GeoOriginPublic
+
+    @classmethod
+    def of(cls, ws: Workspace) -> WorkspacePublic:
+        geo = ws.geo
+        return cls(name=ws.name, size=list(ws.size), obstacles=[list(c) for c in sorted(ws.obstacles)],
+                   charging_stations=[list(c) for c in ws.charging_stations], parking=[list(c) for c in ws.parking],
+                   pickups=[list(c) for c in ws.pickups], dropoffs=[list(c) for c in ws.dropoffs],
+                   drones={d: list(c) for d, c in ws.drones.items()}, cell_size_m=ws.cell_size_m, tau_s=ws.tau_s,
+                   delta=ws.delta, geo_origin=GeoOriginPublic(lat=geo.lat, lon=geo.lon, alt_m=geo.alt_m,
+                                                              layer0_alt_m=geo.layer0_alt_m,
+                                                              layer_height_m=ws.layer_height_m))
+
+
+class ErrorOut(BaseModel):
+    detail: str
+
+
+class HealthOut(BaseModel):
+    status: str
+
+
+class ReadyOut(BaseModel):
+    ready: bool
+    drones: int
+    queued: int
+    held_by_drones: int
+
+
+def _time(t: float) -> datetime:
+    return datetime.fromtimestamp(t, UTC)

@@ -1,0 +1,171 @@
+"""``SimulatedGateway``: a test double of :class:`api.gateway.FleetGateway`, in memory.
+
+Drones fly one cell per ``step_s`` along a static shortest path (no collision
+avoidance: this is not the fleet, only something that behaves like its gateway):
+to the pickup, then to the drop-off, reporting ``accepted``, ``started``,
+``picked_up`` and ``delivered``, and publishing their state every step. Tests
+can lose a drone (:meth:`lose`), make one refuse mail (``refusing``) or take
+mail and then never speak of it (``silent``), and inject any report (:meth:`report`).
+``drona serve --gateway simulated`` runs it (dev and test mode only).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from api.errors import AssignRefused
+from api.gateway import (
+    DroneView,
+    FleetListener,
+    Health,
+    MailOrder,
+    MailStatusReport,
+    Position,
+    ReportStatus,
+    TaskView,
+    TrajectoryView,
+)
+from api.validation import MailChecker
+from drona_gcs.geo import GeoFrame
+from drona_gcs.workspace import Cell, Workspace
+from fleet.clock import periodic
+
+
+@dataclass
+class _Drone:
+    id: str
+    cell: Cell
+    queue: deque[MailOrder] = field(default_factory=deque)
+    current: MailOrder | None = None
+    carrying: bool = False
+    path: list[Cell] = field(default_factory=list)
+    battery: float = 100.0
+
+
+class SimulatedGateway:
+    def __init__(self, workspace: Workspace, drones: int | None = None, step_s: float | None = 0.02) -> None:
+        """``step_s`` None: the drones move only when the test calls :meth:`tick`."""
+        self.ws = workspace
+        self.step_s = step_s
+        self.frame = GeoFrame(workspace)
+        self._checker = MailChecker(workspace)
+        starts = dict(workspace.drones) or {}
+        if drones is not None and drones != len(starts):
+            cells = sorted(workspace.main_region)
+            starts = {f"sim{i + 1}": cells[(i * 7919) % len(cells)] for i in range(drones)}
+        self._drones = {d: _Drone(d, c) for d, c in starts.items()}
+        self._views: dict[str, DroneView] = {}
+        self.listener: FleetListener | None = None
+        self.step = 0
+        self.refusing: dict[str, str] = {}  #: drone -> the reason it refuses every mail
+        self.silent: set[str] = set()  #: drones that take mail and then never mention it
+        self.assigned: list[tuple[str, str]] = []  #: (drone, mail id) as assigned
+        self.cancelled: list[tuple[str, str]] = []
+        self._views = {d: self._view(sim) for d, sim in self._drones.items()}
+
+    # ------------------------------------------------------------ gateway
+    def listen(self, listener: FleetListener) -> None:
+        self.listener = listener
+
+    async def run(self) -> None:
+        self.publish()
+        if self.step_s is None:
+            await asyncio.Event().wait()  # the test steps the drones
+        async for _ in periodic(self.step_s):
+            self.tick()
+
+    async def assign(self, drone: str, mail: MailOrder) -> None:
+        sim = self._drones.get(drone)
+        if sim is None or drone not in self._views:
+            raise AssignRefused(drone, mail.id, "unreachable: no such live drone")
+        if drone in self.refusing:
+            raise AssignRefused(drone, mail.id, self.refusing[drone])
+        self.assigned.append((drone, mail.id))
+        if drone in self.silent:
+            return
+        sim.queue.append(mail)
+        self._report(mail.id, drone, "accepted")
+
+    async def cancel(self, drone: str, mail_id: str) -> None:
+        self.cancelled.append((drone, mail_id))
+        sim = self._drones.get(drone)
+        if sim is None:
+            return
+        sim.queue = deque(m for m in sim.queue if m.id != mail_id)
+        if sim.current is not None and sim.current.id == mail_id and not sim.carrying:
+            sim.current, sim.path = None, []
+
+    def drones(self) -> Mapping[str, DroneView]:
+        return self._views
+
+    # -------------------------------------------------------- test hooks
+    def lose(self, drone: str) -> None:
+        """The drone goes silent: the gateway says it is lost, and it flies no more."""
+        self._views.pop(drone, None)
+        self._drones.pop(drone, None)
+        if self.listener is not None:
+            self.listener.on_drone_lost(drone)
+
+    def report(self, report: MailStatusReport) -> None:
+        if self.listener is not None:
+            self.listener.on_mail_status(report)
+
+    def tick(self) -> None:
+        """One step: every drone moves a cell and publishes its state."""
+        self.step += 1
+        for sim in list(self._drones.values()):
+            self._advance(sim)
+        self.publish()
+
+    def publish(self) -> None:
+        for sim in list(self._drones.values()):
+            view = self._view(sim)
+            self._views[sim.id] = view
+            if self.listener is not None:
+                self.listener.on_drone_state(view)
+
+    # ------------------------------------------------------------ flying
+    def _advance(self, sim: _Drone) -> None:
+        if sim.current is None and sim.queue:
+            sim.current = sim.queue.popleft()
+            sim.path = self._path(sim.cell, sim.current.pickup)
+            self._report(sim.current.id, sim.id, "started")
+        if sim.path:
+            sim.cell = sim.path.pop(0)
+            sim.battery = max(30.0, sim.battery - 0.2)
+        else:
+            sim.battery = min(100.0, sim.battery + 1.0)
+        if sim.current is None or sim.path:
+            return
+        if not sim.carrying:
+            sim.carrying = True
+            sim.path = self._path(sim.cell, sim.current.dropoff)
+            self._report(sim.current.id, sim.id, "picked_up")
+        else:
+            self._report(sim.current.id, sim.id, "delivered")
+            sim.current, sim.carrying = None, False
+
+    def _path(self, start: Cell, goal: Cell) -> list[Cell]:
+        """The cells after ``start`` on a shortest static path to ``goal``."""
+        return self._checker.path(start, goal)[1:]
+
+    def _view(self, sim: _Drone) -> DroneView:
+        p = self.frame.cell_to_global(sim.cell)
+        current = sim.current
+        task = None
+        if current is not None:
+            goal = current.dropoff if sim.carrying else current.pickup
+            task = TaskView(goal, "to_dropoff" if sim.carrying else "to_pickup", current.id)
+        trajectory = TrajectoryView(self.step, (sim.cell, *sim.path)) if sim.path else None
+        phase = task.purpose if task else "idle"
+        return DroneView(sim.id, sim.cell, Position(p.lat, p.lon, p.alt_m), round(sim.battery, 1), "GUIDED", phase,
+                         task, trajectory, tuple(m.id for m in sim.queue),
+                         current.id if current is not None and sim.carrying else None, Health(True), self.step)
+
+    def _report(self, mail_id: str, drone: str, status: ReportStatus, reason: str = "") -> None:
+        self.report(MailStatusReport(mail_id, drone, status, reason, self.step, time.time()))
+
