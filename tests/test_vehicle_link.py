@@ -91,8 +91,7 @@ async def fake_vehicle(personality: str, transport: str, **vehicle: Any) -> Asyn
     """One fake vehicle in this event loop; ``url`` is how a ground station reaches it."""
     tcp = transport == "tcp"
     port = free_port(socket.SOCK_STREAM if tcp else socket.SOCK_DGRAM)
-    settings: dict[str, Any] = {"ready_after_s": 1.0, "auto_disarm_s": 60.0, "offboard_timeout_s": 5.0,
-                                "offboard_min_rate_hz": 0.5, **vehicle}
+    settings: dict[str, Any] = {"ready_after_s": 1.0, "auto_disarm_s": 60.0, "offboard_timeout_s": 5.0, **vehicle}
     config = FleetConfig(vehicle=VehicleConfig(personality=PERSONALITIES[personality], **settings), tcp=tcp,
                          base_port=port, speedup=SPEEDUP)
     stop, started = asyncio.Event(), asyncio.Event()

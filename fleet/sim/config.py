@@ -18,8 +18,7 @@ class VehicleConfig:
     auto_disarm_s: float = 10.0  #: armed on the ground without takeoff: disarms after this
     min_arm_battery_pct: int = 20
     battery_pct: float = 100.0
-    offboard_timeout_s: float = 0.5  #: PX4: no setpoint for this long leaves OFFBOARD
-    offboard_min_rate_hz: float = 2.0
+    offboard_timeout_s: float = 0.5  #: PX4: no setpoint for this long leaves OFFBOARD (a stream under 2 Hz)
     guided_velocity_timeout_s: float = 3.0  #: ArduCopter: a velocity setpoint older than this stops
     rtl_alt_m: float = 15.0
     takeoff_alt_m: float = 2.5  #: PX4's MIS_TAKEOFF_ALT, when the command gives none

@@ -300,12 +300,15 @@ class VehicleModel:
             self.takeoff_point = None
 
     def streaming(self, now: float) -> bool:
-        """PX4: are setpoints arriving at >= offboard_min_rate_hz, the last one recently?"""
-        times, cfg = self.setpoint_times, self.config
-        if not times or now - times[-1] > cfg.offboard_timeout_s:
-            return False
-        window = 2.0 / cfg.offboard_min_rate_hz
-        return sum(1 for t in times if now - t <= window) >= 2
+        """PX4: is a setpoint stream on, its last setpoint within the offboard timeout?
+
+        Like PX4 (COM_OF_LOSS_T), only the age of the last setpoint counts: a client that
+        sends one setpoint and then asks for OFFBOARD (MAVSDK's documented sequence, its
+        20 Hz stream starting with that setpoint) is let in; a stream slower than
+        1 / offboard_timeout_s leaves OFFBOARD.
+        """
+        times = self.setpoint_times
+        return bool(times) and now - times[-1] <= self.config.offboard_timeout_s
 
     def _cmd_takeoff(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
         p = self.personality
