@@ -268,6 +268,17 @@ def test_a_peer_leaving_is_no_longer_waited_for_but_its_whole_plan_stays_an_obst
     assert check_trajectory(OPEN, action.trajectory, action.psi, 0) == []
 
 
+def test_a_peer_leaving_long_after_its_plan_holds_only_where_it_ended() -> None:
+    proto = machine()
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    b_plan = traj(1, (4, 4), (4, 3), (4, 2), (4, 1))  # done by step 4
+    proto.handle(CurrentTraj("b", b_plan, ID_A), 0)
+    assert proto.handle(PeerLeft("b"), 30) == []
+    action = started(proto.handle(CurrentTraj("c", location_of("c"), ID_A), 30))
+    assert action.psi["b"].cells == ((4, 1, 0),)  # resting there, for good
+    assert not any(name.startswith("b#") for name in action.psi)  # the cells it flew through are free again
+
+
 def test_the_last_awaited_peer_leaving_lets_it_plan_with_its_last_known_trajectory() -> None:
     proto = machine()
     proto.handle(NewTask(Task(ID_A, GOAL)), 0)

@@ -29,8 +29,8 @@ settled here:
   steps ahead or behind; the planner's skew window covers exactly that.
 * **Membership can change.** ``PeerLeft`` means the drone's liveliness was
   lost: it is no longer waited for, and it stays in Psi as an obstacle:
-  safety first. Since it may have stopped anywhere along its last known
-  trajectory, every cell of that trajectory is held for good. ``PeerJoined``
+  safety first. Since it may have stopped anywhere along the rest of its
+  last known trajectory, every cell of that rest is held for good. ``PeerJoined``
   (again) makes it a peer; if I am coordinating, I ask it too.
 * **No plan found:** I stay where I am, answer my pending peers with my
   location, and report ``TaskFailed`` so the task planner retries or
@@ -167,8 +167,8 @@ class CoordinationProtocol:
 
     def ghost_obstacles(self) -> dict[str, Trajectory]:
         """Departed drones, for planning. One that left in the middle of a plan may have stopped
-        anywhere along it (its agent died; its autopilot holds), so every cell of that plan is
-        held for good, as if a drone rested there."""
+        anywhere along the rest of it (its agent died; its autopilot holds), so every cell of that
+        rest is held for good, as if a drone rested there."""
         held: dict[str, Trajectory] = {}
         for drone, trajectory in self.ghosts.items():
             for i, cell in enumerate(dict.fromkeys(trajectory.cells)):
@@ -229,7 +229,10 @@ class CoordinationProtocol:
         if event.drone not in self.members:
             return []
         self.members.discard(event.drone)
-        self.ghosts[event.drone] = self.received.pop(event.drone, self.known[event.drone])
+        last = self.received.pop(event.drone, self.known[event.drone])
+        # What it had flown by now (less the lead, which covers any skew) is behind it: only
+        # the rest of its plan is where it may have stopped.
+        self.ghosts[event.drone] = last.suffix_from(now - self.lead_steps)
         self.pending.pop(event.drone, None)
         return self._plan_if_ready(now) if self.state is State.COORDINATING else []
 

@@ -56,8 +56,10 @@ class FleetProcesses:
     drones: list[str]
     fleet: str = field(default_factory=lambda: f"it-{uuid.uuid4().hex[:8]}")
     offsets: dict[str, float] = field(default_factory=dict)  #: injected clock offsets, s
+    agent_options: tuple[str, ...] = ()  #: more `drona agent` options for every agent
     sim: subprocess.Popen[bytes] | None = None
     agents: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
+    others: list[subprocess.Popen[bytes]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self.workspace = self.tmp / "ws.yaml"
@@ -88,7 +90,13 @@ class FleetProcesses:
                 command += ["--connect", self.endpoint(other)]
         if drone in self.offsets:
             command += ["--clock-offset", str(self.offsets[drone])]
-        return command
+        return command + list(self.agent_options)
+
+    def spawn(self, name: str, arguments: list[str]) -> subprocess.Popen[bytes]:
+        """Another `drona` process of this run (stopped by :meth:`kill_all`), its output in ``<name>.log``."""
+        process = self._spawn(name, [*DRONA, *arguments])
+        self.others.append(process)
+        return process
 
     def _spawn(self, name: str, command: list[str]) -> subprocess.Popen[bytes]:
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
@@ -120,7 +128,7 @@ class FleetProcesses:
         return codes
 
     def kill_all(self) -> None:
-        for process in [*self.agents.values(), *([self.sim] if self.sim else [])]:
+        for process in [*self.others, *self.agents.values(), *([self.sim] if self.sim else [])]:
             if process.poll() is None:
                 process.kill()
                 process.wait(10)

@@ -9,6 +9,7 @@ from the published states.
 from __future__ import annotations
 
 import asyncio
+import json
 import random
 import signal
 from pathlib import Path
@@ -16,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from fleet.transport.wire import MailOrder, MailStatus
-from tests.integration.harness import FleetProcesses, Observer
+from tests.integration.harness import DRONA, FleetProcesses, Observer
 
 pytestmark = pytest.mark.slow
 
@@ -69,7 +70,6 @@ def test_agents_deliver_every_mail_without_collisions(tmp_path: Path, drones: in
 def test_an_agent_killed_mid_coordination_neither_blocks_the_others_nor_loses_its_mail(tmp_path: Path) -> None:
     fleet = FleetProcesses(tmp_path, ["d1", "d2", "d3", "d4"])
     doomed = MailOrder(id="doomed", pickup=[2, 6, 0], dropoff=[7, 6, 0], priority=5)
-    later = [MailOrder(id="after", pickup=[8, 3, 0], dropoff=[6, 7, 0], priority=3)]
     fleet.start()
     try:
         async def scenario() -> Observer:
@@ -84,7 +84,16 @@ def test_an_agent_killed_mid_coordination_neither_blocks_the_others_nor_loses_it
                 fleet.signal("d2", signal.SIGKILL)  # killed while it waits for d3
                 fleet.signal("d3", signal.SIGCONT)
                 await obs.until(lambda: "d2" not in obs.alive, 10, "d2's liveliness to go")
-                await obs.give(later[0], "d4")
+                # The operator's command line, as on a real fleet: it follows the mail until delivered.
+                mail = await asyncio.create_subprocess_exec(
+                    *DRONA, "mail", "--pickup", "8,3,0", "--dropoff", "6,7,0", "--priority", "3", "--drone", "d4",
+                    "--id", "after", "--wait", "--timeout", "120", "--fleet", fleet.fleet,
+                    "--connect", fleet.endpoint("d1"), "--connect", fleet.endpoint("d4"),
+                    stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
+                out, err = await asyncio.wait_for(mail.communicate(), 150)
+                assert mail.returncode == 0, err.decode()
+                lines = [json.loads(line) for line in out.decode().splitlines()]
+                assert lines[0]["status"] == "accepted" and lines[-1]["status"] == "delivered"
                 await obs.until(lambda: obs.delivered(["doomed", "after"]), 120, "both mails delivered")
                 return obs
 

@@ -1,0 +1,106 @@
+"""`drona serve` dispatching to real agents over Zenoh: a dead agent never leaves a mail stuck."""
+
+from __future__ import annotations
+
+import json
+import signal
+import socket
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+
+from fleet.sim.ports import free_port
+from tests.integration.harness import FleetProcesses
+
+pytestmark = pytest.mark.slow
+TOKEN = "service-fleet-token-0123456789"
+HEADERS = {"Authorization": f"Bearer {TOKEN}"}
+
+
+class Events:
+    """The service's /v1/events stream, folded into the latest mail and drone states."""
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self.mail: dict[str, dict[str, Any]] = {}
+        self.drones: dict[str, dict[str, Any]] = {}
+        self.lost: set[str] = set()
+
+    def until(self, condition: Callable[[], bool], timeout: float, what: str, logs: Callable[[], str]) -> None:
+        deadline = time.monotonic() + timeout
+        with httpx.stream("GET", f"{self.url}/v1/events", params={"access_token": TOKEN},
+                          timeout=httpx.Timeout(timeout, read=5.0)) as stream:
+            kind = ""
+            for line in stream.iter_lines():  # the service pings every few seconds: bounded by the deadline
+                if line.startswith("event: "):
+                    kind = line[7:]
+                elif line.startswith("data: "):
+                    self._take(kind, json.loads(line[6:]))
+                if condition():
+                    return
+                if time.monotonic() > deadline:
+                    break
+        raise AssertionError(f"timed out after {timeout:g} s waiting for {what}: {self.mail}\n{logs()}")
+
+    def _take(self, kind: str, data: dict[str, Any]) -> None:
+        if kind == "mail":
+            self.mail[data["id"]] = data
+        elif kind == "drone":
+            self.drones[data["id"]] = data
+        elif kind == "drone_lost":
+            self.lost.add(data["id"])
+
+    def status(self, mail: str) -> str | None:
+        return self.mail.get(mail, {}).get("status")
+
+
+def start_service(fleet: FleetProcesses, db: Path) -> str:
+    port = free_port(socket.SOCK_STREAM)
+    arguments = ["serve", "--workspace", str(fleet.workspace), "--db", str(db), "--port", str(port), "--demo",
+                 "--token", TOKEN, "--fleet", fleet.fleet, "--log-level", "warning"]
+    for drone in fleet.drones:
+        arguments += ["--connect", fleet.endpoint(drone)]
+    fleet.spawn("serve", arguments)
+    url = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:  # the port answers once uvicorn is up: nothing to wait on but it
+        try:
+            if httpx.get(f"{url}/readyz", timeout=1).status_code == 200:
+                return url
+        except httpx.TransportError:
+            time.sleep(0.2)
+    raise AssertionError(f"the service did not come up\n{fleet.logs()}")
+
+
+def test_a_dead_agent_never_leaves_its_mail_stuck_and_another_drone_delivers_it(tmp_path: Path) -> None:
+    fleet = FleetProcesses(tmp_path, ["d1", "d2"], agent_options=("--no-adopt-mail",))
+    fleet.start()
+    try:
+        url = start_service(fleet, tmp_path / "mail.db")
+        events = Events(url)
+        events.until(lambda: set(events.drones) == {"d1", "d2"}, 60, "both drones", fleet.logs)
+        first = httpx.post(f"{url}/v1/mail", headers=HEADERS, timeout=10,
+                           json={"pickup": [2, 2, 0], "dropoff": [7, 7, 0], "priority": 9}).json()["id"]
+        events.until(lambda: events.status(first) in ("assigned", "picked_up"), 30, "the first mail assigned",
+                     fleet.logs)
+        busy = events.mail[first]["drone"]
+        idle = "d2" if busy == "d1" else "d1"
+        fleet.signal(idle, signal.SIGSTOP)  # frozen: the service still sees it, and will give it the next mail
+        second = httpx.post(f"{url}/v1/mail", headers=HEADERS, timeout=10,
+                            json={"pickup": [8, 2, 0], "dropoff": [2, 8, 0], "priority": 5}).json()["id"]
+        fleet.signal(idle, signal.SIGKILL)
+        events.until(lambda: events.status(first) == events.status(second) == "delivered", 150,
+                     "both mails delivered", fleet.logs)
+        assert events.mail[second]["drone"] == busy
+        history = httpx.get(f"{url}/v1/mail/{second}", headers=HEADERS, timeout=10).json()["history"]
+        steps = [(h["status"], h["drone"]) for h in history]
+        # It went to the frozen drone first (the idle one), came back when that drone died, then flew.
+        assert ("assigned", idle) in steps and steps[-1] == ("delivered", busy), steps
+        assert steps.index(("assigned", idle)) < steps.index(("assigned", busy))
+        assert all(status != "failed" for status, _ in steps)
+    finally:
+        fleet.kill_all()

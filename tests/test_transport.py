@@ -1,0 +1,88 @@
+"""The fleet's wire format, keys and clock check: what crosses Zenoh is validated, and skew is judged right."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from drona_gcs.motion import Trajectory
+from drona_gcs.stack.messages import CurrentTraj, ReqForCurrentTraj, TaskId
+from fleet.agent.clocksync import ClockCheck, OffsetSample
+from fleet.transport.keys import FleetKeys, check_name
+from fleet.transport.wire import MailOrder, WireError, decode, encode, from_core, to_core
+
+TASK = TaskId(12, "d1", 3)
+
+
+@pytest.mark.parametrize("message", [
+    ReqForCurrentTraj(TASK, "d1"),
+    CurrentTraj("d1", Trajectory(40, ((1, 2, 0), (2, 2, 0))), TASK),
+])
+def test_protocol_messages_round_trip(message: object) -> None:
+    envelope = decode(encode("d1", 5.5, from_core(message)))  # type: ignore[arg-type]
+    assert envelope.sender == "d1" and envelope.sent_at == 5.5
+    assert to_core(envelope) == message
+
+
+def envelope(body: dict[str, object], **over: object) -> bytes:
+    return json.dumps({"v": 1, "sender": "d2", "sent_at": 1.0, "body": body, **over}).encode()
+
+
+@pytest.mark.parametrize("payload, problem", [
+    (b"not json", "Invalid JSON"),
+    (envelope({"kind": "clock_ping"}, v=2), "v: Input should be 1"),
+    (envelope({"kind": "teleport"}), "does not match any of the expected tags"),
+    (envelope({"kind": "req_traj", "task_id": {"stamp": "12", "drone": "d1", "seq": 1}}),
+     "body.req_traj.task_id.stamp"),
+    (envelope({"kind": "req_traj", "task_id": {"stamp": 1, "drone": "d1", "seq": 1}, "extra": 1}), "extra"),
+    (envelope({"kind": "cur_traj", "in_reply_to": {"stamp": 1, "drone": "d1", "seq": 1},
+               "trajectory": {"start_step": 3, "cells": []}}), "cells"),
+    (envelope({"kind": "mail", "id": "m/1", "pickup": [1, 2, 0], "dropoff": [3, 4, 0], "priority": 5}), "id"),
+    (envelope({"kind": "mail", "id": "m1", "pickup": [1, 2, 0], "dropoff": [3, 4, 0], "priority": 10}),
+     "priority"),
+])
+def test_a_malformed_or_foreign_payload_is_refused_naming_what_is_wrong(payload: bytes, problem: str) -> None:
+    with pytest.raises(WireError, match="malformed message") as caught:
+        decode(payload)
+    assert problem in str(caught.value)
+
+
+def test_a_non_protocol_body_is_not_taken_for_a_protocol_message() -> None:
+    order = MailOrder(id="m1", pickup=[1, 2, 0], dropoff=[3, 4, 0], priority=5)
+    with pytest.raises(WireError, match="not a protocol message"):
+        to_core(decode(encode("cli", 0.0, order)))
+
+
+def test_keys_live_under_the_fleet_and_names_must_be_single_chunks() -> None:
+    keys = FleetKeys("north")
+    assert keys.proto("d1") == "drona/north/proto/d1"
+    assert keys.alive() == "drona/north/alive/*"
+    assert keys.last_chunk(keys.status("m-1")) == "m-1"
+    for bad in ("a/b", "*", "", "d 1"):
+        with pytest.raises(ValueError, match="Zenoh key chunk"):
+            check_name("drone", bad)
+
+
+def test_offset_is_measured_from_the_round_trip_midpoint() -> None:
+    sample = OffsetSample.measure(sent=100.0, peer_time=100.31, received=100.02)
+    assert sample.offset_s == pytest.approx(0.30)
+    assert sample.error_s == pytest.approx(0.01)
+
+
+def test_skew_is_an_alarm_only_when_provably_beyond_beta() -> None:
+    check = ClockCheck(beta_s=0.2)
+    check.observe("d2", OffsetSample(0.205, 0.01))  # could be 0.195: within beta
+    check.observe("d3", OffsetSample(-0.15, 0.001))
+    assert check.alarm() is None
+    check.observe("d4", OffsetSample(-0.35, 0.01))
+    alarm = check.alarm()
+    assert alarm is not None and "d4" in alarm and "-350.0 ms" in alarm
+    check.forget("d4")
+    assert check.alarm() is None
+
+
+def test_beta_zero_does_not_alarm_on_loopback_noise() -> None:
+    check = ClockCheck(beta_s=0.0)
+    check.observe("d2", OffsetSample(0.00004, 0.0001))
+    assert check.violations() == {}
