@@ -42,7 +42,7 @@ class Result:
     rate: float  #: asked, per second
     seconds: float
     connections: int
-    drones: int
+    drones: int  #: simulated drones of the service started here (0: a running service given by --url)
     sent: int
     created: int  #: 201 answers
     errors: int  #: other answers and failed connections
@@ -151,7 +151,8 @@ async def _pairs_of_remote(url: str, token: str, rng: random.Random) -> list[Pai
         raise ValueError(f"GET /v1/workspace answered {status}")
     data = json.loads(body)
     ws = Workspace.build(size=tuple(data["size"]), obstacles=frozenset(tuple(c) for c in data["obstacles"]),
-                         charging_stations=tuple(tuple(c) for c in data["charging_stations"]))
+                         charging_stations=tuple(tuple(c) for c in data["charging_stations"]),
+                         parking=tuple(tuple(c) for c in data.get("parking", ())))
     return _pairs(ws, rng)
 
 
@@ -239,7 +240,8 @@ def _result(args: argparse.Namespace, seconds: float, latencies: list[float], co
 
     achieved = counts["created_measured"] / seconds
     p99 = pct(0.99)
-    return Result(args.rate, seconds, args.connections, args.sim_drones, counts["sent"], counts["created"],
+    return Result(args.rate, seconds, args.connections, 0 if args.url else args.sim_drones, counts["sent"],
+                  counts["created"],
                   counts["errors"], round(achieved, 1), round(statistics.median(lat), 2), pct(0.90), p99,
                   round(lat[-1], 2), stored,
                   achieved >= min(args.rate, TARGET_RATE) * 0.99 and p99 <= TARGET_P99_MS and counts["errors"] == 0
@@ -251,8 +253,9 @@ def _print(result: Result, as_json: bool) -> None:
         print(json.dumps(asdict(result)), flush=True)
         return
     r = result
+    fleet = f"{r.drones} simulated drones flying" if r.drones else "the service's own fleet flying"
     print(f"mail submissions, open loop at {r.rate:.0f}/s for {r.seconds:.0f} s over {r.connections} connections, "
-          f"{r.drones} simulated drones flying")
+          f"{fleet}")
     print(f"  201 answers   {r.created} of {r.sent} sent ({r.errors} errors); {r.achieved:.1f}/s measured")
     print(f"  latency ms    p50 {r.p50_ms:.2f}  p90 {r.p90_ms:.2f}  p99 {r.p99_ms:.2f}  max {r.max_ms:.2f}")
     if r.stored is not None:

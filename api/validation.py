@@ -1,7 +1,8 @@
 """Checks of a mail request against the workspace and the drones' energy rules.
 
-A pickup or drop-off must be in the grid, free, and in the main free region (or no
-drone can reach it). Then the energy rule: the request is refused when no drone
+A pickup or drop-off must be in the grid, free, in the main free region (or no
+drone can reach it) and not a charging station or parking cell (the drones' own rule,
+:func:`drona_gcs.stack.mail.mail_cell_problem`). Then the energy rule: the request is refused when no drone
 with a charged battery could fly it. That verdict is the drones' own: a
 :class:`drona_gcs.stack.mail.MailPlanner` at a charging station, with the battery
 at the level where charging ends, is given the mail and asked to decide; it
@@ -18,7 +19,7 @@ from functools import lru_cache
 from drona_gcs.planner.grid import GridIndex
 from drona_gcs.planner.heuristic import UNREACHABLE, DistanceGraph, GoalDistance
 from drona_gcs.stack.battery import BatteryModel
-from drona_gcs.stack.mail import MailPlanner, MailRejected, MailRequest
+from drona_gcs.stack.mail import MailPlanner, MailRejected, MailRequest, mail_cell_problem
 from drona_gcs.workspace import Cell, Workspace
 
 #: What a distance is when there is no path (as the drones' own distance function).
@@ -31,7 +32,7 @@ class Problem:
 
     field: str
     message: str
-    kind: str  #: a short machine-readable code: out_of_bounds, obstacle, unreachable, same_cell, energy
+    kind: str  #: a short machine-readable code: out_of_bounds, obstacle, unreachable, rest_spot, same_cell, energy
 
 
 class MailChecker:
@@ -68,15 +69,8 @@ class MailChecker:
         return [energy] if energy is not None else []
 
     def check_cell(self, name: str, cell: Cell) -> Problem | None:
-        ws = self.ws
-        if not ws.in_bounds(cell):
-            return Problem(name, f"cell {list(cell)} is outside the grid {list(ws.size)}", "out_of_bounds")
-        if cell in ws.obstacles:
-            return Problem(name, f"cell {list(cell)} is on an obstacle", "obstacle")
-        if cell not in ws.main_region:
-            return Problem(name, f"cell {list(cell)} is walled off from the main free region: no drone can reach it",
-                           "unreachable")
-        return None
+        found = mail_cell_problem(self.ws, cell)
+        return Problem(name, found[1], found[0]) if found is not None else None
 
     def _verdict(self, pickup: Cell, dropoff: Cell) -> Problem | None:
         chargers = self.ws.charging_stations

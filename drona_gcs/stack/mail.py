@@ -42,10 +42,28 @@ from dataclasses import dataclass, field
 
 from drona_gcs.errors import ProblemError, ProtocolViolation
 from drona_gcs.stack.battery import BatteryModel
-from drona_gcs.workspace import Cell
+from drona_gcs.workspace import Cell, Workspace
 
 #: distance(a, b): steps of the shortest static path from a to b (large if none).
 Distance = Callable[[Cell, Cell], int]
+
+
+def mail_cell_problem(workspace: Workspace, cell: Cell) -> tuple[str, str] | None:
+    """Why ``cell`` cannot be a pickup or drop-off, as ``(kind, message)``; None if it can.
+
+    Besides the grid's rules: never a charging station or parking cell, where a drone may
+    rest for good (its goal would be another drone's resting cell). One rule, used by the
+    agents that take mail and by the service that accepts it.
+    """
+    if not workspace.in_bounds(cell):
+        return "out_of_bounds", f"cell {list(cell)} is outside the grid {list(workspace.size)}"
+    if cell in workspace.obstacles:
+        return "obstacle", f"cell {list(cell)} is on an obstacle"
+    if cell not in workspace.main_region:
+        return "unreachable", f"cell {list(cell)} is walled off from the main free region: no drone can reach it"
+    if cell in workspace.charging_stations or cell in workspace.parking:
+        return "rest_spot", f"cell {list(cell)} is a charging station or parking cell, where drones rest"
+    return None
 
 
 @dataclass(frozen=True)

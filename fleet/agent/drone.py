@@ -32,7 +32,15 @@ from drona_gcs.errors import ProblemError
 from drona_gcs.geo import GeoFrame
 from drona_gcs.stack.battery import BatteryLow, BatteryRecharged
 from drona_gcs.stack.drone import DroneAction, DroneStack
-from drona_gcs.stack.mail import GoTo, MailDelivered, MailPickedUp, MailRejected, MailRequest, MailStarted
+from drona_gcs.stack.mail import (
+    GoTo,
+    MailDelivered,
+    MailPickedUp,
+    MailRejected,
+    MailRequest,
+    MailStarted,
+    mail_cell_problem,
+)
 from drona_gcs.stack.protocol import Broadcast, Send, StartExecuting, State, TaskFailed
 from drona_gcs.workspace import Cell, Workspace
 from fleet.agent.clocksync import ClockCheck, OffsetSample
@@ -328,15 +336,9 @@ class DroneAgent:
 
     def _mail_cell(self, name: str, values: list[int]) -> Cell:
         cell: Cell = (values[0], values[1], values[2])
-        ws = self.ws
-        if not ws.in_bounds(cell):
-            raise ProblemError(f"{name} {values} is outside the {'x'.join(map(str, ws.size))} grid")
-        if cell in ws.obstacles:
-            raise ProblemError(f"{name} {values} is on an obstacle")
-        if cell not in ws.main_region:
-            raise ProblemError(f"{name} {values} cannot be reached from the rest of the grid")
-        if cell in ws.charging_stations or cell in ws.parking:
-            raise ProblemError(f"{name} {values} is a charging station or parking cell, where drones rest")
+        found = mail_cell_problem(self.ws, cell)
+        if found is not None:
+            raise ProblemError(f"{name}: {found[1]}")
         return cell
 
     def _held_mail(self) -> list[MailView]:

@@ -25,6 +25,14 @@ def test_cells_are_checked_in_turn(workspace: Workspace) -> None:
     assert kinds == [("pickup", "obstacle"), ("dropoff", "unreachable")]
 
 
+def test_chargers_and_parking_cells_are_refused_as_the_drones_refuse_them() -> None:
+    ws = Workspace.build(size=(8, 8, 1), charging_stations=((0, 0, 0),), parking=((7, 7, 0),))
+    checker = MailChecker(ws)
+    kinds = [(p.field, p.kind) for p in checker.check((0, 0, 0), (7, 7, 0))]
+    assert kinds == [("pickup", "rest_spot"), ("dropoff", "rest_spot")]
+    assert checker.check((1, 0, 0), (6, 7, 0)) == []
+
+
 def test_the_energy_rule_is_the_drones_own() -> None:
     """Accepted exactly when a drone's mail planner, charged at a station, does not reject it."""
     ws = corridor()
