@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 from collections.abc import AsyncIterator
+from typing import Any
 
 
 async def periodic(period: float) -> AsyncIterator[None]:
@@ -17,7 +18,7 @@ async def periodic(period: float) -> AsyncIterator[None]:
         await asyncio.sleep(next_at - loop.time())
 
 
-async def cancel_all(tasks: list[asyncio.Task[None]]) -> None:
+async def cancel_all(tasks: list[asyncio.Task[Any]]) -> None:
     """Cancel ``tasks`` and wait until each has finished; the list is emptied."""
     for task in tasks:
         task.cancel()

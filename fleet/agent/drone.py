@@ -14,9 +14,8 @@ Membership is Zenoh liveliness: a peer whose token goes is the protocol's
 ``PeerJoined`` where it was last heard of. At start-up,
 peers not alive are marked left, so nobody waits for a drone that never came.
 
-When a peer leaves, the live drone with the smallest name (its *heir*)
-takes over the mail the departed drone had not picked up yet, and reports
-the mail it was carrying as failed: mail is never silently lost.
+Mail orders, cancellations, progress and the heir's adoption of a departed
+peer's mail live in :mod:`fleet.agent.maildesk`.
 """
 
 from __future__ import annotations
@@ -28,7 +27,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TextIO
 
-from drona_gcs.errors import ProblemError
 from drona_gcs.geo import GeoFrame
 from drona_gcs.stack.battery import BatteryLow, BatteryRecharged
 from drona_gcs.stack.drone import DroneAction, DroneStack
@@ -37,13 +35,12 @@ from drona_gcs.stack.mail import (
     MailDelivered,
     MailPickedUp,
     MailRejected,
-    MailRequest,
     MailStarted,
-    mail_cell_problem,
 )
 from drona_gcs.stack.protocol import Broadcast, Send, StartExecuting, State, TaskFailed
 from drona_gcs.workspace import Cell, Workspace
 from fleet.agent.clocksync import ClockCheck, OffsetSample
+from fleet.agent.maildesk import MailDesk
 from fleet.agent.vehicle import VehicleSupervisor
 from fleet.executor import StepReport
 from fleet.transport.keys import FleetKeys
@@ -53,13 +50,6 @@ from fleet.transport.wire import (
     ClockPong,
     DroneState,
     Health,
-    HeldMail,
-    MailAck,
-    MailCancel,
-    MailOrder,
-    MailStatus,
-    MailStatusReport,
-    MailView,
     TaskView,
     WireError,
     WireTrajectory,
@@ -98,18 +88,13 @@ class DroneAgent:
         self.vehicle = VehicleSupervisor(
             self.me, link, frame.layer_height_m(stack.executor.cell[2]), lambda text: self._alarm("vehicle", text),
             target=lambda: frame.cell_to_ned(stack.executor.cell), arrival_m=ARRIVAL_FRACTION * self.ws.cell_size_m)
-        self.peer_mail: dict[str, list[MailView]] = {}  #: what each peer last said it holds
-        self.published_mail: list[MailView] | None = None
         self.alive: set[str] = set()
-        self.mail_seq = 0
-        self.finished_mail: set[str] = set()  #: delivered or handed back: a repeated order is acknowledged only
         self.actual: Cell | None = None
         self.battery_pct = 100.0
         self.may_plan = True
-        self.accepting = True  #: False once shutting down: no new mail, no new tasks
         self.task_since: float | None = None
         self.metrics = Metrics()
-        self.adopt_mail = True  #: off when a service dispatches the mail (it reassigns a lost drone's)
+        self.mail = MailDesk(stack, node, keys, clock, on_change=self.publish_state_soon)
         self._state_scheduled = False
 
     # ------------------------------------------------------------ start-up
@@ -118,16 +103,11 @@ class DroneAgent:
         node, keys = self.node, self.keys
         node.subscribe(keys.proto(self.me), self._on_protocol)
         node.subscribe(keys.proto(BROADCAST), self._on_protocol)
-        node.subscribe(keys.held(), self._on_peer_mail)
-        node.queryable(keys.held(self.me), self._on_held_query)
-        node.queryable(keys.assign(self.me), self._on_mail_order)
-        node.queryable(keys.cancel(self.me), self._on_mail_cancel)
         node.queryable(keys.state(self.me), self._on_state_query)
         node.queryable(keys.clock(self.me), self._on_clock_query)
         node.watch_liveliness(keys.alive(), self._on_liveliness)
         node.token(keys.alive(self.me))
-        for reply in await node.get(keys.held(), b"", 1.0):
-            self._on_peer_mail(reply.key, reply.payload)
+        await self.mail.open()
         present = {keys.last_chunk(k) for k in await node.alive(keys.alive())}
         for peer in self.stack.protocol.peers:
             if peer != self.me and peer not in present | self.alive:
@@ -138,7 +118,7 @@ class DroneAgent:
     def tick(self, step: int) -> Sequence[object]:
         """The setpoint loop's boundary: the whole stack steps (executor, battery, task planner)."""
         level = self._battery()
-        actions = self.stack.step(step, level, may_plan=self.may_plan and self.accepting)
+        actions = self.stack.step(step, level, may_plan=self.may_plan and self.mail.accepting)
         self._carry_out(actions)
         return actions
 
@@ -195,7 +175,7 @@ class DroneAgent:
                 self.metrics.failures += 1
                 log.warning("%s: no plan for task %s: %s", self.me, action.task.id, action.reason)
             elif isinstance(action, (MailStarted, MailPickedUp, MailDelivered, MailRejected)):
-                self._mail_progress(action)
+                self.mail.progress(action)
             elif isinstance(action, (BatteryLow, BatteryRecharged)):
                 log.info("%s: battery %s", self.me, type(action).__name__)
 
@@ -217,21 +197,6 @@ class DroneAgent:
         self.vehicle.want_airborne(True)
         self.publish_state_soon()  # after the answers to the peers that waited for this plan
 
-    def _mail_progress(self, action: MailStarted | MailPickedUp | MailDelivered | MailRejected) -> None:
-        status = {MailStarted: MailStatus.STARTED, MailPickedUp: MailStatus.PICKED_UP,
-                  MailDelivered: MailStatus.DELIVERED, MailRejected: MailStatus.REJECTED}[type(action)]
-        reason = action.reason if isinstance(action, MailRejected) else ""
-        if status in (MailStatus.DELIVERED, MailStatus.REJECTED):
-            self.finished_mail.add(action.request.id)
-        self.report_mail(action.request.id, status, reason)
-        self.publish_held()
-
-    def report_mail(self, mail_id: str, status: MailStatus, reason: str = "", drone: str | None = None) -> None:
-        report = MailStatusReport(id=mail_id, drone=drone or self.me, status=status, step=self.stack.now,
-                                  reason=reason)
-        self.node.put(self.keys.status(mail_id), encode(self.me, self.clock(), report))
-        log.info("%s: mail %s %s%s", self.me, mail_id, status.value, f" ({reason})" if reason else "")
-
     # ------------------------------------------------------------- inbound
     def _on_protocol(self, key: str, payload: bytes) -> None:
         try:
@@ -247,26 +212,6 @@ class DroneAgent:
             return
         self._carry_out(self.stack.receive(message))
 
-    def _on_peer_mail(self, key: str, payload: bytes) -> None:
-        try:
-            body = decode(payload).body
-        except WireError as exc:
-            log.warning("%s: dropped a mail list on %s: %s", self.me, key, exc)
-            return
-        if isinstance(body, HeldMail) and body.drone != self.me and body.drone in self.stack.protocol.peers:
-            self.peer_mail[body.drone] = body.mail
-
-    def _on_held_query(self, key: str, payload: bytes, query: Query) -> None:
-        held = HeldMail(drone=self.me, mail=self._held_mail())
-        query.reply(self.keys.held(self.me), encode(self.me, self.clock(), held))
-
-    def publish_held(self) -> None:
-        """Say what mail I hold, when it changed: my heir needs it if I go."""
-        held = self._held_mail()
-        if held != self.published_mail:
-            self.published_mail = held
-            self.node.put(self.keys.held(self.me), encode(self.me, self.clock(), HeldMail(drone=self.me, mail=held)))
-
     def _on_liveliness(self, key: str, alive: bool) -> None:
         peer = self.keys.last_chunk(key)
         if peer == self.me:
@@ -281,7 +226,7 @@ class DroneAgent:
             self.alive.discard(peer)
             self.clocks.forget(peer)
             self._carry_out(self.stack.peer_left(peer))
-            self._adopt_mail_of(peer)
+            self.mail.adopt_from(peer, self.alive)
 
     def _joined(self, peer: str) -> None:
         """A peer (re)joined: take it where it was last heard of (its start, if never). A coordinating
@@ -289,81 +234,6 @@ class DroneAgent:
         last = self.stack.protocol.known.get(peer)
         cell = last.last if last is not None else self.stack.protocol.peers[peer]
         self._carry_out(self.stack.peer_joined(peer, cell, last))
-
-    # ------------------------------------------------------------------ mail
-    def _on_mail_order(self, key: str, payload: bytes, query: Query) -> None:
-        order_id = "?"
-        try:
-            body = decode(payload).body
-            if not isinstance(body, MailOrder):
-                raise WireError(f"expected a mail order, got {body.kind}")
-            order_id = body.id
-            accepted = self.take_mail(body)
-            ack = MailAck(id=body.id, drone=self.me, accepted=True, reason="" if accepted else "already held")
-        except (WireError, ProblemError) as exc:
-            ack = MailAck(id=order_id, drone=self.me, accepted=False, reason=str(exc))
-        query.reply(self.keys.assign(self.me), encode(self.me, self.clock(), ack))
-
-    def _on_mail_cancel(self, key: str, payload: bytes, query: Query) -> None:
-        try:
-            body = decode(payload).body
-            if not isinstance(body, MailCancel):
-                raise WireError(f"expected a mail cancel, got {body.kind}")
-        except WireError as exc:
-            log.warning("%s: dropped a cancel on %s: %s", self.me, key, exc)
-            return
-        dropped = self.stack.cancel(body.id)
-        if dropped:
-            self.finished_mail.add(body.id)
-            self.report_mail(body.id, MailStatus.CANCELLED)
-            self.publish_held()
-        ack = MailAck(id=body.id, drone=self.me, accepted=dropped, reason="" if dropped else "under way or unknown")
-        query.reply(self.keys.cancel(self.me), encode(self.me, self.clock(), ack))
-
-    def take_mail(self, order: MailOrder) -> bool:
-        """Queue ``order``; False if this drone already has it (a repeated order). ProblemError if unusable."""
-        if not self.accepting:
-            raise ProblemError(f"drone {self.me} is shutting down")
-        if order.id in self.finished_mail or any(m.id == order.id for m in self._held_mail()):
-            return False
-        pickup, dropoff = self._mail_cell("pickup", order.pickup), self._mail_cell("dropoff", order.dropoff)
-        self.mail_seq += 1
-        self.stack.assign(MailRequest(order.id, pickup, dropoff, order.priority, seq=self.mail_seq))
-        self.report_mail(order.id, MailStatus.ACCEPTED)
-        self.publish_held()
-        self.publish_state()
-        return True
-
-    def _mail_cell(self, name: str, values: list[int]) -> Cell:
-        cell: Cell = (values[0], values[1], values[2])
-        found = mail_cell_problem(self.ws, cell)
-        if found is not None:
-            raise ProblemError(f"{name}: {found[1]}")
-        return cell
-
-    def _held_mail(self) -> list[MailView]:
-        planner = self.stack.mail
-        held = []
-        if planner.current is not None:
-            held.append(_view(planner.current, "carrying" if planner.carrying else "current"))
-        held += [_view(r, "queued") for r in sorted(planner.queue, key=lambda r: r.rank)]
-        return held
-
-    def _adopt_mail_of(self, peer: str) -> None:
-        """The heir (smallest live name) takes over what ``peer`` held and had not picked up."""
-        held = self.peer_mail.pop(peer, [])
-        if not held or not self.adopt_mail or min(self.alive | {self.me}) != self.me:
-            return
-        for mail in held:
-            if mail.stage == "carrying":
-                self.report_mail(mail.id, MailStatus.FAILED, f"drone {peer} left carrying it", drone=peer)
-                continue
-            order = MailOrder(id=mail.id, pickup=mail.pickup, dropoff=mail.dropoff, priority=mail.priority)
-            try:
-                if self.take_mail(order):
-                    self.report_mail(mail.id, MailStatus.REASSIGNED, f"drone {peer} left")
-            except ProblemError as exc:
-                self.report_mail(mail.id, MailStatus.FAILED, f"drone {peer} left; cannot take it over: {exc}")
 
     # ----------------------------------------------------------------- state
     def state(self) -> DroneState:
@@ -381,7 +251,7 @@ class DroneAgent:
             actual=list(self.actual) if self.actual else None,
             position=(geo.lat, geo.lon, geo.alt_m) if geo else None, battery_pct=self.battery_pct,
             mode=protocol.state.value, phase=planner.phase.value, landed=stack.landed, task=task,
-            trajectory=WireTrajectory.of(trajectory) if trajectory else None, mail=self._held_mail(),
+            trajectory=WireTrajectory.of(trajectory) if trajectory else None, mail=self.mail.held(),
             health=Health(ok=not alarms, alarms=alarms),
             clock_offset_s={p: round(s.offset_s, 6) for p, s in sorted(self.clocks.peers.items())},
             plans=self.metrics.plans, messages_sent=self.metrics.messages_sent,
@@ -433,9 +303,4 @@ class DroneAgent:
     def busy(self) -> bool:
         """Flying a plan or coordinating one: not yet safe to leave."""
         return self.stack.protocol.state is not State.WAIT_FOR_TASK or self.stack.executor.flying
-
-
-def _view(request: MailRequest, stage: str) -> MailView:
-    return MailView(id=request.id, pickup=list(request.pickup), dropoff=list(request.dropoff),
-                    priority=request.priority, stage=stage)  # type: ignore[arg-type]
 

@@ -30,7 +30,7 @@ from drona_gcs.stack.drone import DroneStack, StackConfig
 from drona_gcs.workspace import Workspace
 from fleet.agent.drone import BROADCAST, DroneAgent
 from fleet.agent.settings import AgentSettings
-from fleet.clock import cancel_all
+from fleet.clock import cancel_all, periodic
 from fleet.executor import SetpointFleet, SetpointLoop, StepReport
 from fleet.transport.keys import FleetKeys, check_name
 from fleet.transport.node import ZenohNode, ZenohSettings, agent_endpoint
@@ -136,7 +136,7 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
         for node, link, name in zip(nodes, links, host.names, strict=True):
             stack = DroneStack(name, config, ws.drones)
             agent = DroneAgent(stack, node, keys, link, frame, host.clock, record)
-            agent.adopt_mail = settings.adopt_mail
+            agent.mail.adopt = settings.adopt_mail
             host.agents.append(agent)
         for agent in host.agents:
             await agent.start()
@@ -184,7 +184,7 @@ async def _fly(host: Host, frame: GeoFrame, record: TextIO | None) -> None:
         clocks = group.create_task(_check_clocks(host))
         await host.draining.wait()
         for agent in host.agents:
-            agent.accepting = False
+            agent.mail.accepting = False
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(_first(host.drained, host.hurry), _drain_bound(host))
         await _land_all(host)
@@ -227,10 +227,8 @@ async def _first_of(*waits: Awaitable[object]) -> None:
 
 
 async def _check_clocks(host: Host) -> None:
-    period = host.settings.clock_check_s
-    while True:
+    async for _ in periodic(host.settings.clock_check_s):  # a measurement period, not a wait for an event
         await asyncio.gather(*(agent.check_clocks() for agent in host.agents))
-        await asyncio.sleep(period)  # a measurement period, not a wait for an event
 
 
 def install_signals(host: Host) -> None:

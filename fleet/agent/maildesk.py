@@ -1,0 +1,176 @@
+"""A drone's mail desk: orders and cancellations taken, progress reported, holdings published,
+and the mail of a departed peer adopted by its heir.
+
+Orders are Zenoh queries on ``mail/assign/<me>``, answered accepted (a repeated
+order too: it is not a second mail) or refused with the reason; cancellations
+on ``mail/cancel/<me>`` drop a mail still waiting. What the drone holds goes out
+on ``held/<me>`` whenever it changes, so that when a drone leaves, the live
+drone with the smallest name (its *heir*) can take over what it had not picked
+up and report what it carried as failed: mail is never silently lost.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Collection
+
+from drona_gcs.errors import ProblemError
+from drona_gcs.stack.drone import DroneStack
+from drona_gcs.stack.mail import MailDelivered, MailPickedUp, MailRejected, MailRequest, MailStarted, mail_cell_problem
+from drona_gcs.workspace import Cell
+from fleet.transport.keys import FleetKeys
+from fleet.transport.node import Query, ZenohNode
+from fleet.transport.wire import (
+    HeldMail,
+    MailAck,
+    MailCancel,
+    MailOrder,
+    MailStatus,
+    MailStatusReport,
+    MailView,
+    WireError,
+    decode,
+    encode,
+)
+
+log = logging.getLogger(__name__)
+
+MailProgress = MailStarted | MailPickedUp | MailDelivered | MailRejected
+PROGRESS = {MailStarted: MailStatus.STARTED, MailPickedUp: MailStatus.PICKED_UP,
+            MailDelivered: MailStatus.DELIVERED, MailRejected: MailStatus.REJECTED}
+
+
+class MailDesk:
+    def __init__(self, stack: DroneStack, node: ZenohNode, keys: FleetKeys, clock: Callable[[], float],
+                 on_change: Callable[[], None]) -> None:
+        self.me, self.stack, self.node, self.keys, self.clock = stack.me, stack, node, keys, clock
+        self.on_change = on_change  #: the drone's state changed (a mail taken)
+        self.accepting = True  #: False once shutting down: no new mail
+        self.adopt = True  #: off when a service dispatches the mail (it reassigns a lost drone's)
+        self.seq = 0
+        self.finished: set[str] = set()  #: delivered, handed back or cancelled: a repeated order is only acknowledged
+        self.peer_mail: dict[str, list[MailView]] = {}  #: what each peer last said it holds
+        self.published: list[MailView] | None = None
+
+    async def open(self) -> None:
+        node, keys = self.node, self.keys
+        node.subscribe(keys.held(), self._on_peer_mail)
+        node.queryable(keys.held(self.me), self._on_held_query)
+        node.queryable(keys.assign(self.me), self._on_order)
+        node.queryable(keys.cancel(self.me), self._on_cancel)
+        for reply in await node.get(keys.held(), b"", 1.0):  # what the peers already hold
+            self._on_peer_mail(reply.key, reply.payload)
+
+    # ------------------------------------------------------------ orders
+    def _on_order(self, key: str, payload: bytes, query: Query) -> None:
+        order_id = "?"
+        try:
+            body = decode(payload).body
+            if not isinstance(body, MailOrder):
+                raise WireError(f"expected a mail order, got {body.kind}")
+            order_id = body.id
+            taken = self.take(body)
+            ack = MailAck(id=body.id, drone=self.me, accepted=True, reason="" if taken else "already held")
+        except (WireError, ProblemError) as exc:
+            ack = MailAck(id=order_id, drone=self.me, accepted=False, reason=str(exc))
+        query.reply(self.keys.assign(self.me), encode(self.me, self.clock(), ack))
+
+    def _on_cancel(self, key: str, payload: bytes, query: Query) -> None:
+        try:
+            body = decode(payload).body
+            if not isinstance(body, MailCancel):
+                raise WireError(f"expected a mail cancel, got {body.kind}")
+        except WireError as exc:
+            log.warning("%s: dropped a cancel on %s: %s", self.me, key, exc)
+            return
+        dropped = self.stack.cancel(body.id)
+        if dropped:
+            self.finished.add(body.id)
+            self.report(body.id, MailStatus.CANCELLED)
+            self.publish_held()
+        ack = MailAck(id=body.id, drone=self.me, accepted=dropped, reason="" if dropped else "under way or unknown")
+        query.reply(self.keys.cancel(self.me), encode(self.me, self.clock(), ack))
+
+    def take(self, order: MailOrder) -> bool:
+        """Queue ``order``; False if this drone already has it (a repeated order). ProblemError if unusable."""
+        if not self.accepting:
+            raise ProblemError(f"drone {self.me} is shutting down")
+        if order.id in self.finished or any(m.id == order.id for m in self.held()):
+            return False
+        pickup, dropoff = self._cell("pickup", order.pickup), self._cell("dropoff", order.dropoff)
+        self.seq += 1
+        self.stack.assign(MailRequest(order.id, pickup, dropoff, order.priority, seq=self.seq))
+        self.report(order.id, MailStatus.ACCEPTED)
+        self.publish_held()
+        self.on_change()
+        return True
+
+    def _cell(self, name: str, values: list[int]) -> Cell:
+        cell: Cell = (values[0], values[1], values[2])
+        found = mail_cell_problem(self.stack.config.workspace, cell)
+        if found is not None:
+            raise ProblemError(f"{name}: {found[1]}")
+        return cell
+
+    # ---------------------------------------------------------- progress
+    def progress(self, action: MailProgress) -> None:
+        status = PROGRESS[type(action)]
+        if status in (MailStatus.DELIVERED, MailStatus.REJECTED):
+            self.finished.add(action.request.id)
+        self.report(action.request.id, status, action.reason if isinstance(action, MailRejected) else "")
+        self.publish_held()
+
+    def report(self, mail_id: str, status: MailStatus, reason: str = "", drone: str | None = None) -> None:
+        report = MailStatusReport(id=mail_id, drone=drone or self.me, status=status, step=self.stack.now,
+                                  reason=reason)
+        self.node.put(self.keys.status(mail_id), encode(self.me, self.clock(), report))
+        log.info("%s: mail %s %s%s", self.me, mail_id, status.value, f" ({reason})" if reason else "")
+
+    # ---------------------------------------------------------- holdings
+    def held(self) -> list[MailView]:
+        planner = self.stack.mail
+        views = []
+        if planner.current is not None:
+            views.append(_view(planner.current, "carrying" if planner.carrying else "current"))
+        return views + [_view(r, "queued") for r in sorted(planner.queue, key=lambda r: r.rank)]
+
+    def publish_held(self) -> None:
+        """Say what mail I hold, when it changed: my heir needs it if I go."""
+        held = self.held()
+        if held != self.published:
+            self.published = held
+            self.node.put(self.keys.held(self.me), encode(self.me, self.clock(), HeldMail(drone=self.me, mail=held)))
+
+    def _on_held_query(self, key: str, payload: bytes, query: Query) -> None:
+        query.reply(self.keys.held(self.me), encode(self.me, self.clock(), HeldMail(drone=self.me, mail=self.held())))
+
+    def _on_peer_mail(self, key: str, payload: bytes) -> None:
+        try:
+            body = decode(payload).body
+        except WireError as exc:
+            log.warning("%s: dropped a mail list on %s: %s", self.me, key, exc)
+            return
+        if isinstance(body, HeldMail) and body.drone != self.me and body.drone in self.stack.protocol.peers:
+            self.peer_mail[body.drone] = body.mail
+
+    # ---------------------------------------------------------- adoption
+    def adopt_from(self, peer: str, alive: Collection[str]) -> None:
+        """If I am ``peer``'s heir (the smallest live name), take over what it held and had not picked up."""
+        held = self.peer_mail.pop(peer, [])
+        if not held or not self.adopt or min({*alive, self.me}) != self.me:
+            return
+        for mail in held:
+            if mail.stage == "carrying":
+                self.report(mail.id, MailStatus.FAILED, f"drone {peer} left carrying it", drone=peer)
+                continue
+            order = MailOrder(id=mail.id, pickup=mail.pickup, dropoff=mail.dropoff, priority=mail.priority)
+            try:
+                if self.take(order):
+                    self.report(mail.id, MailStatus.REASSIGNED, f"drone {peer} left")
+            except ProblemError as exc:
+                self.report(mail.id, MailStatus.FAILED, f"drone {peer} left; cannot take it over: {exc}")
+
+
+def _view(request: MailRequest, stage: str) -> MailView:
+    return MailView(id=request.id, pickup=list(request.pickup), dropoff=list(request.dropoff),
+                    priority=request.priority, stage=stage)  # type: ignore[arg-type]
