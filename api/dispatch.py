@@ -1,8 +1,9 @@
 """The dispatch policy, as plain functions of plain values (no I/O, no clock).
 
 * Waiting mails are served in priority order (9 the most urgent), oldest first among equals.
-* Each goes to the drone that can take it soonest: an idle drone first, then the one
-  with the fewest unfinished mails, then the nearest to the pickup by static distance,
+* Each goes to the drone that can take it soonest, by the fleet's one rule
+  (:func:`drona_gcs.dispatch.choose_drone`, also used by ``drona mail``): the fewest
+  unfinished mails, idle before busy, the nearest to the pickup by static distance,
   then by id. A drone takes at most ``per_drone`` unfinished mails from the service, so
   urgent mail that arrives later is not stuck behind long queues on board.
 * A drone that refused a mail is not offered it again for a while (the caller's ``excluded``).
@@ -20,6 +21,7 @@ from dataclasses import dataclass
 
 from api.gateway import DroneView
 from api.lifecycle import Status
+from drona_gcs.dispatch import Candidate, choose_drone
 from drona_gcs.workspace import Cell
 
 Distance = Callable[[Cell, Cell], int]
@@ -111,7 +113,9 @@ def assign(waiting: Iterable[Waiting], free: Sequence[Slot], distance: Distance,
         ways = {d: w for d, w in ways.items() if w < no_path}
         if not ways:
             continue
-        best = min(ways, key=lambda d: (not open_slots[d].idle, open_slots[d].load, ways[d], d))
+        candidates = [Candidate(d, open_slots[d].cell, open_slots[d].load, not open_slots[d].idle) for d in ways]
+        best = choose_drone(candidates, mail.pickup, distance)
+        assert best is not None  # there was a candidate
         out.append(Assignment(mail.id, best))
         slot = open_slots[best]
         if slot.free > 1:

@@ -3,7 +3,8 @@
 Each drone's task planner orders its own queue (priority, then age); this
 only picks the drone. It prefers a healthy drone, then the one with the
 least mail in hand, then an idle one, then the one nearest the pickup, then
-the smaller name (so the choice is deterministic).
+the smaller name (so the choice is deterministic). ``drona mail`` and the
+service's dispatcher both choose with it.
 """
 
 from __future__ import annotations
