@@ -86,3 +86,33 @@ def test_beta_zero_does_not_alarm_on_loopback_noise() -> None:
     check = ClockCheck(beta_s=0.0)
     check.observe("d2", OffsetSample(0.00004, 0.0001))
     assert check.violations() == {}
+
+
+def test_a_query_under_way_ends_when_its_session_closes() -> None:
+    """A peer that never answers must not hang a closing agent (every wait is bounded)."""
+    import asyncio
+    import socket
+
+    from fleet.sim.ports import free_port
+    from fleet.transport.node import ZenohNode, ZenohSettings
+
+    endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+
+    async def scenario() -> list[object]:
+        silent = await ZenohNode.open(ZenohSettings(listen=(endpoint,)), "silent")
+        asker = await ZenohNode.open(ZenohSettings(connect=(endpoint,)), "asker")
+        held: list[object] = []  # queries kept unanswered: the asker waits up to its 30 s timeout
+        silent._declared.append(silent.session.declare_queryable("t/q", held.append))
+        try:
+            await asyncio.sleep(0.3)  # the link forms (no event to wait on in zenoh-python for it)
+            query = asyncio.ensure_future(asker.get("t/q", b"", 30.0))
+            await asyncio.sleep(0.3)
+            assert not query.done() and held
+            await asker.close()
+            return await asyncio.wait_for(query, 5.0)
+        finally:
+            held.clear()
+            await asker.close()
+            await silent.close()
+
+    assert asyncio.run(scenario()) == []

@@ -110,6 +110,7 @@ class ZenohNode:
         self.session, self.loop, self.name = session, loop, name
         self._declared: list[Any] = []
         self._publishers: dict[str, zenoh.Publisher] = {}
+        self._pending: set[asyncio.Future[None]] = set()  #: queries waiting for their last reply
         self.closed = False
 
     @classmethod
@@ -206,14 +207,22 @@ class ZenohNode:
             # Queued behind the replies' own hand-overs, so all are in when it resolves.
             self._to_loop(_finish, done)
 
-        start(zenoh.handlers.Callback(on_reply, on_end))
-        await done
+        if self.closed:
+            raise TransportError(f"{self.name}: the Zenoh session is closed")
+        self._pending.add(done)
+        try:
+            start(zenoh.handlers.Callback(on_reply, on_end))
+            await done
+        finally:
+            self._pending.discard(done)
 
     # ------------------------------------------------------------- close
     async def close(self) -> None:
         if self.closed:
             return
         self.closed = True
+        for waiting in self._pending:  # queries under way end with what they got
+            _finish(waiting)
         for declaration in reversed(self._declared):
             try:
                 declaration.undeclare()
