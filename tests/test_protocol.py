@@ -279,6 +279,18 @@ def test_a_peer_leaving_long_after_its_plan_holds_only_where_it_ended() -> None:
     assert not any(name.startswith("b#") for name in action.psi)  # the cells it flew through are free again
 
 
+def test_a_plan_heard_outside_a_round_is_where_a_departed_peer_may_have_stopped() -> None:
+    proto = machine()
+    b_plan = traj(10, (4, 4), (4, 3), (4, 2), (4, 1))
+    proto.handle(PeerLeft("c"), 0)
+    proto.heard("b", b_plan)  # b announced it while this drone was idle
+    proto.heard("b", traj(2, (0, 0)))  # an older announcement, late: ignored
+    proto.handle(PeerLeft("b", silent_since=11), 20)  # noticed at step 20, a lease after it went quiet
+    proto.handle(NewTask(Task(ID_A, GOAL)), 20)
+    held = {t.cells[0] for name, t in proto.ghost_obstacles().items() if name.startswith("b")}
+    assert held == {(4, 4, 0), (4, 3, 0), (4, 2, 0), (4, 1, 0)}  # from step 11 - lead on: all of it
+
+
 def test_the_last_awaited_peer_leaving_lets_it_plan_with_its_last_known_trajectory() -> None:
     proto = machine()
     proto.handle(NewTask(Task(ID_A, GOAL)), 0)

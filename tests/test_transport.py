@@ -116,3 +116,11 @@ def test_a_query_under_way_ends_when_its_session_closes() -> None:
             await silent.close()
 
     assert asyncio.run(scenario()) == []
+
+
+def test_one_slow_answer_neither_hides_a_skew_nor_clears_the_alarm() -> None:
+    check = ClockCheck(beta_s=0.05)
+    check.observe("d2", OffsetSample(0.2, 0.001))  # a tight sample: 200 ms off
+    assert check.alarm() is not None
+    check.observe("d2", OffsetSample(0.2, 0.4))  # the peer was busy: a round trip of 800 ms
+    assert check.alarm() is not None

@@ -92,8 +92,12 @@ class DroneStack:
         """Drop a mail that waits in the queue (False if it is under way or unknown)."""
         return self.mail.cancel(mail_id)
 
-    def peer_left(self, drone: str) -> list[DroneAction]:
-        return self._protocol(PeerLeft(drone))
+    def peer_left(self, drone: str, silent_since: int | None = None) -> list[DroneAction]:
+        return self._protocol(PeerLeft(drone, silent_since))
+
+    def heard(self, drone: str, trajectory: Trajectory) -> None:
+        """A peer announced its new plan (see CoordinationProtocol.heard)."""
+        self.protocol.heard(drone, trajectory)
 
     def peer_joined(self, drone: str, cell: Cell, trajectory: Trajectory | None = None) -> list[DroneAction]:
         return self._protocol(PeerJoined(drone, cell, trajectory))

@@ -79,6 +79,9 @@ class PlanCompleted:
 @dataclass(frozen=True)
 class PeerLeft:
     drone: str
+    #: the earliest step it may have gone silent at (a lost link is noticed only when its lease
+    #: expires); None: now
+    silent_since: int | None = None
 
 
 @dataclass(frozen=True)
@@ -153,6 +156,13 @@ class CoordinationProtocol:
             raise ProtocolViolation(f"drone {self.me!r}: state {self.state.value} does not take "
                                     f"{type(event).__name__}")
         return handler(self, event, now)
+
+    def heard(self, drone: str, trajectory: Trajectory) -> None:
+        """A peer announced the plan it now flies (outside any round of mine): known for where
+        it rests and, should it leave, where it may have stopped. Never planned with: Psi is
+        only what the peers answer."""
+        if drone in self.members and trajectory.start_step >= self.known[drone].start_step:
+            self.known[drone] = trajectory
 
     def current_trajectory(self, now: int) -> Trajectory:
         """What I answer with: my plan while executing; idle, my location.
@@ -230,9 +240,10 @@ class CoordinationProtocol:
             return []
         self.members.discard(event.drone)
         last = self.received.pop(event.drone, self.known[event.drone])
-        # What it had flown by now (less the lead, which covers any skew) is behind it: only
-        # the rest of its plan is where it may have stopped.
-        self.ghosts[event.drone] = last.suffix_from(now - self.lead_steps)
+        # What it had flown before it went silent (less the lead, which covers any skew) is
+        # behind it: only the rest of its plan is where it may have stopped.
+        silent = now if event.silent_since is None else min(now, event.silent_since)
+        self.ghosts[event.drone] = last.suffix_from(silent - self.lead_steps)
         self.pending.pop(event.drone, None)
         return self._plan_if_ready(now) if self.state is State.COORDINATING else []
 

@@ -11,6 +11,7 @@ alarms on any fleet with beta 0, and loopback round trips are ~0.1 ms.)
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 
 
@@ -29,14 +30,23 @@ class OffsetSample:
 
 @dataclass
 class ClockCheck:
+    """Each peer judged on its tightest recent sample (the smallest round trip of the last
+    ``keep``): one slow answer, from a peer busy planning, must neither hide a skew nor clear
+    an alarm."""
+
     beta_s: float
-    peers: dict[str, OffsetSample] = field(default_factory=dict)
+    keep: int = 4
+    samples: dict[str, deque[OffsetSample]] = field(default_factory=dict)
 
     def observe(self, peer: str, sample: OffsetSample) -> None:
-        self.peers[peer] = sample
+        self.samples.setdefault(peer, deque(maxlen=self.keep)).append(sample)
 
     def forget(self, peer: str) -> None:
-        self.peers.pop(peer, None)
+        self.samples.pop(peer, None)
+
+    @property
+    def peers(self) -> dict[str, OffsetSample]:
+        return {p: min(s, key=lambda x: x.error_s) for p, s in self.samples.items() if s}
 
     def violations(self) -> dict[str, OffsetSample]:
         """The peers whose clock is provably more than beta from mine."""

@@ -50,6 +50,7 @@ from fleet.transport.wire import (
     ClockPong,
     DroneState,
     Health,
+    PlanAnnounce,
     TaskView,
     WireError,
     WireTrajectory,
@@ -94,6 +95,7 @@ class DroneAgent:
         self.may_plan = True
         self.task_since: float | None = None
         self.metrics = Metrics()
+        self.lease_steps = 0  #: the Zenoh lease in steps (set by the host)
         self.mail = MailDesk(stack, node, keys, clock, on_change=self.publish_state_soon)
         self._state_scheduled = False
 
@@ -103,6 +105,7 @@ class DroneAgent:
         node, keys = self.node, self.keys
         node.subscribe(keys.proto(self.me), self._on_protocol)
         node.subscribe(keys.proto(BROADCAST), self._on_protocol)
+        node.subscribe(keys.plan(), self._on_plan)
         node.queryable(keys.state(self.me), self._on_state_query)
         node.queryable(keys.clock(self.me), self._on_clock_query)
         node.watch_liveliness(keys.alive(), self._on_liveliness)
@@ -124,7 +127,7 @@ class DroneAgent:
 
     def on_step(self, report: StepReport, actions: Sequence[object]) -> None:
         """After the boundary's setpoints went out: judge the vehicle, record it, publish the state."""
-        self.actual = self._actual_cell()
+        self.actual = self.actual_cell()
         if self.actual is None:
             log.debug("%s: no cell at step %d: position %s", self.me, report.step, self.link.last_position())
         if self.record is not None and self.actual is not None:
@@ -145,7 +148,7 @@ class DroneAgent:
             self.battery_pct = float(pct)
         return self.battery_pct
 
-    def _actual_cell(self) -> Cell | None:
+    def actual_cell(self) -> Cell | None:
         """Where telemetry puts the vehicle; landed (below the grid) it is in its cell's column."""
         position = self.link.last_position()
         if position is None:
@@ -196,6 +199,8 @@ class DroneAgent:
                            for d, p in sorted(action.psi.items())))
         self.vehicle.want_airborne(True)
         self.publish_state_soon()  # after the answers to the peers that waited for this plan
+        self.node.put(self.keys.plan(self.me), encode(self.me, self.clock(), PlanAnnounce(
+            trajectory=WireTrajectory.of(action.trajectory))))
 
     # ------------------------------------------------------------- inbound
     def _on_protocol(self, key: str, payload: bytes) -> None:
@@ -212,6 +217,16 @@ class DroneAgent:
             return
         self._carry_out(self.stack.receive(message))
 
+    def _on_plan(self, key: str, payload: bytes) -> None:
+        try:
+            envelope = decode(payload)
+        except WireError as exc:
+            log.warning("%s: dropped a plan on %s: %s", self.me, key, exc)
+            return
+        body = envelope.body
+        if isinstance(body, PlanAnnounce) and envelope.sender != self.me:
+            self.stack.heard(envelope.sender, body.trajectory.core())
+
     def _on_liveliness(self, key: str, alive: bool) -> None:
         peer = self.keys.last_chunk(key)
         if peer == self.me:
@@ -225,7 +240,8 @@ class DroneAgent:
         else:
             self.alive.discard(peer)
             self.clocks.forget(peer)
-            self._carry_out(self.stack.peer_left(peer))
+            # A lost link is noticed when the lease runs out: it may have gone silent that long ago.
+            self._carry_out(self.stack.peer_left(peer, self.stack.now - self.lease_steps))
             self.mail.adopt_from(peer, self.alive)
 
     def _joined(self, peer: str) -> None:

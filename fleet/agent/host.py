@@ -23,6 +23,7 @@ from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TextIO
 
+from drona_gcs.errors import DronaError
 from drona_gcs.geo import GeoFrame
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.battery import BatteryModel
@@ -137,7 +138,10 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
             stack = DroneStack(name, config, ws.drones)
             agent = DroneAgent(stack, node, keys, link, frame, host.clock, record)
             agent.mail.adopt = settings.adopt_mail
+            agent.lease_steps = math.ceil(settings.lease_s / ws.tau_s)
             host.agents.append(agent)
+        for agent in host.agents:
+            _check_placement(agent)
         for agent in host.agents:
             await agent.start()
         log.info("drones %s up: fleet %r, tau %.3g s, Delta %d, lead %d steps", ", ".join(host.names),
@@ -149,6 +153,16 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
         await asyncio.gather(*(node.close() for node in nodes), return_exceptions=True)
         await asyncio.gather(*(link.close() for link in links), return_exceptions=True)
         log.info("drones %s left the fleet", ", ".join(host.names))
+
+
+def _check_placement(agent: DroneAgent) -> None:
+    """The stack starts the drone at its workspace start cell: its vehicle must be there (in that
+    column), or its first plan would fly it from elsewhere across cells nobody reserved."""
+    start, here = agent.stack.executor.cell, agent.actual_cell()
+    if here is None or here[:2] != start[:2]:
+        where = f"over cell {list(here)}" if here is not None else "outside the grid (or without a position)"
+        raise DronaError(f"drone {agent.me}: its vehicle is {where}, not at its start cell {list(start)}: "
+                         "bring it there, or give the workspace its cell")
 
 
 async def _open(host: Host, frame: GeoFrame, name: str, offset: int) -> tuple[ZenohNode, VehicleLink]:
@@ -208,7 +222,7 @@ async def _land_all(host: Host) -> None:
     if host.hurry.is_set():
         return
     for agent in host.agents:
-        agent.vehicle.want_airborne(False)
+        agent.vehicle.land_for_good()
     landed = asyncio.gather(*(agent.vehicle.reached.wait() for agent in host.agents))
     with contextlib.suppress(TimeoutError):
         await asyncio.wait_for(_first_of(landed, host.hurry.wait()), LANDING_BOUND_S)

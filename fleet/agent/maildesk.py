@@ -48,8 +48,9 @@ class MailDesk:
         self.accepting = True  #: False once shutting down: no new mail
         self.adopt = True  #: off when a service dispatches the mail (it reassigns a lost drone's)
         self.seq = 0
-        self.finished: set[str] = set()  #: delivered, handed back or cancelled: a repeated order is only acknowledged
+        self.delivered: set[str] = set()  #: a repeated order for one of these is acknowledged, not flown again
         self.peer_mail: dict[str, list[MailView]] = {}  #: what each peer last said it holds
+        self.orphans: dict[str, tuple[str, MailView]] = {}  #: mail of departed drones nobody took over yet
         self.published: list[MailView] | None = None
 
     async def open(self) -> None:
@@ -84,8 +85,7 @@ class MailDesk:
             log.warning("%s: dropped a cancel on %s: %s", self.me, key, exc)
             return
         dropped = self.stack.cancel(body.id)
-        if dropped:
-            self.finished.add(body.id)
+        if dropped:  # not remembered: ordered again, it is a new order
             self.report(body.id, MailStatus.CANCELLED)
             self.publish_held()
         ack = MailAck(id=body.id, drone=self.me, accepted=dropped, reason="" if dropped else "under way or unknown")
@@ -95,7 +95,7 @@ class MailDesk:
         """Queue ``order``; False if this drone already has it (a repeated order). ProblemError if unusable."""
         if not self.accepting:
             raise ProblemError(f"drone {self.me} is shutting down")
-        if order.id in self.finished or any(m.id == order.id for m in self.held()):
+        if order.id in self.delivered or any(m.id == order.id for m in self.held()):
             return False
         pickup, dropoff = self._cell("pickup", order.pickup), self._cell("dropoff", order.dropoff)
         self.seq += 1
@@ -115,15 +115,15 @@ class MailDesk:
     # ---------------------------------------------------------- progress
     def progress(self, action: MailProgress) -> None:
         status = PROGRESS[type(action)]
-        if status in (MailStatus.DELIVERED, MailStatus.REJECTED):
-            self.finished.add(action.request.id)
+        if status is MailStatus.DELIVERED:
+            self.delivered.add(action.request.id)
         self.report(action.request.id, status, action.reason if isinstance(action, MailRejected) else "")
         self.publish_held()
 
     def report(self, mail_id: str, status: MailStatus, reason: str = "", drone: str | None = None) -> None:
         report = MailStatusReport(id=mail_id, drone=drone or self.me, status=status, step=self.stack.now,
                                   reason=reason)
-        self.node.put(self.keys.status(mail_id), encode(self.me, self.clock(), report))
+        self.node.put(self.keys.status(mail_id), encode(self.me, self.clock(), report), once=True)
         log.info("%s: mail %s %s%s", self.me, mail_id, status.value, f" ({reason})" if reason else "")
 
     # ---------------------------------------------------------- holdings
@@ -152,24 +152,29 @@ class MailDesk:
             return
         if isinstance(body, HeldMail) and body.drone != self.me and body.drone in self.stack.protocol.peers:
             self.peer_mail[body.drone] = body.mail
+            for mail in body.mail:  # taken over by that drone
+                self.orphans.pop(mail.id, None)
 
     # ---------------------------------------------------------- adoption
     def adopt_from(self, peer: str, alive: Collection[str]) -> None:
-        """If I am ``peer``'s heir (the smallest live name), take over what it held and had not picked up."""
-        held = self.peer_mail.pop(peer, [])
-        if not held or not self.adopt or min({*alive, self.me}) != self.me:
+        """``peer`` left: its mail is orphaned until a drone takes it over; if I am the heir (the
+        smallest live name) I take over every orphan. Orphans stay known until some drone says it
+        holds them, so drones leaving together, heirs first, lose nothing."""
+        for mail in self.peer_mail.pop(peer, []):
+            self.orphans[mail.id] = (peer, mail)
+        if not self.orphans or not self.adopt or min({*alive, self.me}) != self.me:
             return
-        for mail in held:
+        orphans, self.orphans = self.orphans, {}
+        for departed, mail in orphans.values():
             if mail.stage == "carrying":
-                self.report(mail.id, MailStatus.FAILED, f"drone {peer} left carrying it", drone=peer)
+                self.report(mail.id, MailStatus.FAILED, f"drone {departed} left carrying it", drone=departed)
                 continue
             order = MailOrder(id=mail.id, pickup=mail.pickup, dropoff=mail.dropoff, priority=mail.priority)
             try:
                 if self.take(order):
-                    self.report(mail.id, MailStatus.REASSIGNED, f"drone {peer} left")
+                    self.report(mail.id, MailStatus.REASSIGNED, f"drone {departed} left")
             except ProblemError as exc:
-                self.report(mail.id, MailStatus.FAILED, f"drone {peer} left; cannot take it over: {exc}")
-
+                self.report(mail.id, MailStatus.FAILED, f"drone {departed} left; cannot take it over: {exc}")
 
 def _view(request: MailRequest, stage: str) -> MailView:
     return MailView(id=request.id, pickup=list(request.pickup), dropoff=list(request.dropoff),

@@ -32,10 +32,18 @@ class VehicleSupervisor:
         self.airborne = False  #: the last sequence that completed left it in the air
         self._changed = asyncio.Event()
         self._stopping = False
+        self._final = False  #: landing for good: wishes no longer change
         self.reached = asyncio.Event()  #: set while the vehicle is where it is wanted (air or ground)
         self.reached.set()
 
+    def land_for_good(self) -> None:
+        """Shutting down: land, and let no later wish take off again."""
+        self.want_airborne(False)
+        self._final = True
+
     def want_airborne(self, wanted: bool) -> None:
+        if self._final:
+            return
         if wanted != self.wanted:
             self.wanted = wanted
             self.reached.clear()

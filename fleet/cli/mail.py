@@ -25,7 +25,7 @@ from fleet.transport.wire import MailOrder, MailStatus, MailStatusReport, WireEr
 
 #: With no endpoints given, look for the agents where `drona agent` listens by default on this machine.
 DEFAULT_AGENTS = 16
-FINAL = {MailStatus.DELIVERED: 0, MailStatus.REJECTED: 1, MailStatus.FAILED: 1}
+FINAL = {MailStatus.DELIVERED: 0, MailStatus.REJECTED: 1, MailStatus.FAILED: 1, MailStatus.CANCELLED: 1}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

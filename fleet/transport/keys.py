@@ -4,6 +4,7 @@
 ``alive/<drone>``              liveliness token: the drone is a member
 ``proto/<drone>``              Protocol 1 messages to the drone (``proto/all``: to every drone)
 ``state/<drone>``              the drone's state (published each step; queryable)
+``plan/<drone>``               the drone's new plan, once made
 ``held/<drone>``               the mail the drone holds (published on change; queryable)
 ``mail/assign/<drone>``        query: give the drone a mail (reply: mail_ack)
 ``mail/cancel/<drone>``        query: drop a mail still waiting (reply: mail_ack)
@@ -46,6 +47,9 @@ class FleetKeys:
 
     def state(self, drone: str = "*") -> str:
         return f"{self.root}/state/{drone}"
+
+    def plan(self, drone: str = "*") -> str:
+        return f"{self.root}/plan/{drone}"
 
     def held(self, drone: str = "*") -> str:
         return f"{self.root}/held/{drone}"

@@ -157,9 +157,13 @@ class ZenohNode:
         self._declared.append(self.session.liveliness().declare_subscriber(key, on_sample, history=True))
 
     # -------------------------------------------------------------- send
-    def put(self, key: str, payload: bytes) -> None:
-        """Reliable and unbatched; blocks rather than drop when the link is congested."""
+    def put(self, key: str, payload: bytes, once: bool = False) -> None:
+        """Reliable; blocks rather than drop when the link is congested. ``once``: a key used
+        once (a mail's status), put without declaring a publisher that would live on."""
         if self.closed:
+            return
+        if once:
+            self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
             return
         publisher = self._publishers.get(key)
         if publisher is None:

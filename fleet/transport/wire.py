@@ -11,6 +11,7 @@ fatal).
 The bodies, by key (see :mod:`fleet.transport.keys`):
 
 * ``proto/<drone>``: ``req_traj`` and ``cur_traj``, Protocol 1's two messages.
+* ``plan/<drone>``: ``plan``, a drone's new trajectory once planned.
 * ``state/<drone>``: ``state``, what a drone publishes at every step boundary
   and answers queries with (cell, trajectory, battery, task, queue, health).
 * ``held/<drone>``: ``held``, the mail a drone holds, when it changes (and
@@ -83,6 +84,13 @@ class ReqTraj(_Strict):
 class CurTraj(_Strict):
     kind: Literal["cur_traj"] = "cur_traj"
     in_reply_to: WireTaskId
+    trajectory: WireTrajectory
+
+
+class PlanAnnounce(_Strict):
+    """A drone's new plan, to everyone, once made (peers outside the round learn where it goes)."""
+
+    kind: Literal["plan"] = "plan"
     trajectory: WireTrajectory
 
 
@@ -190,8 +198,8 @@ class ClockPong(_Strict):
 
 
 Body = Annotated[
-    ReqTraj | CurTraj | DroneState | HeldMail | MailOrder | MailCancel | MailAck | MailStatusReport | ClockPing
-    | ClockPong,
+    ReqTraj | CurTraj | PlanAnnounce | DroneState | HeldMail | MailOrder | MailCancel | MailAck | MailStatusReport
+    | ClockPing | ClockPong,
     Field(discriminator="kind"),
 ]
 
