@@ -138,7 +138,9 @@ class DroneAgent:
         lagging = report.lagging and self.vehicle.settled
         self._alarm("lag", f"vehicle {report.error_m:.1f} m from its cell" if lagging else None)
         # A plan scheduled but not begun still needs the climb: the lead steps are for it.
-        self.vehicle.want_airborne(not self.stack.landed or self.stack.protocol.state is State.EXECUTING)
+        # Landing crosses only its own column when the cell is on the lowest layer; higher up it hovers.
+        grounded = self.stack.landed and self.stack.executor.cell[2] == 0
+        self.vehicle.want_airborne(not grounded or self.stack.protocol.state is State.EXECUTING)
         # Half a period later: at the boundary every drone of the fleet is busy, and answers come first.
         self.publish_state_soon(self.ws.tau_s / 2)
 

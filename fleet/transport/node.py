@@ -186,9 +186,12 @@ class ZenohNode:
                 at = stamp() if stamp is not None else 0.0
                 self._to_loop(replies.append, Reply(str(reply.ok.key_expr), reply.ok.payload.to_bytes(), at))
 
+        # A query is never sent with BLOCK: a congested link (a peer that stopped reading) would
+        # block this call, and with it the event loop, until the link's lease ran out. A query
+        # that is dropped just times out, and every caller asks again.
         await self._until_done(lambda handler: self.session.get(
             selector, handler, payload=payload, timeout=timeout_s,
-            congestion_control=zenoh.CongestionControl.BLOCK), on_reply)
+            congestion_control=zenoh.CongestionControl.DROP), on_reply)
         return replies
 
     async def alive(self, key: str, timeout_s: float = 1.0) -> set[str]:

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from drona_gcs.audit import Audit, audit
 from drona_gcs.workspace_files import load_workspace
-from fleet.sim.ports import free_port, free_udp_base
+from fleet.sim.ports import free_port_block, free_udp_base
 from fleet.transport.fleet_client import FleetClient
 from fleet.transport.keys import FleetKeys
 from fleet.transport.node import ZenohNode, ZenohSettings
@@ -65,7 +65,10 @@ class FleetProcesses:
         self.workspace = self.tmp / "ws.yaml"
         self.workspace.write_text(workspace_yaml(len(self.drones)))
         self.vehicle_base = free_udp_base(len(self.drones))
-        self.ports = {d: free_port(socket.SOCK_STREAM) for d in self.drones}
+        # A block below the ephemeral range: a port picked there cannot be taken meanwhile by some
+        # socket's outgoing connection (the agents and the observer make many).
+        base = free_port_block(len(self.drones), socket.SOCK_STREAM)
+        self.ports = {d: base + i for i, d in enumerate(self.drones)}
 
     def endpoint(self, drone: str) -> str:
         return f"tcp/127.0.0.1:{self.ports[drone]}"
@@ -99,7 +102,7 @@ class FleetProcesses:
         return process
 
     def _spawn(self, name: str, command: list[str]) -> subprocess.Popen[bytes]:
-        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONFAULTHANDLER": "1"}
         with (self.tmp / f"{name}.log").open("ab") as log:  # the child keeps its own handle
             return subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env)
 
@@ -130,8 +133,12 @@ class FleetProcesses:
     def kill_all(self) -> None:
         for process in [*self.others, *self.agents.values(), *([self.sim] if self.sim else [])]:
             if process.poll() is None:
-                process.kill()
-                process.wait(10)
+                process.send_signal(signal.SIGABRT)  # still running at the end: its stacks go to its log
+                try:
+                    process.wait(3)
+                except subprocess.TimeoutExpired:
+                    process.kill()
+                    process.wait(10)
 
     def audit(self) -> Audit:
         records = []

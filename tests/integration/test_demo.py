@@ -18,7 +18,7 @@ import pytest
 from drona_gcs.audit import audit
 from drona_gcs.workspace_files import load_workspace
 from fleet.cli.demo import demo_workspace
-from fleet.sim.ports import free_port, free_port_block, free_udp_base
+from fleet.sim.ports import free_port_block, free_udp_base
 from tests.api.test_dashboard import browser  # noqa: F401  (the fixture)
 
 pytestmark = pytest.mark.slow
@@ -26,7 +26,7 @@ TOKEN = "demo-test-token-0123456789"
 
 
 def start_demo(tmp_path: Path, drones: int) -> tuple[subprocess.Popen[str], str]:
-    port = free_port(socket.SOCK_STREAM)
+    port = free_port_block(1, socket.SOCK_STREAM)
     command = [sys.executable, "-m", "fleet.cli", "demo", "--drones", str(drones), "--port", str(port),
                "--tau", "0.5", "--speedup", "4", "--db", str(tmp_path / "demo.db"),
                "--record", str(tmp_path / "record.jsonl"), "--token", TOKEN,

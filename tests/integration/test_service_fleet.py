@@ -13,7 +13,7 @@ from typing import Any
 import httpx
 import pytest
 
-from fleet.sim.ports import free_port
+from fleet.sim.ports import free_port_block
 from tests.integration.harness import FleetProcesses
 
 pytestmark = pytest.mark.slow
@@ -59,7 +59,7 @@ class Events:
 
 
 def start_service(fleet: FleetProcesses, db: Path) -> str:
-    port = free_port(socket.SOCK_STREAM)
+    port = free_port_block(1, socket.SOCK_STREAM)
     arguments = ["serve", "--workspace", str(fleet.workspace), "--db", str(db), "--port", str(port), "--demo",
                  "--token", TOKEN, "--fleet", fleet.fleet, "--log-level", "warning"]
     for drone in fleet.drones:
