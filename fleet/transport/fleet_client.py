@@ -53,7 +53,7 @@ class FleetClient:
 
     async def assign(self, drone: str, order: MailOrder) -> MailAck:
         replies = await self.node.get(self.keys.assign(drone), encode(self.name, time.time(), order),
-                                      QUERY_TIMEOUT_S)
+                                      QUERY_TIMEOUT_S, block=True)
         for reply in replies:
             try:
                 body = decode(reply.payload).body

@@ -174,7 +174,7 @@ class ZenohNode:
         publisher.put(payload)
 
     async def get(self, selector: str, payload: bytes, timeout_s: float,
-                  stamp: Callable[[], float] | None = None) -> list[Reply]:
+                  stamp: Callable[[], float] | None = None, block: bool = False) -> list[Reply]:
         """Every reply to a query, once all have come (or ``timeout_s`` passed).
 
         ``stamp()`` is read on Zenoh's thread as each reply arrives (for round trips).
@@ -186,12 +186,12 @@ class ZenohNode:
                 at = stamp() if stamp is not None else 0.0
                 self._to_loop(replies.append, Reply(str(reply.ok.key_expr), reply.ok.payload.to_bytes(), at))
 
-        # A query is never sent with BLOCK: a congested link (a peer that stopped reading) would
-        # block this call, and with it the event loop, until the link's lease ran out. A query
-        # that is dropped just times out, and every caller asks again.
+        # An agent's own queries (clocks, held mail) are not sent with BLOCK: a congested link (a
+        # peer that stopped reading) would block this call, and the drone's event loop with it,
+        # until the lease ran out; dropped, they are asked again. ``block``: a client's mail order.
+        congestion = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
         await self._until_done(lambda handler: self.session.get(
-            selector, handler, payload=payload, timeout=timeout_s,
-            congestion_control=zenoh.CongestionControl.DROP), on_reply)
+            selector, handler, payload=payload, timeout=timeout_s, congestion_control=congestion), on_reply)
         return replies
 
     async def alive(self, key: str, timeout_s: float = 1.0) -> set[str]:

@@ -87,7 +87,7 @@ class FleetProcesses:
         command = [*DRONA, "agent", "--workspace", str(self.workspace), "--drone", drone,
                    "--vehicle", f"udpin://127.0.0.1:{self.vehicle_base + index}", "--fleet", self.fleet,
                    "--listen", self.endpoint(drone), "--record", str(self.record(drone)),
-                   "--lead-steps", str(LEAD_STEPS), "--lease", "3"]
+                   "--lead-steps", str(LEAD_STEPS)]
         for other in self.drones:
             if other != drone:
                 command += ["--connect", self.endpoint(other)]
