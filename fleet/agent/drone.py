@@ -74,7 +74,6 @@ class Metrics:
     latencies_s: list[float] = field(default_factory=list)
     messages_sent: int = 0
     plans: int = 0
-    failures: int = 0
 
 
 class DroneAgent:
@@ -177,7 +176,6 @@ class DroneAgent:
             elif isinstance(action, StartExecuting):
                 self._started(action)
             elif isinstance(action, TaskFailed):
-                self.metrics.failures += 1
                 log.warning("%s: no plan for task %s: %s", self.me, action.task.id, action.reason)
             elif isinstance(action, (MailStarted, MailPickedUp, MailDelivered, MailRejected)):
                 self.mail.progress(action)
