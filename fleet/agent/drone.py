@@ -107,9 +107,12 @@ class DroneAgent:
         node.subscribe(keys.plan(), self._on_plan)
         node.queryable(keys.state(self.me), self._on_state_query)
         node.queryable(keys.clock(self.me), self._on_clock_query)
+        self.mail.declare()
         node.watch_liveliness(keys.alive(), self._on_liveliness)
+        # The token last: whoever sees us alive finds every queryable already declared (the
+        # declarations reach a peer in order), so a mail order sent at once is answered.
         node.token(keys.alive(self.me))
-        await self.mail.open()
+        await self.mail.catch_up()
         present = {keys.last_chunk(k) for k in await node.alive(keys.alive())}
         for peer in self.stack.protocol.peers:
             if peer != self.me and peer not in present | self.alive:

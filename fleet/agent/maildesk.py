@@ -53,13 +53,16 @@ class MailDesk:
         self.orphans: dict[str, tuple[str, MailView]] = {}  #: mail of departed drones nobody took over yet
         self.published: list[MailView] | None = None
 
-    async def open(self) -> None:
+    def declare(self) -> None:
         node, keys = self.node, self.keys
         node.subscribe(keys.held(), self._on_peer_mail)
         node.queryable(keys.held(self.me), self._on_held_query)
         node.queryable(keys.assign(self.me), self._on_order)
         node.queryable(keys.cancel(self.me), self._on_cancel)
-        for reply in await node.get(keys.held(), b"", 1.0):  # what the peers already hold
+
+    async def catch_up(self) -> None:
+        """What the peers already hold (they published it before we subscribed)."""
+        for reply in await self.node.get(self.keys.held(), b"", 1.0):
             self._on_peer_mail(reply.key, reply.payload)
 
     # ------------------------------------------------------------ orders
