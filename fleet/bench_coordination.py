@@ -1,7 +1,7 @@
 """``drona bench coordination``: end-to-end coordination latency of N agents over Zenoh on loopback.
 
-The agents (each with its own Zenoh session, as ``drona agent --count N``) run
-in this process against N fake vehicles in a ``drona sim-vehicle``
+The agents run in ``--processes`` ``drona agent --count`` subprocesses (a Zenoh
+session per process) against N fake vehicles in a ``drona sim-vehicle``
 subprocess; an outside session keeps every drone busy with mail over Zenoh.
 Latency is measured per plan, from the task's arrival (the task planner's
 decision at a step boundary) to the plan scheduled (the protocol's
@@ -217,7 +217,7 @@ def run(args: argparse.Namespace) -> int:
         print("drona bench coordination: --agents must be >= 2 and --seconds > 0", file=sys.stderr)
         return 2
     if not args.json:
-        print(f"drona bench coordination: {agents} agents (own Zenoh session each) in "
+        print(f"drona bench coordination: {agents} agents (a Zenoh session per process) in "
               f"{max(1, min(args.processes or 4, agents))} `drona agent --count` processes, {agents} fake vehicles "
               f"in a `drona sim-vehicle`, loopback; mail for {seconds:g} s", flush=True)
     processes = max(1, min(args.processes or 4, agents))

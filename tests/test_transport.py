@@ -124,3 +124,81 @@ def test_one_slow_answer_neither_hides_a_skew_nor_clears_the_alarm() -> None:
     assert check.alarm() is not None
     check.observe("d2", OffsetSample(0.2, 0.4))  # the peer was busy: a round trip of 800 ms
     assert check.alarm() is not None
+
+
+def test_drones_sharing_a_session_each_get_every_message_and_leave_alone() -> None:
+    """Views of one session: a subscription per view (one Zenoh subscriber underneath), local and
+    remote puts reach each view once, a view that closes stops hearing and its token goes, and the
+    others (and the session) carry on."""
+    import asyncio
+    import socket
+
+    from fleet.sim.ports import free_port
+    from fleet.transport.node import ZenohNode, ZenohSettings
+
+    endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+
+    async def scenario() -> None:
+        host = await ZenohNode.open(ZenohSettings(listen=(endpoint,)), "host")
+        outside = await ZenohNode.open(ZenohSettings(connect=(endpoint,)), "outside")
+        a, b = host.view("a"), host.view("b")
+        heard: dict[str, list[bytes]] = {"a": [], "b": []}
+        got = asyncio.Event()
+
+        def hear(name: str):  # type: ignore[no-untyped-def]
+            def on(key: str, payload: bytes) -> None:
+                heard[name].append(payload)
+                got.set()
+            return on
+
+        async def settle(count: int) -> None:
+            while min(len(v) for v in heard.values()) < count:
+                got.clear()
+                await asyncio.wait_for(got.wait(), 5)
+
+        alive: set[str] = set()
+        changed = asyncio.Event()
+
+        def on_alive(key: str, up: bool) -> None:
+            (alive.add if up else alive.discard)(key)
+            changed.set()
+
+        async def until_alive(expected: set[str]) -> None:
+            while alive != expected:
+                changed.clear()
+                await asyncio.wait_for(changed.wait(), 5)
+
+        try:
+            a.subscribe("t/all", hear("a"))
+            b.subscribe("t/all", hear("b"))
+            a.token("t/alive/a")
+            b.token("t/alive/b")
+            outside.watch_liveliness("t/alive/**", on_alive)
+            await until_alive({"t/alive/a", "t/alive/b"})
+            a.put("t/all", b"local")
+            await settle(1)
+            for _ in range(50):  # the outside session learns the subscription with the link
+                outside.put("t/all", b"remote")
+                await asyncio.sleep(0.05)
+                if len(heard["b"]) > 1:
+                    break
+            await settle(2)
+            assert heard["a"][0] == heard["b"][0] == b"local"
+            assert heard["a"].count(b"local") == 1 and heard["b"].count(b"local") == 1
+            assert b"remote" in heard["a"] and b"remote" in heard["b"]
+
+            await a.close()
+            await until_alive({"t/alive/b"})
+            before = len(heard["a"])
+            b.put("t/all", b"after")
+            while b"after" not in heard["b"]:
+                got.clear()
+                await asyncio.wait_for(got.wait(), 5)
+            assert len(heard["a"]) == before  # a left: it hears nothing more
+            assert not host.closed and not b.closed
+        finally:
+            await b.close()
+            await host.close()
+            await outside.close()
+
+    asyncio.run(scenario())

@@ -293,18 +293,25 @@ class DroneAgent:
     def _on_clock_query(self, key: str, payload: bytes, query: Query) -> None:
         query.reply(self.keys.clock(self.me), encode(self.me, self.clock(), ClockPong()))
 
-    async def check_clocks(self) -> None:
-        """One round of offset measurements against every live peer; alarm and hold beyond beta."""
+    async def measure_clocks(self) -> dict[str, OffsetSample]:
+        """One offset measurement against every drone that answers (this host's clock against theirs)."""
         sent = self.clock()
         replies = await self.node.get(self.keys.clock(), encode(self.me, sent, ClockPing()), 1.0, self.clock)
+        samples = {}
         for reply in replies:
             try:
                 envelope = decode(reply.payload)
             except WireError as exc:
                 log.warning("%s: dropped a clock reply: %s", self.me, exc)
                 continue
-            if envelope.sender != self.me and envelope.sender in self.alive:
-                self.clocks.observe(envelope.sender, OffsetSample.measure(sent, envelope.sent_at, reply.at))
+            samples[envelope.sender] = OffsetSample.measure(sent, envelope.sent_at, reply.at)
+        return samples
+
+    def judge_clocks(self, samples: dict[str, OffsetSample]) -> None:
+        """Keep the samples of live peers; alarm and hold beyond beta."""
+        for peer, sample in samples.items():
+            if peer != self.me and peer in self.alive:
+                self.clocks.observe(peer, sample)
         alarm = self.clocks.alarm()
         if (alarm is None) != self.may_plan:
             log.warning("%s: %s", self.me, alarm or "clock skew back within beta: planning again")

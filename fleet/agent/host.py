@@ -1,7 +1,8 @@
 """The agent process: one or more drones (``--count``), one TaskGroup, one setpoint timer.
 
-Start-up, per drone and concurrently: open its own Zenoh session, connect its
-vehicle, wait until the vehicle is ready; then every drone joins the fleet.
+Start-up: one Zenoh session for the process (its drones share it, each with
+its own declarations); per drone and concurrently, connect its vehicle and
+wait until it is ready; then every drone joins the fleet.
 Steps are counted on the process's clock from the fleet epoch.
 
 Shutdown (SIGINT or SIGTERM): no new mail or tasks; drones flying a plan
@@ -86,16 +87,16 @@ def default_lead_steps(workspace: Workspace) -> int:
     return workspace.delta + 1 + math.ceil(climb_s / workspace.tau_s)
 
 
-def zenoh_settings(settings: AgentSettings, workspace: Workspace, drone: str, offset: int) -> ZenohSettings:
-    """Explicit endpoints (the ``offset``-th agent of a process listens ``offset`` ports up), a
-    config file, or the one-machine default: drone i listens on 7448 + i and connects to the others."""
-    listen = tuple(_shift_port(ep, offset) for ep in settings.listen)
-    connect = tuple(settings.connect)
+def zenoh_settings(settings: AgentSettings, workspace: Workspace, names: Sequence[str]) -> ZenohSettings:
+    """The process's one session, listening wherever its drones are expected: explicit endpoints
+    (the i-th drone of a process ``i`` ports up), a config file, or the one-machine default
+    (drone k of the workspace on 7448 + k, connecting to the others')."""
+    listen = tuple(_shift_port(ep, offset) for offset in range(len(names)) for ep in settings.listen)
+    connect = tuple(ep for ep in settings.connect if ep not in listen)
     if settings.zenoh_config is None and not listen and not connect:
         drones = list(workspace.drones)
-        index = drones.index(drone)
-        listen = (agent_endpoint(index),)
-        connect = tuple(agent_endpoint(i) for i in range(len(drones)) if i != index)
+        listen = tuple(agent_endpoint(drones.index(name)) for name in names)
+        connect = tuple(agent_endpoint(i) for i, drone in enumerate(drones) if drone not in names)
     return ZenohSettings(listen=listen, connect=connect, config_file=settings.zenoh_config, lease_s=settings.lease_s)
 
 
@@ -122,15 +123,12 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
     lead = settings.lead_steps or default_lead_steps(ws)
     config = StackConfig(ws, planner, battery, lead_steps=lead)
     keys = FleetKeys(settings.fleet)
-    nodes: list[ZenohNode] = []
+    session = await ZenohNode.open(zenoh_settings(settings, ws, host.names), "+".join(host.names))
+    nodes = [session.view(name) for name in host.names]
     links: list[VehicleLink] = []
     try:
-        opened = await asyncio.gather(*(_open(host, frame, name, i) for i, name in enumerate(host.names)),
-                                      return_exceptions=True)
-        for item in opened:
-            if isinstance(item, tuple):
-                nodes.append(item[0])
-                links.append(item[1])
+        opened = await asyncio.gather(*(_connect(host, frame, name) for name in host.names), return_exceptions=True)
+        links = [item for item in opened if not isinstance(item, BaseException)]
         failure = next((item for item in opened if isinstance(item, BaseException)), None)
         if failure is not None:
             raise failure
@@ -151,6 +149,7 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
         await _fly(host, frame, record)
     finally:
         await asyncio.gather(*(node.close() for node in nodes), return_exceptions=True)
+        await session.close()
         await asyncio.gather(*(link.close() for link in links), return_exceptions=True)
         log.info("drones %s left the fleet", ", ".join(host.names))
 
@@ -165,18 +164,16 @@ def _check_placement(agent: DroneAgent) -> None:
                          "bring it there, or give the workspace its cell")
 
 
-async def _open(host: Host, frame: GeoFrame, name: str, offset: int) -> tuple[ZenohNode, VehicleLink]:
+async def _connect(host: Host, frame: GeoFrame, name: str) -> VehicleLink:
     settings, ws = host.settings, host.workspace
-    node = await ZenohNode.open(zenoh_settings(settings, ws, name, offset), name)
     link = PymavlinkLink(vehicle_url(settings, ws, name), frame=frame, stream_hz=settings.telemetry_hz)
     try:
         await link.connect()
         await link.wait_ready(settings.ready_timeout_s)
     except BaseException:
         await link.close()
-        await node.close()
         raise
-    return node, link
+    return link
 
 
 async def _fly(host: Host, frame: GeoFrame, record: TextIO | None) -> None:
@@ -241,8 +238,11 @@ async def _first_of(*waits: Awaitable[object]) -> None:
 
 
 async def _check_clocks(host: Host) -> None:
+    """The host's drones share its clock: one of them measures it against the fleet, all judge."""
     async for _ in periodic(host.settings.clock_check_s):  # a measurement period, not a wait for an event
-        await asyncio.gather(*(agent.check_clocks() for agent in host.agents))
+        samples = await host.agents[0].measure_clocks()
+        for agent in host.agents:
+            agent.judge_clocks(samples)
 
 
 def install_signals(host: Host) -> None:

@@ -75,8 +75,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=2017)
     _add_mavlink_arguments(parser)
     group = parser.add_argument_group("bench coordination")
-    group.add_argument("--agents", type=int, help="agents, each with its own Zenoh session and fake vehicle "
-                       "(default 32; 8 with --quick); --seconds: how long to keep them busy (default 60; 15)")
+    group.add_argument("--agents", type=int, help="agents, each with its own fake vehicle "
+                       "(a Zenoh session per process; default 32; 8 with --quick); "
+                       "--seconds: how long to keep them busy (default 60; 15)")
     group.add_argument("--processes", type=int, help="agent processes the agents are spread over (default 4)")
     from api import bench as api_bench  # its own group: --rate, --connections, --sim-drones, --url, --token
 

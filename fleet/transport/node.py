@@ -4,7 +4,11 @@ zenoh-python calls back on its own threads. Every callback here only hands
 the sample (key and bytes) to the event loop with ``call_soon_threadsafe``;
 the handlers run on the loop, one at a time, like everything else in the
 process. Protocol messages are put with congestion control BLOCK (the
-default DROP lost 19% of a burst here) and ``express`` (no batching delay).
+default DROP lost 19% of a burst here).
+
+Drones hosted in one process share one session (:meth:`ZenohNode.view`):
+each has its own declarations, and subscriptions to one key share one Zenoh
+subscriber, so a broadcast crosses into Python once per process.
 
 Closing undeclares every declaration, newest first, before the session:
 a callback subscriber still declared at interpreter exit hangs it.
@@ -106,12 +110,24 @@ QueryHandler = Callable[[str, bytes, Query], None]
 class ZenohNode:
     """A session and its declarations; callbacks delivered on ``loop``."""
 
-    def __init__(self, session: zenoh.Session, loop: asyncio.AbstractEventLoop, name: str) -> None:
+    def __init__(self, session: zenoh.Session, loop: asyncio.AbstractEventLoop, name: str,
+                 owner: ZenohNode | None = None) -> None:
         self.session, self.loop, self.name = session, loop, name
+        self.owner = owner  #: the node that opened the session (None: this one)
+        #: Subscriptions of the session's nodes, one Zenoh subscriber per key (kept by the owner).
+        self._fanouts: dict[str, _Fanout] = owner._fanouts if owner is not None else {}
+        self._subscribed: list[tuple[str, SampleHandler]] = []
         self._declared: list[Any] = []
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._pending: set[asyncio.Future[None]] = set()  #: queries waiting for their last reply
         self.closed = False
+
+    def view(self, name: str) -> ZenohNode:
+        """A node on the same session with declarations of its own: closing it undeclares them and
+        leaves the session open. Drones hosted in one process share a session this way: one set of
+        links between processes instead of one per pair of drones, and a message between two of
+        them never leaves the process (Zenoh delivers it locally)."""
+        return ZenohNode(self.session, self.loop, name, owner=self.owner or self)
 
     @classmethod
     async def open(cls, settings: ZenohSettings, name: str) -> ZenohNode:
@@ -125,10 +141,22 @@ class ZenohNode:
 
     # ------------------------------------------------------ declarations
     def subscribe(self, key: str, handler: SampleHandler) -> None:
-        def on_sample(sample: zenoh.Sample) -> None:
-            self._to_loop(handler, str(sample.key_expr), sample.payload.to_bytes())
+        """``handler(key, payload)`` on the loop for every sample under ``key``.
 
-        self._declared.append(self.session.declare_subscriber(key, on_sample))
+        The nodes of one session that subscribe to the same key share one Zenoh subscriber: a
+        message to every drone of a host crosses to Python once and wakes the loop once.
+        """
+        fanout = self._fanouts.get(key)
+        if fanout is None:
+            fanout = self._fanouts[key] = _Fanout(self.name)
+            root = self.owner or self  # open as long as the session is, whichever node subscribed first
+
+            def on_sample(sample: zenoh.Sample) -> None:
+                root._to_loop(fanout.deliver, str(sample.key_expr), sample.payload.to_bytes())
+
+            fanout.subscriber = self.session.declare_subscriber(key, on_sample)
+        fanout.handlers.append(handler)
+        self._subscribed.append((key, handler))
 
     def queryable(self, key: str, handler: QueryHandler) -> None:
         """``handler(key, payload, query)`` on the loop; it must reply (or not) at once."""
@@ -230,13 +258,29 @@ class ZenohNode:
         self.closed = True
         for waiting in self._pending:  # queries under way end with what they got
             _finish(waiting)
+        for key, handler in reversed(self._subscribed):
+            self._unsubscribe(key, handler)
+        self._subscribed.clear()
         for declaration in reversed(self._declared):
             try:
                 declaration.undeclare()
             except zenoh.ZError as exc:  # already gone with its link: nothing left to undeclare
                 log.debug("%s: undeclare: %s", self.name, exc)
         self._declared.clear()
-        await asyncio.to_thread(self.session.close)
+        if self.owner is None:
+            for key in list(self._fanouts):  # views left open: their subscriptions go with the session
+                self._fanouts.pop(key).undeclare(self.name)
+            await asyncio.to_thread(self.session.close)
+
+    def _unsubscribe(self, key: str, handler: SampleHandler) -> None:
+        fanout = self._fanouts.get(key)
+        if fanout is None:
+            return
+        with contextlib.suppress(ValueError):
+            fanout.handlers.remove(handler)
+        if not fanout.handlers:
+            del self._fanouts[key]
+            fanout.undeclare(self.name)
 
     def _to_loop(self, callback: Callable[..., None], *args: Any) -> None:
         """From a Zenoh thread: run ``callback(*args)`` on the loop (dropped once the loop is gone)."""
@@ -244,6 +288,25 @@ class ZenohNode:
             return
         with contextlib.suppress(RuntimeError):  # the loop closed under us during shutdown
             self.loop.call_soon_threadsafe(_guarded, self.name, callback, args)
+
+
+@dataclass
+class _Fanout:
+    """One Zenoh subscriber and the handlers of every node of the session subscribed to its key."""
+
+    name: str
+    handlers: list[SampleHandler] = field(default_factory=list)
+    subscriber: Any = None
+
+    def deliver(self, key: str, payload: bytes) -> None:
+        for handler in list(self.handlers):  # a handler may close its node (and unsubscribe)
+            _guarded(self.name, handler, (key, payload))
+
+    def undeclare(self, name: str) -> None:
+        try:
+            self.subscriber.undeclare()
+        except zenoh.ZError as exc:
+            log.debug("%s: undeclare: %s", name, exc)
 
 
 def _guarded(name: str, callback: Callable[..., None], args: Sequence[Any]) -> None:
