@@ -168,7 +168,9 @@ class DroneAgent:
 
     # -------------------------------------------------------------- actions
     def _carry_out(self, actions: Sequence[DroneAction]) -> None:
-        for action in actions:
+        # A new plan last: the peers that waited for it (the Sends after StartExecuting) get it
+        # before its announcement to everyone and the bookkeeping.
+        for action in sorted(actions, key=lambda a: isinstance(a, StartExecuting)):
             if isinstance(action, Send):
                 self._send(action.to, action.message)
             elif isinstance(action, Broadcast):
@@ -195,15 +197,17 @@ class DroneAgent:
             self.metrics.latencies_s.append(self.clock() - self.task_since)
             self.task_since = None
         self.metrics.plans += 1
+        self.vehicle.want_airborne(True)
+        self.publish_state_soon()  # after the answers to the peers that waited for this plan
+        self.node.put(self.keys.plan(self.me), encode(self.me, self.clock(), PlanAnnounce(
+            trajectory=WireTrajectory.of(action.trajectory))))
+        if not log.isEnabledFor(logging.INFO):
+            return  # the line below formats every trajectory avoided
         t = action.trajectory
         log.info("%s: task %s to %s planned from step %d: %s; avoided %s", self.me, action.task.id,
                  list(action.task.goal), t.start_step, " ".join(f"{c[0]},{c[1]},{c[2]}" for c in t.cells),
                  "; ".join(f"{d}@{p.start_step}:{' '.join(f'{c[0]},{c[1]}' for c in p.cells)}"
                            for d, p in sorted(action.psi.items())))
-        self.vehicle.want_airborne(True)
-        self.publish_state_soon()  # after the answers to the peers that waited for this plan
-        self.node.put(self.keys.plan(self.me), encode(self.me, self.clock(), PlanAnnounce(
-            trajectory=WireTrajectory.of(action.trajectory))))
 
     # ------------------------------------------------------------- inbound
     def _on_protocol(self, key: str, payload: bytes) -> None:
