@@ -291,6 +291,24 @@ def test_a_plan_heard_outside_a_round_is_where_a_departed_peer_may_have_stopped(
     assert held == {(4, 4, 0), (4, 3, 0), (4, 2, 0), (4, 1, 0)}  # from step 11 - lead on: all of it
 
 
+def test_a_drone_resting_where_a_departed_peer_flew_through_can_still_leave() -> None:
+    """Seen in a fleet test: b flew through (2, 0); a came to rest there after it; b died and was
+    noticed a lease later, so its whole plan was held for good, a's own cell included: a found
+    no plan ever again. Had b stopped there, they would have met: a's cell is spared, the others not."""
+    peers = {"a": (2, 0, 0), "b": (3, 1, 0), "c": C}
+    proto = machine(peers)
+    b_plan = traj(1, (3, 1), (2, 1), (2, 0), (1, 0), (1, 1))  # through a's cell at step 3, done by step 5
+    proto.heard("b", b_plan)
+    proto.handle(PeerLeft("b", silent_since=0), 6)  # b's rest of plan: all of it
+    proto.handle(NewTask(Task(ID_A, GOAL)), 6)
+    action = started(proto.handle(CurrentTraj("c", location_of("c", 6), ID_A), 6))
+    held = {t.cells[0] for name, t in action.psi.items() if name.startswith("b")}
+    assert held == {(3, 1, 0), (2, 1, 0), (1, 0, 0), (1, 1, 0)}  # all of b's plan but a's own cell
+    assert action.trajectory.cells[0] == (2, 0, 0) and action.trajectory.last == GOAL
+    assert not set(action.trajectory.cells[1:]) & held
+    assert check_trajectory(OPEN, action.trajectory, action.psi, action.trajectory.start_step) == []
+
+
 def test_the_last_awaited_peer_leaving_lets_it_plan_with_its_last_known_trajectory() -> None:
     proto = machine()
     proto.handle(NewTask(Task(ID_A, GOAL)), 0)

@@ -175,13 +175,20 @@ class CoordinationProtocol:
             return self.trajectory
         return Trajectory.stationary(self.location, now)
 
-    def ghost_obstacles(self) -> dict[str, Trajectory]:
+    def ghost_obstacles(self, sparing: Cell | None = None) -> dict[str, Trajectory]:
         """Departed drones, for planning. One that left in the middle of a plan may have stopped
         anywhere along the rest of it (its agent died; its autopilot holds), so every cell of that
-        rest is held for good, as if a drone rested there."""
+        rest is held for good, as if a drone rested there.
+
+        ``sparing``: the cell this drone is in. Had the departed drone stopped there, it would
+        still be there and we would have met it already; so it is not there, and the cell must
+        not hold us in place for good (we may have come in after it flew through).
+        """
         held: dict[str, Trajectory] = {}
         for drone, trajectory in self.ghosts.items():
             for i, cell in enumerate(dict.fromkeys(trajectory.cells)):
+                if cell == sparing:
+                    continue
                 name = drone if cell == trajectory.last else f"{drone}#{i}"
                 held[name] = Trajectory.stationary(cell, trajectory.start_step)
         return held
@@ -264,7 +271,7 @@ class CoordinationProtocol:
             return []
         assert self.task is not None
         task = self.task
-        psi = {**self.ghost_obstacles(), **{p: self.received[p] for p in self.members}}
+        psi = {**self.ghost_obstacles(sparing=self.location), **{p: self.received[p] for p in self.members}}
         start_step = now + self.lead_steps
         max_length = task.max_length(start_step)
         try:

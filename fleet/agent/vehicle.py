@@ -17,6 +17,7 @@ from collections.abc import Callable
 
 from drona_gcs.errors import VehicleError
 from drona_gcs.geo import Ned
+from fleet.clock import cancel_all
 from fleet.vehicle.link import Autopilot, LandedState, Telemetry, VehicleLink
 
 log = logging.getLogger(__name__)
@@ -69,7 +70,11 @@ class VehicleSupervisor:
 
     async def _carry_out(self, airborne: bool) -> None:
         try:
-            await asyncio.wait_for(self._launch() if airborne else self._land(), self.command_timeout_s)
+            if airborne or self._final:
+                await asyncio.wait_for(self._launch() if airborne else self._land(), self.command_timeout_s)
+            elif not await self._land_unless_wanted_back():
+                self.airborne = False  # somewhere between: the launch takes it from wherever it is
+                return
         except (VehicleError, TimeoutError) as exc:
             what = "take off" if airborne else "land"
             self.on_alarm(f"vehicle: cannot {what}: {exc}")
@@ -80,6 +85,30 @@ class VehicleSupervisor:
         self.on_alarm(None)
         if self.airborne == self.wanted:
             self.reached.set()
+
+    async def _land_unless_wanted_back(self) -> bool:
+        """Land; False if a new plan wants the drone in the air before touchdown.
+
+        The plan's lead time covers a take-off from the ground, not the rest of a descent
+        first: a drone that finished coming down before climbing again would be late for its
+        plan's first steps. So it stops descending at once (the launch switches LAND back to
+        following setpoints; an airborne vehicle needs no take-off).
+        """
+        landing = asyncio.create_task(asyncio.wait_for(self._land(), self.command_timeout_s))
+        try:
+            while not landing.done():
+                self._changed.clear()
+                if self.wanted:
+                    return False
+                wish = asyncio.create_task(self._changed.wait())
+                try:
+                    await asyncio.wait([landing, wish], return_when=asyncio.FIRST_COMPLETED)
+                finally:
+                    await cancel_all([wish])
+            landing.result()  # its error, if it failed
+            return True
+        finally:
+            await cancel_all([landing])
 
     def _over_target(self, telemetry: Telemetry) -> bool:
         if telemetry.position is None:

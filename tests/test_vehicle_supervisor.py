@@ -1,0 +1,62 @@
+"""The agent's take-off and landing supervisor against the fake vehicle (real MAVLink on 127.0.0.1).
+
+A drone told to land and then, mid-descent, given a new plan must climb back at once: the plan's
+lead time covers a take-off, not the rest of a descent first.
+"""
+
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+
+from drona_gcs.geo import Ned
+from fleet.agent.vehicle import VehicleSupervisor
+from fleet.clock import cancel_all
+from fleet.vehicle.link import LandedState, Telemetry
+from tests.test_vehicle_link import connected, fake_vehicle, run
+
+FLIGHT_ALT_M = 8.0
+
+
+@pytest.mark.parametrize("personality", ["ardupilot", "px4"])
+def test_a_plan_during_the_descent_turns_the_landing_into_a_climb(personality: str) -> None:
+    async def scenario() -> None:
+        async with fake_vehicle(personality, "udp") as fake, connected("pymavlink", fake) as link:
+            await link.wait_ready(timeout=5)
+            alarms: list[str | None] = []
+            here = Ned(0.0, 0.0, -FLIGHT_ALT_M)
+            supervisor = VehicleSupervisor("d1", link, FLIGHT_ALT_M, alarms.append, lambda: here, arrival_m=0.5)
+            async def stream() -> None:  # as the agent's setpoint loop does, whatever the supervisor does
+                while True:
+                    await link.send_position_target(here)
+                    await asyncio.sleep(0.05)
+
+            runner, streamer = asyncio.create_task(supervisor.run()), asyncio.create_task(stream())
+            try:
+                supervisor.want_airborne(True)
+                await asyncio.wait_for(supervisor.reached.wait(), 15)
+                await link.wait_until(lambda t: (t.height_m or 0.0) > FLIGHT_ALT_M - 0.5, 10, "the flight altitude")
+
+                supervisor.want_airborne(False)
+                await link.wait_until(lambda t: (t.height_m or FLIGHT_ALT_M) < FLIGHT_ALT_M - 2.0, 10,
+                                      "the descent")
+                lowest = FLIGHT_ALT_M
+
+                def track(t: Telemetry) -> bool:
+                    nonlocal lowest
+                    lowest = min(lowest, t.height_m if t.height_m is not None else lowest)
+                    assert t.landed is not LandedState.ON_GROUND, "it came down to the ground first"
+                    return supervisor.reached.is_set() and (t.height_m or 0.0) > FLIGHT_ALT_M - 0.5
+
+                supervisor.want_airborne(True)  # a new plan, mid-descent
+                await link.wait_until(track, 15, "the climb back to the flight altitude")
+                assert lowest > 0.5, f"it went down to {lowest:.2f} m before climbing back"
+                assert link.telemetry().armed and supervisor.settled
+                assert [a for a in alarms if a is not None] == []
+            finally:
+                supervisor.stop()
+                await asyncio.wait_for(runner, 5)
+                await cancel_all([streamer])
+
+    run(scenario)
