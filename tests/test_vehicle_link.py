@@ -63,7 +63,9 @@ CANNOT: dict[tuple[str, str, str], str] = {
 }
 #: How each backend reports a vehicle gone silent, by transport: MAVSDK hides a closed TCP connection
 #: (its tcpout reconnects), so it sees the same missing HEARTBEATs as over UDP.
-SILENT_WHY = {("pymavlink", "tcp"): "connection closed by the vehicle", ("mavsdk", "tcp"): "no HEARTBEAT for 0.5 s"}
+#: The silence is measured when noticed, so its figure varies with scheduling; the timeout is named as set.
+NO_HEARTBEAT = r"no HEARTBEAT for \d+\.\d s \(timeout 0\.5 s\)"
+SILENT_WHY = {("pymavlink", "tcp"): "connection closed by the vehicle", ("mavsdk", "tcp"): NO_HEARTBEAT}
 
 
 def skip_if_cannot(backend: str, test: str, transport: str) -> None:
@@ -244,7 +246,7 @@ def test_a_silent_vehicle_fails_commands_and_waits_within_the_timeout(backend: s
             await link.wait_ready(timeout=5)
             await fake.silence()
             started = time.monotonic()
-            why = SILENT_WHY.get((backend, transport), "no HEARTBEAT for 0.5 s")
+            why = SILENT_WHY.get((backend, transport), NO_HEARTBEAT)
             with pytest.raises(VehicleError, match=why):
                 await link.wait_until(lambda t: False, 5, "something that never comes")
             with pytest.raises(VehicleError, match=why):
