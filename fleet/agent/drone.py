@@ -30,13 +30,7 @@ from typing import TextIO
 from drona_gcs.geo import GeoFrame
 from drona_gcs.stack.battery import BatteryLow, BatteryRecharged
 from drona_gcs.stack.drone import DroneAction, DroneStack
-from drona_gcs.stack.mail import (
-    GoTo,
-    MailDelivered,
-    MailPickedUp,
-    MailRejected,
-    MailStarted,
-)
+from drona_gcs.stack.mail import GoTo, MailDelivered, MailPickedUp, MailRejected, MailStarted
 from drona_gcs.stack.protocol import Broadcast, Send, StartExecuting, State, TaskFailed
 from drona_gcs.workspace import Cell, Workspace
 from fleet.agent.clocksync import ClockCheck, OffsetSample

@@ -95,20 +95,20 @@ class VehicleSupervisor:
         following setpoints; an airborne vehicle needs no take-off).
         """
         landing = asyncio.create_task(asyncio.wait_for(self._land(), self.command_timeout_s))
+        wanted_back = asyncio.create_task(self._until_wanted())
         try:
-            while not landing.done():
-                self._changed.clear()
-                if self.wanted:
-                    return False
-                wish = asyncio.create_task(self._changed.wait())
-                try:
-                    await asyncio.wait([landing, wish], return_when=asyncio.FIRST_COMPLETED)
-                finally:
-                    await cancel_all([wish])
+            await asyncio.wait([landing, wanted_back], return_when=asyncio.FIRST_COMPLETED)
+            if not landing.done():
+                return False
             landing.result()  # its error, if it failed
             return True
         finally:
-            await cancel_all([landing])
+            await cancel_all([landing, wanted_back])
+
+    async def _until_wanted(self) -> None:
+        while not self.wanted:
+            self._changed.clear()
+            await self._changed.wait()
 
     def _over_target(self, telemetry: Telemetry) -> bool:
         if telemetry.position is None:
