@@ -1,7 +1,8 @@
 """``drona bench coordination``: end-to-end coordination latency of N agents over Zenoh on loopback.
 
 The agents run in ``--processes`` ``drona agent --count`` subprocesses (a Zenoh
-session per process) against N fake vehicles in a ``drona sim-vehicle``
+session per process, ``--shared-session``; or one per drone, as on a real
+fleet, with ``--session-per-drone``) against N fake vehicles in a ``drona sim-vehicle``
 subprocess; an outside session keeps every drone busy with mail over Zenoh.
 Latency is measured per plan, from the task's arrival (the task planner's
 decision at a step boundary) to the plan scheduled (the protocol's
@@ -72,7 +73,7 @@ def bench_workspace(agents: int) -> str:
 
 
 async def run_bench(agents: int, processes: int, seconds: float, steady_after: float, workdir: Path,
-                    seed: int = 1) -> CoordinationResult:
+                    seed: int = 1, shared_session: bool = True) -> CoordinationResult:
     ws_file = workdir / f"bench-{agents}.yaml"
     ws_file.write_text(bench_workspace(agents))
     workspace = load_workspace(ws_file)
@@ -88,7 +89,8 @@ async def run_bench(agents: int, processes: int, seconds: float, steady_after: f
         children.append(_spawn(["agent", "--workspace", str(ws_file), "--drone", names[first], "--count", str(count),
                                 "--fleet", fleet, "--listen", f"tcp/127.0.0.1:{port + first}",
                                 "--connect", f"tcp/127.0.0.1:{port}", "--vehicle-base-port", str(base),
-                                "--lead-steps", "4", "--telemetry-hz", str(TELEMETRY_HZ), "--log-level", "WARNING"]))
+                                "--lead-steps", "4", "--telemetry-hz", str(TELEMETRY_HZ), "--log-level", "WARNING",
+                                *(["--shared-session"] if shared_session else [])]))
     try:
         return await _measure(children, workspace, names, fleet, port, seconds, steady_after, seed)
     finally:
@@ -216,13 +218,15 @@ def run(args: argparse.Namespace) -> int:
     if agents < 2 or seconds <= 0:
         print("drona bench coordination: --agents must be >= 2 and --seconds > 0", file=sys.stderr)
         return 2
-    if not args.json:
-        print(f"drona bench coordination: {agents} agents (a Zenoh session per process) in "
-              f"{max(1, min(args.processes or 4, agents))} `drona agent --count` processes, {agents} fake vehicles "
-              f"in a `drona sim-vehicle`, loopback; mail for {seconds:g} s", flush=True)
     processes = max(1, min(args.processes or 4, agents))
+    shared = not args.session_per_drone
+    if not args.json:
+        print(f"drona bench coordination: {agents} agents (a Zenoh session per "
+              f"{'process' if shared else 'drone'}) in {processes} `drona agent --count` processes, {agents} fake "
+              f"vehicles in a `drona sim-vehicle`, loopback; mail for {seconds:g} s", flush=True)
     with tempfile.TemporaryDirectory() as workdir:
-        result = asyncio.run(run_bench(agents, processes, seconds, args.steady_after, Path(workdir)))
+        result = asyncio.run(run_bench(agents, processes, seconds, args.steady_after, Path(workdir),
+                                       shared_session=shared))
     if args.json:
         print(json.dumps(asdict(result)))
         return 0

@@ -1,8 +1,9 @@
 """The agent process: one or more drones (``--count``), one TaskGroup, one setpoint timer.
 
-Start-up: one Zenoh session for the process (its drones share it, each with
-its own declarations); per drone and concurrently, connect its vehicle and
-wait until it is ready; then every drone joins the fleet.
+Start-up, per drone and concurrently: open its own Zenoh session (or, with
+``--shared-session``, one for the process that its drones share, each with its
+own declarations), connect its vehicle and wait until it is ready; then every
+drone joins the fleet.
 Steps are counted on the process's clock from the fleet epoch.
 
 Shutdown (SIGINT or SIGTERM): no new mail or tasks; drones flying a plan
@@ -22,7 +23,7 @@ import signal
 import time
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
-from typing import TextIO
+from typing import TextIO, TypeVar
 
 from drona_gcs.errors import DronaError
 from drona_gcs.geo import GeoFrame
@@ -87,11 +88,17 @@ def default_lead_steps(workspace: Workspace) -> int:
     return workspace.delta + 1 + math.ceil(climb_s / workspace.tau_s)
 
 
-def zenoh_settings(settings: AgentSettings, workspace: Workspace, names: Sequence[str]) -> ZenohSettings:
-    """The process's one session, listening wherever its drones are expected: explicit endpoints
-    (the i-th drone of a process ``i`` ports up), a config file, or the one-machine default
-    (drone k of the workspace on 7448 + k, connecting to the others')."""
-    listen = tuple(_shift_port(ep, offset) for offset in range(len(names)) for ep in settings.listen)
+def session_groups(settings: AgentSettings, names: Sequence[str]) -> list[list[str]]:
+    """The drones of each Zenoh session: one each (as on a real fleet), or all in one (``--shared-session``)."""
+    return [list(names)] if settings.shared_session else [[name] for name in names]
+
+
+def zenoh_settings(settings: AgentSettings, workspace: Workspace, names: Sequence[str],
+                   first: int = 0) -> ZenohSettings:
+    """A session of drones ``names``, the ``first``-th of the process onwards, listening wherever they
+    are expected: explicit endpoints (the i-th drone of a process ``i`` ports up), a config file, or
+    the one-machine default (drone k of the workspace on 7448 + k, connecting to the others')."""
+    listen = tuple(_shift_port(ep, first + i) for i in range(len(names)) for ep in settings.listen)
     connect = tuple(ep for ep in settings.connect if ep not in listen)
     if settings.zenoh_config is None and not listen and not connect:
         drones = list(workspace.drones)
@@ -123,15 +130,13 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
     lead = settings.lead_steps or default_lead_steps(ws)
     config = StackConfig(ws, planner, battery, lead_steps=lead)
     keys = FleetKeys(settings.fleet)
-    session = await ZenohNode.open(zenoh_settings(settings, ws, host.names), "+".join(host.names))
-    nodes = [session.view(name) for name in host.names]
+    groups = session_groups(settings, host.names)
+    sessions = await _all_or_none([ZenohNode.open(zenoh_settings(settings, ws, group, host.names.index(group[0])),
+                                                  "+".join(group)) for group in groups], lambda node: node.close())
+    nodes = [session.view(name) for session, group in zip(sessions, groups, strict=True) for name in group]
     links: list[VehicleLink] = []
     try:
-        opened = await asyncio.gather(*(_connect(host, frame, name) for name in host.names), return_exceptions=True)
-        links = [item for item in opened if not isinstance(item, BaseException)]
-        failure = next((item for item in opened if isinstance(item, BaseException)), None)
-        if failure is not None:
-            raise failure
+        links = await _all_or_none([_connect(host, frame, name) for name in host.names], lambda link: link.close())
         for node, link, name in zip(nodes, links, host.names, strict=True):
             stack = DroneStack(name, config, ws.drones)
             agent = DroneAgent(stack, node, keys, link, frame, host.clock, record)
@@ -149,9 +154,23 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
         await _fly(host, frame, record)
     finally:
         await asyncio.gather(*(node.close() for node in nodes), return_exceptions=True)
-        await session.close()
+        await asyncio.gather(*(session.close() for session in sessions), return_exceptions=True)
         await asyncio.gather(*(link.close() for link in links), return_exceptions=True)
         log.info("drones %s left the fleet", ", ".join(host.names))
+
+
+T = TypeVar("T")
+
+
+async def _all_or_none(starts: Sequence[Awaitable[T]], close: Callable[[T], Awaitable[object]]) -> list[T]:
+    """Start everything concurrently; if anything fails, close what did start and raise the first failure."""
+    started = await asyncio.gather(*starts, return_exceptions=True)
+    good = [item for item in started if not isinstance(item, BaseException)]
+    failure = next((item for item in started if isinstance(item, BaseException)), None)
+    if failure is not None:
+        await asyncio.gather(*(close(item) for item in good), return_exceptions=True)
+        raise failure
+    return good
 
 
 def _check_placement(agent: DroneAgent) -> None:

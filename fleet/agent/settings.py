@@ -40,6 +40,7 @@ class AgentSettings(BaseSettings):
     safe_threshold: Annotated[float, Field(ge=0, lt=100)] = 20.0
     clock_check_s: Annotated[float, Field(gt=0)] = 5.0  #: how often to measure the peers' clock offsets
     ready_timeout_s: Annotated[float, Field(gt=0)] = 60.0  #: the vehicle's readiness at start-up
+    shared_session: bool = False  #: simulation: the process's drones share one Zenoh session (one each by default)
     adopt_mail: bool = True  #: take over a departed peer's mail (turn off when a service dispatches it)
     log_level: str = "INFO"
 

@@ -31,7 +31,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add = parser.add_argument
     add("--workspace", help="workspace file (YAML, JSON or DRONA XML) [DRONA_WORKSPACE]")
     add("--drone", help="drone id; with --count, the first of consecutive drones (default: the first) [DRONA_DRONE]")
-    add("--count", type=int, help="drones hosted by this process, sharing its Zenoh session (default 1)")
+    add("--count", type=int, help="drones hosted by this process, each with its own Zenoh session (default 1)")
+    add("--shared-session", action="store_const", const=True,
+        help="simulation: the --count drones share one Zenoh session (each keeps its own declarations and "
+             "liveliness token); a broadcast then crosses into Python once per process [DRONA_SHARED_SESSION]")
     add("--vehicle", help="MAVLink URL of the vehicle: udpin://HOST:PORT, udpout://..., tcp://HOST:PORT, "
                           "serial://DEV:BAUD (default udpin://127.0.0.1:(14540 + i)) [DRONA_VEHICLE]")
     add("--vehicle-base-port", type=int, help="default vehicle URLs: udpin://127.0.0.1:(this + i) (default 14540, "

@@ -76,9 +76,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     _add_mavlink_arguments(parser)
     group = parser.add_argument_group("bench coordination")
     group.add_argument("--agents", type=int, help="agents, each with its own fake vehicle "
-                       "(a Zenoh session per process; default 32; 8 with --quick); "
+                       "(default 32; 8 with --quick); "
                        "--seconds: how long to keep them busy (default 60; 15)")
     group.add_argument("--processes", type=int, help="agent processes the agents are spread over (default 4)")
+    group.add_argument("--session-per-drone", action="store_true",
+                       help="each agent with its own Zenoh session, as on a real fleet (default: the agents of a "
+                            "process share one, `drona agent --shared-session`)")
     from api import bench as api_bench  # its own group: --rate, --connections, --sim-drones, --url, --token
 
     api_bench.add_arguments(parser)

@@ -6,8 +6,9 @@ the handlers run on the loop, one at a time, like everything else in the
 process. Protocol messages are put with congestion control BLOCK (the
 default DROP lost 19% of a burst here).
 
-Drones hosted in one process share one session (:meth:`ZenohNode.view`):
-each has its own declarations, and subscriptions to one key share one Zenoh
+Drones hosted in one process with ``--shared-session`` share one session
+(:meth:`ZenohNode.view`; by default each drone has a session of its own, and a
+view of it): each has its own declarations, and subscriptions to one key share one Zenoh
 subscriber, so a broadcast crosses into Python once per process.
 
 Closing undeclares every declaration, newest first, before the session:
@@ -124,7 +125,7 @@ class ZenohNode:
 
     def view(self, name: str) -> ZenohNode:
         """A node on the same session with declarations of its own: closing it undeclares them and
-        leaves the session open. Drones hosted in one process share a session this way: one set of
+        leaves the session open. Drones hosted in one process can share a session this way: one set of
         links between processes instead of one per pair of drones, and a message between two of
         them never leaves the process (Zenoh delivers it locally)."""
         return ZenohNode(self.session, self.loop, name, owner=self.owner or self)

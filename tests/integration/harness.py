@@ -56,6 +56,7 @@ class FleetProcesses:
     drones: list[str]
     fleet: str = field(default_factory=lambda: f"it-{uuid.uuid4().hex[:8]}")
     offsets: dict[str, float] = field(default_factory=dict)  #: injected clock offsets, s
+    hosted: bool = False  #: every drone in one `drona agent --count N --shared-session` process
     agent_options: tuple[str, ...] = ()  #: more `drona agent` options for every agent
     sim: subprocess.Popen[bytes] | None = None
     agents: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
@@ -80,8 +81,19 @@ class FleetProcesses:
         self.sim = self._spawn("sim", [*DRONA, "sim-vehicle", "--workspace", str(self.workspace), "--count",
                                        str(len(self.drones)), "--base-port", str(self.vehicle_base),
                                        "--speedup", str(SPEEDUP), "--ready-after", "0.5"])
+        if self.hosted:
+            self.agents["+".join(self.drones)] = self._spawn("host", self.host_command())
+            return
         for i, drone in enumerate(self.drones):
             self.agents[drone] = self._spawn(drone, self.agent_command(drone, i))
+
+    def host_command(self) -> list[str]:
+        """One process for the whole fleet: drone i listens i ports up from the first (as the ports are)."""
+        first = self.drones[0]
+        return [*DRONA, "agent", "--workspace", str(self.workspace), "--drone", first,
+                "--count", str(len(self.drones)), "--shared-session", "--vehicle-base-port", str(self.vehicle_base),
+                "--fleet", self.fleet, "--listen", self.endpoint(first), "--record", str(self.record("host")),
+                "--lead-steps", str(LEAD_STEPS), *self.agent_options]
 
     def agent_command(self, drone: str, index: int) -> list[str]:
         command = [*DRONA, "agent", "--workspace", str(self.workspace), "--drone", drone,
@@ -142,7 +154,7 @@ class FleetProcesses:
 
     def audit(self) -> Audit:
         records = []
-        for drone in self.drones:
+        for drone in ["host"] if self.hosted else self.drones:
             path = self.record(drone)
             if path.exists():
                 records += [json.loads(line) for line in path.read_text().splitlines() if line.strip()]

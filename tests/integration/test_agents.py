@@ -55,9 +55,10 @@ def check_run(fleet: FleetProcesses, obs: Observer, orders: list[MailOrder]) -> 
     assert min(obs.min_battery.values()) >= SAFE_THRESHOLD
 
 
-@pytest.mark.parametrize("drones, mails", [(4, 8), (8, 12)])
-def test_agents_deliver_every_mail_without_collisions(tmp_path: Path, drones: int, mails: int) -> None:
-    fleet = FleetProcesses(tmp_path, [f"d{i + 1}" for i in range(drones)])
+@pytest.mark.parametrize("drones, mails, hosted", [(4, 8, False), (8, 12, False), (4, 8, True)],
+                         ids=["4-8", "8-12", "4-8-one-process-shared-session"])
+def test_agents_deliver_every_mail_without_collisions(tmp_path: Path, drones: int, mails: int, hosted: bool) -> None:
+    fleet = FleetProcesses(tmp_path, [f"d{i + 1}" for i in range(drones)], hosted=hosted)
     orders = random_orders(mails, seed=drones, fleet=fleet)
     fleet.start()
     try:
