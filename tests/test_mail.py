@@ -156,6 +156,36 @@ def test_a_failed_pickup_puts_the_mail_back_in_the_queue() -> None:
     assert goto(actions).goal == c(2, 2)
 
 
+def test_a_leg_to_a_cell_another_drone_rests_on_backs_off_until_that_drone_leaves() -> None:
+    """Each try is a round with every peer that ends in no plan while the cell stays taken: the
+    retries back off 2, 4, 8, 8 steps, and the leg is tried at once when the drone is known gone."""
+    mp = planner()  # on a parking cell
+    m = mail("m", c(2, 2), c(4, 4))
+    mp.assign(m)
+    taken = {c(2, 2)}
+    now, waits = 0, []
+    for _ in range(5):
+        assert goto(mp.decide(now, 100, taken)).goal == c(2, 2)
+        mp.leg_failed(now)
+        waits.append(mp.retry_at - now)
+        assert all(mp.decide(t, 100, taken) == [] for t in range(now + 1, mp.retry_at))
+        last, now = now, mp.retry_at
+    assert waits == [2, 4, 8, 8, 8]
+    assert goto(mp.decide(last + 1, 100, set())).goal == c(2, 2)  # known gone: at once, before retry_at
+    assert mp.leg_done() == [MailPickedUp(m)]
+    assert (mp.blocked, mp.backoff) == (None, 0)
+
+
+def test_a_leg_that_fails_with_its_goal_free_retries_after_retry_steps() -> None:
+    mp = planner()
+    m = mail("m", c(2, 2), c(4, 4))
+    mp.assign(m)
+    for now in (0, 2, 4):
+        assert goto(mp.decide(now, 100, ())).goal == c(2, 2)
+        mp.leg_failed(now)
+        assert mp.retry_at == now + mp.retry_steps
+
+
 def test_a_failed_leg_away_from_parking_clears_the_way_first_and_keeps_the_mail() -> None:
     mp = planner()
     m = mail("m", c(2, 2), c(4, 4))

@@ -31,7 +31,12 @@ hovering where they block corridors: a parked drone is an obstacle for every
 plan (the paper notes MRMP is incomplete because parked robots can wall others
 in). Chargers are for charging: a charged drone leaves for a parking cell.
 A failed leg is retried after ``retry_steps``, towards the next candidate when
-the goal was a charger or parking cell. Mail is never dropped.
+the goal was a charger or parking cell. Mail is never dropped. A leg to a cell
+another drone was known to rest on, failed again and again, backs off (2, 4, 8
+steps): each try is a whole coordination round with every peer, and it ends
+in no plan as long as that drone stays. It is tried again at once when the drone
+is known to have left, and a real round every 8 steps at most keeps that
+knowledge fresh.
 """
 
 from __future__ import annotations
@@ -142,6 +147,7 @@ class MailPlanner:
     distance: Distance
     battery: BatteryModel = field(default_factory=BatteryModel)
     retry_steps: int = 2
+    max_retry_steps: int = 8  #: the longest back-off of a leg to a cell another drone rests on
     recharged_level: float = 95.0  #: charging ends here
     bugs: frozenset[str] = frozenset()
     phase: Phase = Phase.IDLE
@@ -153,6 +159,9 @@ class MailPlanner:
     carrying: bool = False  #: ``current`` is on board
     landed_here: bool = True  #: on the ground (drones start landed)
     tried: set[Cell] = field(default_factory=set)  #: goals that found no plan since the last leg
+    goal_taken: bool = False  #: the leg under way goes to a cell another drone was known to rest on
+    blocked: Cell | None = None  #: the goal of the failed leg, while it is believed taken
+    backoff: int = 0  #: the current back-off of retries towards ``blocked``, steps
 
     # ---------------------------------------------------------- inputs
     def assign(self, request: MailRequest) -> None:
@@ -181,6 +190,7 @@ class MailPlanner:
             raise ProtocolViolation(f"leg done while {self.phase.value}, with no leg under way")
         self.cell, self.goal = self.goal, None
         self.tried.clear()
+        self.blocked, self.backoff = None, 0
         self.landed_here = self.cell in self.parking or self.cell in self.chargers
         done, actions = self.phase, list[MailAction]()
         if done is Phase.TO_PICKUP and self.current is not None:
@@ -197,7 +207,7 @@ class MailPlanner:
 
     def leg_failed(self, now: int) -> None:
         """No plan was found: land here and try again a little later, from the ground."""
-        self.retry_at = now + self.retry_steps
+        self.retry_at = now + self._retry_delay()
         if self.goal is not None:
             self.tried.add(self.goal)
         self.goal = None
@@ -207,6 +217,16 @@ class MailPlanner:
             self.queue.append(self.current)
             self.current = None
         self.phase = Phase.IDLE
+
+    def _retry_delay(self) -> int:
+        """``retry_steps``; doubled on each failure in a row towards a cell believed taken (capped)."""
+        if not self.goal_taken or self.goal is None:
+            self.blocked, self.backoff = None, 0
+            return self.retry_steps
+        same = self.blocked == self.goal
+        self.blocked = self.goal
+        self.backoff = min(2 * self.backoff, self.max_retry_steps) if same else self.retry_steps
+        return self.backoff
 
     def landed(self, holding: bool) -> bool:
         """Whether the drone is on the ground: holding still (not flying a plan), landed here.
@@ -222,8 +242,10 @@ class MailPlanner:
         """At step boundary ``now`` with battery ``level``; ``taken``: cells other drones rest on."""
         if self.phase is Phase.CHARGING and level >= self.recharged_level:
             self.battery_recharged()  # also ends charging for a mail it could not afford
-        if self.busy or self.phase is Phase.CHARGING or now < self.retry_at:
+        if self.busy or self.phase is Phase.CHARGING:
             return []
+        if now < self.retry_at and (self.blocked is None or self.blocked in taken):
+            return []  # waiting to retry, unless the drone that blocked the goal has left it
         unchecked = "no-battery-check" in self.bugs or not self.chargers  # no chargers: no energy model
         budget = Budget(now, self.battery.steps_affordable(level), unchecked)
         spots = self.parking or self.chargers
@@ -310,7 +332,7 @@ class MailPlanner:
 
     def _go(self, goal: Cell, budget: Budget, reserve: int, purpose: Phase,
             taken: Collection[Cell]) -> list[MailAction]:
-        self.goal, self.phase = goal, purpose
+        self.goal, self.phase, self.goal_taken = goal, purpose, goal in taken
         return [GoTo(goal, budget.flight(reserve), purpose)]
 
     def _after(self, cell: Cell) -> int:
