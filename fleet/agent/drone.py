@@ -162,9 +162,11 @@ class DroneAgent:
 
     # -------------------------------------------------------------- actions
     def _carry_out(self, actions: Sequence[DroneAction]) -> None:
-        # A new plan last: the peers that waited for it (the Sends after StartExecuting) get it
-        # before its announcement to everyone and the bookkeeping.
-        for action in sorted(actions, key=lambda a: isinstance(a, StartExecuting)):
+        # Protocol messages first: peers wait on them (the Sends after a StartExecuting are answers
+        # to peers that waited for this plan). What only informs (mail progress, the plan's
+        # announcement) goes out once the work at hand is done: at a step boundary the process's
+        # other drones send their requests first.
+        for action in sorted(actions, key=_urgency):
             if isinstance(action, Send):
                 self._send(action.to, action.message)
             elif isinstance(action, Broadcast):
@@ -177,7 +179,7 @@ class DroneAgent:
             elif isinstance(action, TaskFailed):
                 log.warning("%s: no plan for task %s: %s", self.me, action.task.id, action.reason)
             elif isinstance(action, (MailStarted, MailPickedUp, MailDelivered, MailRejected)):
-                self.mail.progress(action)
+                asyncio.get_running_loop().call_soon(self.mail.progress, action)
             elif isinstance(action, (BatteryLow, BatteryRecharged)):
                 log.info("%s: battery %s", self.me, type(action).__name__)
 
@@ -193,8 +195,8 @@ class DroneAgent:
         self.metrics.plans += 1
         self.vehicle.want_airborne(True)
         self.publish_state_soon()  # after the answers to the peers that waited for this plan
-        self.node.put(self.keys.plan(self.me), encode(self.me, self.clock(), PlanAnnounce(
-            trajectory=WireTrajectory.of(action.trajectory))))
+        announce = encode(self.me, self.clock(), PlanAnnounce(trajectory=WireTrajectory.of(action.trajectory)))
+        asyncio.get_running_loop().call_soon(self.node.put, self.keys.plan(self.me), announce)
         if not log.isEnabledFor(logging.INFO):
             return  # the line below formats every trajectory avoided
         t = action.trajectory
@@ -328,3 +330,10 @@ class DroneAgent:
         """Flying a plan or coordinating one: not yet safe to leave."""
         return self.stack.protocol.state is not State.WAIT_FOR_TASK or self.stack.executor.flying
 
+
+def _urgency(action: DroneAction) -> int:
+    """Protocol messages (and the task's arrival time, which comes before its request), then a new
+    plan's bookkeeping, then the rest; a stable sort keeps the order within each."""
+    if isinstance(action, (GoTo, Send, Broadcast)):
+        return 0
+    return 1 if isinstance(action, StartExecuting) else 2
