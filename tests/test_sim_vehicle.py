@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import math
 import os
 import signal
@@ -37,7 +38,7 @@ from fleet.sim.mav import mavlink2
 from fleet.sim.model import VehicleModel
 from fleet.sim.personality import ARDUPILOT, PX4, px4_mode
 from fleet.sim.ports import free_udp_base
-from fleet.sim.telemetry import battery_status, sys_status
+from fleet.sim.telemetry import Streams, battery_status, sys_status
 
 ML = mavutil.mavlink
 REPO = Path(__file__).resolve().parents[1]
@@ -449,3 +450,19 @@ def test_sim_vehicle_refuses_a_workspace_too_fast_for_its_vehicles(tmp_path: Pat
                            "--max-speed", "5"], capture_output=True, text=True, timeout=30, check=False)
     assert done.returncode == 2
     assert "tau_s: one cell per tau needs 10.00 m/s" in done.stderr
+
+
+def test_vehicles_given_a_rate_at_once_stream_out_of_step_with_each_other() -> None:
+    """Like independent autopilots: the same 4 Hz asked of 4 vehicles at the same moment gives each a
+    message every 0.25 s, but not in one burst."""
+    position = mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
+    vehicles = [Streams({}, 0.0, phase=sysid * 0.6180339887) for sysid in range(1, 5)]
+    for streams in vehicles:
+        streams.set_interval(position, 250_000, 0.0)
+    ticks = [k * 0.02 for k in range(1, 101)]  # 2 s of the simulator's 50 Hz steps
+    sent = [[t for t in ticks if position in streams.due(t)] for streams in vehicles]
+    assert all(7 <= len(times) <= 8 for times in sent)  # 4 Hz each
+    assert all(0.23 <= b - a <= 0.27 for times in sent for a, b in itertools.pairwise(times))  # +/- a step
+    firsts = [times[0] for times in sent]
+    assert len({round(t, 3) for t in firsts}) == len(vehicles)  # no two in the same step
+    assert max(firsts) - min(firsts) > 0.1

@@ -75,7 +75,9 @@ class VehicleModel:
         self.setpoint_times: deque[float] = deque(maxlen=8)
         self.body = Body(config.limits)
         self.battery = Battery(remaining=config.battery_pct / 100)
-        self.streams = telemetry.Streams(dict(self.personality.default_streams), now)
+        # Each vehicle out of step with the others (the golden ratio spreads any number evenly).
+        self.streams = telemetry.Streams(dict(self.personality.default_streams), now,
+                                         phase=config.system_id * 0.6180339887)
         self.unhandled: dict[str, int] = {}
         self._out: list[Message] = []
         self._handlers: dict[str, Callable[[Message, float], None]] = {

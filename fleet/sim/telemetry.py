@@ -146,11 +146,17 @@ DATA_STREAMS[mavlink2.MAV_DATA_STREAM_ALL] = tuple(i for ids in DATA_STREAMS.val
 
 
 class Streams:
-    """Message id -> interval, and when each is next due. HEARTBEAT is always in."""
+    """Message id -> interval, and when each is next due. HEARTBEAT is always in.
 
-    def __init__(self, intervals: dict[int, float], now: float) -> None:
+    ``phase`` (a fraction of the interval) delays a stream's first message after its rate is
+    set. Real autopilots send on their own schedulers, out of step with each other; vehicles
+    of one simulator given their rates at the same moment would otherwise all send in one burst.
+    """
+
+    def __init__(self, intervals: dict[int, float], now: float, phase: float = 0.0) -> None:
         self._interval: dict[int, float] = {mavlink2.MAVLINK_MSG_ID_HEARTBEAT: HEARTBEAT_PERIOD_S, **intervals}
         self._due: dict[int, float] = dict.fromkeys(self._interval, now)
+        self._phase = phase % 1.0
 
     def set_interval(self, msg_id: int, interval_us: float, now: float) -> None:
         """MAV_CMD_SET_MESSAGE_INTERVAL's param2: -1 stops, 0 is the default rate, else microseconds."""
@@ -160,7 +166,7 @@ class Streams:
             return
         interval = DEFAULT_INTERVAL_S if interval_us == 0 else max(MIN_INTERVAL_S, interval_us / 1e6)
         self._interval[msg_id] = interval
-        self._due[msg_id] = now
+        self._due[msg_id] = now + self._phase * interval
 
     def interval(self, msg_id: int) -> float | None:
         return self._interval.get(msg_id)
