@@ -11,6 +11,7 @@ mail is lost.
 
 from __future__ import annotations
 
+import itertools
 import random
 
 import pytest
@@ -156,24 +157,46 @@ def test_a_failed_pickup_puts_the_mail_back_in_the_queue() -> None:
     assert goto(actions).goal == c(2, 2)
 
 
-def test_a_leg_to_a_cell_another_drone_rests_on_backs_off_until_that_drone_leaves() -> None:
-    """Each try is a round with every peer that ends in no plan while the cell stays taken: the
-    retries back off 2, 4, 8, 8 steps, and the leg is tried at once when the drone is known gone."""
+def test_a_leg_to_a_cell_another_drone_rests_on_waits_without_a_round_and_backs_off() -> None:
+    """A round would end in no plan while the cell stays taken: the leg fails without asking,
+    retries back off 2, 4, 8 steps, then a real round every 8 steps refreshes what is known."""
     mp = planner()  # on a parking cell
     m = mail("m", c(2, 2), c(4, 4))
     mp.assign(m)
     taken = {c(2, 2)}
-    now, waits = 0, []
-    for _ in range(5):
-        assert goto(mp.decide(now, 100, taken)).goal == c(2, 2)
-        mp.leg_failed(now)
-        waits.append(mp.retry_at - now)
+    now, tries = 0, []
+    for _ in range(6):
+        actions = mp.decide(now, 100, taken)
+        asked = any(isinstance(a, GoTo) for a in actions)
+        if asked:
+            assert actions[0] == MailStarted(m, ()) and goto(actions).goal == c(2, 2)
+            mp.leg_failed(now)  # the round found the cell taken
+        else:
+            assert actions == [] and mp.queue == [m] and mp.current is None  # not started
+        tries.append((now, asked))
         assert all(mp.decide(t, 100, taken) == [] for t in range(now + 1, mp.retry_at))
         last, now = now, mp.retry_at
-    assert waits == [2, 4, 8, 8, 8]
+    assert tries == [(0, False), (2, False), (6, False), (14, True), (22, True), (30, True)]
     assert goto(mp.decide(last + 1, 100, set())).goal == c(2, 2)  # known gone: at once, before retry_at
     assert mp.leg_done() == [MailPickedUp(m)]
     assert (mp.blocked, mp.backoff) == (None, 0)
+
+
+def test_alternating_between_taken_chargers_still_reaches_a_real_round() -> None:
+    """Found by the systematic tester: both chargers taken, a low drone tried them in turn, the
+    back-off restarted with each goal, and it waited for news forever without asking anyone."""
+    mp = planner(at=c(4, 5))
+    mp.battery_low()
+    taken, now, asked = {Q1, Q2}, 0, []
+    while now < 40:
+        actions = mp.decide(now, 60, taken)
+        if actions:
+            asked.append((now, goto(actions).goal))
+            mp.leg_failed(now)
+        now = mp.retry_at
+    assert asked and asked[0][0] <= 14
+    assert {goal for _, goal in asked} == {Q1, Q2}  # real rounds, each charger in turn
+    assert all(b - a == 8 for (a, _), (b, _) in itertools.pairwise(asked))
 
 
 def test_a_leg_that_fails_with_its_goal_free_retries_after_retry_steps() -> None:
@@ -231,7 +254,10 @@ def test_a_taken_charger_is_avoided_when_another_is_affordable() -> None:
     assert goto(mp.decide(0, 60, {Q1})).goal == Q2  # 5 steps instead of 4, but free
     mp = planner(at=c(1, 9))
     mp.battery_low()
-    assert goto(mp.decide(0, 32, {Q1})).goal == Q1  # (9, 0) is beyond the 12 steps left: try anyway
+    # (9, 0) is beyond the 12 steps left: it waits for (0, 0) on the ground (no round while it is
+    # known taken), and goes as soon as (0, 0) is known free
+    assert mp.decide(0, 32, {Q1}) == [] and mp.landed(holding=True) and mp.retry_at == 2
+    assert goto(mp.decide(1, 32, set())).goal == Q1
 
 
 def test_a_mail_it_cannot_afford_sends_it_to_charge_first() -> None:

@@ -31,12 +31,14 @@ hovering where they block corridors: a parked drone is an obstacle for every
 plan (the paper notes MRMP is incomplete because parked robots can wall others
 in). Chargers are for charging: a charged drone leaves for a parking cell.
 A failed leg is retried after ``retry_steps``, towards the next candidate when
-the goal was a charger or parking cell. Mail is never dropped. A leg to a cell
-another drone was known to rest on, failed again and again, backs off (2, 4, 8
-steps): each try is a whole coordination round with every peer, and it ends
-in no plan as long as that drone stays. It is tried again at once when the drone
-is known to have left, and a real round every 8 steps at most keeps that
-knowledge fresh.
+the goal was a charger or parking cell. Mail is never dropped.
+
+A leg to a cell another drone is known to rest on would cost a whole
+coordination round with every peer and end in no plan, so it counts as failed
+without asking, and the retries back off (2, 4, 8 steps). It is tried again
+at once when that drone is known to have left (the runtime hears every new
+plan), and a real round every 8 steps keeps what is known fresh: in the
+systematic tester's model, rounds are the only news.
 """
 
 from __future__ import annotations
@@ -161,7 +163,7 @@ class MailPlanner:
     tried: set[Cell] = field(default_factory=set)  #: goals that found no plan since the last leg
     goal_taken: bool = False  #: the leg under way goes to a cell another drone was known to rest on
     blocked: Cell | None = None  #: the goal of the failed leg, while it is believed taken
-    backoff: int = 0  #: the current back-off of retries towards ``blocked``, steps
+    backoff: int = 0  #: the back-off of retries towards cells believed taken, steps (0: none)
 
     # ---------------------------------------------------------- inputs
     def assign(self, request: MailRequest) -> None:
@@ -223,9 +225,10 @@ class MailPlanner:
         if not self.goal_taken or self.goal is None:
             self.blocked, self.backoff = None, 0
             return self.retry_steps
-        same = self.blocked == self.goal
+        # Counted over the goals tried in turn (two chargers, say): what grows is the wait for
+        # news, and at the cap every try is a real round, which brings it.
         self.blocked = self.goal
-        self.backoff = min(2 * self.backoff, self.max_retry_steps) if same else self.retry_steps
+        self.backoff = min(2 * self.backoff, self.max_retry_steps) if self.backoff else self.retry_steps
         return self.backoff
 
     def landed(self, holding: bool) -> bool:
@@ -273,7 +276,8 @@ class MailPlanner:
             self.queue.pop(0)
             self.current = best
             rest = self._need(best.pickup, best) - self.battery.margin_steps
-            return [MailStarted(best, tuple(self.queue)), *self._go(best.pickup, budget, rest, Phase.TO_PICKUP, taken)]
+            leg = self._go(best.pickup, budget, rest, Phase.TO_PICKUP, taken)
+            return [MailStarted(best, tuple(self.queue)), *leg] if leg else []  # not started: back in the queue
         # Not enough for this mail: charge first, at a charger from which a full battery will do.
         full = self.battery.steps_affordable(self.recharged_level)
         staging = [c for c in self.chargers if self._need(c, best) <= full]
@@ -332,7 +336,12 @@ class MailPlanner:
 
     def _go(self, goal: Cell, budget: Budget, reserve: int, purpose: Phase,
             taken: Collection[Cell]) -> list[MailAction]:
+        """The leg to ``goal``; none (a failure, without a round) while it is known taken and no
+        real round is due."""
         self.goal, self.phase, self.goal_taken = goal, purpose, goal in taken
+        if self.goal_taken and self.backoff < self.max_retry_steps:
+            self.leg_failed(budget.now)
+            return []
         return [GoTo(goal, budget.flight(reserve), purpose)]
 
     def _after(self, cell: Cell) -> int:
