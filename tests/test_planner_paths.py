@@ -1,4 +1,4 @@
-"""The planner's second path (seal pruning and time-layered heuristic) is as exact as the first."""
+"""The planner's second path (seal pruning, and the time-layered heuristic for mixed costs) is as exact as the first."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 
 from drona_gcs.bench.workload import TaskStream, random_workspace
 from drona_gcs.errors import NoPlanFound
-from drona_gcs.motion import Trajectory
+from drona_gcs.motion import Primitive, Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.safety import check_trajectory
 
@@ -41,19 +41,24 @@ def test_forced_long_path_finds_the_same_costs(width: int, drones: int, delta: i
     assert outcomes["ok"] > 100  # the stream is mostly feasible; both paths agree on the rest
 
 
-def test_the_forced_planner_really_takes_the_second_path(monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize(("costs", "spied"), [({}, "find_seal"), ({Primitive.HOLD: 0.5}, "TimeLayers")],
+                         ids=["unit-intervals", "mixed-space-time"])
+def test_the_forced_planner_really_takes_the_second_path(monkeypatch: pytest.MonkeyPatch,
+                                                         costs: dict[Primitive, float], spied: str) -> None:
+    # Unit costs: the safe-interval search with seal pruning; mixed costs: the space-time
+    # search with seal pruning and the time-layered heuristic.
     import drona_gcs.planner as planner_module
 
     calls: list[bool] = []
-    real = planner_module.TimeLayers
+    real = getattr(planner_module, spied)
 
     def spy(*args: object, **kwargs: object) -> object:
         calls.append(True)
-        return real(*args, **kwargs)  # type: ignore[arg-type]
+        return real(*args, **kwargs)
 
-    monkeypatch.setattr(planner_module, "TimeLayers", spy)
+    monkeypatch.setattr(planner_module, spied, spy)
     ws = random_workspace(12, 12, random.Random(5))
-    slow = SafePlanner(ws, 0)
+    slow = SafePlanner(ws, 0, costs=costs)
     slow.seal_after = -10**9
     start, goal = min(ws.main_region), max(ws.main_region)
     straight = SafePlanner(ws, 0).plan(start, goal, 0, {}).trajectory

@@ -27,6 +27,11 @@ from itertools import pairwise
 from drona_gcs.motion import Trajectory
 from drona_gcs.workspace import Workspace
 
+#: The last step of a safe interval that never ends.
+FOREVER = 1 << 62
+#: The safe intervals of a cell nobody ever reserves (one shared tuple, so ``is`` tells).
+ALWAYS_FREE = ((-FOREVER, FOREVER),)
+
 
 @dataclass(frozen=True)
 class _Entry:
@@ -39,6 +44,7 @@ class _Entry:
     perm_from: int  #: last cell reserved for every step >= this
     finite_until: int  #: no reservation but ``perm`` after this step
     cell_last_step: dict[int, int]  #: per cell, the last step it is reserved (finite part)
+    spans: tuple[tuple[int, int, int], ...]  #: ``(cell, first, last)``: runs of vertex steps per cell
 
 
 class ReservationTable:
@@ -50,6 +56,9 @@ class ReservationTable:
         self.swaps: dict[int, int] = {}
         self.pre: dict[int, int] = {}
         self.perm: dict[int, int] = {}
+        #: per cell, the ``(first, last)`` step runs of its vertex reservations (for safe intervals)
+        self.spans: dict[int, list[tuple[int, int]]] = {}
+        self.interval_cache: dict[int, tuple[tuple[int, int], ...]] = {}  #: cache of :meth:`safe_intervals`
         self._entries: dict[str, _Entry] = {}
 
     # ----------------------------------------------------------- updates
@@ -69,13 +78,36 @@ class ReservationTable:
         self._entries[drone] = entry
         _add(self.vertex, entry.vertex_keys)
         _add(self.swaps, entry.swap_keys)
+        spans = self.spans
+        for cell, lo, hi in entry.spans:
+            found = spans.get(cell)
+            if found is None:
+                spans[cell] = [(lo, hi)]
+            else:
+                found.append((lo, hi))
+        self._forget_intervals(entry)
         self._recompute_endpoints((entry.first, entry.last))
 
     def remove(self, drone: str) -> None:
         entry = self._entries.pop(drone)
         _sub(self.vertex, entry.vertex_keys)
         _sub(self.swaps, entry.swap_keys)
+        spans = self.spans
+        for cell, lo, hi in entry.spans:
+            found = spans[cell]
+            found.remove((lo, hi))
+            if not found:
+                del spans[cell]
+        self._forget_intervals(entry)
         self._recompute_endpoints((entry.first, entry.last))
+
+    def _forget_intervals(self, entry: _Entry) -> None:
+        """Drop the cached safe intervals of every cell whose reservations ``entry`` changes."""
+        cache = self.interval_cache
+        for cell, _, _ in entry.spans:
+            cache.pop(cell, None)
+        cache.pop(entry.first, None)
+        cache.pop(entry.last, None)
 
     def _reserve(self, traj: Trajectory) -> _Entry:
         nx, nxy = self.workspace.nx, self.workspace.nx * self.workspace.ny
@@ -94,7 +126,7 @@ class ReservationTable:
                      for k, (a, b) in enumerate(pairwise(ids)) if a != b]
         end = traj.end_step
         return _Entry(traj, tuple(vertex), tuple(swaps), ids[0], ids[-1], m + d, end - d,
-                      max(end - 1 + d, m + d), cell_last)
+                      max(end - 1 + d, m + d), cell_last, _spans(inner, m + 1, d))
 
     def _recompute_endpoints(self, cells: tuple[int, int]) -> None:
         for cell in set(cells):
@@ -132,10 +164,54 @@ class ReservationTable:
         """Cells reserved at every step from ``step`` on (drones parked for good)."""
         return frozenset(c for c, start in self.perm.items() if start <= step)
 
+    def safe_intervals(self, cell: int) -> tuple[tuple[int, int], ...]:
+        """The maximal runs ``(first, last)`` of steps in which ``cell`` is free, in order.
+
+        Runs are open-ended (:data:`FOREVER`) at both ends where nobody sits there
+        before or after. Cached until a reservation of the cell changes: a plan
+        changes one drone's trajectory, while searches keep asking for the same cells.
+        """
+        found = self.interval_cache.get(cell)
+        if found is None:
+            found = self.interval_cache[cell] = self._free_runs(cell)
+        return found
+
+    def _free_runs(self, cell: int) -> tuple[tuple[int, int], ...]:
+        spans, pre, perm = self.spans.get(cell), self.pre.get(cell), self.perm.get(cell)
+        if spans is None and pre is None and perm is None:
+            return ALWAYS_FREE  # most cells: nobody ever comes by
+        blocked = sorted(spans) if spans is not None else []
+        end = FOREVER if perm is None else perm - 1
+        out: list[tuple[int, int]] = []
+        free_from = -FOREVER if pre is None else pre + 1
+        for lo, hi in blocked:
+            if lo > free_from:
+                if lo > end:
+                    break
+                out.append((free_from, lo - 1))
+            if hi >= free_from:
+                free_from = hi + 1
+        if free_from <= end:
+            out.append((free_from, end))
+        return tuple(out)
+
     def conflicts(self, cell: int, step: int) -> bool:
         """Whether being in ``cell`` at ``step`` clashes with a reservation."""
         return (step * self.n + cell in self.vertex or self.perm.get(cell, step + 1) <= step
                 or self.pre.get(cell, step - 1) >= step)
+
+
+def _spans(cells: list[int], first_step: int, delta: int) -> tuple[tuple[int, int, int], ...]:
+    """``(cell, first, last)`` for each run of equal cells: the steps their vertex keys cover."""
+    out: list[tuple[int, int, int]] = []
+    k = 0
+    while k < len(cells):
+        j = k
+        while j + 1 < len(cells) and cells[j + 1] == cells[k]:
+            j += 1
+        out.append((cells[k], first_step + k - delta, first_step + j + delta))
+        k = j + 1
+    return tuple(out)
 
 
 def _add(table: dict[int, int], keys: tuple[int, ...] | list[int]) -> None:
