@@ -93,7 +93,7 @@ def test_interval_search_finds_no_plan_only_when_none_exists(problem: Problem) -
 @given(problems((3, 7), (1, 2), max_others=4, max_length=st.none() | st.integers(0, 20)))
 def test_interval_search_agrees_with_the_space_time_astar(problem: Problem) -> None:
     planner = SafePlanner(problem.ws, delta=problem.delta)
-    ws, table = problem.ws, planner.table
+    ws, table = problem.ws, ReservationTable(problem.ws, problem.delta)  # with vertex keys, for both
     table.sync(problem.others)
     start, goal = ws.cell_id(problem.start), ws.cell_id(problem.goal)
     heuristic = planner.graph.distances(goal, table.blocked_throughout(problem.start_step))
@@ -113,14 +113,14 @@ def test_interval_search_matches_astar_on_the_bench_stream(width: int, drones: i
     # and an earlier arrival in an interval often turns up after a later one was expanded.
     rng = random.Random(f"{seed}-{width}-{drones}-1")
     ws = random_workspace(width, width, rng)
-    planner = SafePlanner(ws, 1)
+    planner, table = SafePlanner(ws, 1), ReservationTable(ws, 1)
     stream = TaskStream(ws, drones, rng)
     for _ in range(150):
         task = stream.next_task()
-        planner.table.sync(task.others)
+        table.sync(task.others)
         start, goal = ws.cell_id(task.start), ws.cell_id(task.goal)
-        heuristic = planner.graph.distances(goal, planner.table.blocked_throughout(task.start_step))
-        args = (planner.grid, planner.table, heuristic, start, goal, task.start_step, ws.plan_length_limit)
+        heuristic = planner.graph.distances(goal, table.blocked_throughout(task.start_step))
+        args = (planner.grid, table, heuristic, start, goal, task.start_step, ws.plan_length_limit)
         results = []
         for flag in (False, True):
             try:

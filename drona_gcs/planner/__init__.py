@@ -63,7 +63,8 @@ class SafePlanner:
         if self.delta < 0:
             raise ProblemError(f"delta must be >= 0, got {self.delta}")
         self.grid = GridIndex.build(workspace, costs)
-        self.table = ReservationTable(workspace, self.delta)
+        # With uniform costs every search runs over safe intervals, which need no vertex keys.
+        self.table = ReservationTable(workspace, self.delta, vertex_keys=self.grid.uniform_cost is None)
         self.graph = DistanceGraph(self.grid)
         self._heuristics: OrderedDict[tuple[int, frozenset[int]], GoalDistance] = OrderedDict()
         self._cache_size = heuristic_cache

@@ -36,7 +36,7 @@ from drona_gcs.errors import NoPlanFound
 from drona_gcs.planner.grid import GridIndex
 from drona_gcs.planner.heuristic import UNREACHABLE, GoalDistance
 from drona_gcs.planner.layers import TimeLayers
-from drona_gcs.planner.reservations import ReservationTable, _add, _sub
+from drona_gcs.planner.reservations import ALWAYS_FREE, ReservationTable, _add, _sub, free_at
 from drona_gcs.planner.result import BudgetExceeded, SearchResult, SearchStats
 from drona_gcs.planner.sealing import Seal
 from drona_gcs.planner.sipp import search_intervals
@@ -73,21 +73,42 @@ def search(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
         intervals = uniform is not None
     elif intervals and uniform is None:
         raise ValueError("the safe-interval search needs every primitive to cost the same")
+    if intervals:
+        found = _tree_path_if_free(grid, table, heuristic, start, n, max_length, goal_ready)
+        return found or search_intervals(grid, table, heuristic, start, goal, n, max_length, goal_ready,
+                                         hopeless, budget)
+    if not table.keeps_vertex:
+        raise ValueError("the space-time search needs a reservation table that keeps vertex keys")
     pre_keys = table.pre_keys(n)
     _add(table.vertex, pre_keys)  # drones still waiting to start, for this search only
     try:
         found = _shortest_path_if_free(grid, table, heuristic, start, goal, n, max_length, goal_ready)
         if found is not None:
             return found
-        if intervals:
-            return search_intervals(grid, table, heuristic, start, goal, n, max_length, goal_ready,
-                                    hopeless, budget)
         # With uniform costs the layers from `static` on are one; otherwise never collapse.
         static = table.static_from(n) if uniform is not None else n + max_length + 1
         return _run(grid, table, heuristic, start, goal, n, max_length, static, goal_ready, hopeless, budget,
                     layers)
     finally:
         _sub(table.vertex, pre_keys)
+
+
+def _tree_path_if_free(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
+                       start: int, n: int, max_length: int, goal_ready: int) -> SearchResult | None:
+    """:func:`_shortest_path_if_free` read off the safe intervals (uniform costs only)."""
+    path = heuristic.tree_path(start)
+    if path is None or len(path) - 1 > max_length or n + len(path) - 1 < goal_ready:
+        return None
+    n_cells, swaps, cache, intervals = table.n, table.swaps, table.interval_cache, table.safe_intervals
+    for k in range(1, len(path)):
+        step, cell = n + k, path[k]
+        found = cache.get(cell) or intervals(cell)
+        if ((found is not ALWAYS_FREE and not free_at(found, step))
+                or (swaps and ((step - 1) * n_cells + path[k - 1]) * n_cells + cell in swaps)):
+            return None
+    traj, primitives = grid.trajectory(n, path)
+    assert grid.uniform_cost is not None
+    return SearchResult(traj, primitives, grid.uniform_cost * len(primitives), SearchStats(0, len(path)))
 
 
 def _shortest_path_if_free(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,

@@ -43,15 +43,17 @@ class _Entry:
     pre_until: int  #: first cell reserved for every step <= this
     perm_from: int  #: last cell reserved for every step >= this
     finite_until: int  #: no reservation but ``perm`` after this step
-    cell_last_step: dict[int, int]  #: per cell, the last step it is reserved (finite part)
     spans: tuple[tuple[int, int, int], ...]  #: ``(cell, first, last)``: runs of vertex steps per cell
 
 
 class ReservationTable:
-    def __init__(self, workspace: Workspace, delta: int) -> None:
+    def __init__(self, workspace: Workspace, delta: int, vertex_keys: bool = True) -> None:
         self.workspace = workspace
         self.delta = delta
         self.n = workspace.num_cells
+        #: Whether ``vertex`` is kept: the space-time search needs it, the safe-interval search
+        #: reads ``spans`` instead, and keeping both costs a dict update per key on every plan.
+        self.keeps_vertex = vertex_keys
         self.vertex: dict[int, int] = {}
         self.swaps: dict[int, int] = {}
         self.pre: dict[int, int] = {}
@@ -115,18 +117,16 @@ class ReservationTable:
         n, d, m = self.n, self.delta, traj.start_step
         inner = ids[1:-1]
         vertex: list[int] = []
-        for offset in range(-d, d + 1):
+        for offset in range(-d, d + 1) if self.keeps_vertex else ():
             base = m + offset + 1
             vertex.extend([(base + k) * n + cell for k, cell in enumerate(inner)])
-        cell_last = dict(zip(inner, range(m + 1 + d, m + 1 + d + len(inner)), strict=True))
-        cell_last.setdefault(ids[0], m + d)
         swaps: list[int] = []
         if d == 0:  # forbid my b -> a move while the other moves a -> b
             swaps = [((m + k) * n + b) * n + a
                      for k, (a, b) in enumerate(pairwise(ids)) if a != b]
         end = traj.end_step
         return _Entry(traj, tuple(vertex), tuple(swaps), ids[0], ids[-1], m + d, end - d,
-                      max(end - 1 + d, m + d), cell_last, _spans(inner, m + 1, d))
+                      max(end - 1 + d, m + d), _spans(inner, m + 1, d))
 
     def _recompute_endpoints(self, cells: tuple[int, int]) -> None:
         for cell in set(cells):
@@ -143,14 +143,10 @@ class ReservationTable:
 
     def goal_free_from(self, cell: int) -> int | None:
         """The earliest step from which ``cell`` stays unreserved forever; None if never."""
-        if cell in self.perm:
-            return None
-        last = -(2**62)
-        for entry in self._entries.values():
-            step = entry.cell_last_step.get(cell)
-            if step is not None and step > last:
-                last = step
-        return last + 1
+        runs = self.safe_intervals(cell)
+        if not runs or runs[-1][1] != FOREVER:
+            return None  # a drone parks there for good
+        return runs[-1][0]
 
     def pre_keys(self, step: int) -> list[int]:
         """Vertex keys, from ``step`` on, of drones still sitting at their first cell."""
@@ -197,20 +193,25 @@ class ReservationTable:
 
     def conflicts(self, cell: int, step: int) -> bool:
         """Whether being in ``cell`` at ``step`` clashes with a reservation."""
+        if not self.keeps_vertex:
+            return not free_at(self.safe_intervals(cell), step)
         return (step * self.n + cell in self.vertex or self.perm.get(cell, step + 1) <= step
                 or self.pre.get(cell, step - 1) >= step)
+
+
+def free_at(intervals: tuple[tuple[int, int], ...], step: int) -> bool:
+    """Whether ``step`` lies in one of ``intervals``."""
+    return any(lo <= step <= hi for lo, hi in intervals)
 
 
 def _spans(cells: list[int], first_step: int, delta: int) -> tuple[tuple[int, int, int], ...]:
     """``(cell, first, last)`` for each run of equal cells: the steps their vertex keys cover."""
     out: list[tuple[int, int, int]] = []
-    k = 0
-    while k < len(cells):
-        j = k
-        while j + 1 < len(cells) and cells[j + 1] == cells[k]:
-            j += 1
-        out.append((cells[k], first_step + k - delta, first_step + j + delta))
-        k = j + 1
+    since, last = 0, len(cells) - 1
+    for k, cell in enumerate(cells):
+        if k == last or cells[k + 1] != cell:  # the run that began at `since` ends here
+            out.append((cell, first_step + since - delta, first_step + k + delta))
+            since = k + 1
     return tuple(out)
 
 

@@ -18,9 +18,20 @@ for the same reason. The goal is reached for good in its last interval, the
 one that never ends.
 
 What carries over from the A*: the heuristic (static distance, raised by the
-wait for the goal to clear, and the time-layered fields for long searches),
-the seal pruning (``hopeless`` only grows with time, so pruning the earliest
-arrival of an interval prunes all of it), and the expansion budget.
+wait for the goal to clear), the seal pruning (``hopeless`` only grows with
+time, so pruning the earliest arrival of an interval prunes all of it), and
+the expansion budget. The time-layered fields do not: they fight flooding in
+time, which safe intervals do not do, and reading them per arrival cost more
+than they saved on the bench workload.
+
+One difference: the wait bound makes the heuristic depend on the arrival, not
+only on the state, so a later arrival can tie on f with an earlier one and be
+expanded first. A state is therefore reopened whenever an earlier arrival
+turns up. f = max(elapsed + distance, wait for the goal) never decreases with
+the arrival, so the usual A* argument holds: until the goal is expanded, some
+state of an optimal plan is open with an arrival no later than that plan's,
+and so with f no more than the optimum.
+
 Head-on swaps (only reserved at ``delta == 0``) are edge constraints: the
 move leaves at the first departure step the swap table allows.
 """
@@ -44,8 +55,9 @@ def search_intervals(grid: GridIndex, table: ReservationTable, heuristic: GoalDi
                      budget: int | None = None) -> SearchResult:
     """SIPP from ``start`` at step ``n``; the caller has checked that ``start`` is free at ``n``.
 
-    States are ints ``interval_index * num_cells + cell``; ``g`` holds the
-    arrival as steps after ``n`` (closing stores ``-1 - g``, as in the A*).
+    States are ints ``interval_index * num_cells + cell`` (indices into
+    :meth:`ReservationTable.safe_intervals`); ``g`` holds the earliest known
+    arrival as steps after ``n``.
     """
     unit = grid.uniform_cost
     assert unit is not None, "SIPP needs every primitive to cost the same"
@@ -76,7 +88,7 @@ def search_intervals(grid: GridIndex, table: ReservationTable, heuristic: GoalDi
         if expansions == budget:
             raise BudgetExceeded(expansions)
         idx, cell = divmod(key, n_cells)
-        hi = intervals(cell)[idx][1]
+        hi = (cache.get(cell) or intervals(cell))[idx][1]
         if cell == goal and hi == FOREVER:
             return _result(grid, table, key, start_key, g, parent, n, elapsed, expansions, generated)
         arrival = n + elapsed
@@ -90,7 +102,7 @@ def search_intervals(grid: GridIndex, table: ReservationTable, heuristic: GoalDi
             if h_now >= UNREACHABLE:
                 continue  # a parked drone's cell, or cut off from the goal for good
             ivs = cache.get(nxt) or intervals(nxt)
-            if ivs is ALWAYS_FREE:  # most cells: no other drone ever comes by
+            if ivs is ALWAYS_FREE:  # most cells, no other drone ever comes by: the loop below, inlined
                 t = arrival + 1
                 if swaps:
                     t = _swap_free_arrival(swaps, n_cells, cell, nxt, t, leave_by + 1)
