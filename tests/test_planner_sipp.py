@@ -25,7 +25,7 @@ from drona_gcs.errors import NoPlanFound
 from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.planner.astar import search
-from drona_gcs.planner.reservations import FOREVER, ReservationTable
+from drona_gcs.planner.reservations import ALWAYS_FREE, FOREVER, ReservationTable
 from drona_gcs.safety import check_trajectory
 from tests.test_planner_properties import (
     Problem,
@@ -67,6 +67,10 @@ def test_safe_intervals_are_the_steps_without_conflict(data: st.DataObject, delt
                 assert _free_at(intervals, step) == (not table.conflicts(cid, step)), (cell, step, runs)
             # Past the horizon nothing changes any more: the last run is open-ended or ends before.
             assert (runs[-1][1] == FOREVER) == (not table.conflicts(cid, horizon)) if runs else True
+        # The search skips the swap test for cells nobody reserves: a swap's target cell is
+        # always one (the other drone sits there as I would leave for it).
+        for key in table.swaps:
+            assert table.safe_intervals(key % table.n) is not ALWAYS_FREE
 
 
 def forced(problem: Problem) -> SafePlanner:

@@ -103,11 +103,8 @@ def search_intervals(grid: GridIndex, table: ReservationTable, heuristic: GoalDi
                 continue  # a parked drone's cell, or cut off from the goal for good
             ivs = cache.get(nxt) or intervals(nxt)
             if ivs is ALWAYS_FREE:  # most cells, no other drone ever comes by: the loop below, inlined
+                # No head-on swap either: the other drone would be in `nxt` as I leave for it.
                 t = arrival + 1
-                if swaps:
-                    t = _swap_free_arrival(swaps, n_cells, cell, nxt, t, leave_by + 1)
-                    if t < 0:
-                        continue
                 if hopeless is not None and hopeless(nxt, t):
                     continue
                 e1 = t - n
@@ -131,8 +128,8 @@ def search_intervals(grid: GridIndex, table: ReservationTable, heuristic: GoalDi
                 t = arrival + 1 if lo2 <= arrival else lo2  # earliest arrival in this interval
                 if t - 1 > leave_by:
                     break  # later intervals open later still
-                if swaps:
-                    t = _swap_free_arrival(swaps, n_cells, cell, nxt, t, min(hi2, leave_by + 1))
+                if swaps and ((t - 1) * n_cells + cell) * n_cells + nxt in swaps:
+                    t = _swap_free_arrival(swaps, n_cells, cell, nxt, t + 1, min(hi2, leave_by + 1))
                     if t < 0:
                         continue
                 if hopeless is not None and hopeless(nxt, t):
