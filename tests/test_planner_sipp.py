@@ -50,11 +50,12 @@ def test_safe_intervals_are_the_steps_without_conflict(data: st.DataObject, delt
     ws = data.draw(workspaces((2, 6), (1, 2), density=0.2))
     free = sorted(ws.free_cells)
     starts = data.draw(st.lists(st.sampled_from(free), min_size=1, max_size=4, unique=True))
-    table = ReservationTable(ws, delta)
+    table, keys = ReservationTable(ws, delta, vertex_keys=False), ReservationTable(ws, delta)
     fleets = [data.draw(walks(ws, starts, delta)) for _ in range(3)]
     fleets.append({k: v for k, v in fleets[-1].items() if data.draw(st.booleans())})
     for fleet in fleets:  # each sync replaces or drops drones: cached intervals must follow
         table.sync(fleet)
+        keys.sync(fleet)
         horizon = max((t.end_step for t in fleet.values()), default=0) + delta + 3
         for cell in free:
             cid = ws.cell_id(cell)
@@ -63,10 +64,14 @@ def test_safe_intervals_are_the_steps_without_conflict(data: st.DataObject, delt
             assert runs == sorted(runs)
             assert all(lo <= hi for lo, hi in runs)
             assert all(a[1] + 1 < b[0] for a, b in pairwise(runs)), runs  # maximal
-            for step in range(-3, horizon + 1):
-                assert _free_at(intervals, step) == (not table.conflicts(cid, step)), (cell, step, runs)
+            for step in range(-3, horizon + 1):  # judged by the vertex keys
+                assert _free_at(intervals, step) == (not keys.conflicts(cid, step)), (cell, step, runs)
+                assert table.conflicts(cid, step) == keys.conflicts(cid, step)
             # Past the horizon nothing changes any more: the last run is open-ended or ends before.
-            assert (runs[-1][1] == FOREVER) == (not table.conflicts(cid, horizon)) if runs else True
+            assert (runs[-1][1] == FOREVER) == (not keys.conflicts(cid, horizon)) if runs else True
+            ready = table.goal_free_from(cid), keys.goal_free_from(cid)  # "since ever" may differ by 1
+            assert [None if r is None else max(r, -(1 << 40)) for r in ready] == [
+                None if r is None else max(r, -(1 << 40)) for r in ready[::-1]]
         # The search skips the swap test for cells nobody reserves: a swap's target cell is
         # always one (the other drone sits there as I would leave for it).
         for key in table.swaps:
@@ -96,15 +101,17 @@ def test_interval_search_finds_no_plan_only_when_none_exists(problem: Problem) -
 @_settings(200)
 @given(problems((3, 7), (1, 2), max_others=4, max_length=st.none() | st.integers(0, 20)))
 def test_interval_search_agrees_with_the_space_time_astar(problem: Problem) -> None:
-    planner = SafePlanner(problem.ws, delta=problem.delta)
-    ws, table = problem.ws, ReservationTable(problem.ws, problem.delta)  # with vertex keys, for both
-    table.sync(problem.others)
+    planner, ws = SafePlanner(problem.ws, delta=problem.delta), problem.ws
     start, goal = ws.cell_id(problem.start), ws.cell_id(problem.goal)
-    heuristic = planner.graph.distances(goal, table.blocked_throughout(problem.start_step))
     limit = ws.plan_length_limit if problem.max_length is None else problem.max_length
-    args = (planner.grid, table, heuristic, start, goal, problem.start_step, limit)
-    timed, by_interval = (outcome(lambda flag=flag: search(*args, intervals=flag))  # type: ignore[misc]
-                          for flag in (False, True))
+    found = []
+    for intervals in (False, True):
+        table = ReservationTable(ws, problem.delta, vertex_keys=not intervals)
+        table.sync(problem.others)
+        heuristic = planner.graph.distances(goal, table.blocked_throughout(problem.start_step))
+        args = (planner.grid, table, heuristic, start, goal, problem.start_step, limit)
+        found.append(outcome(lambda args=args, flag=intervals: search(*args, intervals=flag)))  # type: ignore[misc]
+    timed, by_interval = found
     assert (timed is None) == (by_interval is None), (problem, timed, by_interval)
     if timed is not None and by_interval is not None:
         assert timed.cost == by_interval.cost
@@ -117,16 +124,17 @@ def test_interval_search_matches_astar_on_the_bench_stream(width: int, drones: i
     # and an earlier arrival in an interval often turns up after a later one was expanded.
     rng = random.Random(f"{seed}-{width}-{drones}-1")
     ws = random_workspace(width, width, rng)
-    planner, table = SafePlanner(ws, 1), ReservationTable(ws, 1)
+    planner = SafePlanner(ws, 1)
+    tables = {flag: ReservationTable(ws, 1, vertex_keys=not flag) for flag in (False, True)}
     stream = TaskStream(ws, drones, rng)
     for _ in range(150):
         task = stream.next_task()
-        table.sync(task.others)
         start, goal = ws.cell_id(task.start), ws.cell_id(task.goal)
-        heuristic = planner.graph.distances(goal, table.blocked_throughout(task.start_step))
-        args = (planner.grid, table, heuristic, start, goal, task.start_step, ws.plan_length_limit)
         results = []
-        for flag in (False, True):
+        for flag, table in tables.items():
+            table.sync(task.others)
+            heuristic = planner.graph.distances(goal, table.blocked_throughout(task.start_step))
+            args = (planner.grid, table, heuristic, start, goal, task.start_step, ws.plan_length_limit)
             try:
                 results.append(search(*args, intervals=flag))
             except NoPlanFound:

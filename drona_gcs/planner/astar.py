@@ -3,10 +3,12 @@
 The search finds a minimum-cost plan from ``start`` at step ``n`` to ``goal``
 that honours every rule of :mod:`drona_gcs.safety`, or proves that none
 exists within ``L_max`` steps. :func:`search` is the entry point for both
-searches: with uniform costs (the paper's) it hands the problem, after the
+searches: with uniform costs (the paper's) it can hand the problem, after the
 shared checks and the free-shortest-path shortcut, to the safe-interval
 search of :mod:`.sipp`, which gives the same costs with a state per safe
-interval instead of per step. What keeps the space-time search exact and fast:
+interval instead of per step (:class:`~drona_gcs.planner.SafePlanner` does so
+when the skew window is at least one step). What keeps the space-time search
+exact and fast:
 
 * **States** are ints ``step * num_cells + cell``, the same keys as the
   reservation table, so a conflict test is one dict lookup.
@@ -52,9 +54,9 @@ def search(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
            intervals: bool | None = None) -> SearchResult:
     """Find a minimum-cost safe plan; raise :class:`NoPlanFound` when none exists.
 
-    With uniform costs the search runs over safe intervals (:mod:`.sipp`),
-    otherwise over ``(cell, step)``; ``intervals=False`` forces the latter (tests
-    compare the two). With a ``budget``, raise :class:`BudgetExceeded` after that
+    With ``intervals`` the search runs over safe intervals (:mod:`.sipp`; uniform
+    costs only), otherwise over ``(cell, step)``; by default the former whenever
+    costs are uniform (tests compare the two). With a ``budget``, raise :class:`BudgetExceeded` after that
     many expansions, so the caller can compute the (costlier) seal pruning only
     when needed. ``layers`` only serve the space-time search.
     """
@@ -74,6 +76,8 @@ def search(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
     elif intervals and uniform is None:
         raise ValueError("the safe-interval search needs every primitive to cost the same")
     if intervals:
+        if table.keeps_vertex:
+            raise ValueError("the safe-interval search needs a table built with vertex_keys=False")
         found = _tree_path_if_free(grid, table, heuristic, start, n, max_length, goal_ready)
         return found or search_intervals(grid, table, heuristic, start, goal, n, max_length, goal_ready,
                                          hopeless, budget)

@@ -43,7 +43,8 @@ class _Entry:
     pre_until: int  #: first cell reserved for every step <= this
     perm_from: int  #: last cell reserved for every step >= this
     finite_until: int  #: no reservation but ``perm`` after this step
-    spans: tuple[tuple[int, int, int], ...]  #: ``(cell, first, last)``: runs of vertex steps per cell
+    cell_last_step: dict[int, int]  #: per cell, the last step it is reserved (finite part; vertex mode)
+    spans: tuple[tuple[int, int, int], ...]  #: ``(cell, first, last)``: runs of vertex steps (interval mode)
 
 
 class ReservationTable:
@@ -51,8 +52,9 @@ class ReservationTable:
         self.workspace = workspace
         self.delta = delta
         self.n = workspace.num_cells
-        #: Whether ``vertex`` is kept: the space-time search needs it, the safe-interval search
-        #: reads ``spans`` instead, and keeping both costs a dict update per key on every plan.
+        #: Which of two views the table keeps: ``vertex`` keys for the space-time search, or
+        #: ``spans`` and their safe intervals for the interval search. Keeping both would cost
+        #: the updates of both on every plan.
         self.keeps_vertex = vertex_keys
         self.vertex: dict[int, int] = {}
         self.swaps: dict[int, int] = {}
@@ -117,16 +119,23 @@ class ReservationTable:
         n, d, m = self.n, self.delta, traj.start_step
         inner = ids[1:-1]
         vertex: list[int] = []
-        for offset in range(-d, d + 1) if self.keeps_vertex else ():
-            base = m + offset + 1
-            vertex.extend([(base + k) * n + cell for k, cell in enumerate(inner)])
+        cell_last: dict[int, int] = {}
+        spans: tuple[tuple[int, int, int], ...] = ()
+        if self.keeps_vertex:
+            for offset in range(-d, d + 1):
+                base = m + offset + 1
+                vertex.extend([(base + k) * n + cell for k, cell in enumerate(inner)])
+            cell_last = dict(zip(inner, range(m + 1 + d, m + 1 + d + len(inner)), strict=True))
+            cell_last.setdefault(ids[0], m + d)
+        else:
+            spans = _spans(inner, m + 1, d)
         swaps: list[int] = []
         if d == 0:  # forbid my b -> a move while the other moves a -> b
             swaps = [((m + k) * n + b) * n + a
                      for k, (a, b) in enumerate(pairwise(ids)) if a != b]
         end = traj.end_step
         return _Entry(traj, tuple(vertex), tuple(swaps), ids[0], ids[-1], m + d, end - d,
-                      max(end - 1 + d, m + d), _spans(inner, m + 1, d))
+                      max(end - 1 + d, m + d), cell_last, spans)
 
     def _recompute_endpoints(self, cells: tuple[int, int]) -> None:
         for cell in set(cells):
@@ -143,6 +152,15 @@ class ReservationTable:
 
     def goal_free_from(self, cell: int) -> int | None:
         """The earliest step from which ``cell`` stays unreserved forever; None if never."""
+        if self.keeps_vertex:
+            if cell in self.perm:
+                return None
+            last = -FOREVER
+            for entry in self._entries.values():
+                step = entry.cell_last_step.get(cell)
+                if step is not None and step > last:
+                    last = step
+            return last + 1
         runs = self.safe_intervals(cell)
         if not runs or runs[-1][1] != FOREVER:
             return None  # a drone parks there for good
@@ -173,6 +191,8 @@ class ReservationTable:
         return found
 
     def _free_runs(self, cell: int) -> tuple[tuple[int, int], ...]:
+        if self.keeps_vertex:
+            raise ValueError("safe intervals need a table built with vertex_keys=False")
         spans, pre, perm = self.spans.get(cell), self.pre.get(cell), self.perm.get(cell)
         if spans is None and pre is None and perm is None:
             return ALWAYS_FREE  # most cells: nobody ever comes by
