@@ -55,10 +55,11 @@ def search(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
     """Find a minimum-cost safe plan; raise :class:`NoPlanFound` when none exists.
 
     With ``intervals`` the search runs over safe intervals (:mod:`.sipp`; uniform
-    costs only), otherwise over ``(cell, step)``; by default the former whenever
-    costs are uniform (tests compare the two). With a ``budget``, raise :class:`BudgetExceeded` after that
-    many expansions, so the caller can compute the (costlier) seal pruning only
-    when needed. ``layers`` only serve the space-time search.
+    costs and a table built with ``vertex_keys=False``), otherwise over
+    ``(cell, step)`` (a table with vertex keys); by default the table decides.
+    With a ``budget``, raise :class:`BudgetExceeded` after that many expansions,
+    so the caller can compute the (costlier) seal pruning only when needed.
+    ``layers`` only serve the space-time search.
     """
     goal_ready = table.goal_free_from(goal)
     if goal_ready is None:
@@ -72,8 +73,8 @@ def search(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
         raise NoPlanFound("drones parking for good seal the goal off before it can be reached")
     uniform = grid.uniform_cost
     if intervals is None:
-        intervals = uniform is not None
-    elif intervals and uniform is None:
+        intervals = not table.keeps_vertex
+    if intervals and uniform is None:
         raise ValueError("the safe-interval search needs every primitive to cost the same")
     if intervals:
         if table.keeps_vertex:
