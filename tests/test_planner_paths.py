@@ -1,4 +1,4 @@
-"""The planner's second path (seal pruning and time-layered heuristic) is as exact as the first."""
+"""The planner's second path (seal pruning, and the time-layered heuristic for mixed costs) is as exact as the first."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 
 from drona_gcs.bench.workload import TaskStream, random_workspace
 from drona_gcs.errors import NoPlanFound
-from drona_gcs.motion import Trajectory
+from drona_gcs.motion import Primitive, Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.safety import check_trajectory
 
@@ -41,27 +41,34 @@ def test_forced_long_path_finds_the_same_costs(width: int, drones: int, delta: i
     assert outcomes["ok"] > 100  # the stream is mostly feasible; both paths agree on the rest
 
 
-def test_the_forced_planner_really_takes_the_second_path(monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize(("delta", "costs", "spied"),
+                         [(1, {}, "find_seal"), (0, {}, "TimeLayers"), (0, {Primitive.HOLD: 0.5}, "TimeLayers")],
+                         ids=["unit-intervals", "unit-delta0-space-time", "mixed-space-time"])
+def test_the_forced_planner_really_takes_the_second_path(monkeypatch: pytest.MonkeyPatch, delta: int,
+                                                         costs: dict[Primitive, float], spied: str) -> None:
+    # Safe intervals (unit costs, delta >= 1): seal pruning; space-time search (delta 0 or mixed
+    # costs): seal pruning and the time-layered heuristic.
     import drona_gcs.planner as planner_module
 
     calls: list[bool] = []
-    real = planner_module.TimeLayers
+    real = getattr(planner_module, spied)
 
     def spy(*args: object, **kwargs: object) -> object:
         calls.append(True)
-        return real(*args, **kwargs)  # type: ignore[arg-type]
+        return real(*args, **kwargs)
 
-    monkeypatch.setattr(planner_module, "TimeLayers", spy)
+    monkeypatch.setattr(planner_module, spied, spy)
     ws = random_workspace(12, 12, random.Random(5))
-    slow = SafePlanner(ws, 0)
+    slow = SafePlanner(ws, delta, costs=costs)
     slow.seal_after = -10**9
+    assert slow.intervals == (spied == "find_seal")
     start, goal = min(ws.main_region), max(ws.main_region)
-    straight = SafePlanner(ws, 0).plan(start, goal, 0, {}).trajectory
+    straight = SafePlanner(ws, delta).plan(start, goal, 0, {}).trajectory
     # Another drone flies the same corridor head-on: the straight path is no longer free.
     oncoming = {"a": Trajectory(0, tuple(reversed(straight.cells[1:-1])))}
     plan = slow.plan(start, goal, 0, oncoming)
     assert calls
-    assert check_trajectory(ws, plan.trajectory, oncoming, 0, goal) == []
+    assert check_trajectory(ws, plan.trajectory, oncoming, delta, goal) == []
 
 
 def test_layers_with_nobody_about_to_park() -> None:

@@ -1,4 +1,8 @@
-"""Safe plan generators: the exact space-time A* (default) and the Z3 baseline (:mod:`.smt`).
+"""Safe plan generators: the exact A* (default) and the Z3 baseline (:mod:`.smt`).
+
+The A* searches safe intervals (:mod:`.sipp`) when every primitive costs the
+same, as in the paper, and the skew window is at least one step; otherwise
+it searches space-time ``(cell, step)`` states (:mod:`.astar`).
 
 :class:`SafePlanner` is the one entry point the stack uses. It keeps its
 reservation table and heuristics between plans, so a drone (or a benchmark)
@@ -29,6 +33,9 @@ __all__ = ["Plan", "SafePlanner", "check_endpoints"]
 
 #: Expansions after which a search stops to look for a seal (plus terms for path and grid size).
 _SEAL_AFTER = 64
+#: More for the safe-interval search: one of its expansions stands for a whole run of waiting,
+#: and on the bench workload it rarely needs the seal (a seal costs a few BFS over the grid).
+_INTERVAL_SEAL_EXTRA = 236
 
 
 @dataclass(frozen=True)
@@ -56,7 +63,12 @@ class SafePlanner:
         if self.delta < 0:
             raise ProblemError(f"delta must be >= 0, got {self.delta}")
         self.grid = GridIndex.build(workspace, costs)
-        self.table = ReservationTable(workspace, self.delta)
+        #: Whether searches run over safe intervals: with uniform costs, and a skew window of at
+        #: least one step. At delta 0 a drone reserves each cell for a single step, plans rarely
+        #: wait, and the space-time search is cheaper (13% fewer instructions at 64x64/32).
+        self.intervals = self.grid.uniform_cost is not None and self.delta >= 1
+        # Only the space-time search reads vertex keys, and keeping them costs on every plan.
+        self.table = ReservationTable(workspace, self.delta, vertex_keys=not self.intervals)
         self.graph = DistanceGraph(self.grid)
         self._heuristics: OrderedDict[tuple[int, frozenset[int]], GoalDistance] = OrderedDict()
         self._cache_size = heuristic_cache
@@ -83,18 +95,20 @@ class SafePlanner:
         args = (self.grid, self.table, heuristic, start_id, goal_id, start_step, limit)
         # Looking for a seal costs a few BFS over the grid: worth it once the search has
         # spent about as much, or a few times the straight path's work.
+        intervals = self.intervals
         budget = self.seal_after + 4 * int(heuristic.get(start_id) / self.grid.min_cost if self.grid.min_cost else 0) \
-            + len(self.grid.coords) // 20
+            + len(self.grid.coords) // 20 + (_INTERVAL_SEAL_EXTRA if intervals else 0)
         try:
-            found = search(*args, budget=max(1, budget))
+            found = search(*args, budget=max(1, budget), intervals=intervals)
         except BudgetExceeded:
             # A long search: drones parking for good may have sealed the goal off,
             # and pruning on that can end a search that would otherwise visit all space-time.
-            # Drones parking in the way also make long detours: a heuristic that knows where
-            # they will park keeps the search from flooding behind them.
-            layers = TimeLayers(self.graph, self.table, goal_id, start_step, heuristic)
             seal = find_seal(self.graph, self.table, start_id, goal_id, start_step)
-            found = search(*args, seal=seal, layers=layers)
+            # In space-time, drones parking in the way also make long detours: a
+            # heuristic that knows where they will park keeps the search from flooding behind
+            # them. Safe intervals do not flood in time, and the layers cost them more than they save.
+            layers = None if intervals else TimeLayers(self.graph, self.table, goal_id, start_step, heuristic)
+            found = search(*args, seal=seal, layers=layers, intervals=intervals)
         return Plan(found.trajectory, found.primitives, found.cost, found.stats.expansions)
 
     def _heuristic(self, goal: int, blocked: frozenset[int]) -> GoalDistance:

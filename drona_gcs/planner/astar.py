@@ -2,7 +2,13 @@
 
 The search finds a minimum-cost plan from ``start`` at step ``n`` to ``goal``
 that honours every rule of :mod:`drona_gcs.safety`, or proves that none
-exists within ``L_max`` steps. What keeps it exact and fast:
+exists within ``L_max`` steps. :func:`search` is the entry point for both
+searches: with uniform costs (the paper's) it can hand the problem, after the
+shared checks and the free-shortest-path shortcut, to the safe-interval
+search of :mod:`.sipp`, which gives the same costs with a state per safe
+interval instead of per step (:class:`~drona_gcs.planner.SafePlanner` does so
+when the skew window is at least one step). What keeps the space-time search
+exact and fast:
 
 * **States** are ints ``step * num_cells + cell``, the same keys as the
   reservation table, so a conflict test is one dict lookup.
@@ -27,44 +33,33 @@ from __future__ import annotations
 import heapq
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
 
 from drona_gcs.errors import NoPlanFound
-from drona_gcs.motion import Primitive, Trajectory
 from drona_gcs.planner.grid import GridIndex
 from drona_gcs.planner.heuristic import UNREACHABLE, GoalDistance
 from drona_gcs.planner.layers import TimeLayers
-from drona_gcs.planner.reservations import ReservationTable, _add, _sub
+from drona_gcs.planner.reservations import ALWAYS_FREE, ReservationTable, _add, _sub, free_at
+from drona_gcs.planner.result import BudgetExceeded, SearchResult, SearchStats
 from drona_gcs.planner.sealing import Seal
+from drona_gcs.planner.sipp import search_intervals
 
 INF = math.inf
 
-
-class BudgetExceeded(Exception):
-    """Internal: the search used its expansion budget (not an error of the plan)."""
-
-
-@dataclass(frozen=True)
-class SearchStats:
-    expansions: int
-    generated: int
-
-
-@dataclass(frozen=True)
-class SearchResult:
-    trajectory: Trajectory
-    primitives: tuple[Primitive, ...]
-    cost: float
-    stats: SearchStats
+__all__ = ["BudgetExceeded", "SearchResult", "SearchStats", "search"]
 
 
 def search(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
            start: int, goal: int, n: int, max_length: int, seal: Seal | None = None,
-           budget: int | None = None, layers: TimeLayers | None = None) -> SearchResult:
-    """Run the space-time A*; raise :class:`NoPlanFound` when no safe plan exists.
+           budget: int | None = None, layers: TimeLayers | None = None,
+           intervals: bool | None = None) -> SearchResult:
+    """Find a minimum-cost safe plan; raise :class:`NoPlanFound` when none exists.
 
+    With ``intervals`` the search runs over safe intervals (:mod:`.sipp`; uniform
+    costs and a table built with ``vertex_keys=False``), otherwise over
+    ``(cell, step)`` (a table with vertex keys); by default the table decides.
     With a ``budget``, raise :class:`BudgetExceeded` after that many expansions,
     so the caller can compute the (costlier) seal pruning only when needed.
+    ``layers`` only serve the space-time search.
     """
     goal_ready = table.goal_free_from(goal)
     if goal_ready is None:
@@ -77,18 +72,48 @@ def search(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
     if hopeless is not None and hopeless(start, n):
         raise NoPlanFound("drones parking for good seal the goal off before it can be reached")
     uniform = grid.uniform_cost
-    # With uniform costs the layers from `static` on are one; otherwise never collapse.
-    static = table.static_from(n) if uniform is not None else n + max_length + 1
+    if intervals is None:
+        intervals = not table.keeps_vertex
+    if intervals and uniform is None:
+        raise ValueError("the safe-interval search needs every primitive to cost the same")
+    if intervals:
+        if table.keeps_vertex:
+            raise ValueError("the safe-interval search needs a table built with vertex_keys=False")
+        found = _tree_path_if_free(grid, table, heuristic, start, n, max_length, goal_ready)
+        return found or search_intervals(grid, table, heuristic, start, goal, n, max_length, goal_ready,
+                                         hopeless, budget)
+    if not table.keeps_vertex:
+        raise ValueError("the space-time search needs a reservation table that keeps vertex keys")
     pre_keys = table.pre_keys(n)
     _add(table.vertex, pre_keys)  # drones still waiting to start, for this search only
     try:
         found = _shortest_path_if_free(grid, table, heuristic, start, goal, n, max_length, goal_ready)
         if found is not None:
             return found
+        # With uniform costs the layers from `static` on are one; otherwise never collapse.
+        static = table.static_from(n) if uniform is not None else n + max_length + 1
         return _run(grid, table, heuristic, start, goal, n, max_length, static, goal_ready, hopeless, budget,
                     layers)
     finally:
         _sub(table.vertex, pre_keys)
+
+
+def _tree_path_if_free(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
+                       start: int, n: int, max_length: int, goal_ready: int) -> SearchResult | None:
+    """:func:`_shortest_path_if_free` read off the safe intervals (uniform costs only)."""
+    path = heuristic.tree_path(start)
+    if path is None or len(path) - 1 > max_length or n + len(path) - 1 < goal_ready:
+        return None
+    n_cells, swaps, cache, intervals = table.n, table.swaps, table.interval_cache, table.safe_intervals
+    for k in range(1, len(path)):
+        step, cell = n + k, path[k]
+        found = cache.get(cell) or intervals(cell)
+        if ((found is not ALWAYS_FREE and not free_at(found, step))
+                or (swaps and ((step - 1) * n_cells + path[k - 1]) * n_cells + cell in swaps)):
+            return None
+    traj, primitives = grid.trajectory(n, path)
+    assert grid.uniform_cost is not None
+    return SearchResult(traj, primitives, grid.uniform_cost * len(primitives), SearchStats(0, len(path)))
 
 
 def _shortest_path_if_free(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
@@ -109,9 +134,7 @@ def _shortest_path_if_free(grid: GridIndex, table: ReservationTable, heuristic: 
         if (step * n_cells + cell in vertex or perm.get(cell, step + 1) <= step
                 or (swaps and ((step - 1) * n_cells + path[k - 1]) * n_cells + cell in swaps)):
             return None
-    cells = tuple(grid.coords[c] for c in path)
-    traj = Trajectory(n, cells)
-    primitives = traj.primitives()
+    traj, primitives = grid.trajectory(n, path)
     cost = grid.uniform_cost * len(primitives) if grid.uniform_cost is not None else grid.model.plan_cost(primitives)
     return SearchResult(traj, primitives, cost, SearchStats(0, len(path)))
 
@@ -201,7 +224,5 @@ def _result(grid: GridIndex, key: int, start_key: int, parent: dict[int, int], n
     while chain[-1] != start_key:
         chain.append(parent[chain[-1]])
     chain.reverse()
-    coords = grid.coords
-    cells = tuple(coords[k % n_cells] for k in chain)
-    traj = Trajectory(n, cells)
-    return SearchResult(traj, traj.primitives(), cost, SearchStats(expansions, generated))
+    traj, primitives = grid.trajectory(n, [k % n_cells for k in chain])
+    return SearchResult(traj, primitives, cost, SearchStats(expansions, generated))

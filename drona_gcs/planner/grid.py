@@ -9,8 +9,9 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from itertools import pairwise
 
-from drona_gcs.motion import MotionModel, Primitive
+from drona_gcs.motion import MotionModel, Primitive, Trajectory
 from drona_gcs.workspace import Cell, Workspace
 
 Move = tuple[int, float, Primitive]
@@ -31,6 +32,8 @@ class GridIndex:
     uniform_cost: float | None  #: the common cost when every primitive costs the same (> 0)
     successors: tuple[tuple[tuple[int, float], ...], ...]  #: (next, cost) of every move and the hold
     moves_only: tuple[tuple[tuple[int, float], ...], ...]  #: the same without the hold
+    #: the primitive of each difference of cell ids along a move (0: hold)
+    by_difference: dict[int, Primitive]
 
     @classmethod
     def build(cls, workspace: Workspace, costs: Mapping[Primitive, float] | None = None) -> GridIndex:
@@ -56,8 +59,20 @@ class GridIndex:
         hold = model.cost(Primitive.HOLD)
         moves_only = tuple(tuple((j, cost) for j, cost, _ in out) for out in moves)
         successors = tuple((*m, (i, hold)) if free[i] else m for i, m in enumerate(moves_only))
+        # Cell ids are x + nx*y + nx*ny*z, so a primitive is one id difference wherever it
+        # applies (a size-1 axis has no moves along it, so no two primitives share one).
+        steps = {(j - i, prim) for i, out in enumerate(moves) for j, _, prim in out} | {(0, Primitive.HOLD)}
+        by_difference = dict(steps)
+        assert len(by_difference) == len(steps), "two primitives share an id difference"
         return cls(workspace, model, tuple(moves), tuple(tuple(r) for r in reverse), free, coords,
-                   hold, min(all_costs), uniform, successors, moves_only)
+                   hold, min(all_costs), uniform, successors, moves_only, by_difference)
+
+    def trajectory(self, start_step: int, ids: list[int]) -> tuple[Trajectory, tuple[Primitive, ...]]:
+        """The trajectory through cell ids ``ids`` (consecutive ones a move or a hold apart),
+        and its primitives, without comparing coordinates step by step."""
+        coords, prim = self.coords, self.by_difference
+        primitives = tuple([prim[b - a] for a, b in pairwise(ids)])
+        return Trajectory(start_step, tuple([coords[c] for c in ids])), primitives
 
     def axis_costs(self) -> tuple[float, float, float, float, float, float]:
         """Costs of +x, -x, +y, -y, +z, -z, for the Manhattan lower bound."""

@@ -27,6 +27,11 @@ from itertools import pairwise
 from drona_gcs.motion import Trajectory
 from drona_gcs.workspace import Workspace
 
+#: The last step of a safe interval that never ends.
+FOREVER = 1 << 62
+#: The safe intervals of a cell nobody ever reserves (one shared tuple, so ``is`` tells).
+ALWAYS_FREE = ((-FOREVER, FOREVER),)
+
 
 @dataclass(frozen=True)
 class _Entry:
@@ -38,18 +43,26 @@ class _Entry:
     pre_until: int  #: first cell reserved for every step <= this
     perm_from: int  #: last cell reserved for every step >= this
     finite_until: int  #: no reservation but ``perm`` after this step
-    cell_last_step: dict[int, int]  #: per cell, the last step it is reserved (finite part)
+    cell_last_step: dict[int, int]  #: per cell, the last step it is reserved (finite part; vertex mode)
+    spans: tuple[tuple[int, int, int], ...]  #: ``(cell, first, last)``: runs of vertex steps (interval mode)
 
 
 class ReservationTable:
-    def __init__(self, workspace: Workspace, delta: int) -> None:
+    def __init__(self, workspace: Workspace, delta: int, vertex_keys: bool = True) -> None:
         self.workspace = workspace
         self.delta = delta
         self.n = workspace.num_cells
+        #: Which of two views the table keeps: ``vertex`` keys for the space-time search, or
+        #: ``spans`` and their safe intervals for the interval search. Keeping both would cost
+        #: the updates of both on every plan.
+        self.keeps_vertex = vertex_keys
         self.vertex: dict[int, int] = {}
         self.swaps: dict[int, int] = {}
         self.pre: dict[int, int] = {}
         self.perm: dict[int, int] = {}
+        #: per cell, the ``(first, last)`` step runs of its vertex reservations (for safe intervals)
+        self.spans: dict[int, list[tuple[int, int]]] = {}
+        self.interval_cache: dict[int, tuple[tuple[int, int], ...]] = {}  #: cache of :meth:`safe_intervals`
         self._entries: dict[str, _Entry] = {}
 
     # ----------------------------------------------------------- updates
@@ -69,13 +82,36 @@ class ReservationTable:
         self._entries[drone] = entry
         _add(self.vertex, entry.vertex_keys)
         _add(self.swaps, entry.swap_keys)
+        spans = self.spans
+        for cell, lo, hi in entry.spans:
+            found = spans.get(cell)
+            if found is None:
+                spans[cell] = [(lo, hi)]
+            else:
+                found.append((lo, hi))
+        self._forget_intervals(entry)
         self._recompute_endpoints((entry.first, entry.last))
 
     def remove(self, drone: str) -> None:
         entry = self._entries.pop(drone)
         _sub(self.vertex, entry.vertex_keys)
         _sub(self.swaps, entry.swap_keys)
+        spans = self.spans
+        for cell, lo, hi in entry.spans:
+            found = spans[cell]
+            found.remove((lo, hi))
+            if not found:
+                del spans[cell]
+        self._forget_intervals(entry)
         self._recompute_endpoints((entry.first, entry.last))
+
+    def _forget_intervals(self, entry: _Entry) -> None:
+        """Drop the cached safe intervals of every cell whose reservations ``entry`` changes."""
+        cache = self.interval_cache
+        for cell, _, _ in entry.spans:
+            cache.pop(cell, None)
+        cache.pop(entry.first, None)
+        cache.pop(entry.last, None)
 
     def _reserve(self, traj: Trajectory) -> _Entry:
         nx, nxy = self.workspace.nx, self.workspace.nx * self.workspace.ny
@@ -83,18 +119,23 @@ class ReservationTable:
         n, d, m = self.n, self.delta, traj.start_step
         inner = ids[1:-1]
         vertex: list[int] = []
-        for offset in range(-d, d + 1):
-            base = m + offset + 1
-            vertex.extend([(base + k) * n + cell for k, cell in enumerate(inner)])
-        cell_last = dict(zip(inner, range(m + 1 + d, m + 1 + d + len(inner)), strict=True))
-        cell_last.setdefault(ids[0], m + d)
+        cell_last: dict[int, int] = {}
+        spans: tuple[tuple[int, int, int], ...] = ()
+        if self.keeps_vertex:
+            for offset in range(-d, d + 1):
+                base = m + offset + 1
+                vertex.extend([(base + k) * n + cell for k, cell in enumerate(inner)])
+            cell_last = dict(zip(inner, range(m + 1 + d, m + 1 + d + len(inner)), strict=True))
+            cell_last.setdefault(ids[0], m + d)
+        else:
+            spans = _spans(inner, m + 1, d)
         swaps: list[int] = []
         if d == 0:  # forbid my b -> a move while the other moves a -> b
             swaps = [((m + k) * n + b) * n + a
                      for k, (a, b) in enumerate(pairwise(ids)) if a != b]
         end = traj.end_step
         return _Entry(traj, tuple(vertex), tuple(swaps), ids[0], ids[-1], m + d, end - d,
-                      max(end - 1 + d, m + d), cell_last)
+                      max(end - 1 + d, m + d), cell_last, spans)
 
     def _recompute_endpoints(self, cells: tuple[int, int]) -> None:
         for cell in set(cells):
@@ -111,14 +152,19 @@ class ReservationTable:
 
     def goal_free_from(self, cell: int) -> int | None:
         """The earliest step from which ``cell`` stays unreserved forever; None if never."""
-        if cell in self.perm:
-            return None
-        last = -(2**62)
-        for entry in self._entries.values():
-            step = entry.cell_last_step.get(cell)
-            if step is not None and step > last:
-                last = step
-        return last + 1
+        if self.keeps_vertex:
+            if cell in self.perm:
+                return None
+            last = -FOREVER
+            for entry in self._entries.values():
+                step = entry.cell_last_step.get(cell)
+                if step is not None and step > last:
+                    last = step
+            return last + 1
+        runs = self.safe_intervals(cell)
+        if not runs or runs[-1][1] != FOREVER:
+            return None  # a drone parks there for good
+        return runs[-1][0]
 
     def pre_keys(self, step: int) -> list[int]:
         """Vertex keys, from ``step`` on, of drones still sitting at their first cell."""
@@ -132,10 +178,61 @@ class ReservationTable:
         """Cells reserved at every step from ``step`` on (drones parked for good)."""
         return frozenset(c for c, start in self.perm.items() if start <= step)
 
+    def safe_intervals(self, cell: int) -> tuple[tuple[int, int], ...]:
+        """The maximal runs ``(first, last)`` of steps in which ``cell`` is free, in order.
+
+        Runs are open-ended (:data:`FOREVER`) at both ends where nobody sits there
+        before or after. Cached until a reservation of the cell changes: a plan
+        changes one drone's trajectory, while searches keep asking for the same cells.
+        """
+        found = self.interval_cache.get(cell)
+        if found is None:
+            found = self.interval_cache[cell] = self._free_runs(cell)
+        return found
+
+    def _free_runs(self, cell: int) -> tuple[tuple[int, int], ...]:
+        if self.keeps_vertex:
+            raise ValueError("safe intervals need a table built with vertex_keys=False")
+        spans, pre, perm = self.spans.get(cell), self.pre.get(cell), self.perm.get(cell)
+        if spans is None and pre is None and perm is None:
+            return ALWAYS_FREE  # most cells: nobody ever comes by
+        blocked = sorted(spans) if spans is not None else []
+        end = FOREVER if perm is None else perm - 1
+        out: list[tuple[int, int]] = []
+        free_from = -FOREVER if pre is None else pre + 1
+        for lo, hi in blocked:
+            if lo > free_from:
+                if lo > end:
+                    break
+                out.append((free_from, lo - 1))
+            if hi >= free_from:
+                free_from = hi + 1
+        if free_from <= end:
+            out.append((free_from, end))
+        return tuple(out)
+
     def conflicts(self, cell: int, step: int) -> bool:
         """Whether being in ``cell`` at ``step`` clashes with a reservation."""
+        if not self.keeps_vertex:
+            return not free_at(self.safe_intervals(cell), step)
         return (step * self.n + cell in self.vertex or self.perm.get(cell, step + 1) <= step
                 or self.pre.get(cell, step - 1) >= step)
+
+
+def free_at(intervals: tuple[tuple[int, int], ...], step: int) -> bool:
+    """Whether ``step`` lies in one of ``intervals``."""
+    return any(lo <= step <= hi for lo, hi in intervals)
+
+
+def _spans(cells: list[int], first_step: int, delta: int) -> tuple[tuple[int, int, int], ...]:
+    """``(cell, first, last)`` for each run of equal cells: the steps their vertex keys cover."""
+    out: list[tuple[int, int, int]] = []
+    since, last = 0, len(cells) - 1
+    for k, cell in enumerate(cells):
+        if k == last or cells[k + 1] != cell:  # the run that began at `since` ends here
+            out.append((cell, first_step + since - delta, first_step + k + delta))
+            since = k + 1
+    return tuple(out)
 
 
 def _add(table: dict[int, int], keys: tuple[int, ...] | list[int]) -> None:

@@ -1,0 +1,149 @@
+"""Safe-interval search (:mod:`drona_gcs.planner.sipp`): its intervals and its plans.
+
+* The safe intervals the reservation table hands out are exactly the steps at
+  which :meth:`ReservationTable.conflicts` finds a cell free, also after drones
+  are replaced and removed (the intervals are cached per cell).
+* A planner forced onto its second path (safe intervals, seal pruning) finds
+  the same optimal cost as an exhaustive enumeration, and no plan only when
+  there is none: the properties of :mod:`tests.test_planner_properties` again.
+* On the bench workload the safe-interval search and the space-time A* agree
+  on every cost, also where equal-f ties make the search reopen states.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from itertools import pairwise
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from drona_gcs.bench.workload import TaskStream, random_workspace
+from drona_gcs.errors import NoPlanFound
+from drona_gcs.motion import Trajectory
+from drona_gcs.planner import SafePlanner
+from drona_gcs.planner.astar import search
+from drona_gcs.planner.reservations import ALWAYS_FREE, FOREVER, ReservationTable
+from drona_gcs.safety import check_trajectory
+from tests.test_planner_properties import (
+    Problem,
+    _settings,
+    assert_valid,
+    brute_force,
+    describe,
+    outcome,
+    problems,
+    walks,
+    workspaces,
+)
+
+
+def _free_at(intervals: tuple[tuple[int, int], ...], step: int) -> bool:
+    return any(lo <= step <= hi for lo, hi in intervals)
+
+
+@_settings(200)
+@given(data=st.data(), delta=st.integers(0, 2))
+def test_safe_intervals_are_the_steps_without_conflict(data: st.DataObject, delta: int) -> None:
+    ws = data.draw(workspaces((2, 6), (1, 2), density=0.2))
+    free = sorted(ws.free_cells)
+    starts = data.draw(st.lists(st.sampled_from(free), min_size=1, max_size=4, unique=True))
+    table, keys = ReservationTable(ws, delta, vertex_keys=False), ReservationTable(ws, delta)
+    fleets = [data.draw(walks(ws, starts, delta)) for _ in range(3)]
+    fleets.append({k: v for k, v in fleets[-1].items() if data.draw(st.booleans())})
+    for fleet in fleets:  # each sync replaces or drops drones: cached intervals must follow
+        table.sync(fleet)
+        keys.sync(fleet)
+        horizon = max((t.end_step for t in fleet.values()), default=0) + delta + 3
+        for cell in free:
+            cid = ws.cell_id(cell)
+            intervals = table.safe_intervals(cid)
+            runs = [(lo, hi) for lo, hi in intervals]
+            assert runs == sorted(runs)
+            assert all(lo <= hi for lo, hi in runs)
+            assert all(a[1] + 1 < b[0] for a, b in pairwise(runs)), runs  # maximal
+            for step in range(-3, horizon + 1):  # judged by the vertex keys
+                assert _free_at(intervals, step) == (not keys.conflicts(cid, step)), (cell, step, runs)
+                assert table.conflicts(cid, step) == keys.conflicts(cid, step)
+            # Past the horizon nothing changes any more: the last run is open-ended or ends before.
+            assert (runs[-1][1] == FOREVER) == (not keys.conflicts(cid, horizon)) if runs else True
+            ready = table.goal_free_from(cid), keys.goal_free_from(cid)  # "since ever" may differ by 1
+            assert [None if r is None else max(r, -(1 << 40)) for r in ready] == [
+                None if r is None else max(r, -(1 << 40)) for r in ready[::-1]]
+        # The search skips the swap test for cells nobody reserves: a swap's target cell is
+        # always one (the other drone sits there as I would leave for it).
+        for key in table.swaps:
+            assert table.safe_intervals(key % table.n) is not ALWAYS_FREE
+
+
+def forced(problem: Problem) -> SafePlanner:
+    planner = SafePlanner(problem.ws, delta=problem.delta, costs=problem.costs)
+    planner.seal_after = -10**9  # straight to the second path: safe intervals for unit costs
+    return planner
+
+
+@_settings(500)
+@given(problems((2, 4), (1, 2), max_others=3, max_length=st.integers(2, 8), max_cells=16))
+def test_interval_search_finds_no_plan_only_when_none_exists(problem: Problem) -> None:
+    planner = forced(problem)
+    found = outcome(lambda: planner.plan(problem.start, problem.goal, problem.start_step,
+                                         problem.others, problem.max_length))
+    truth = brute_force(problem)
+    describe(problem, found)
+    assert (found is None) == (truth is None), (problem, found, truth)
+    if found is not None and truth is not None:
+        assert_valid(problem, found)
+        assert math.isclose(found.cost, truth[0]), (problem, found, truth)
+
+
+@_settings(200)
+@given(problems((3, 7), (1, 2), max_others=4, max_length=st.none() | st.integers(0, 20)))
+def test_interval_search_agrees_with_the_space_time_astar(problem: Problem) -> None:
+    planner, ws = SafePlanner(problem.ws, delta=problem.delta), problem.ws
+    start, goal = ws.cell_id(problem.start), ws.cell_id(problem.goal)
+    limit = ws.plan_length_limit if problem.max_length is None else problem.max_length
+    found = []
+    for intervals in (False, True):
+        table = ReservationTable(ws, problem.delta, vertex_keys=not intervals)
+        table.sync(problem.others)
+        heuristic = planner.graph.distances(goal, table.blocked_throughout(problem.start_step))
+        args = (planner.grid, table, heuristic, start, goal, problem.start_step, limit)
+        found.append(outcome(lambda args=args, flag=intervals: search(*args, intervals=flag)))  # type: ignore[misc]
+    timed, by_interval = found
+    assert (timed is None) == (by_interval is None), (problem, timed, by_interval)
+    if timed is not None and by_interval is not None:
+        assert timed.cost == by_interval.cost
+        assert problem.violations(by_interval.trajectory) == []
+
+
+@pytest.mark.parametrize(("width", "drones", "seed"), [(16, 16, 2017), (16, 16, 3), (12, 12, 1)])
+def test_interval_search_matches_astar_on_the_bench_stream(width: int, drones: int, seed: int) -> None:
+    # Dense fleets at delta 1: many plans wait for the goal to clear, where every state ties on f
+    # and an earlier arrival in an interval often turns up after a later one was expanded.
+    rng = random.Random(f"{seed}-{width}-{drones}-1")
+    ws = random_workspace(width, width, rng)
+    planner = SafePlanner(ws, 1)
+    tables = {flag: ReservationTable(ws, 1, vertex_keys=not flag) for flag in (False, True)}
+    stream = TaskStream(ws, drones, rng)
+    for _ in range(150):
+        task = stream.next_task()
+        start, goal = ws.cell_id(task.start), ws.cell_id(task.goal)
+        results = []
+        for flag, table in tables.items():
+            table.sync(task.others)
+            heuristic = planner.graph.distances(goal, table.blocked_throughout(task.start_step))
+            args = (planner.grid, table, heuristic, start, goal, task.start_step, ws.plan_length_limit)
+            try:
+                results.append(search(*args, intervals=flag))
+            except NoPlanFound:
+                results.append(None)
+        timed, by_interval = results
+        assert (timed is None) == (by_interval is None), task
+        traj: Trajectory | None = None
+        if timed is not None and by_interval is not None:
+            assert timed.cost == by_interval.cost, task
+            assert check_trajectory(ws, by_interval.trajectory, task.others, 1, task.goal) == []
+            traj = timed.trajectory
+        stream.complete(task, traj)
