@@ -286,10 +286,11 @@ def interferers(draw: st.DrawFn, ws: Workspace, start: Cell, goal: Cell, n: int,
 @st.composite
 def problems(draw: st.DrawFn, side: tuple[int, int], layers: tuple[int, ...], max_others: int,
              max_length: st.SearchStrategy[int | None], max_cells: int = 10_000,
-             costs: st.SearchStrategy[dict[Primitive, float]] | None = None) -> Problem:
+             costs: st.SearchStrategy[dict[Primitive, float]] | None = None,
+             deltas: tuple[int, int] = (0, 2)) -> Problem:
     """My task and the others' trajectories: planned in turn by the A*, random walks, or interferers."""
     ws = draw(workspaces(side, layers, max_cells))
-    delta = draw(st.integers(0, 2))
+    delta = draw(st.integers(*deltas))
     tasks = draw(tasks_on(ws, 1 + draw(st.sampled_from(range(1, max_others + 1)))))
     (start, goal, step), rest = tasks[0], tasks[1:]
     mode = draw(st.sampled_from(["interferers", "planned", "walks"]))

@@ -85,7 +85,7 @@ def forced(problem: Problem) -> SafePlanner:
 
 
 @_settings(500)
-@given(problems((2, 4), (1, 2), max_others=3, max_length=st.integers(2, 8), max_cells=16))
+@given(problems((2, 4), (1, 2), max_others=3, max_length=st.integers(2, 8), max_cells=16, deltas=(1, 2)))
 def test_interval_search_finds_no_plan_only_when_none_exists(problem: Problem) -> None:
     planner = forced(problem)
     found = outcome(lambda: planner.plan(problem.start, problem.goal, problem.start_step,
