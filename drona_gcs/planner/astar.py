@@ -81,7 +81,7 @@ def search(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
     if intervals:
         if table.keeps_vertex:
             raise ValueError("the safe-interval search needs a table built with vertex_keys=False")
-        found = _tree_path_if_free(grid, table, heuristic, start, n, max_length, goal_ready)
+        found = _shortest_path_if_free(grid, table, heuristic, start, n, max_length, goal_ready)
         return found or search_intervals(grid, table, heuristic, start, goal, n, max_length, goal_ready,
                                          hopeless, budget)
     if not table.keeps_vertex:
@@ -89,7 +89,7 @@ def search(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
     pre_keys = table.pre_keys(n)
     _add(table.vertex, pre_keys)  # drones still waiting to start, for this search only
     try:
-        found = _shortest_path_if_free(grid, table, heuristic, start, goal, n, max_length, goal_ready)
+        found = _shortest_path_if_free(grid, table, heuristic, start, n, max_length, goal_ready)
         if found is not None:
             return found
         # With uniform costs the layers from `static` on are one; otherwise never collapse.
@@ -100,45 +100,42 @@ def search(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
         _sub(table.vertex, pre_keys)
 
 
-def _tree_path_if_free(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
-                       start: int, n: int, max_length: int, goal_ready: int) -> SearchResult | None:
-    """:func:`_shortest_path_if_free` read off the safe intervals (uniform costs only)."""
-    path = heuristic.tree_path(start)
-    if path is None or len(path) - 1 > max_length or n + len(path) - 1 < goal_ready:
-        return None
-    n_cells, swaps, cache, intervals = table.n, table.swaps, table.interval_cache, table.safe_intervals
-    for k in range(1, len(path)):
-        step, cell = n + k, path[k]
-        found = cache.get(cell) or intervals(cell)
-        if ((found is not ALWAYS_FREE and not free_at(found, step))
-                or (swaps and ((step - 1) * n_cells + path[k - 1]) * n_cells + cell in swaps)):
-            return None
-    traj, primitives = grid.trajectory(n, path)
-    assert grid.uniform_cost is not None
-    return SearchResult(traj, primitives, grid.uniform_cost * len(primitives), SearchStats(0, len(path)))
-
-
 def _shortest_path_if_free(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
-                           start: int, goal: int, n: int, max_length: int,
-                           goal_ready: int) -> SearchResult | None:
+                           start: int, n: int, max_length: int, goal_ready: int) -> SearchResult | None:
     """The BFS tree's shortest path, when no other drone is in its way.
 
     Its cost equals the heuristic at the start, a lower bound on every plan's
     cost, so when it is safe it is optimal and the search can be skipped. On a
-    sparse fleet that is most plans, and checking it costs one lookup a step.
+    sparse fleet that is most plans, and checking it costs one lookup a step
+    (in the table's vertex keys, or in its safe intervals).
     """
     path = heuristic.tree_path(start)
     if path is None or len(path) - 1 > max_length or n + len(path) - 1 < goal_ready:
         return None
-    n_cells, vertex, swaps, perm = table.n, table.vertex, table.swaps, table.perm
+    taken = _taken_by_vertex(table) if table.keeps_vertex else _taken_by_interval(table)
+    n_cells, swaps = table.n, table.swaps
     for k in range(1, len(path)):
         step, cell = n + k, path[k]
-        if (step * n_cells + cell in vertex or perm.get(cell, step + 1) <= step
-                or (swaps and ((step - 1) * n_cells + path[k - 1]) * n_cells + cell in swaps)):
+        if taken(step, cell) or (swaps and ((step - 1) * n_cells + path[k - 1]) * n_cells + cell in swaps):
             return None
     traj, primitives = grid.trajectory(n, path)
     cost = grid.uniform_cost * len(primitives) if grid.uniform_cost is not None else grid.model.plan_cost(primitives)
     return SearchResult(traj, primitives, cost, SearchStats(0, len(path)))
+
+
+def _taken_by_vertex(table: ReservationTable) -> Callable[[int, int], bool]:
+    n_cells, vertex, perm = table.n, table.vertex, table.perm
+    return lambda step, cell: step * n_cells + cell in vertex or perm.get(cell, step + 1) <= step
+
+
+def _taken_by_interval(table: ReservationTable) -> Callable[[int, int], bool]:
+    cache, intervals = table.interval_cache, table.safe_intervals
+
+    def taken(step: int, cell: int) -> bool:
+        found = cache.get(cell) or intervals(cell)
+        return found is not ALWAYS_FREE and not free_at(found, step)
+
+    return taken
 
 
 def _run(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance, start: int, goal: int,
