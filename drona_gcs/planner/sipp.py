@@ -63,7 +63,9 @@ def search_intervals(grid: GridIndex, table: ReservationTable, heuristic: GoalDi
     assert unit is not None, "SIPP needs every primitive to cost the same"
     n_cells, last_step, moves, swaps = table.n, n + max_length, grid.moves_only, table.swaps
     intervals, cache = table.safe_intervals, table.interval_cache
-    first = next(j for j, (lo, hi) in enumerate(intervals(start)) if lo <= n <= hi)
+    first = next((j for j, (lo, hi) in enumerate(intervals(start)) if lo <= n <= hi), None)
+    if first is None:  # the caller's check, kept: a bare StopIteration would name nothing
+        raise NoPlanFound("the start cell is taken by another drone at the start step")
     start_key = first * n_cells + start
     known, get_h = heuristic.known, heuristic.get  # parked drones' cells are UNREACHABLE there
     g: dict[int, int] = {start_key: 0}
