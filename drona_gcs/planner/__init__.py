@@ -99,7 +99,7 @@ class SafePlanner:
         budget = self.seal_after + 4 * int(heuristic.get(start_id) / self.grid.min_cost if self.grid.min_cost else 0) \
             + len(self.grid.coords) // 20 + (_INTERVAL_SEAL_EXTRA if intervals else 0)
         try:
-            found = search(*args, budget=max(1, budget), intervals=intervals)
+            found = search(*args, budget=max(1, budget))
         except BudgetExceeded:
             # A long search: drones parking for good may have sealed the goal off,
             # and pruning on that can end a search that would otherwise visit all space-time.
@@ -108,7 +108,7 @@ class SafePlanner:
             # heuristic that knows where they will park keeps the search from flooding behind
             # them. Safe intervals do not flood in time, and the layers cost them more than they save.
             layers = None if intervals else TimeLayers(self.graph, self.table, goal_id, start_step, heuristic)
-            found = search(*args, seal=seal, layers=layers, intervals=intervals)
+            found = search(*args, seal=seal, layers=layers)
         return Plan(found.trajectory, found.primitives, found.cost, found.stats.expansions)
 
     def _heuristic(self, goal: int, blocked: frozenset[int]) -> GoalDistance:

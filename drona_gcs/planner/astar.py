@@ -50,13 +50,12 @@ __all__ = ["BudgetExceeded", "SearchResult", "SearchStats", "search"]
 
 def search(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
            start: int, goal: int, n: int, max_length: int, seal: Seal | None = None,
-           budget: int | None = None, layers: TimeLayers | None = None,
-           intervals: bool | None = None) -> SearchResult:
+           budget: int | None = None, layers: TimeLayers | None = None) -> SearchResult:
     """Find a minimum-cost safe plan; raise :class:`NoPlanFound` when none exists.
 
-    With ``intervals`` the search runs over safe intervals (:mod:`.sipp`; uniform
-    costs and a table built with ``vertex_keys=False``), otherwise over
-    ``(cell, step)`` (a table with vertex keys); by default the table decides.
+    The table's kind decides the search: over safe intervals (:mod:`.sipp`) with a
+    table built with ``vertex_keys=False`` (uniform costs only), otherwise over
+    ``(cell, step)``.
     With a ``budget``, raise :class:`BudgetExceeded` after that many expansions,
     so the caller can compute the (costlier) seal pruning only when needed.
     ``layers`` only serve the space-time search.
@@ -74,18 +73,13 @@ def search(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
     if hopeless is not None and hopeless(start, n):
         raise NoPlanFound("drones parking for good seal the goal off before it can be reached")
     uniform = grid.uniform_cost
-    if intervals is None:
-        intervals = not table.keeps_vertex
-    if intervals and uniform is None:
-        raise ValueError("the safe-interval search needs every primitive to cost the same")
-    if intervals:
-        if table.keeps_vertex:
-            raise ValueError("the safe-interval search needs a table built with vertex_keys=False")
+    if not table.keeps_vertex:
+        if uniform is None:
+            raise ValueError("the safe-interval search (a table without vertex keys) needs every "
+                             "primitive to cost the same")
         found = _shortest_path_if_free(grid, table, heuristic, start, n, max_length, goal_ready)
         return found or search_intervals(grid, table, heuristic, start, goal, n, max_length, goal_ready,
                                          hopeless, budget)
-    if not table.keeps_vertex:
-        raise ValueError("the space-time search needs a reservation table that keeps vertex keys")
     pre_keys = table.pre_keys(n)
     _add(table.vertex, pre_keys)  # drones still waiting to start, for this search only
     try:
