@@ -20,7 +20,7 @@ states, so a conflict test is one dict lookup.
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from itertools import pairwise
 
@@ -60,6 +60,9 @@ class ReservationTable:
         self.swaps: dict[int, int] = {}
         self.pre: dict[int, int] = {}
         self.perm: dict[int, int] = {}
+        # Every drone's pre_until / perm_from by cell; pre and perm keep the max / min of each list.
+        self._pre_all: dict[int, list[int]] = {}
+        self._perm_all: dict[int, list[int]] = {}
         #: per cell, the ``(first, last)`` step runs of its vertex reservations (for safe intervals)
         self.spans: dict[int, list[tuple[int, int]]] = {}
         self.interval_cache: dict[int, tuple[tuple[int, int], ...]] = {}  #: cache of :meth:`safe_intervals`
@@ -90,7 +93,8 @@ class ReservationTable:
             else:
                 found.append((lo, hi))
         self._forget_intervals(entry)
-        self._recompute_endpoints((entry.first, entry.last))
+        _join(self._pre_all, self.pre, entry.first, entry.pre_until, max)
+        _join(self._perm_all, self.perm, entry.last, entry.perm_from, min)
 
     def remove(self, drone: str) -> None:
         entry = self._entries.pop(drone)
@@ -103,7 +107,8 @@ class ReservationTable:
             if not found:
                 del spans[cell]
         self._forget_intervals(entry)
-        self._recompute_endpoints((entry.first, entry.last))
+        _leave(self._pre_all, self.pre, entry.first, entry.pre_until, max)
+        _leave(self._perm_all, self.perm, entry.last, entry.perm_from, min)
 
     def _forget_intervals(self, entry: _Entry) -> None:
         """Drop the cached safe intervals of every cell whose reservations ``entry`` changes."""
@@ -136,13 +141,6 @@ class ReservationTable:
         end = traj.end_step
         return _Entry(traj, tuple(vertex), tuple(swaps), ids[0], ids[-1], m + d, end - d,
                       max(end - 1 + d, m + d), cell_last, spans)
-
-    def _recompute_endpoints(self, cells: tuple[int, int]) -> None:
-        for cell in set(cells):
-            pre = [e.pre_until for e in self._entries.values() if e.first == cell]
-            perm = [e.perm_from for e in self._entries.values() if e.last == cell]
-            _store(self.pre, cell, max(pre) if pre else None)
-            _store(self.perm, cell, min(perm) if perm else None)
 
     # ----------------------------------------------------------- queries
     def static_from(self, step: int) -> int:
@@ -194,8 +192,12 @@ class ReservationTable:
         if self.keeps_vertex:
             raise ValueError("safe intervals need a table built with vertex_keys=False")
         spans, pre, perm = self.spans.get(cell), self.pre.get(cell), self.perm.get(cell)
-        if spans is None and pre is None and perm is None:
-            return ALWAYS_FREE  # most cells: nobody ever comes by
+        if pre is None and perm is None:
+            if spans is None:
+                return ALWAYS_FREE  # most cells: nobody ever comes by
+            if len(spans) == 1:  # the commonest of the rest: one drone passes by
+                lo, hi = spans[0]
+                return (-FOREVER, lo - 1), (hi + 1, FOREVER)
         blocked = sorted(spans) if spans is not None else []
         end = FOREVER if perm is None else perm - 1
         out: list[tuple[int, int]] = []
@@ -253,8 +255,20 @@ def _sub(table: dict[int, int], keys: tuple[int, ...] | list[int]) -> None:
             del table[key]
 
 
-def _store(table: dict[int, int], key: int, value: int | None) -> None:
-    if value is None:
-        table.pop(key, None)
+def _join(everyone: dict[int, list[int]], summary: dict[int, int], cell: int, value: int,
+          pick: Callable[[Iterable[int]], int]) -> None:
+    """Add one drone's ``value`` at ``cell``; ``summary[cell]`` is ``pick`` (max or min) of them all."""
+    values = everyone.setdefault(cell, [])
+    values.append(value)
+    summary[cell] = pick(values)
+
+
+def _leave(everyone: dict[int, list[int]], summary: dict[int, int], cell: int, value: int,
+           pick: Callable[[Iterable[int]], int]) -> None:
+    """Take back what :func:`_join` added."""
+    values = everyone[cell]
+    values.remove(value)
+    if values:
+        summary[cell] = pick(values)
     else:
-        table[key] = value
+        del everyone[cell], summary[cell]

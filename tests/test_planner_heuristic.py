@@ -1,0 +1,58 @@
+"""The distance heuristic against a plain breadth-first search, with cells cut out for one plan.
+
+A parked drone's cell is cut from the graph for one search only: no path to the
+goal may run through it, it reads as unreachable, and the graph is whole again
+afterwards (the next goal's distances must not see the cut).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from drona_gcs.planner.grid import GridIndex
+from drona_gcs.planner.heuristic import UNREACHABLE, DistanceGraph
+from drona_gcs.workspace import Workspace
+
+
+def plain_distances(grid: GridIndex, goal: int, cut: set[int]) -> dict[int, int]:
+    """Steps from each cell to ``goal``, never passing through a cell of ``cut``."""
+    found, queue = {goal: 0}, deque([goal])
+    while queue:
+        cell = queue.popleft()
+        for before, _ in grid.reverse[cell]:
+            if before not in found and before not in cut:
+                found[before] = found[cell] + 1
+                queue.append(before)
+    return found
+
+
+@st.composite
+def grids_with_cuts(draw: st.DrawFn) -> tuple[GridIndex, int, frozenset[int]]:
+    nx, ny, nz = draw(st.integers(2, 7)), draw(st.integers(2, 7)), draw(st.integers(1, 2))
+    cells = [(x, y, z) for x in range(nx) for y in range(ny) for z in range(nz)]
+    obstacles = draw(st.sets(st.sampled_from(cells), max_size=len(cells) // 4))
+    free = [c for c in cells if c not in obstacles]
+    ws = Workspace(size=(nx, ny, nz), obstacles=frozenset(obstacles))
+    goal = ws.cell_id(draw(st.sampled_from(free)))
+    cut = draw(st.sets(st.sampled_from([ws.cell_id(c) for c in free]), max_size=len(free) // 2))
+    return GridIndex.build(ws), goal, frozenset(cut)
+
+
+@settings(max_examples=150, deadline=None)
+@given(grids_with_cuts())
+def test_distances_avoid_the_cut_cells_and_leave_the_graph_whole(case: tuple[GridIndex, int, frozenset[int]]) -> None:
+    grid, goal, cut = case
+    graph = DistanceGraph(grid)
+    expected = plain_distances(grid, goal, set(cut) - {goal})
+    heuristic = graph.distances(goal, cut)
+    for cell, free in enumerate(grid.free):
+        if not free:
+            continue
+        want = UNREACHABLE if cell in cut and cell != goal else expected.get(cell, UNREACHABLE)
+        assert heuristic.get(cell) == want, f"cell {grid.coords[cell]}"
+    whole = plain_distances(grid, goal, set())
+    after = graph.distances(goal, frozenset())
+    assert all(after.get(c) == whole.get(c, UNREACHABLE) for c, free in enumerate(grid.free) if free)
