@@ -164,7 +164,10 @@ function drawDrone(g, d) {
   const group = el("g", { class: `drone ${d.cell[2] === state.layer ? "" : "other-layer"}`, "data-id": d.id,
                           "data-battery": d.battery_pct }, g);
   el("circle", { cx: x, cy: y, r: 0.36, fill: d.health.ok ? colour(d.id) : "#e53e3e" }, group);
-  el("text", { x: x + 0.42, y: y - 0.1 }, group).textContent = d.id;
+  // The label goes right of the drone, or left where it would run off the map (about 0.24 a character).
+  const leftward = x + 0.42 + 0.24 * d.id.length > state.ws.size[0];
+  const label = leftward ? { x: x - 0.42, y: y - 0.1, "text-anchor": "end" } : { x: x + 0.42, y: y - 0.1 };
+  el("text", label, group).textContent = d.id;
   el("rect", { class: "batt-bg", x: x - 0.4, y: y + 0.42, width: 0.8, height: 0.12 }, group);
   el("rect", { class: `batt ${d.battery_pct < 40 ? "low" : ""}`, x: x - 0.4, y: y + 0.42,
                width: 0.8 * Math.max(0, Math.min(100, d.battery_pct)) / 100, height: 0.12 }, group);

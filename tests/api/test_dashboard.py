@@ -35,6 +35,18 @@ def browser() -> Iterator[Any]:
             chromium.close()
 
 
+#: Moves d3 to the map's last column, draws, and returns its label's extent and the map's width.
+LABEL_IN_LAST_COLUMN = """() => {
+  const d = state.drones.get("d3"), saved = d.cell;
+  d.cell = [state.ws.size[0] - 1, saved[1], saved[2]];
+  draw();
+  const box = document.querySelector("#map g.drone[data-id='d3'] text").getBBox();
+  d.cell = saved;
+  draw();
+  return [box.x, box.x + box.width, state.ws.size[0]];
+}"""
+
+
 def test_the_dashboard_shows_the_fleet_and_follows_a_mail(browser: Any, workspace_file: Path,
                                                           tmp_path: Path) -> None:
     service = ServiceProcess(workspace_file, tmp_path / "mail.db", sim_step=0.1)
@@ -52,6 +64,9 @@ def test_the_dashboard_shows_the_fleet_and_follows_a_mail(browser: Any, workspac
         page.wait_for_function("document.querySelectorAll('#map g.drone').length === 3", timeout=10_000)
         assert page.locator("#drones tbody tr").count() == 3
         assert float(page.locator("#map g.drone[data-id='d1']").get_attribute("data-battery")) > 0
+        # a drone in the last column keeps its label on the map (drawn by the page's own code)
+        left, right, width = page.evaluate(LABEL_IN_LAST_COLUMN)
+        assert left >= 0 and right <= width, f"d3's label spans {left:.2f}..{right:.2f} of a map {width} wide"
         # submit a mail through the form
         for name, value in (("px", 1), ("py", 3), ("pz", 0), ("dx", 3), ("dy", 6), ("dz", 0), ("priority", 8)):
             page.fill(f"#mail-form [name='{name}']", str(value))
