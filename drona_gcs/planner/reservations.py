@@ -85,14 +85,20 @@ class ReservationTable:
         self._entries[drone] = entry
         _add(self.vertex, entry.vertex_keys)
         _add(self.swaps, entry.swap_keys)
-        spans = self.spans
+        spans, cache = self.spans, self.interval_cache
         for cell, lo, hi in entry.spans:
             found = spans.get(cell)
             if found is None:
                 spans[cell] = [(lo, hi)]
             else:
                 found.append((lo, hi))
-        self._forget_intervals(entry)
+            # A new reservation only takes time away: cut it out of what is cached. (Removing
+            # one gives time back only where no other drone holds it, so that recomputes.)
+            cached = cache.get(cell)
+            if cached is not None:
+                cache[cell] = _without(cached, lo, hi)
+        cache.pop(entry.first, None)  # their bounds before and after change too
+        cache.pop(entry.last, None)
         _join(self._pre_all, self.pre, entry.first, entry.pre_until, max)
         _join(self._perm_all, self.perm, entry.last, entry.perm_from, min)
 
@@ -219,6 +225,20 @@ class ReservationTable:
             return not free_at(self.safe_intervals(cell), step)
         return (step * self.n + cell in self.vertex or self.perm.get(cell, step + 1) <= step
                 or self.pre.get(cell, step - 1) >= step)
+
+
+def _without(intervals: tuple[tuple[int, int], ...], lo: int, hi: int) -> tuple[tuple[int, int], ...]:
+    """``intervals`` (sorted, disjoint) less the steps ``lo..hi``."""
+    out: list[tuple[int, int]] = []
+    for first, last in intervals:
+        if last < lo or first > hi:
+            out.append((first, last))
+            continue
+        if first < lo:
+            out.append((first, lo - 1))
+        if last > hi:
+            out.append((hi + 1, last))
+    return tuple(out)
 
 
 def free_at(intervals: tuple[tuple[int, int], ...], step: int) -> bool:
