@@ -78,7 +78,10 @@ def test_the_dashboard_shows_the_fleet_and_follows_a_mail(browser: Any, workspac
         pickup = f"#map .marker.pickup[data-id='{mail_id}']"
         assert page.locator(pickup).count() == 1
         page.wait_for_selector(f"{pickup}[data-status='picked_up']", timeout=20_000)
-        page.wait_for_selector("#map polyline.traj", timeout=10_000)  # a planned trajectory, drawn
+        # A planned trajectory, drawn. "attached", not "visible": Playwright calls an element with an
+        # empty bounding box hidden, and a straight trajectory's polyline is zero wide or zero high.
+        traj = page.wait_for_selector("#map polyline.traj", state="attached", timeout=10_000)
+        assert traj is not None and len((traj.get_attribute("points") or "").split()) >= 2
         page.screenshot(path=str(tmp_path / "flying.png"))
         page.wait_for_selector(f"{pickup}[data-status='delivered']", timeout=20_000)
         assert row.get_attribute("data-status") == "delivered"
