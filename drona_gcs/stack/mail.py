@@ -221,7 +221,8 @@ class MailPlanner:
         self.phase = Phase.IDLE
 
     def _retry_delay(self) -> int:
-        """``retry_steps``; doubled on each failure in a row towards a cell believed taken (capped)."""
+        """``retry_steps``; doubled on each failure in a row towards a cell believed taken (capped).
+        Records that cell as ``blocked`` and the delay as ``backoff`` (both cleared otherwise)."""
         if not self.goal_taken or self.goal is None:
             self.blocked, self.backoff = None, 0
             return self.retry_steps
