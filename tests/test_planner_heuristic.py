@@ -1,8 +1,9 @@
 """The distance heuristic against a plain breadth-first search, with cells cut out for one plan.
 
-A parked drone's cell is cut from the graph for one search only: no path to the
-goal may run through it, it reads as unreachable, and the graph is whole again
-afterwards (the next goal's distances must not see the cut).
+A parked drone's cell is cut from the graph for one search: no path to the
+goal may run through it, and it reads as unreachable. The next search with
+other cells blocked must not see the old cut, and ``whole()`` gives back the
+graph as built.
 """
 
 from __future__ import annotations
@@ -56,3 +57,22 @@ def test_distances_avoid_the_cut_cells_and_leave_the_graph_whole(case: tuple[Gri
     whole = plain_distances(grid, goal, set())
     after = graph.distances(goal, frozenset())
     assert all(after.get(c) == whole.get(c, UNREACHABLE) for c, free in enumerate(grid.free) if free)
+
+
+@settings(max_examples=100, deadline=None)
+@given(grids_with_cuts(), st.lists(st.sets(st.integers(0, 97)), min_size=1, max_size=4))
+def test_successive_cuts_each_see_only_their_own_cells(case: tuple[GridIndex, int, frozenset[int]],
+                                                         picks: list[set[int]]) -> None:
+    grid, goal, first = case
+    free = [c for c, ok in enumerate(grid.free) if ok]
+    graph = DistanceGraph(grid)
+    built = graph.matrix.copy()
+    for cut in [first, *(frozenset(free[i % len(free)] for i in pick) for pick in picks)]:
+        expected = plain_distances(grid, goal, set(cut) - {goal})
+        heuristic = graph.distances(goal, cut)
+        for cell in free:
+            want = UNREACHABLE if cell in cut and cell != goal else expected.get(cell, UNREACHABLE)
+            assert heuristic.get(cell) == want, f"cell {grid.coords[cell]} with {sorted(cut)} cut"
+    whole = graph.whole()
+    assert (whole != built).nnz == 0
+    assert (whole.indices == built.indices).all()

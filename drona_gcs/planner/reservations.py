@@ -95,7 +95,9 @@ class ReservationTable:
             # A new reservation only takes time away: cut it out of what is cached. (Removing
             # one gives time back only where no other drone holds it, so that recomputes.)
             cached = cache.get(cell)
-            if cached is not None:
+            if cached is ALWAYS_FREE:  # the commonest: the first drone to pass by
+                cache[cell] = (-FOREVER, lo - 1), (hi + 1, FOREVER)
+            elif cached is not None:
                 cache[cell] = _without(cached, lo, hi)
         cache.pop(entry.first, None)  # their bounds before and after change too
         cache.pop(entry.last, None)

@@ -59,7 +59,7 @@ def find_seal(graph: DistanceGraph, table: ReservationTable, start: int, goal: i
     seal_time = times[hi]
     inside = field(seal_time)
     # Blocked cells next to the region count as inside: that only weakens the bound.
-    steps = csgraph.dijkstra(graph.matrix, directed=True, indices=inside.reached, unweighted=True,
+    steps = csgraph.dijkstra(graph.whole(), directed=True, indices=inside.reached, unweighted=True,
                              min_only=True)
     steps[~np.isfinite(steps)] = UNREACHABLE
     return Seal(seal_time, inside, memoryview(steps.astype(np.int64)))
