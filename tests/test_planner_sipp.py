@@ -83,13 +83,21 @@ def test_safe_intervals_are_the_steps_without_conflict(data: st.DataObject, delt
 
 
 def forced(problem: Problem) -> SafePlanner:
-    planner = SafePlanner(problem.ws, delta=problem.delta, costs=problem.costs)
-    planner.seal_after = -10**9  # straight to the second path: safe intervals for unit costs
+    uniform = len(set(problem.costs.values())) <= 1
+    planner = SafePlanner(problem.ws, delta=problem.delta, costs=problem.costs, intervals=uniform or None)
+    planner.seal_after = -10**9  # straight to the second path: with seal pruning
     return planner
 
 
+def test_a_dense_fleet_at_delta_0_searches_safe_intervals() -> None:
+    ws = random_workspace(16, 16, random.Random(5))
+    assert SafePlanner(ws, 0, fleet_size=16).intervals
+    assert not SafePlanner(ws, 0, fleet_size=2).intervals
+    assert SafePlanner(ws, 1, fleet_size=2).intervals
+
+
 @_settings(500)
-@given(problems((2, 4), (1, 2), max_others=3, max_length=st.integers(2, 8), max_cells=16, deltas=(1, 2)))
+@given(problems((2, 4), (1, 2), max_others=3, max_length=st.integers(2, 8), max_cells=16, deltas=(0, 2)))
 def test_interval_search_finds_no_plan_only_when_none_exists(problem: Problem) -> None:
     planner = forced(problem)
     found = outcome(lambda: planner.plan(problem.start, problem.goal, problem.start_step,
@@ -122,14 +130,16 @@ def test_interval_search_agrees_with_the_space_time_astar(problem: Problem) -> N
         assert problem.violations(by_interval.trajectory) == []
 
 
-@pytest.mark.parametrize(("width", "drones", "seed"), [(16, 16, 2017), (16, 16, 3), (12, 12, 1)])
-def test_interval_search_matches_astar_on_the_bench_stream(width: int, drones: int, seed: int) -> None:
-    # Dense fleets at delta 1: many plans wait for the goal to clear, where every state ties on f
+@pytest.mark.parametrize(("width", "drones", "seed", "delta"),
+                         [(16, 16, 2017, 1), (16, 16, 3, 1), (12, 12, 1, 1), (16, 16, 2017, 0), (32, 32, 3, 0)])
+def test_interval_search_matches_astar_on_the_bench_stream(width: int, drones: int, seed: int, delta: int) -> None:
+    # Dense fleets: many plans wait for the goal to clear, where every state ties on f
     # and an earlier arrival in an interval often turns up after a later one was expanded.
-    rng = random.Random(f"{seed}-{width}-{drones}-1")
+    # At delta 0 head-on swaps are edge constraints of the interval search.
+    rng = random.Random(f"{seed}-{width}-{drones}-{delta}")
     ws = random_workspace(width, width, rng)
-    planner = SafePlanner(ws, 1)
-    tables = {flag: ReservationTable(ws, 1, vertex_keys=not flag) for flag in (False, True)}
+    planner = SafePlanner(ws, delta)
+    tables = {flag: ReservationTable(ws, delta, vertex_keys=not flag) for flag in (False, True)}
     stream = TaskStream(ws, drones, rng)
     for _ in range(150):
         task = stream.next_task()
@@ -148,6 +158,6 @@ def test_interval_search_matches_astar_on_the_bench_stream(width: int, drones: i
         traj: Trajectory | None = None
         if timed is not None and by_interval is not None:
             assert timed.cost == by_interval.cost, task
-            assert check_trajectory(ws, by_interval.trajectory, task.others, 1, task.goal) == []
+            assert check_trajectory(ws, by_interval.trajectory, task.others, delta, task.goal) == []
             traj = timed.trajectory
         stream.complete(task, traj)

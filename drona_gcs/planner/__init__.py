@@ -1,8 +1,9 @@
 """Safe plan generators: the exact A* (default) and the Z3 baseline (:mod:`.smt`).
 
 The A* searches safe intervals (:mod:`.sipp`) when every primitive costs the
-same, as in the paper, and the skew window is at least one step; otherwise
-it searches space-time ``(cell, step)`` states (:mod:`.astar`).
+same, as in the paper, and either the skew window is at least one step or the
+fleet is dense; otherwise it searches space-time ``(cell, step)`` states
+(:mod:`.astar`).
 
 :class:`SafePlanner` is the one entry point the stack uses. It keeps its
 reservation table and heuristics between plans, so a drone (or a benchmark)
@@ -36,6 +37,12 @@ _SEAL_AFTER = 64
 #: More for the safe-interval search: one of its expansions stands for a whole run of waiting,
 #: and on the bench workload it rarely needs the seal (a seal costs a few BFS over the grid).
 _INTERVAL_SEAL_EXTRA = 236
+#: Drones per free cell from which the safe-interval search pays at Delta 0 too. Plans then wait
+#: often, and the space-time search keeps a state per step waited. Measured over the bench streams
+#: of seeds 2017, 1, 2 and 3 (time, alternating in one process): 0.88 of the space-time search's at
+#: 32x32/32 (3.9%), 0.93 at 16x16/16 (7.8%), 0.97 at 16x16/8 (3.9%); but 1.01 at 32x32/16 (2%),
+#: 1.15 at 64x64/64 (1.6%) and 1.42 at 64x64/32 (0.8%), where plans rarely wait.
+DENSE_FLEET = 0.03
 
 
 @dataclass(frozen=True)
@@ -57,21 +64,35 @@ class SafePlanner:
     seal_after = _SEAL_AFTER
 
     def __init__(self, workspace: Workspace, delta: int | None = None,
-                 costs: Mapping[Primitive, float] | None = None, heuristic_cache: int = 32) -> None:
+                 costs: Mapping[Primitive, float] | None = None, heuristic_cache: int = 32,
+                 fleet_size: int | None = None, intervals: bool | None = None) -> None:
+        """``fleet_size`` (default: the workspace's drones) picks the search at Delta 0;
+        ``intervals`` forces one (True needs uniform costs)."""
         self.workspace = workspace
         self.delta = workspace.delta if delta is None else delta
         if self.delta < 0:
             raise ProblemError(f"delta must be >= 0, got {self.delta}")
         self.grid = GridIndex.build(workspace, costs)
-        #: Whether searches run over safe intervals: with uniform costs, and a skew window of at
-        #: least one step. At delta 0 a drone reserves each cell for a single step, plans rarely
-        #: wait, and the space-time search is cheaper (13% fewer instructions at 64x64/32).
-        self.intervals = self.grid.uniform_cost is not None and self.delta >= 1
+        drones = len(workspace.drones) if fleet_size is None else fleet_size
+        self.intervals = self._searches_intervals(drones, intervals)
         # Only the space-time search reads vertex keys, and keeping them costs on every plan.
         self.table = ReservationTable(workspace, self.delta, vertex_keys=not self.intervals)
         self.graph = DistanceGraph(self.grid)
         self._heuristics: OrderedDict[tuple[int, frozenset[int]], GoalDistance] = OrderedDict()
         self._cache_size = heuristic_cache
+
+    def _searches_intervals(self, drones: int, forced: bool | None) -> bool:
+        """Whether searches run over safe intervals: only with uniform costs; then with a skew
+        window of at least one step, or a fleet dense enough that plans often wait. At Delta 0 a
+        drone reserves each cell for a single step, and in a sparse fleet plans rarely wait: there
+        the space-time search is cheaper (see :data:`DENSE_FLEET`)."""
+        if self.grid.uniform_cost is None:
+            if forced:
+                raise ProblemError("the safe-interval search needs every primitive to cost the same")
+            return False
+        if forced is not None:
+            return forced
+        return self.delta >= 1 or drones >= DENSE_FLEET * sum(self.grid.free)
 
     def __deepcopy__(self, memo: dict[int, object]) -> SafePlanner:
         # A planner is a cache over immutable inputs: copies of a simulated fleet share it.

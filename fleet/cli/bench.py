@@ -146,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
 def bench_astar(width: int, drones: int, delta: int, tasks: int, seed: int) -> Row:
     rng = random.Random(f"{seed}-{width}-{drones}-{delta}")
     ws = random_workspace(width, width, rng)
-    planner = SafePlanner(ws, delta=delta)
+    planner = SafePlanner(ws, delta=delta, fleet_size=drones)
     return _measure("astar", width, drones, delta, ws, rng, tasks,
                     lambda t: planner.plan(t.start, t.goal, t.start_step, t.others).trajectory,
                     PAPER_ASTAR[(width, drones)])
