@@ -108,23 +108,19 @@ class ReservationTable:
         entry = self._entries.pop(drone)
         _sub(self.vertex, entry.vertex_keys)
         _sub(self.swaps, entry.swap_keys)
-        spans = self.spans
+        spans, cache = self.spans, self.interval_cache
         for cell, lo, hi in entry.spans:
             found = spans[cell]
-            found.remove((lo, hi))
-            if not found:
+            if len(found) == 1:  # mostly: nobody else passes here
                 del spans[cell]
-        self._forget_intervals(entry)
+            else:
+                found.remove((lo, hi))
+            # Time comes back only where no other drone holds it: recomputed when next asked.
+            cache.pop(cell, None)
+        cache.pop(entry.first, None)  # their bounds before and after change too
+        cache.pop(entry.last, None)
         _leave(self._pre_all, self.pre, entry.first, entry.pre_until, max)
         _leave(self._perm_all, self.perm, entry.last, entry.perm_from, min)
-
-    def _forget_intervals(self, entry: _Entry) -> None:
-        """Drop the cached safe intervals of every cell whose reservations ``entry`` changes."""
-        cache = self.interval_cache
-        for cell, _, _ in entry.spans:
-            cache.pop(cell, None)
-        cache.pop(entry.first, None)
-        cache.pop(entry.last, None)
 
     def _reserve(self, traj: Trajectory) -> _Entry:
         nx, nxy = self.workspace.nx, self.workspace.nx * self.workspace.ny
