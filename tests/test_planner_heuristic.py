@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections import deque
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -44,7 +45,8 @@ def grids_with_cuts(draw: st.DrawFn) -> tuple[GridIndex, int, frozenset[int]]:
 
 @settings(max_examples=150, deadline=None)
 @given(grids_with_cuts())
-def test_distances_avoid_the_cut_cells_and_leave_the_graph_whole(case: tuple[GridIndex, int, frozenset[int]]) -> None:
+def test_distances_avoid_the_cut_cells_and_the_next_search_sees_none_of_them(
+        case: tuple[GridIndex, int, frozenset[int]]) -> None:
     grid, goal, cut = case
     graph = DistanceGraph(grid)
     expected = plain_distances(grid, goal, set(cut) - {goal})
@@ -76,3 +78,13 @@ def test_successive_cuts_each_see_only_their_own_cells(case: tuple[GridIndex, in
     whole = graph.whole()
     assert (whole != built).nnz == 0
     assert (whole.indices == built.indices).all()
+
+
+def test_a_cell_outside_the_grid_is_refused_before_anything_is_cut() -> None:
+    grid = GridIndex.build(Workspace(size=(4, 4, 1)))
+    graph = DistanceGraph(grid)
+    built = graph.matrix.copy()
+    with pytest.raises(ValueError, match=r"0\.\.15"):
+        graph.distances(0, frozenset({1, 2, 23}))  # 23 comes last: 1 and 2 would be cut already
+    assert (graph.whole().indices == built.indices).all()
+    assert graph.distances(0, frozenset({5})).get(5) == UNREACHABLE

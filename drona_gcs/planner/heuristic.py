@@ -50,7 +50,7 @@ class DistanceGraph:
 
     def distances(self, goal: int, blocked: frozenset[int]) -> GoalDistance:
         """Cost from every cell to ``goal`` avoiding ``blocked``; UNREACHABLE where none."""
-        cut = blocked - {goal} if goal in blocked else blocked
+        cut = frozenset(blocked - {goal} if goal in blocked else blocked)  # kept: never a caller's set
         self._cut_to(cut)
         result = self._search(goal)
         known = result.known
@@ -59,7 +59,8 @@ class DistanceGraph:
         return result
 
     def whole(self) -> csr_matrix:
-        """The move graph with no cell cut out (for searches that must see every move)."""
+        """The move graph with no cell cut out (for searches that must see every move); valid
+        until the next :meth:`distances`, which cuts it in place."""
         self._cut_to(frozenset())
         return self.matrix
 
@@ -72,6 +73,9 @@ class DistanceGraph:
         """
         if cells == self._cut:
             return
+        if cells and (min(cells) < 0 or max(cells) >= self.n):
+            # Checked before any row changes: a half-made cut would outlive this call.
+            raise ValueError(f"cells to cut must be ids 0..{self.n - 1}, got {min(cells)}..{max(cells)}")
         indices, ptr, saved = self.matrix.indices, self._ptr, self._saved
         for row in self._cut - cells:
             indices[ptr[row]:ptr[row + 1]] = saved.pop(row)

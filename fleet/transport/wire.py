@@ -222,7 +222,8 @@ def decode(payload: bytes) -> Envelope:
 
     Remembered for the last few payloads: a message to everyone reaches every drone of a
     process as the same bytes (one Zenoh subscriber per process), and validating it once is
-    enough. Envelopes are frozen, so the drones can share one.
+    enough. The drones then share one envelope: it is frozen, and its lists (cells, mail)
+    must not be changed in place either.
     """
     try:
         return Envelope.model_validate_json(payload)
