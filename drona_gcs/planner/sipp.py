@@ -130,7 +130,9 @@ def search_intervals(grid: GridIndex, table: ReservationTable, heuristic: GoalDi
                 t = arrival + 1 if lo2 <= arrival else lo2  # earliest arrival in this interval
                 if t - 1 > leave_by:
                     break  # later intervals open later still
-                if swaps and ((t - 1) * n_cells + cell) * n_cells + nxt in swaps:
+                # A head-on swap needs the other drone in `nxt` at t - 1: only an arrival as the
+                # interval opens can be one.
+                if swaps and t == lo2 and ((t - 1) * n_cells + cell) * n_cells + nxt in swaps:
                     t = _swap_free_arrival(swaps, n_cells, cell, nxt, t + 1, min(hi2, leave_by + 1))
                     if t < 0:
                         continue
