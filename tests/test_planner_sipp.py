@@ -83,9 +83,9 @@ def test_safe_intervals_are_the_steps_without_conflict(data: st.DataObject, delt
 
 
 def forced(problem: Problem) -> SafePlanner:
-    uniform = len(set(problem.costs.values())) <= 1
-    planner = SafePlanner(problem.ws, delta=problem.delta, costs=problem.costs, intervals=uniform or None)
-    planner.seal_after = -10**9  # straight to the second path: with seal pruning
+    """The safe-interval search (unit costs: it refuses others), straight to its second path."""
+    planner = SafePlanner(problem.ws, delta=problem.delta, costs=problem.costs, intervals=True)
+    planner.seal_after = -10**9  # with seal pruning
     return planner
 
 

@@ -96,7 +96,7 @@ class ReservationTable:
             # one gives time back only where no other drone holds it, so that recomputes.)
             cached = cache.get(cell)
             if cached is ALWAYS_FREE:  # the commonest: the first drone to pass by
-                cache[cell] = (-FOREVER, lo - 1), (hi + 1, FOREVER)
+                cache[cell] = _passed_once(lo, hi)
             elif cached is not None:
                 cache[cell] = _without(cached, lo, hi)
         cache.pop(entry.first, None)  # their bounds before and after change too
@@ -200,8 +200,7 @@ class ReservationTable:
             if spans is None:
                 return ALWAYS_FREE  # most cells: nobody ever comes by
             if len(spans) == 1:  # the commonest of the rest: one drone passes by
-                lo, hi = spans[0]
-                return (-FOREVER, lo - 1), (hi + 1, FOREVER)
+                return _passed_once(*spans[0])
         blocked = sorted(spans) if spans is not None else []
         end = FOREVER if perm is None else perm - 1
         out: list[tuple[int, int]] = []
@@ -223,6 +222,11 @@ class ReservationTable:
             return not free_at(self.safe_intervals(cell), step)
         return (step * self.n + cell in self.vertex or self.perm.get(cell, step + 1) <= step
                 or self.pre.get(cell, step - 1) >= step)
+
+
+def _passed_once(lo: int, hi: int) -> tuple[tuple[int, int], ...]:
+    """The safe intervals of a cell reserved only from ``lo`` to ``hi``."""
+    return (-FOREVER, lo - 1), (hi + 1, FOREVER)
 
 
 def _without(intervals: tuple[tuple[int, int], ...], lo: int, hi: int) -> tuple[tuple[int, int], ...]:
