@@ -187,6 +187,42 @@ def test_connect_arm_take_off_follow_setpoints_and_land(backend: str, personalit
     run(scenario)
 
 
+@backends
+@personalities
+def test_a_landing_given_up_before_its_confirmation_does_not_outlive_follow_setpoints(
+        backend: str, personality: str) -> None:
+    """The agent abandons a landing when a new plan wants the drone back up. If the LAND was already
+    sent, the last HEARTBEAT still shows the follow mode: switching back must not trust it, or the
+    vehicle lands (and disarms) under a drone the stack believes is flying its plan."""
+    async def scenario() -> None:
+        async with fake_vehicle(personality, "udp") as fake, connected(backend, fake) as link:
+            await link.wait_ready(timeout=5)
+            await link.arm()
+            await link.takeoff(5.0)
+            await link.wait_until(lambda t: (t.height_m or 0) > 4.7, 5, "5 m up")
+            await link.follow_setpoints()
+            here = Ned(0.0, 0.0, -5.0)
+            await link.send_position_target(here)
+
+            landing = asyncio.create_task(link.land())
+            await asyncio.sleep(0)  # the LAND is on its way; its confirmation is not
+            landing.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await landing
+            assert link.telemetry().mode == FOLLOW[personality], "the mode changed before the test could ask"
+
+            await link.follow_setpoints()
+            await link.send_position_target(here)
+            started = time.monotonic()
+            while time.monotonic() - started < 1.0:  # 10 s simulated: a LAND would be well under way
+                t = link.telemetry()
+                assert t.mode == FOLLOW[personality] and t.armed, f"it left for {t.mode} (armed {t.armed})"
+                await asyncio.sleep(0.05)
+            assert near(here, 0.5)(link.telemetry())
+
+    run(scenario)
+
+
 # ------------------------------------------------------------------ contract: refusals
 @backends
 @personalities

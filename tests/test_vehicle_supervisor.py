@@ -60,3 +60,42 @@ def test_a_plan_during_the_descent_turns_the_landing_into_a_climb(personality: s
                 await cancel_all([streamer])
 
     run(scenario)
+
+
+@pytest.mark.parametrize("personality", ["ardupilot", "px4"])
+def test_a_vehicle_down_by_itself_raises_the_question_and_needs_no_landing(personality: str) -> None:
+    """A failsafe (or a pilot) lands the vehicle under a drone the stack still flies: the supervisor
+    says so, and a landing asked for afterwards is already done, wherever the plan's cell is."""
+    async def scenario() -> None:
+        async with fake_vehicle(personality, "udp") as fake, connected("pymavlink", fake) as link:
+            await link.wait_ready(timeout=5)
+            alarms: list[str | None] = []
+            target = Ned(0.0, 0.0, -FLIGHT_ALT_M)
+            supervisor = VehicleSupervisor("d1", link, FLIGHT_ALT_M, alarms.append, lambda: target, arrival_m=0.5)
+
+            async def stream() -> None:
+                while True:
+                    await link.send_position_target(target)
+                    await asyncio.sleep(0.05)
+
+            runner, streamer = asyncio.create_task(supervisor.run()), asyncio.create_task(stream())
+            try:
+                supervisor.want_airborne(True)
+                await asyncio.wait_for(supervisor.reached.wait(), 15)
+                assert supervisor.settled and not supervisor.grounded_by_itself()
+
+                await link.land()  # not the supervisor's doing
+                await link.wait_until(lambda t: not t.armed and t.landed is LandedState.ON_GROUND, 10, "touchdown")
+                assert supervisor.grounded_by_itself()
+
+                target = Ned(6.0, 6.0, -FLIGHT_ALT_M)  # the plan flew on meanwhile
+                supervisor.want_airborne(False)
+                await asyncio.wait_for(supervisor.reached.wait(), 3)
+                assert not supervisor.airborne and not supervisor.grounded_by_itself()
+                assert [a for a in alarms if a is not None] == []
+            finally:
+                supervisor.stop()
+                await asyncio.wait_for(runner, 5)
+                await cancel_all([streamer])
+
+    run(scenario)

@@ -131,8 +131,11 @@ class DroneAgent:
             self.record.write(f'{{"step": {report.step - 1}, "drone": "{self.me}", '
                               f'"cell": [{self.actual[0]}, {self.actual[1]}, {self.actual[2]}], '
                               f'"delta": {self.delta}}}\n')
-        lagging = report.lagging and self.vehicle.settled
+        down = self.vehicle.grounded_by_itself()
+        lagging = report.lagging and self.vehicle.settled and not down
         self._alarm("lag", f"vehicle {report.error_m:.1f} m from its cell" if lagging else None)
+        self._alarm("down", "vehicle: on the ground while its plan flies (a failsafe or a pilot?); "
+                    "it is not taken up again by itself" if down else None)
         # A plan scheduled but not begun still needs the climb: the lead steps are for it.
         # Landing crosses only its own column when the cell is on the lowest layer; higher up it hovers.
         grounded = self.stack.landed and self.stack.executor.cell[2] == 0

@@ -55,6 +55,13 @@ class VehicleSupervisor:
         """In the air and meant to be: its position is worth judging against the plan."""
         return self.airborne and self.wanted
 
+    def grounded_by_itself(self) -> bool:
+        """Meant to fly and taken up, yet down: a failsafe, a pilot, or a landing the autopilot finished
+        after we gave it up. The stack flies a drone that is not there: worth an alarm. It is not
+        taken up again from here: it may be down in another cell than the plan's."""
+        t = self.link.telemetry()
+        return self.settled and (not t.armed or t.landed is LandedState.ON_GROUND)
+
     def stop(self) -> None:
         self._stopping = True
         self._changed.set()
@@ -77,8 +84,9 @@ class VehicleSupervisor:
                 return
         except (VehicleError, TimeoutError) as exc:
             what = "take off" if airborne else "land"
-            self.on_alarm(f"vehicle: cannot {what}: {exc}")
-            log.warning("%s: cannot %s: %s", self.name, what, exc)
+            why = str(exc) or f"not done within {self.command_timeout_s:g} s"  # asyncio's timeout says nothing
+            self.on_alarm(f"vehicle: cannot {what}: {why}")
+            log.warning("%s: cannot %s: %s", self.name, what, why)
             await asyncio.sleep(1.0)  # a retry pause: the next attempt must not flood the autopilot
             return
         self.airborne = airborne
@@ -130,6 +138,9 @@ class VehicleSupervisor:
 
     async def _land(self) -> None:
         link = self.link
+        t = link.telemetry()
+        if not t.armed and t.landed is LandedState.ON_GROUND:
+            return  # already down (by itself): there is no landing left to place
         # Land only once over the cell: LAND comes down where the vehicle is, and one still
         # catching up with its last setpoint would come down in the cell it was leaving.
         await link.wait_until(self._over_target, self.command_timeout_s, "the arrival over the landing cell")

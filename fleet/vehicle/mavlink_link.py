@@ -26,7 +26,7 @@ import contextlib
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
@@ -84,6 +84,9 @@ class PymavlinkLink:
         self.autopilot: Autopilot | None = None
         self.custom_mode: int | None = None
         self.armed = False
+        #: A mode change was sent and not confirmed (abandoned or failed): the last HEARTBEAT's mode may be
+        #: about to change. A LAND given up on before its confirmation still lands the vehicle.
+        self._mode_in_doubt = False
         self.heartbeats = 0
         self.heartbeat_at: float | None = None
         self._ack_heartbeats: dict[int, int] = {}  #: command -> heartbeats seen when its ACK came
@@ -173,13 +176,13 @@ class PymavlinkLink:
         """Switch to ``mode`` (ArduCopter or PX4 name) and confirm it from the next HEARTBEAT."""
         custom, params = mode_command(self.autopilot, mode, f"vehicle {self.sysid}")
         flag = float(mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED)
-        await self._confirmed(mavlink2.MAV_CMD_DO_SET_MODE, (flag, *params), f"DO_SET_MODE {mode}",
-                              lambda: self.custom_mode == custom, lambda: f"stayed in {self.mode}")
+        await self._mode_change(self._confirmed(mavlink2.MAV_CMD_DO_SET_MODE, (flag, *params), f"DO_SET_MODE {mode}",
+                                                lambda: self.custom_mode == custom, lambda: f"stayed in {self.mode}"))
 
     async def follow_setpoints(self) -> None:
         """GUIDED on ArduPilot; on PX4 stream the current position as the setpoint, then OFFBOARD."""
         mode = FOLLOW_MODE.get(self.autopilot or Autopilot.OTHER)
-        if mode is None or self.mode == mode:
+        if mode is None or (self.mode == mode and not self._mode_in_doubt):
             return
         if self.autopilot is Autopilot.PX4 and self._setpoint is None:
             here = self.last_position()
@@ -213,8 +216,15 @@ class PymavlinkLink:
         """Land where it is (stops the setpoint stream); confirmed from the next HEARTBEAT's mode."""
         self._setpoint = None
         mode = LAND_MODE.get(self.autopilot or Autopilot.OTHER)
-        await self._confirmed(mavlink2.MAV_CMD_NAV_LAND, (), "LAND",
-                              lambda: mode is None or self.mode == mode, lambda: f"stayed in {self.mode}")
+        await self._mode_change(self._confirmed(mavlink2.MAV_CMD_NAV_LAND, (), "LAND",
+                                                lambda: mode is None or self.mode == mode,
+                                                lambda: f"stayed in {self.mode}"))
+
+    async def _mode_change(self, confirmed: Awaitable[None]) -> None:
+        """Until ``confirmed`` completes, the mode is in doubt (see ``_mode_in_doubt``)."""
+        self._mode_in_doubt = True
+        await confirmed
+        self._mode_in_doubt = False
 
     async def _confirmed(self, command: int, params: tuple[float, ...], label: str,
                          effect: Callable[[], bool], failure: Callable[[], str]) -> None:
