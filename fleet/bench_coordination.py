@@ -129,12 +129,13 @@ async def _measure(children: list[subprocess.Popen[bytes]], workspace: Workspace
     try:
         node.subscribe(keys.state(), on_state)
         node.watch_liveliness(keys.alive(), on_alive)
-        await asyncio.wait_for(all_up.wait(), 120)
+        await _up_or_gone(all_up, children, 120)
         measuring.set()
         cpu0 = [_cpu_of(c.pid) for c in children]
         started = time.monotonic()
         delivered, sent, plans = await _keep_busy(node, keys, workspace, names, seconds, seed)
         elapsed = time.monotonic() - started
+        _check_alive(children)  # figures from a fleet that lost a process mean nothing
         cpu = [_cpu_of(c.pid) - c0 for c, c0 in zip(children, cpu0, strict=True)]
     finally:
         await node.close()
@@ -147,8 +148,40 @@ async def _measure(children: list[subprocess.Popen[bytes]], workspace: Workspace
         delivered)
 
 
+class BenchError(RuntimeError):
+    """The fleet under test did not come up, or lost a process."""
+
+
 def _spawn(arguments: list[str]) -> subprocess.Popen[bytes]:
     return subprocess.Popen([sys.executable, "-m", "fleet.cli", *arguments], stdout=subprocess.DEVNULL)
+
+
+async def _up_or_gone(all_up: asyncio.Event, children: list[subprocess.Popen[bytes]], timeout_s: float) -> None:
+    """Until every agent is alive; :class:`BenchError` at once if a child process exits first (a bad
+    setting, a port taken: its own error is on stderr above), or after ``timeout_s``."""
+    loop = asyncio.get_running_loop()
+    gone: asyncio.Future[None] = loop.create_future()
+    fds = [os.pidfd_open(child.pid) for child in children]
+    for fd in fds:
+        loop.add_reader(fd, lambda: gone.done() or gone.set_result(None))
+    up = asyncio.ensure_future(all_up.wait())
+    try:
+        await asyncio.wait([up, gone], timeout=timeout_s, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        up.cancel()
+        for fd in fds:
+            loop.remove_reader(fd)
+            os.close(fd)
+    _check_alive(children)
+    if not all_up.is_set():
+        raise BenchError(f"the agents were not all alive on Zenoh after {timeout_s:g} s")
+
+
+def _check_alive(children: list[subprocess.Popen[bytes]]) -> None:
+    for child in children:
+        if (code := child.poll()) is not None:
+            command = child.args[3]  # type: ignore[index]  # [python, -m, fleet.cli, command, ...]
+            raise BenchError(f"`drona {command}` (pid {child.pid}) exited with code {code}; its error is above")
 
 
 async def _keep_busy(node: ZenohNode, keys: FleetKeys, workspace: Workspace, names: list[str], seconds: float,
@@ -156,7 +189,9 @@ async def _keep_busy(node: ZenohNode, keys: FleetKeys, workspace: Workspace, nam
     """Two mails per drone at first, and one more each time one is delivered, for ``seconds``.
     Returns the mails delivered, and the protocol messages sent and plans made meanwhile (from the states)."""
     rng = random.Random(seed)
-    free = sorted(workspace.main_region - set(workspace.parking) - set(workspace.charging_stations))
+    # Not where a drone starts either: one that has no mail yet rests there, and a mail there waits for it.
+    free = sorted(workspace.main_region - set(workspace.parking) - set(workspace.charging_stations)
+                  - set(workspace.drones.values()))
     client = FleetClient(node, keys, "bench")
     deliveries: asyncio.Queue[str] = asyncio.Queue()
     count = delivered = 0
@@ -225,8 +260,12 @@ def run(args: argparse.Namespace) -> int:
               f"{'process' if shared else 'drone'}) in {processes} `drona agent --count` processes, {agents} fake "
               f"vehicles in a `drona sim-vehicle`, loopback; mail for {seconds:g} s", flush=True)
     with tempfile.TemporaryDirectory() as workdir:
-        result = asyncio.run(run_bench(agents, processes, seconds, args.steady_after, Path(workdir),
-                                       shared_session=shared))
+        try:
+            result = asyncio.run(run_bench(agents, processes, seconds, args.steady_after, Path(workdir),
+                                           shared_session=shared))
+        except BenchError as exc:
+            print(f"drona bench coordination: {exc}", file=sys.stderr)
+            return 1
     if args.json:
         print(json.dumps(asdict(result)))
         return 0
