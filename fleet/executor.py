@@ -8,12 +8,16 @@ that cell's centre and keeps streaming it between boundaries at ``rate_hz``
 the vehicle actually is (its cell and the distance to the cell it should be
 in) and flags a drone that lags its timed trajectory by more than
 ``lag_tolerance_m``: the safety argument assumes every drone follows its
-timed trajectory, so a lagging drone is an alarm, not a detail.
+timed trajectory, so a lagging drone is an alarm, not a detail. A process
+that stalls past a boundary takes the missed ones back to back; the vehicle
+then flies the cells it missed in order (:meth:`SetpointLoop.take`), never
+straight across to the newest one.
 """
 
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextlib
 import math
 from collections.abc import Callable, Sequence
@@ -33,6 +37,11 @@ class StepReport:
     error_m: float  #: distance from the vehicle to the centre of the cell it should be in
     lagging: bool
     late_s: float  #: how late the boundary was taken on the local clock (jitter)
+    behind: int = 0  #: cells of the plan the vehicle must still fly through after a stall (see SetpointLoop)
+
+
+PASSED_FRACTION = 0.25  #: within this fraction of a cell of its centre, the vehicle has been through the cell
+ROUTE_LIMIT = 64  #: cells kept for a vehicle that does not follow at all (it is flagged lagging anyway)
 
 
 class SetpointLoop:
@@ -47,6 +56,9 @@ class SetpointLoop:
         # By default a drone may trail by a cell: it is between two cells for most of a step.
         self.tolerance = lag_tolerance_m if lag_tolerance_m is not None else frame.ws.cell_size_m
         self.target = executor.cell
+        #: After a stall, the cells the vehicle must still fly through, in order, before ``target``.
+        self.route: collections.deque[Cell] = collections.deque()
+        self.changed_at = -math.inf  #: when the target last moved
         self.last_sent = -math.inf
         #: takes a boundary: the executor's own tick, or the whole drone stack's step (which ticks it)
         self.tick: Callable[[int], Sequence[object]] = tick or executor.tick
@@ -65,28 +77,62 @@ class SetpointLoop:
         """Whether the stream needs a setpoint now (not again right after a boundary's)."""
         return now - self.last_sent >= self.period
 
+    @property
+    def aim(self) -> Cell:
+        """The cell the vehicle is sent to: the next one of its route, or the target."""
+        return self.route[0] if self.route else self.target
+
     async def send(self) -> None:
-        await self.sink.send_position_target(self.frame.cell_to_ned(self.target))
+        await self.sink.send_position_target(self.frame.cell_to_ned(self.aim))
         self.last_sent = self.clock()
 
     def take(self, step: int, boundary: float) -> tuple[StepReport, Sequence[object]]:
-        """Take boundary ``step`` (no I/O): the executor moves the target to its next cell."""
-        late = self.clock() - boundary
+        """Take boundary ``step`` (no I/O): the executor moves the target to its next cell.
+
+        Boundaries taken back to back (the process stalled past one) give the vehicle no time to
+        reach each cell: sent straight to the newest, it would cut the corner between them, through
+        a cell that was never reserved for it. So a cell it had no time to reach stays on its route:
+        it flies the plan's cells in order, late (and flagged lagging) rather than off the path.
+        """
+        now = self.clock()
         previous = self.target
         actions = self.tick(step)
         self.target = next(a.cell for a in actions if isinstance(a, Setpoint))
-        return self._report(step, previous, self.target, late), actions
+        if self.target != previous:
+            if now - self.changed_at < self.tau / 2 and not self._passed(previous):
+                self.route.append(previous)
+                if len(self.route) > ROUTE_LIMIT:
+                    self.route.popleft()
+            self.changed_at = now
+        return self._report(step, previous, self.target, now - boundary), actions
+
+    def advance(self) -> bool:
+        """Drop the route's cells the vehicle has been through; whether the aim moved (send it now)."""
+        moved = False
+        while self.route and self._passed(self.route[0]):
+            self.route.popleft()
+            moved = True
+        return moved
+
+    def _passed(self, cell: Cell) -> bool:
+        position = self.sink.last_position()
+        if position is None:
+            return False
+        centre = self.frame.cell_to_ned(cell)
+        here = position.ned
+        return math.dist((here.north, here.east, here.down),
+                         (centre.north, centre.east, centre.down)) <= PASSED_FRACTION * self.frame.ws.cell_size_m
 
     def _report(self, step: int, previous: Cell, target: Cell, late: float) -> StepReport:
         """At boundary ``step`` the vehicle should have reached ``previous`` (last step's cell)."""
         position = self.sink.last_position()
         if position is None:
-            return StepReport(step, target, None, math.inf, True, late)
+            return StepReport(step, target, None, math.inf, True, late, len(self.route))
         fix = self.frame.locate(position.ned)
         should = self.frame.cell_to_ned(previous)
         error = math.dist((position.ned.north, position.ned.east, position.ned.down),
                           (should.north, should.east, should.down))
-        return StepReport(step, target, fix.cell, error, error > self.tolerance, late)
+        return StepReport(step, target, fix.cell, error, error > self.tolerance, late, len(self.route))
 
 
 class SetpointFleet:
@@ -119,7 +165,7 @@ class SetpointFleet:
             boundary = self.epoch + step * self.tau
             while (now := self.clock()) < boundary and not stop.is_set():
                 for loop in self.loops:
-                    if loop.due(now):
+                    if loop.advance() or loop.due(now):
                         await loop.send()
                 next_send = min(loop.last_sent + loop.period for loop in self.loops)
                 await _sleep_or_stop(stop, min(next_send, boundary) - self.clock())

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import math
+import time
 from collections.abc import Sequence
 
 from drona_gcs.geo import GeoFrame, Ned
@@ -79,3 +81,70 @@ def test_a_drone_that_does_not_follow_is_flagged_lagging() -> None:
     lagging = [r.step for r in reports if r.lagging]
     assert lagging and lagging[0] == 5
     assert reports[5].actual == (0, 0, 0) and reports[5].error_m == 8.0
+
+
+class CruisingSink:
+    """A vehicle that flies at ``speed`` m/s straight at the last setpoint and stops on it; it
+    records the straight legs it flew (where it was when a new setpoint came, and that setpoint)."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, start: Ned, speed: float) -> None:
+        self.loop, self.speed = loop, speed
+        self.here, self.aim, self.at = start, start, loop.time()
+        self.legs: list[tuple[Ned, Ned]] = []
+
+    def _move(self) -> None:
+        now = self.loop.time()
+        gap = math.dist((self.here.north, self.here.east), (self.aim.north, self.aim.east))
+        step = min(gap, self.speed * (now - self.at))
+        if gap > 0:
+            f = step / gap
+            self.here = Ned(self.here.north + f * (self.aim.north - self.here.north),
+                            self.here.east + f * (self.aim.east - self.here.east), self.aim.down)
+        self.at = now
+
+    async def send_position_target(self, target: Ned) -> None:
+        self._move()
+        if target != self.aim:
+            self.legs.append((self.here, target))
+        self.aim = target
+
+    def last_position(self) -> Position | None:
+        self._move()
+        return Position(self.here, self.at)
+
+
+def test_a_stalled_process_catches_up_through_every_cell_and_cuts_no_corner() -> None:
+    """The process stalls over three boundaries, across the trajectory's corner at (2,0,0). Sent
+    straight to the newest cell, the vehicle would fly from (0,0,0) across (1,1,0), a cell the plan
+    never reserved; it must fly (1,0,0), (2,0,0), (2,1,0) in order instead."""
+    async def scenario() -> tuple[CruisingSink, list[StepReport]]:
+        loop = asyncio.get_running_loop()
+        tau = 0.2
+        sink = CruisingSink(loop, FRAME.cell_to_ned((0, 0, 0)), speed=2 * 4.0 / tau)  # two cells a step
+        executor = PlanExecutor((0, 0, 0))
+        executor.start(TRAJ)
+        reports: list[StepReport] = []
+        stop = asyncio.Event()
+
+        def on_step(report: StepReport, done: Sequence[ExecutorAction]) -> None:
+            reports.append(report)
+            if report.step == 2:
+                time.sleep(3.5 * tau)  # the whole process stalls (a blocking call, a paused VM)
+            if report.step == 9:
+                stop.set()
+
+        runner = SetpointLoop(sink, FRAME, executor, loop.time() + 0.05, tau, loop.time, rate_hz=40.0)
+        await asyncio.wait_for(runner.run(on_step, stop), timeout=10)
+        return sink, reports
+
+    sink, reports = asyncio.run(scenario())
+    allowed = set(TRAJ.cells)
+    for start, end in sink.legs:
+        for i in range(101):
+            f = i / 100
+            point = Ned(start.north + f * (end.north - start.north), start.east + f * (end.east - start.east),
+                        end.down)
+            assert FRAME.locate(point).cell in allowed, f"the leg {start} -> {end} crosses {FRAME.locate(point).cell}"
+    assert [FRAME.locate(end).cell for _, end in sink.legs] == list(TRAJ.cells[1:])
+    assert max(r.behind for r in reports) == 2  # (1,0,0) and (2,0,0) were still to fly through
+    assert reports[-1].behind == 0 and FRAME.locate(sink.here).cell == TRAJ.cells[-1]
