@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 
 import pytest
@@ -212,3 +213,52 @@ def test_drones_sharing_a_session_each_get_every_message_and_leave_alone() -> No
             await outside.close()
 
     asyncio.run(scenario())
+
+
+def test_the_answers_of_a_sessions_drones_to_one_request_travel_as_one_message() -> None:
+    """Three drones share a session and each answers a request to everyone: the requester gets the
+    three answers, each handed to its handler alone, in one Zenoh message (gathered)."""
+    import asyncio
+    import socket
+
+    from fleet.sim.ports import free_port
+    from fleet.transport.node import ZenohNode, ZenohSettings
+
+    endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+
+    async def scenario() -> tuple[list[bytes], list[bytes]]:
+        host = await ZenohNode.open(ZenohSettings(listen=(endpoint,)), "host")
+        asker = await ZenohNode.open(ZenohSettings(connect=(endpoint,)), "asker")
+        answers: list[bytes] = []
+        messages: list[bytes] = []  # what Zenoh carried, before the node splits it
+        got = asyncio.Event()
+
+        def on_answer(key: str, payload: bytes) -> None:
+            answers.append(payload)
+            got.set()
+
+        try:
+            for name in ("a", "b", "c"):
+                view = host.view(name)
+                view.subscribe("t/all", lambda key, payload, view=view: view.put("t/answer", view.name.encode()),
+                               gather=True)
+            asker.subscribe("t/answer", on_answer)
+            asker._declared.append(asker.session.declare_subscriber(
+                "t/answer", lambda sample: messages.append(sample.payload.to_bytes())))
+            for _ in range(100):  # until the host's subscription has reached the asker
+                asker.put("t/all", b"request")
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(got.wait(), 0.05)
+                if answers:
+                    break
+            while len(answers) < 3:
+                got.clear()
+                await asyncio.wait_for(got.wait(), 5)
+            return answers, messages
+        finally:
+            await asker.close()
+            await host.close()
+
+    answers, messages = asyncio.run(scenario())
+    assert sorted(answers[:3]) == [b"a", b"b", b"c"]
+    assert messages[0].split(b"\n") == answers[:3]

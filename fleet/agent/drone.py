@@ -97,7 +97,8 @@ class DroneAgent:
         """Declare everything, then join: answer before anyone can ask."""
         node, keys = self.node, self.keys
         node.subscribe(keys.proto(self.me), self._on_protocol)
-        node.subscribe(keys.proto(BROADCAST), self._on_protocol)
+        # A request to everyone: this host's drones answer it in one message (see ZenohNode.subscribe).
+        node.subscribe(keys.proto(BROADCAST), self._on_protocol, gather=True)
         node.subscribe(keys.plan(), self._on_plan)
         node.queryable(keys.state(self.me), self._on_state_query)
         node.queryable(keys.clock(self.me), self._on_clock_query)

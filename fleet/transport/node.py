@@ -11,6 +11,14 @@ Drones hosted in one process with ``--shared-session`` share one session
 view of it): each has its own declarations, and subscriptions to one key share one Zenoh
 subscriber, so a broadcast crosses into Python once per process.
 
+A subscription may *gather* (``subscribe(..., gather=True)``): what the
+session's nodes put while its sample is handed round goes out at the end, one
+message per key. A request to everyone reaches every drone of a host at once;
+their answers to the requester then cross the network, and its event loop, as
+one message instead of one per drone. Payloads are framed with newlines (a
+payload never contains one: :func:`~fleet.transport.wire.encode` writes
+compact JSON), and every subscription hands each frame to its handlers.
+
 Closing undeclares every declaration, newest first, before the session:
 a callback subscriber still declared at interpreter exit hangs it.
 """
@@ -121,6 +129,7 @@ class ZenohNode:
         self._declared: list[Any] = []
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._pending: set[asyncio.Future[None]] = set()  #: queries waiting for their last reply
+        self._gathered: dict[str, list[bytes]] | None = None  #: puts held while a gathering sample is handed round
         self.closed = False
 
     def view(self, name: str) -> ZenohNode:
@@ -141,19 +150,21 @@ class ZenohNode:
         return cls(session, asyncio.get_running_loop(), name)
 
     # ------------------------------------------------------ declarations
-    def subscribe(self, key: str, handler: SampleHandler) -> None:
+    def subscribe(self, key: str, handler: SampleHandler, gather: bool = False) -> None:
         """``handler(key, payload)`` on the loop for every sample under ``key``.
 
         The nodes of one session that subscribe to the same key share one Zenoh subscriber: a
         message to every drone of a host crosses to Python once and wakes the loop once.
+        ``gather``: the session's puts made while a sample is handed round go out together
+        (see the module docstring); the first subscription to a key decides.
         """
         fanout = self._fanouts.get(key)
         if fanout is None:
-            fanout = self._fanouts[key] = _Fanout(self.name)
+            fanout = self._fanouts[key] = _Fanout(self.name, gather=gather)
             root = self.owner or self  # open as long as the session is, whichever node subscribed first
 
             def on_sample(sample: zenoh.Sample) -> None:
-                root._to_loop(fanout.deliver, str(sample.key_expr), sample.payload.to_bytes())
+                root._to_loop(root._hand_round, fanout, str(sample.key_expr), sample.payload.to_bytes())
 
             fanout.subscriber = self.session.declare_subscriber(key, on_sample)
         fanout.handlers.append(handler)
@@ -185,10 +196,39 @@ class ZenohNode:
 
         self._declared.append(self.session.liveliness().declare_subscriber(key, on_sample, history=True))
 
+    def _hand_round(self, fanout: _Fanout, key: str, payload: bytes) -> None:
+        """(On the session's root.) Each frame of a sample to the fanout's handlers; the puts they
+        make meanwhile gathered if the fanout gathers (and not already gathering: one level)."""
+        frames = payload.split(FRAME_END) if FRAME_END in payload else (payload,)
+        if not fanout.gather or self._gathered is not None:
+            for frame in frames:
+                fanout.deliver(key, frame)
+            return
+        self._gathered = {}
+        try:
+            for frame in frames:
+                fanout.deliver(key, frame)
+        finally:
+            gathered, self._gathered = self._gathered, None
+            for to, parts in gathered.items():
+                self._put(to, FRAME_END.join(parts))
+
     # -------------------------------------------------------------- send
     def put(self, key: str, payload: bytes, once: bool = False) -> None:
         """Reliable; blocks rather than drop when the link is congested. ``once``: a key used
-        once (a mail's status), put without declaring a publisher that would live on."""
+        once (a mail's status), put without declaring a publisher that would live on. While the
+        session hands round a gathering sample, held and sent with the other puts to ``key``."""
+        if self.closed:
+            return
+        if FRAME_END in payload:
+            raise ValueError(f"{self.name}: a payload for {key} holds a newline, the transport's frame end")
+        root = self.owner or self
+        if root._gathered is not None and not once:
+            root._gathered.setdefault(key, []).append(payload)
+            return
+        self._put(key, payload, once)
+
+    def _put(self, key: str, payload: bytes, once: bool = False) -> None:
         if self.closed:
             return
         if once:
@@ -291,11 +331,15 @@ class ZenohNode:
             self.loop.call_soon_threadsafe(_guarded, self.name, callback, args)
 
 
+FRAME_END = b"\n"  #: between the payloads of one Zenoh message
+
+
 @dataclass
 class _Fanout:
     """One Zenoh subscriber and the handlers of every node of the session subscribed to its key."""
 
     name: str
+    gather: bool = False  #: the puts made while its samples are handed round go out together
     handlers: list[SampleHandler] = field(default_factory=list)
     subscriber: Any = None
 
