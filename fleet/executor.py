@@ -19,6 +19,7 @@ from __future__ import annotations
 import asyncio
 import collections
 import contextlib
+import itertools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -40,7 +41,6 @@ class StepReport:
     behind: int = 0  #: cells of the plan the vehicle must still fly through after a stall (see SetpointLoop)
 
 
-PASSED_FRACTION = 0.25  #: within this fraction of a cell of its centre, the vehicle has been through the cell
 ROUTE_LIMIT = 64  #: cells kept for a vehicle that does not follow at all (it is flagged lagging anyway)
 
 
@@ -91,37 +91,44 @@ class SetpointLoop:
 
         Boundaries taken back to back (the process stalled past one) give the vehicle no time to
         reach each cell: sent straight to the newest, it would cut the corner between them, through
-        a cell that was never reserved for it. So a cell it had no time to reach stays on its route:
-        it flies the plan's cells in order, late (and flagged lagging) rather than off the path.
+        a cell that was never reserved for it. So a cell it had no time to reach (the target moved
+        again within tau/2, and the vehicle is not in it) stays on its route, and so does every target
+        that comes while a route is pending: it flies the plan's cells in order, each as soon as it
+        is in the last, late (and flagged lagging) rather than off the path. Not covered: a vehicle
+        lagging without a stall (too slow) still gets each new target at its boundary.
         """
         now = self.clock()
         previous = self.target
         actions = self.tick(step)
         self.target = next(a.cell for a in actions if isinstance(a, Setpoint))
         if self.target != previous:
-            if now - self.changed_at < self.tau / 2 and not self._passed(previous):
+            # A target never aimed at (a route was pending) must be flown through too.
+            if self.route or (now - self.changed_at < self.tau / 2 and not self._in(previous)):
                 self.route.append(previous)
-                if len(self.route) > ROUTE_LIMIT:
-                    self.route.popleft()
+                if len(self.route) > ROUTE_LIMIT:  # it is not following at all: keep the newest cells
+                    del self.route[1]
             self.changed_at = now
         return self._report(step, previous, self.target, now - boundary), actions
 
     def advance(self) -> bool:
-        """Drop the route's cells the vehicle has been through; whether the aim moved (send it now)."""
-        moved = False
-        while self.route and self._passed(self.route[0]):
-            self.route.popleft()
-            moved = True
-        return moved
-
-    def _passed(self, cell: Cell) -> bool:
+        """Drop the route's cells up to the one the vehicle is in (it got that far); whether the aim
+        moved (send it now). Only the next two count: a plan may come back to a cell, and a vehicle
+        may cross a whole cell between two looks."""
         position = self.sink.last_position()
-        if position is None:
+        if not self.route or position is None:
             return False
-        centre = self.frame.cell_to_ned(cell)
-        here = position.ned
-        return math.dist((here.north, here.east, here.down),
-                         (centre.north, centre.east, centre.down)) <= PASSED_FRACTION * self.frame.ws.cell_size_m
+        here = self.frame.locate(position.ned).cell
+        ahead = list(itertools.islice(self.route, 2)) + ([self.target] if len(self.route) == 1 else [])
+        if here not in ahead:
+            return False
+        for _ in range(ahead.index(here) + 1):
+            if self.route:
+                self.route.popleft()
+        return True
+
+    def _in(self, cell: Cell) -> bool:
+        position = self.sink.last_position()
+        return position is not None and self.frame.locate(position.ned).cell == cell
 
     def _report(self, step: int, previous: Cell, target: Cell, late: float) -> StepReport:
         """At boundary ``step`` the vehicle should have reached ``previous`` (last step's cell)."""

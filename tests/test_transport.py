@@ -27,12 +27,12 @@ def test_protocol_messages_round_trip(message: object) -> None:
 
 
 def envelope(body: dict[str, object], **over: object) -> bytes:
-    return json.dumps({"v": 1, "sender": "d2", "sent_at": 1.0, "body": body, **over}).encode()
+    return json.dumps({"v": 2, "sender": "d2", "sent_at": 1.0, "body": body, **over}).encode()
 
 
 @pytest.mark.parametrize("payload, problem", [
     (b"not json", "Invalid JSON"),
-    (envelope({"kind": "clock_ping"}, v=2), "v: Input should be 1"),
+    (envelope({"kind": "clock_ping"}, v=1), "v: Input should be 2"),
     (envelope({"kind": "teleport"}), "does not match any of the expected tags"),
     (envelope({"kind": "req_traj", "task_id": {"stamp": "12", "drone": "d1", "seq": 1}}),
      "body.req_traj.task_id.stamp"),

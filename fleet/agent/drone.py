@@ -137,8 +137,8 @@ class DroneAgent:
         self._alarm("lag", f"vehicle {report.error_m:.1f} m from its cell" if lagging else None)
         self._alarm("down", "vehicle: on the ground while its plan flies (a failsafe or a pilot?); "
                     "it is not taken up again by itself" if down else None)
-        self._alarm("behind", f"catching up after a stall: {report.behind} cells of its plan still to fly "
-                    f"through (a boundary was taken {report.late_s * 1000:.0f} ms late)" if report.behind else None)
+        self._alarm("behind", f"catching up after a stall (boundaries taken back to back): {report.behind} "
+                    "cells of its plan still to fly through" if report.behind else None)
         # A plan scheduled but not begun still needs the climb: the lead steps are for it.
         # Landing crosses only its own column when the cell is on the lowest layer; higher up it hovers.
         grounded = self.stack.landed and self.stack.executor.cell[2] == 0

@@ -199,7 +199,7 @@ class ZenohNode:
     def _hand_round(self, fanout: _Fanout, key: str, payload: bytes) -> None:
         """(On the session's root.) Each frame of a sample to the fanout's handlers; the puts they
         make meanwhile gathered if the fanout gathers (and not already gathering: one level)."""
-        frames = payload.split(FRAME_END) if FRAME_END in payload else (payload,)
+        frames = [f for f in payload.split(FRAME_END) if f] if FRAME_END in payload else [payload]
         if not fanout.gather or self._gathered is not None:
             for frame in frames:
                 fanout.deliver(key, frame)
@@ -211,7 +211,10 @@ class ZenohNode:
         finally:
             gathered, self._gathered = self._gathered, None
             for to, parts in gathered.items():
-                self._put(to, FRAME_END.join(parts))
+                try:
+                    self._put(to, FRAME_END.join(parts))
+                except zenoh.ZError as exc:  # one key's failure must not lose the others'
+                    log.warning("%s: could not send %d message(s) on %s: %s", self.name, len(parts), to, exc)
 
     # -------------------------------------------------------------- send
     def put(self, key: str, payload: bytes, once: bool = False) -> None:

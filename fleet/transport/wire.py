@@ -37,7 +37,7 @@ from drona_gcs.errors import DronaError
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj, TaskId
 
-VERSION = 1
+VERSION = 2  #: 2: a Zenoh message may carry several envelopes, one per line (fleet.transport.node)
 
 CellList = Annotated[list[int], Field(min_length=3, max_length=3)]
 
@@ -206,7 +206,7 @@ Body = Annotated[
 
 
 class Envelope(_Strict):
-    v: Literal[1] = VERSION
+    v: Literal[2] = VERSION
     sender: Annotated[str, Field(min_length=1)]
     sent_at: float
     body: Body
