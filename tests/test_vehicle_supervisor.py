@@ -7,57 +7,68 @@ lead time covers a take-off, not the rest of a descent first.
 from __future__ import annotations
 
 import asyncio
+import contextlib
+from collections.abc import AsyncIterator
 
 import pytest
 
 from drona_gcs.geo import Ned
 from fleet.agent.vehicle import VehicleSupervisor
 from fleet.clock import cancel_all
-from fleet.vehicle.link import LandedState, Telemetry
+from fleet.vehicle.link import LandedState, Telemetry, VehicleLink
 from tests.test_vehicle_link import connected, fake_vehicle, run
 
 FLIGHT_ALT_M = 8.0
 
 
+@contextlib.asynccontextmanager
+async def supervising(personality: str) -> AsyncIterator[tuple[VehicleLink, VehicleSupervisor, list[str | None],
+                                                                list[Ned]]]:
+    """A fake vehicle and its supervisor, with setpoints to ``target[0]`` streamed as the agent's
+    setpoint loop does, whatever the supervisor does; the alarms it raises are kept."""
+    async with fake_vehicle(personality, "udp") as fake, connected("pymavlink", fake) as link:
+        await link.wait_ready(timeout=5)
+        alarms: list[str | None] = []
+        target = [Ned(0.0, 0.0, -FLIGHT_ALT_M)]
+        supervisor = VehicleSupervisor("d1", link, FLIGHT_ALT_M, alarms.append, lambda: target[0], arrival_m=0.5)
+
+        async def stream() -> None:
+            while True:
+                await link.send_position_target(target[0])
+                await asyncio.sleep(0.05)
+
+        runner, streamer = asyncio.create_task(supervisor.run()), asyncio.create_task(stream())
+        try:
+            yield link, supervisor, alarms, target
+        finally:
+            supervisor.stop()
+            await asyncio.wait_for(runner, 5)
+            await cancel_all([streamer])
+
+
 @pytest.mark.parametrize("personality", ["ardupilot", "px4"])
 def test_a_plan_during_the_descent_turns_the_landing_into_a_climb(personality: str) -> None:
     async def scenario() -> None:
-        async with fake_vehicle(personality, "udp") as fake, connected("pymavlink", fake) as link:
-            await link.wait_ready(timeout=5)
-            alarms: list[str | None] = []
-            here = Ned(0.0, 0.0, -FLIGHT_ALT_M)
-            supervisor = VehicleSupervisor("d1", link, FLIGHT_ALT_M, alarms.append, lambda: here, arrival_m=0.5)
-            async def stream() -> None:  # as the agent's setpoint loop does, whatever the supervisor does
-                while True:
-                    await link.send_position_target(here)
-                    await asyncio.sleep(0.05)
+        async with supervising(personality) as (link, supervisor, alarms, _):
+            supervisor.want_airborne(True)
+            await asyncio.wait_for(supervisor.reached.wait(), 15)
+            await link.wait_until(lambda t: (t.height_m or 0.0) > FLIGHT_ALT_M - 0.5, 10, "the flight altitude")
 
-            runner, streamer = asyncio.create_task(supervisor.run()), asyncio.create_task(stream())
-            try:
-                supervisor.want_airborne(True)
-                await asyncio.wait_for(supervisor.reached.wait(), 15)
-                await link.wait_until(lambda t: (t.height_m or 0.0) > FLIGHT_ALT_M - 0.5, 10, "the flight altitude")
+            supervisor.want_airborne(False)
+            await link.wait_until(lambda t: (t.height_m or FLIGHT_ALT_M) < FLIGHT_ALT_M - 2.0, 10, "the descent")
+            lowest = FLIGHT_ALT_M
 
-                supervisor.want_airborne(False)
-                await link.wait_until(lambda t: (t.height_m or FLIGHT_ALT_M) < FLIGHT_ALT_M - 2.0, 10,
-                                      "the descent")
-                lowest = FLIGHT_ALT_M
+            def track(t: Telemetry) -> bool:
+                nonlocal lowest
+                lowest = min(lowest, t.height_m if t.height_m is not None else lowest)
+                assert t.landed is not LandedState.ON_GROUND, "it came down to the ground first"
+                return supervisor.reached.is_set() and (t.height_m or 0.0) > FLIGHT_ALT_M - 0.5
 
-                def track(t: Telemetry) -> bool:
-                    nonlocal lowest
-                    lowest = min(lowest, t.height_m if t.height_m is not None else lowest)
-                    assert t.landed is not LandedState.ON_GROUND, "it came down to the ground first"
-                    return supervisor.reached.is_set() and (t.height_m or 0.0) > FLIGHT_ALT_M - 0.5
-
-                supervisor.want_airborne(True)  # a new plan, mid-descent
-                await link.wait_until(track, 15, "the climb back to the flight altitude")
-                assert lowest > 0.5, f"it went down to {lowest:.2f} m before climbing back"
-                assert link.telemetry().armed and supervisor.settled
-                assert [a for a in alarms if a is not None] == []
-            finally:
-                supervisor.stop()
-                await asyncio.wait_for(runner, 5)
-                await cancel_all([streamer])
+            supervisor.want_airborne(True)  # a new plan, mid-descent
+            await link.wait_until(track, 15, "the climb back to the flight altitude")
+            assert lowest > 0.5, f"it went down to {lowest:.2f} m before climbing back"
+            assert link.telemetry().armed and supervisor.settled
+            assert [a for a in alarms if a is not None] == []
 
     run(scenario)
 
@@ -67,35 +78,19 @@ def test_a_vehicle_down_by_itself_raises_the_question_and_needs_no_landing(perso
     """A failsafe (or a pilot) lands the vehicle under a drone the stack still flies: the supervisor
     says so, and a landing asked for afterwards is already done, wherever the plan's cell is."""
     async def scenario() -> None:
-        async with fake_vehicle(personality, "udp") as fake, connected("pymavlink", fake) as link:
-            await link.wait_ready(timeout=5)
-            alarms: list[str | None] = []
-            target = Ned(0.0, 0.0, -FLIGHT_ALT_M)
-            supervisor = VehicleSupervisor("d1", link, FLIGHT_ALT_M, alarms.append, lambda: target, arrival_m=0.5)
+        async with supervising(personality) as (link, supervisor, alarms, target):
+            supervisor.want_airborne(True)
+            await asyncio.wait_for(supervisor.reached.wait(), 15)
+            assert supervisor.settled and not supervisor.grounded_by_itself()
 
-            async def stream() -> None:
-                while True:
-                    await link.send_position_target(target)
-                    await asyncio.sleep(0.05)
+            await link.land()  # not the supervisor's doing
+            await link.wait_until(lambda t: not t.armed and t.landed is LandedState.ON_GROUND, 10, "touchdown")
+            assert supervisor.grounded_by_itself()
 
-            runner, streamer = asyncio.create_task(supervisor.run()), asyncio.create_task(stream())
-            try:
-                supervisor.want_airborne(True)
-                await asyncio.wait_for(supervisor.reached.wait(), 15)
-                assert supervisor.settled and not supervisor.grounded_by_itself()
-
-                await link.land()  # not the supervisor's doing
-                await link.wait_until(lambda t: not t.armed and t.landed is LandedState.ON_GROUND, 10, "touchdown")
-                assert supervisor.grounded_by_itself()
-
-                target = Ned(6.0, 6.0, -FLIGHT_ALT_M)  # the plan flew on meanwhile
-                supervisor.want_airborne(False)
-                await asyncio.wait_for(supervisor.reached.wait(), 3)
-                assert not supervisor.airborne and not supervisor.grounded_by_itself()
-                assert [a for a in alarms if a is not None] == []
-            finally:
-                supervisor.stop()
-                await asyncio.wait_for(runner, 5)
-                await cancel_all([streamer])
+            target[0] = Ned(6.0, 6.0, -FLIGHT_ALT_M)  # the plan flew on meanwhile
+            supervisor.want_airborne(False)
+            await asyncio.wait_for(supervisor.reached.wait(), 3)
+            assert not supervisor.airborne and not supervisor.grounded_by_itself()
+            assert [a for a in alarms if a is not None] == []
 
     run(scenario)
