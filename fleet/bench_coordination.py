@@ -164,7 +164,7 @@ async def _up_or_gone(all_up: asyncio.Event, children: list[subprocess.Popen[byt
     fds = [os.pidfd_open(child.pid) for child in children]
     for fd in fds:
         loop.add_reader(fd, lambda: gone.done() or gone.set_result(None))
-    up = asyncio.ensure_future(all_up.wait())
+    up = asyncio.create_task(all_up.wait())
     try:
         await asyncio.wait([up, gone], timeout=timeout_s, return_when=asyncio.FIRST_COMPLETED)
     finally:

@@ -103,7 +103,7 @@ class SetpointLoop:
         self.target = next(a.cell for a in actions if isinstance(a, Setpoint))
         if self.target != previous:
             # A target never aimed at (a route was pending) must be flown through too.
-            if self.route or (now - self.changed_at < self.tau / 2 and not self._in(previous)):
+            if self.route or (now - self.changed_at < self.tau / 2 and self._here() != previous):
                 self.route.append(previous)
                 if len(self.route) > ROUTE_LIMIT:  # it is not following at all: keep the newest cells
                     del self.route[1]
@@ -114,21 +114,18 @@ class SetpointLoop:
         """Drop the route's cells up to the one the vehicle is in (it got that far); whether the aim
         moved (send it now). Only the next two count: a plan may come back to a cell, and a vehicle
         may cross a whole cell between two looks."""
-        position = self.sink.last_position()
-        if not self.route or position is None:
+        here = self._here() if self.route else None
+        ahead = [*itertools.islice(self.route, 2), self.target][:2]
+        if here is None or here not in ahead:
             return False
-        here = self.frame.locate(position.ned).cell
-        ahead = list(itertools.islice(self.route, 2)) + ([self.target] if len(self.route) == 1 else [])
-        if here not in ahead:
-            return False
-        for _ in range(ahead.index(here) + 1):
-            if self.route:
-                self.route.popleft()
+        for _ in range(min(ahead.index(here) + 1, len(self.route))):
+            self.route.popleft()
         return True
 
-    def _in(self, cell: Cell) -> bool:
+    def _here(self) -> Cell | None:
+        """The cell telemetry puts the vehicle in (None: no position yet, or outside the grid)."""
         position = self.sink.last_position()
-        return position is not None and self.frame.locate(position.ned).cell == cell
+        return None if position is None else self.frame.locate(position.ned).cell
 
     def _report(self, step: int, previous: Cell, target: Cell, late: float) -> StepReport:
         """At boundary ``step`` the vehicle should have reached ``previous`` (last step's cell)."""

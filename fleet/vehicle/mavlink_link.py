@@ -26,7 +26,7 @@ import contextlib
 import logging
 import math
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
@@ -35,7 +35,7 @@ from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from drona_gcs.geo import GeoFrame, GeoPoint, Ned
 from fleet.clock import cancel_all, periodic
 from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry
-from fleet.vehicle.modes import CONFIRM_HEARTBEATS, FOLLOW_MODE, LAND_MODE, mode_command, mode_name
+from fleet.vehicle.modes import CONFIRM_HEARTBEATS, FOLLOW_MODE, LAND_MODE, ModeDoubt, mode_command, mode_name
 from fleet.vehicle.urls import LinkUrl, Transport, open_transport, parse_link_url
 
 log = logging.getLogger(__name__)
@@ -84,9 +84,7 @@ class PymavlinkLink:
         self.autopilot: Autopilot | None = None
         self.custom_mode: int | None = None
         self.armed = False
-        #: A mode change was sent and not confirmed (abandoned or failed): the last HEARTBEAT's mode may be
-        #: about to change. A LAND given up on before its confirmation still lands the vehicle.
-        self._mode_in_doubt = False
+        self._mode_doubt = ModeDoubt()
         self.heartbeats = 0
         self.heartbeat_at: float | None = None
         self._ack_heartbeats: dict[int, int] = {}  #: command -> heartbeats seen when its ACK came
@@ -176,13 +174,14 @@ class PymavlinkLink:
         """Switch to ``mode`` (ArduCopter or PX4 name) and confirm it from the next HEARTBEAT."""
         custom, params = mode_command(self.autopilot, mode, f"vehicle {self.sysid}")
         flag = float(mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED)
-        await self._mode_change(self._confirmed(mavlink2.MAV_CMD_DO_SET_MODE, (flag, *params), f"DO_SET_MODE {mode}",
-                                                lambda: self.custom_mode == custom, lambda: f"stayed in {self.mode}"))
+        await self._mode_doubt.around(self._confirmed(
+            mavlink2.MAV_CMD_DO_SET_MODE, (flag, *params), f"DO_SET_MODE {mode}",
+            lambda: self.custom_mode == custom, lambda: f"stayed in {self.mode}"))
 
     async def follow_setpoints(self) -> None:
         """GUIDED on ArduPilot; on PX4 stream the current position as the setpoint, then OFFBOARD."""
         mode = FOLLOW_MODE.get(self.autopilot or Autopilot.OTHER)
-        if mode is None or (self.mode == mode and not self._mode_in_doubt):
+        if mode is None or (self.mode == mode and not self._mode_doubt.in_doubt):
             return
         if self.autopilot is Autopilot.PX4 and self._setpoint is None:
             here = self.last_position()
@@ -216,15 +215,9 @@ class PymavlinkLink:
         """Land where it is (stops the setpoint stream); confirmed from the next HEARTBEAT's mode."""
         self._setpoint = None
         mode = LAND_MODE.get(self.autopilot or Autopilot.OTHER)
-        await self._mode_change(self._confirmed(mavlink2.MAV_CMD_NAV_LAND, (), "LAND",
-                                                lambda: mode is None or self.mode == mode,
-                                                lambda: f"stayed in {self.mode}"))
-
-    async def _mode_change(self, confirmed: Awaitable[None]) -> None:
-        """Until ``confirmed`` completes, the mode is in doubt (see ``_mode_in_doubt``)."""
-        self._mode_in_doubt = True
-        await confirmed
-        self._mode_in_doubt = False
+        await self._mode_doubt.around(self._confirmed(mavlink2.MAV_CMD_NAV_LAND, (), "LAND",
+                                                      lambda: mode is None or self.mode == mode,
+                                                      lambda: f"stayed in {self.mode}"))
 
     async def _confirmed(self, command: int, params: tuple[float, ...], label: str,
                          effect: Callable[[], bool], failure: Callable[[], str]) -> None:

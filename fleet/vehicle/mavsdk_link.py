@@ -47,7 +47,7 @@ from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from drona_gcs.geo import GeoFrame, GeoPoint, Ned
 from fleet.clock import cancel_all, periodic
 from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry
-from fleet.vehicle.modes import CONFIRM_HEARTBEATS, FOLLOW_MODE, LAND_MODE, mode_command, mode_name
+from fleet.vehicle.modes import CONFIRM_HEARTBEATS, FOLLOW_MODE, LAND_MODE, ModeDoubt, mode_command, mode_name
 from fleet.vehicle.urls import LinkUrl, Scheme, parse_link_url
 
 ACCEPTED, TEMPORARILY_REJECTED, DENIED, UNSUPPORTED, FAILED = 0, 1, 2, 3, 4  #: MAV_RESULT
@@ -97,7 +97,7 @@ class MavsdkLink:
         self._silent: VehicleError | None = None  #: no heartbeat lately: cleared by the next one
         self.autopilot: Autopilot | None = None
         self.custom_mode: int | None = None
-        self._mode_in_doubt = False  #: a mode change sent and not confirmed (see _mode_change)
+        self._mode_doubt = ModeDoubt()
         self.armed = False
         self.heartbeats = 0
         self.heartbeat_at: float | None = None
@@ -182,13 +182,14 @@ class MavsdkLink:
         """Switch to ``mode`` (ArduCopter or PX4 name) with DO_SET_MODE; confirmed from the next HEARTBEAT."""
         custom, params = mode_command(self.autopilot, mode, f"vehicle {self.sysid}")
         label = f"DO_SET_MODE {mode}"
-        await self._mode_change(self._confirmed(label, self.command(label, DO_SET_MODE, CUSTOM_MODE_ENABLED, *params),
-                                                lambda: self.custom_mode == custom, "stayed in {mode}"))
+        await self._mode_doubt.around(self._confirmed(
+            label, self.command(label, DO_SET_MODE, CUSTOM_MODE_ENABLED, *params),
+            lambda: self.custom_mode == custom, "stayed in {mode}"))
 
     async def follow_setpoints(self) -> None:
         """MAVSDK's offboard (GUIDED on ArduPilot), holding the current position as the first setpoint."""
         mode = FOLLOW_MODE.get(self.autopilot or Autopilot.OTHER)
-        if mode is not None and self.mode == mode and not self._mode_in_doubt:
+        if mode is not None and self.mode == mode and not self._mode_doubt.in_doubt:
             return
         here = self.last_position()
         if here is None:
@@ -198,8 +199,8 @@ class MavsdkLink:
             await self.send_position_target(here.ned)
             await asyncio.sleep(1 / 20)
         start = self._call("OFFBOARD start", self._offboard.start_async, OffboardError, DO_SET_MODE)
-        await self._mode_change(self._confirmed("OFFBOARD start", start,
-                                                lambda: mode is None or self.mode == mode, "stayed in {mode}"))
+        await self._mode_doubt.around(self._confirmed("OFFBOARD start", start,
+                                                      lambda: mode is None or self.mode == mode, "stayed in {mode}"))
 
     async def takeoff(self, altitude_m: float) -> None:
         """Climb to ``altitude_m`` above home (ArduPilot: in GUIDED, switched to first); returns once climbing."""
@@ -221,16 +222,9 @@ class MavsdkLink:
     async def land(self) -> None:
         """Land where it is; confirmed from the next HEARTBEAT's mode."""
         mode = LAND_MODE.get(self.autopilot or Autopilot.OTHER)
-        await self._mode_change(self._confirmed("LAND", self._call("LAND", self._action.land_async, ActionError,
-                                                                   NAV_LAND),
-                                                lambda: mode is None or self.mode == mode, "stayed in {mode}"))
-
-    async def _mode_change(self, confirmed: Awaitable[None]) -> None:
-        """Until ``confirmed`` completes, the mode is in doubt: a LAND given up on before its confirmation
-        still lands the vehicle, so :meth:`follow_setpoints` must not trust the last HEARTBEAT's mode."""
-        self._mode_in_doubt = True
-        await confirmed
-        self._mode_in_doubt = False
+        await self._mode_doubt.around(self._confirmed(
+            "LAND", self._call("LAND", self._action.land_async, ActionError, NAV_LAND),
+            lambda: mode is None or self.mode == mode, "stayed in {mode}"))
 
     async def command(self, label: str, command: int, *params: float) -> None:
         """COMMAND_LONG through MavlinkDirect; VehicleCommandRejected unless the ACK says ACCEPTED."""

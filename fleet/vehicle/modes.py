@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Awaitable
+
 from drona_gcs.errors import VehicleError
 from fleet.vehicle.link import Autopilot
 
@@ -13,6 +15,21 @@ PX4_MODES = {"MANUAL": (1, 0), "ALTCTL": (2, 0), "POSCTL": (3, 0), "AUTO.TAKEOFF
 FOLLOW_MODE = {Autopilot.ARDUPILOT: "GUIDED", Autopilot.PX4: "OFFBOARD"}
 LAND_MODE = {Autopilot.ARDUPILOT: "LAND", Autopilot.PX4: "AUTO.LAND"}
 CONFIRM_HEARTBEATS = 2  #: PX4 may send one more HEARTBEAT with the old state after its ACK
+
+
+class ModeDoubt:
+    """Whether a mode change was sent and not confirmed (given up on, or failed): until one is
+    confirmed, the last HEARTBEAT's mode may be about to change. A LAND abandoned before its
+    confirmation still lands the vehicle, so a switch back must not trust the mode it reads."""
+
+    def __init__(self) -> None:
+        self.in_doubt = False
+
+    async def around(self, confirmed: Awaitable[None]) -> None:
+        """Await a mode change's confirmation; in doubt until it completes."""
+        self.in_doubt = True
+        await confirmed
+        self.in_doubt = False
 
 
 def px4_custom(main: int, sub: int) -> int:
