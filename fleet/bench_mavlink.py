@@ -263,14 +263,14 @@ async def bench_jitter(loops: int, tau: float, boundaries: int, stream_hz: float
     ws = Workspace.build(size=(loops, 2, 1), cell_size_m=DEFAULT_SPACING_M, geo=DEFAULT_HOME, tau_s=tau)
     frame = GeoFrame(ws)
     late: list[float] = []
-    async with linked_fleet(loops, stream_hz, frame=frame) as (sim, links):
+    async with linked_fleet(loops, stream_hz, frame=frame, setpoint_hz=rate_hz) as (sim, links):
         loop = asyncio.get_running_loop()
         epoch = loop.time() + max(tau, 0.5)
         runners = []
         for i, link in enumerate(links):
             executor = PlanExecutor((i, 0, 0))
             executor.start(Trajectory(0, tuple((i, k % 2, 0) for k in range(boundaries))))
-            runners.append(SetpointLoop(link, frame, executor, epoch, tau, loop.time, rate_hz=rate_hz))
+            runners.append(SetpointLoop(link, frame, executor, epoch, tau, loop.time))
 
         stop = asyncio.Event()
 
@@ -349,15 +349,16 @@ class SimProcess:
 
 
 @contextlib.asynccontextmanager
-async def linked_fleet(count: int, stream_hz: float,
-                       frame: GeoFrame | None = None) -> AsyncIterator[tuple[SimProcess, list[CountingLink]]]:
-    """``count`` vehicles in a subprocess and a connected link to each (streams requested)."""
+async def linked_fleet(count: int, stream_hz: float, frame: GeoFrame | None = None,
+                       setpoint_hz: float = 10.0) -> AsyncIterator[tuple[SimProcess, list[CountingLink]]]:
+    """``count`` vehicles in a subprocess and a connected link to each (streams requested); each
+    link repeats its last setpoint at ``setpoint_hz``."""
     try:
         base = free_udp_base(count, HOST)
     except OSError as exc:
         raise BenchError(str(exc)) from exc
     links = [CountingLink(f"udpin://{HOST}:{base + i}", target_system=i + 1, stream_hz=stream_hz, frame=frame,
-                          heartbeat_timeout=5.0, ack_timeout=2.0) for i in range(count)]
+                          setpoint_hz=setpoint_hz, heartbeat_timeout=5.0, ack_timeout=2.0) for i in range(count)]
     sim = SimProcess(count, base)
     connecting = [asyncio.create_task(link.connect(timeout=CONNECT_TIMEOUT_S)) for link in links]
     try:

@@ -1,10 +1,11 @@
-"""The setpoint loop: drives the core's plan executor from the local clock and streams setpoints.
+"""The setpoint loop: drives the core's plan executor from the local clock and sends setpoints.
 
 Step ``k`` of a trajectory starts at ``epoch + k * tau`` on the local clock.
 At each boundary the core's :class:`~drona_gcs.stack.executor.PlanExecutor`
-takes the step and names the cell to be in; the loop moves the target to
-that cell's centre and keeps streaming it between boundaries at ``rate_hz``
-(PX4 leaves offboard mode below 2 Hz). At each boundary it also reports where
+takes the step and names the cell to be in; the loop sends the vehicle to
+that cell's centre, once: the link streams the last setpoint at its own rate
+(PX4 leaves offboard mode below 2 Hz), as MAVSDK's offboard plugin does, so a
+second stream here would only double the traffic. At each boundary it also reports where
 the vehicle actually is (its cell and the distance to the cell it should be
 in) and flags a drone that lags its timed trajectory by more than
 ``lag_tolerance_m``: the safety argument assumes every drone follows its
@@ -45,21 +46,23 @@ ROUTE_LIMIT = 64  #: cells kept for a vehicle that does not follow at all (it is
 
 
 class SetpointLoop:
+    """``check_hz``: how often, after a stall, the vehicle's position is checked to send it on to
+    the next cell of its route (no faster than telemetry comes is useful)."""
+
     def __init__(self, sink: SetpointSink, frame: GeoFrame, executor: PlanExecutor, epoch: float, tau: float,
-                 clock: Callable[[], float], rate_hz: float = 10.0, lag_tolerance_m: float | None = None,
+                 clock: Callable[[], float], check_hz: float = 10.0, lag_tolerance_m: float | None = None,
                  tick: Callable[[int], Sequence[object]] | None = None) -> None:
-        if tau <= 0 or rate_hz <= 0:
-            raise ValueError("tau and rate_hz must be > 0")
+        if tau <= 0 or check_hz <= 0:
+            raise ValueError("tau and check_hz must be > 0")
         self.sink, self.frame, self.executor = sink, frame, executor
         self.epoch, self.tau, self.clock = epoch, tau, clock
-        self.period = 1.0 / rate_hz
+        self.check_period = 1.0 / check_hz
         # By default a drone may trail by a cell: it is between two cells for most of a step.
         self.tolerance = lag_tolerance_m if lag_tolerance_m is not None else frame.ws.cell_size_m
         self.target = executor.cell
         #: After a stall, the cells the vehicle must still fly through, in order, before ``target``.
         self.route: collections.deque[Cell] = collections.deque()
         self.changed_at = -math.inf  #: when the target last moved
-        self.last_sent = -math.inf
         #: takes a boundary: the executor's own tick, or the whole drone stack's step (which ticks it)
         self.tick: Callable[[int], Sequence[object]] = tick or executor.tick
 
@@ -69,14 +72,10 @@ class SetpointLoop:
 
     async def run(self, on_step: Callable[[StepReport, Sequence[object]], None],
                   stop: asyncio.Event) -> None:
-        """Until ``stop`` is set: take every boundary, stream the target between them."""
+        """Until ``stop`` is set: take every boundary (and fly a route after a stall)."""
         await SetpointFleet([self]).run(lambda _, report, actions: on_step(report, actions), stop)
 
     # ------------------------------------------------- used by SetpointFleet
-    def due(self, now: float) -> bool:
-        """Whether the stream needs a setpoint now (not again right after a boundary's)."""
-        return now - self.last_sent >= self.period
-
     @property
     def aim(self) -> Cell:
         """The cell the vehicle is sent to: the next one of its route, or the target."""
@@ -84,7 +83,6 @@ class SetpointLoop:
 
     async def send(self) -> None:
         await self.sink.send_position_target(self.frame.cell_to_ned(self.aim))
-        self.last_sent = self.clock()
 
     def take(self, step: int, boundary: float) -> tuple[StepReport, Sequence[object]]:
         """Take boundary ``step`` (no I/O): the executor moves the target to its next cell.
@@ -160,27 +158,23 @@ class SetpointFleet:
                   stop: asyncio.Event) -> None:
         """Until ``stop`` is set; ``on_step(i, report, actions)`` for loop ``i`` at each boundary."""
         step = max(self.loops[0].step_at(self.clock()), *(loop.executor.step + 1 for loop in self.loops))
-        first = self.epoch + step * self.tau
-        for loop in self.loops:  # start the stream now, half a period out of phase with the boundaries
+        for loop in self.loops:  # the link streams from the first setpoint on
             await loop.send()
-            behind = math.ceil((first - loop.period / 2 - loop.last_sent) / loop.period)
-            loop.last_sent = first - loop.period / 2 - behind * loop.period
         while not stop.is_set():
             boundary = self.epoch + step * self.tau
-            while (now := self.clock()) < boundary and not stop.is_set():
+            while self.clock() < boundary and not stop.is_set():
                 for loop in self.loops:
-                    if loop.advance() or loop.due(now):
+                    if loop.advance():
                         await loop.send()
-                next_send = min(loop.last_sent + loop.period for loop in self.loops)
-                await _sleep_or_stop(stop, min(next_send, boundary) - self.clock())
+                # Nothing to do until the boundary but fly a route (a stall's catching up).
+                routed = [loop.check_period for loop in self.loops if loop.route]
+                wake = self.clock() + min(routed) if routed else boundary
+                await _sleep_or_stop(stop, min(wake, boundary) - self.clock())
             if stop.is_set():
                 return
             taken = [loop.take(step, boundary) for loop in self.loops]
             for loop in self.loops:
                 await loop.send()
-                # Stream half a period out of phase with the boundaries: a burst of sends
-                # just before a boundary would delay it by the whole burst.
-                loop.last_sent = boundary - loop.period / 2
             for i, (report, actions) in enumerate(taken):
                 on_step(i, report, actions)
             step += 1

@@ -11,8 +11,11 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
+import itertools
 import math
 import socket
+import statistics
 import time
 from collections.abc import AsyncIterator, Callable, Coroutine
 from dataclasses import dataclass
@@ -21,13 +24,13 @@ from typing import Any, Protocol
 import pytest
 
 from drona_gcs.errors import DronaError, VehicleCommandRejected, VehicleError
-from drona_gcs.geo import Ned
+from drona_gcs.geo import GeoPoint, Ned
 from fleet.sim.config import VehicleConfig
-from fleet.sim.fleet import FleetConfig, placements, run_fleet
+from fleet.sim.fleet import FleetConfig, SimNode, placements, run_fleet
 from fleet.sim.mav import mavlink2
 from fleet.sim.personality import PERSONALITIES, Personality
 from fleet.sim.ports import free_port
-from fleet.vehicle.link import Autopilot, LandedState, Telemetry, VehicleLink
+from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry, VehicleLink, not_ready
 from fleet.vehicle.mavlink_link import PymavlinkLink
 from fleet.vehicle.urls import DEFAULT_BAUD, LinkUrl, LinkUrlError, Scheme, parse_link_url
 
@@ -81,6 +84,7 @@ class Fake:
     personality: Personality
     stop: asyncio.Event
     task: asyncio.Task[None]
+    nodes: list[SimNode]
 
     async def silence(self) -> None:
         """Stop the fake vehicle (its links close; over UDP it just goes quiet)."""
@@ -97,7 +101,13 @@ async def fake_vehicle(personality: str, transport: str, **vehicle: Any) -> Asyn
     config = FleetConfig(vehicle=VehicleConfig(personality=PERSONALITIES[personality], **settings), tcp=tcp,
                          base_port=port, speedup=SPEEDUP)
     stop, started = asyncio.Event(), asyncio.Event()
-    task = asyncio.create_task(run_fleet(config, None, stop, on_ready=lambda nodes: started.set()))
+    nodes: list[SimNode] = []
+
+    def ready(opened: list[SimNode]) -> None:
+        nodes.extend(opened)
+        started.set()
+
+    task = asyncio.create_task(run_fleet(config, None, stop, on_ready=ready))
     waiter = asyncio.ensure_future(started.wait())
     await asyncio.wait([task, waiter], timeout=5, return_when=asyncio.FIRST_COMPLETED)
     waiter.cancel()
@@ -105,7 +115,7 @@ async def fake_vehicle(personality: str, transport: str, **vehicle: Any) -> Asyn
         task.result()  # raises why it did not start
     assert started.is_set(), "the fake vehicle did not start"
     url = f"tcp://127.0.0.1:{port}" if tcp else f"udpin://127.0.0.1:{port}"
-    fake = Fake(url, PERSONALITIES[personality], stop, task)
+    fake = Fake(url, PERSONALITIES[personality], stop, task, nodes)
     try:
         yield fake
     finally:
@@ -221,6 +231,42 @@ def test_a_landing_given_up_before_its_confirmation_does_not_outlive_follow_setp
             assert near(here, 0.5)(link.telemetry())
 
     run(scenario)
+
+
+def test_the_link_repeats_the_last_setpoint_at_its_rate_and_px4_stays_in_offboard() -> None:
+    """The setpoint loop sends a target once per step boundary; the link keeps it coming at
+    ``setpoint_hz``, or PX4 (a stream under 2 Hz) leaves OFFBOARD between boundaries."""
+    async def scenario() -> None:
+        async with fake_vehicle("px4", "udp") as fake:
+            link = PymavlinkLink(fake.url, setpoint_hz=8.0)
+            await link.connect(timeout=5)
+            try:
+                await link.wait_ready(timeout=5)
+                await link.arm()
+                await link.takeoff(5.0)
+                await link.wait_until(lambda t: (t.height_m or 0) > 4.7, 5, "5 m up")
+                await link.follow_setpoints()
+                await link.send_position_target(Ned(0.0, 0.0, -5.0))
+                await asyncio.sleep(1.2)  # twice the fake's offboard timeout (5 s simulated)
+                assert link.telemetry().mode == "OFFBOARD"
+            finally:
+                await link.close()
+        # What reached the vehicle: one setpoint every 1/8 s (simulated: SPEEDUP times that).
+        times = list(fake.nodes[0].model.setpoint_times)
+        gaps = [(b - a) / SPEEDUP for a, b in itertools.pairwise(times)]
+        assert len(gaps) >= 5 and 0.09 < statistics.median(gaps) < 0.16, gaps
+
+    run(scenario)
+
+
+def test_a_vehicle_that_reports_no_battery_level_is_not_ready() -> None:
+    """An autopilot with no battery monitor sends battery_remaining -1 (the links' None): the battery
+    monitor could not keep the drone above its threshold, so the agent must not fly it."""
+    ready = Telemetry(Autopilot.ARDUPILOT, False, "GUIDED", Position(Ned(0, 0, 0), 1.0), None,
+                      GeoPoint(47.0, 8.0, 500.0), 0.0, 80, 16.0, 3, 10, LandedState.ON_GROUND, 1.0)
+    assert not_ready(ready) is None
+    assert not_ready(dataclasses.replace(ready, battery_pct=None)) == "no battery level (BATTERY_STATUS or SYS_STATUS)"
+    assert not_ready(dataclasses.replace(ready, gps_fix=2)) == "GPS fix type 2, need a 3D fix"
 
 
 # ------------------------------------------------------------------ contract: refusals

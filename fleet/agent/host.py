@@ -185,7 +185,8 @@ def _check_placement(agent: DroneAgent) -> None:
 
 async def _connect(host: Host, frame: GeoFrame, name: str) -> VehicleLink:
     settings, ws = host.settings, host.workspace
-    link = PymavlinkLink(vehicle_url(settings, ws, name), frame=frame, stream_hz=settings.telemetry_hz)
+    link = PymavlinkLink(vehicle_url(settings, ws, name), frame=frame, stream_hz=settings.telemetry_hz,
+                         setpoint_hz=settings.rate_hz)
     try:
         await link.connect()
         await link.wait_ready(settings.ready_timeout_s)
@@ -197,8 +198,9 @@ async def _connect(host: Host, frame: GeoFrame, name: str) -> VehicleLink:
 
 async def _fly(host: Host, frame: GeoFrame, record: TextIO | None) -> None:
     settings, ws = host.settings, host.workspace
+    # A route after a stall is checked as often as positions come.
     loops = [SetpointLoop(agent.link, frame, agent.stack.executor, settings.epoch, ws.tau_s, host.clock,
-                          settings.rate_hz, tick=agent.tick) for agent in host.agents]
+                          settings.telemetry_hz, tick=agent.tick) for agent in host.agents]
 
     def on_step(i: int, report: StepReport, actions: Sequence[object]) -> None:
         host.agents[i].on_step(report, actions)

@@ -16,6 +16,19 @@ from typing import Protocol
 from drona_gcs.geo import GeoPoint, Ned
 
 
+class Share(float, enum.Enum):
+    """Telemetry rates, as fractions of a link's ``stream_hz``. Positions come at the full rate (the
+    setpoint loop and the record read them at every step boundary); the landed state at half (a
+    take-off or a landing waits on it); battery and system status at a quarter (the battery monitor
+    reads once a step, and a cell's worth of flight barely moves them); the GPS fix at a fifth.
+    Every message asked for costs the ground station and the radio link, fleet-wide."""
+
+    POSITION = 1.0
+    LANDED = 0.5
+    STATUS = 0.25
+    GPS = 0.2
+
+
 @dataclass(frozen=True)
 class Position:
     """The latest position the vehicle reported, with the link's clock time of the report."""
@@ -57,6 +70,19 @@ class Telemetry:
     satellites: int
     landed: LandedState
     heartbeat_at: float | None  #: link clock time of the last HEARTBEAT
+
+
+GPS_3D_FIX = 3  #: GPS_FIX_TYPE_3D_FIX
+
+
+def not_ready(t: Telemetry) -> str | None:
+    """What keeps a vehicle from being ready to fly plans, first thing first (None: ready). The
+    battery level too: the battery monitor keeps the drone above its safe threshold with it."""
+    problems = [(t.heartbeat_at is None, "no HEARTBEAT"), (t.position is None, "no position"),
+                (t.global_position is None, "no global position"),
+                (t.gps_fix < GPS_3D_FIX, f"GPS fix type {t.gps_fix}, need a 3D fix"),
+                (t.battery_pct is None, "no battery level (BATTERY_STATUS or SYS_STATUS)")]
+    return next((text for bad, text in problems if bad), None)
 
 
 class SetpointSink(Protocol):

@@ -34,7 +34,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from drona_gcs.geo import GeoFrame, GeoPoint, Ned
 from fleet.clock import cancel_all, periodic
-from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry
+from fleet.vehicle.link import Autopilot, LandedState, Position, Share, Telemetry, not_ready
 from fleet.vehicle.modes import CONFIRM_HEARTBEATS, FOLLOW_MODE, LAND_MODE, ModeDoubt, mode_command, mode_name
 from fleet.vehicle.urls import LinkUrl, Transport, open_transport, parse_link_url
 
@@ -42,9 +42,10 @@ log = logging.getLogger(__name__)
 
 Message = Any  # pymavlink's MAVLink_message: untyped
 #: Streams requested with MAV_CMD_SET_MESSAGE_INTERVAL: message id -> rate as a fraction of ``stream_hz``.
-STREAMS = {mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 1.0, mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 1.0,
-           mavlink2.MAVLINK_MSG_ID_BATTERY_STATUS: 1.0, mavlink2.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
-           mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0, mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT: 0.2}
+STREAMS = {mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED: Share.POSITION,
+           mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: Share.POSITION,
+           mavlink2.MAVLINK_MSG_ID_BATTERY_STATUS: Share.STATUS, mavlink2.MAVLINK_MSG_ID_SYS_STATUS: Share.STATUS,
+           mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: Share.LANDED, mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT: Share.GPS}
 POSITION_ONLY = 0b110111111000  #: type_mask: use x, y, z; ignore velocity, acceleration, yaw and yaw rate
 GCS_COMPONENT = mavlink2.MAV_COMP_ID_MISSIONPLANNER
 _UNKNOWN_U16 = 0xFFFF
@@ -126,20 +127,16 @@ class PymavlinkLink:
         self._fail(VehicleError(f"{self.url}: link closed"), final=True)
 
     async def wait_ready(self, timeout: float) -> None:
-        """Heartbeat, local and global position, a 3D GPS fix and a healthy GPS; VehicleError after ``timeout``."""
+        """:func:`~fleet.vehicle.link.not_ready`, and a healthy GPS; VehicleError after ``timeout``."""
         if self._not_ready() is not None:
             await self._await_or_fail(self._expect(None, lambda m: self._not_ready() is None), timeout,
                                       "readiness", lambda: f" ({self._not_ready()})")
 
     def _not_ready(self) -> str | None:
-        t, status, gps = self.telemetry(), self._msg("SYS_STATUS"), mavlink2.MAV_SYS_STATUS_SENSOR_GPS
+        status, gps = self._msg("SYS_STATUS"), mavlink2.MAV_SYS_STATUS_SENSOR_GPS
         gps_sick = status is not None and status.onboard_control_sensors_present \
             & status.onboard_control_sensors_enabled & ~status.onboard_control_sensors_health & gps
-        problems = [(t.heartbeat_at is None, "no HEARTBEAT"), (t.position is None, "no position"),
-                    (t.global_position is None, "no global position"),
-                    (t.gps_fix < mavlink2.GPS_FIX_TYPE_3D_FIX, f"GPS fix type {t.gps_fix}, need a 3D fix"),
-                    (bool(gps_sick), "SYS_STATUS reports the GPS unhealthy")]
-        return next((text for bad, text in problems if bad), None)
+        return not_ready(self.telemetry()) or ("SYS_STATUS reports the GPS unhealthy" if gps_sick else None)
 
     # ------------------------------------------------------------ commands
     async def command(self, command: int, *params: float, name: str = "") -> int:

@@ -46,7 +46,7 @@ from mavsdk.plugins.telemetry import TelemetryError
 from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from drona_gcs.geo import GeoFrame, GeoPoint, Ned
 from fleet.clock import cancel_all, periodic
-from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry
+from fleet.vehicle.link import Autopilot, LandedState, Position, Share, Telemetry, not_ready
 from fleet.vehicle.modes import CONFIRM_HEARTBEATS, FOLLOW_MODE, LAND_MODE, ModeDoubt, mode_command, mode_name
 from fleet.vehicle.urls import LinkUrl, Scheme, parse_link_url
 
@@ -63,7 +63,9 @@ RESULTS = {"COMMAND_DENIED": DENIED, "COMMAND_DENIED_LANDED_STATE_UNKNOWN": DENI
 #: Results that mean no answer came: a link problem, not a refusal.
 UNANSWERED = {"NO_SYSTEM", "CONNECTION_ERROR", "TIMEOUT", "UNKNOWN"}
 Start = Callable[[Callable[..., None]], None]  #: starts a MAVSDK ``*_async`` call with its callback
-TELEMETRY = ("position", "position_velocity_ned", "battery", "gps_info", "landed_state")  #: kept as latest values
+#: MAVSDK telemetry kept as latest values, with its rate (a share of ``stream_hz``).
+TELEMETRY = {"position": Share.POSITION, "position_velocity_ned": Share.POSITION, "battery": Share.STATUS,
+             "gps_info": Share.GPS, "landed_state": Share.LANDED}
 
 
 def mavsdk_url(url: LinkUrl) -> str:
@@ -138,11 +140,12 @@ class MavsdkLink:
                 self._subscriptions.append((getattr(self._telemetry, f"unsubscribe_{name}"), handle))
             self._tasks.append(asyncio.create_task(self._watchdog()))
             await self._wait_for(lambda: self.heartbeats > 0, timeout, "a HEARTBEAT from a vehicle")
-            for name in TELEMETRY:  # ArduCopter streams nothing until asked
+            for name, share in TELEMETRY.items():  # ArduCopter streams nothing until asked
                 set_rate = getattr(self._telemetry, f"set_rate_{name}_async")
-                await self._call(f"set_rate_{name}", functools.partial(set_rate, self.stream_hz), TelemetryError)
-            for msg_id in (SYS_STATUS, EXTENDED_SYS_STATE):
-                await self.command("SET_MESSAGE_INTERVAL", SET_MESSAGE_INTERVAL, msg_id, 1e6 / self.stream_hz)
+                await self._call(f"set_rate_{name}", functools.partial(set_rate, self.stream_hz * share),
+                                 TelemetryError)
+            for msg_id, share in ((SYS_STATUS, Share.STATUS), (EXTENDED_SYS_STATE, Share.LANDED)):
+                await self.command("SET_MESSAGE_INTERVAL", SET_MESSAGE_INTERVAL, msg_id, 1e6 / (self.stream_hz * share))
         except BaseException:
             await self.close()
             raise
@@ -158,16 +161,9 @@ class MavsdkLink:
             self._mavsdk = None
 
     async def wait_ready(self, timeout: float) -> None:
-        """Heartbeat, a 3D GPS fix, local and global position; VehicleError after ``timeout``."""
-        await self._wait_for(lambda: self._not_ready() is None, timeout, "readiness",
-                             lambda: f" ({self._not_ready()})")
-
-    def _not_ready(self) -> str | None:
-        t = self.telemetry()
-        problems = [(t.heartbeat_at is None, "no HEARTBEAT"),
-                    (t.gps_fix < 3, f"GPS fix type {t.gps_fix}, need a 3D fix"), (t.position is None, "no position"),
-                    (t.global_position is None, "no global position")]
-        return next((text for bad, text in problems if bad), None)
+        """:func:`~fleet.vehicle.link.not_ready`; VehicleError after ``timeout``."""
+        await self._wait_for(lambda: not_ready(self.telemetry()) is None, timeout, "readiness",
+                             lambda: f" ({not_ready(self.telemetry())})")
 
     # ------------------------------------------------------------ commands
     async def arm(self) -> None:
