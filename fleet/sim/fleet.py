@@ -8,6 +8,9 @@ eastwards at ArduPilot SITL's default home. Its link is, as the real SITLs:
   14540, and replies to whatever address last wrote to it;
 * TCP (ArduPilot SITL): a server on ``host:(base_port + 10 i)``, default base 5760.
 
+The messages a vehicle has to send at once (a tick's telemetry, a command's answers) go out
+together, several MAVLink packets to a datagram, as a real autopilot's do.
+
 Local positions (LOCAL_POSITION_NED, SET_POSITION_TARGET_LOCAL_NED) are relative to the
 vehicle's own home on the ground, as a real autopilot's EKF origin; GLOBAL_POSITION_INT and
 HOME_POSITION place it in the workspace (:class:`drona_gcs.geo.GeoFrame`). A vehicle landed and
@@ -21,7 +24,7 @@ from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
 
 from drona_gcs.errors import WorkspaceError
@@ -40,6 +43,9 @@ TCP_PORT_STRIDE = 10
 #: ArduPilot SITL's default home (CMAC, Canberra), for runs without a workspace.
 DEFAULT_HOME = GeoOrigin(lat=-35.363261, lon=149.165230, alt_m=584.0)
 DEFAULT_SPACING_M = 5.0
+#: A tick's messages share datagrams up to this size, as ArduPilot and PX4 pack whole MAVLink
+#: packets into each UDP datagram (within an Ethernet MTU); a ground station parses them all.
+DATAGRAM_BYTES = 1400
 
 
 @dataclass(frozen=True)
@@ -127,12 +133,26 @@ class SimNode:
     def send(self, messages: list[Message]) -> None:
         if self.link is None:
             return
-        for msg in messages:
-            self.link.send(self.codec.encode(msg))
+        for chunk in pack_datagrams(self.codec.encode(msg) for msg in messages):
+            self.link.send(chunk)
 
     def close(self) -> None:
         if self.link is not None:
             self.link.close()
+
+
+def pack_datagrams(frames: Iterable[bytes], limit: int = DATAGRAM_BYTES) -> Iterator[bytes]:
+    """Consecutive frames joined into datagrams of at most ``limit`` bytes (a longer frame alone)."""
+    chunk: list[bytes] = []
+    size = 0
+    for frame in frames:
+        if chunk and size + len(frame) > limit:
+            yield b"".join(chunk)
+            chunk, size = [], 0
+        chunk.append(frame)
+        size += len(frame)
+    if chunk:
+        yield b"".join(chunk)
 
 
 def build_nodes(config: FleetConfig, workspace: Workspace | None, clock: SimClock) -> list[SimNode]:

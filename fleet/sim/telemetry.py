@@ -148,15 +148,19 @@ DATA_STREAMS[mavlink2.MAV_DATA_STREAM_ALL] = tuple(i for ids in DATA_STREAMS.val
 class Streams:
     """Message id -> interval, and when each is next due. HEARTBEAT is always in.
 
-    ``phase`` (a fraction of the interval) delays a stream's first message after its rate is
-    set. Real autopilots send on their own schedulers, out of step with each other; vehicles
-    of one simulator given their rates at the same moment would otherwise all send in one burst.
+    A vehicle's streams keep time on one grid: a stream is due at ``origin + k * interval``, so
+    streams at the same rate (or at multiples of it) go out in the same tick, and in one datagram,
+    as an autopilot's scheduler sends a group of streams together. The first rate set places the
+    grid, ``phase`` (a fraction of that interval) after it was set: real autopilots send on their
+    own schedulers, out of step with each other; vehicles of one simulator given their rates at
+    the same moment would otherwise all send in one burst.
     """
 
     def __init__(self, intervals: dict[int, float], now: float, phase: float = 0.0) -> None:
         self._interval: dict[int, float] = {mavlink2.MAVLINK_MSG_ID_HEARTBEAT: HEARTBEAT_PERIOD_S, **intervals}
         self._due: dict[int, float] = dict.fromkeys(self._interval, now)
         self._phase = phase % 1.0
+        self._origin: float | None = None
 
     def set_interval(self, msg_id: int, interval_us: float, now: float) -> None:
         """MAV_CMD_SET_MESSAGE_INTERVAL's param2: -1 stops, 0 is the default rate, else microseconds."""
@@ -166,7 +170,9 @@ class Streams:
             return
         interval = DEFAULT_INTERVAL_S if interval_us == 0 else max(MIN_INTERVAL_S, interval_us / 1e6)
         self._interval[msg_id] = interval
-        self._due[msg_id] = now + self._phase * interval
+        if self._origin is None:
+            self._origin = now + self._phase * interval
+        self._due[msg_id] = self._origin + math.ceil((now - self._origin) / interval) * interval
 
     def interval(self, msg_id: int) -> float | None:
         return self._interval.get(msg_id)
