@@ -69,11 +69,18 @@ class WireTrajectory(_Strict):
 
     @classmethod
     def of(cls, trajectory: Trajectory) -> WireTrajectory:
-        return cls(start_step=trajectory.start_step, cells=[list(c) for c in trajectory.cells])
+        """Remembered for the last few trajectories: a drone answers every request of a round, and
+        publishes its state, with the same one. Shared, so never to be changed in place."""
+        return _wire_trajectory(trajectory)
 
     def core(self) -> Trajectory:
         # Each cell is three ints (validated): tuple() of it is a Cell, at C speed.
         return Trajectory(self.start_step, tuple(map(tuple, self.cells)))  # type: ignore[arg-type]
+
+
+@functools.lru_cache(maxsize=256)
+def _wire_trajectory(trajectory: Trajectory) -> WireTrajectory:
+    return WireTrajectory(start_step=trajectory.start_step, cells=[list(c) for c in trajectory.cells])
 
 
 # ------------------------------------------------------------- protocol
