@@ -126,6 +126,10 @@ class FleetGateway(Protocol):
         """Keep the links up and push events to the listener until cancelled."""
         ...
 
+    def is_open(self) -> bool:
+        """Whether the links to the fleet are up (the service can reach the drones)."""
+        ...
+
     async def assign(self, drone: str, mail: MailOrder) -> None:
         """Hand ``mail`` to ``drone``; raises :class:`api.errors.AssignRefused` (with the reason) if the
         drone refused it or could not be reached in time. Returns once the drone has it."""

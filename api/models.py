@@ -136,6 +136,7 @@ class HealthOut(BaseModel):
 
 class ReadyOut(BaseModel):
     ready: bool
+    fleet_connected: bool  #: the gateway's links to the fleet (Zenoh) are up
     drones: int
     queued: int
     held_by_drones: int

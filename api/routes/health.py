@@ -1,4 +1,5 @@
-"""``/healthz`` (the process answers) and ``/readyz`` (the store and the dispatcher run); no token needed."""
+"""``/healthz`` (the process answers) and ``/readyz`` (the store and the dispatcher run, and the links to
+the fleet are up: a mail taken then could not reach any drone); no token needed."""
 
 from __future__ import annotations
 
@@ -20,6 +21,9 @@ async def readyz(request: Request, response: Response) -> ReadyOut:
     service: Service | None = getattr(request.app.state, "service", None)
     if service is None or not service.ready:
         response.status_code = status.HTTP_503_SERVICE_UNAVAILABLE
-        return ReadyOut(ready=False, drones=0, queued=0, held_by_drones=0)
-    return ReadyOut(ready=True, drones=len(service.gateway.drones()), queued=service.dispatcher.queued,
-                    held_by_drones=len(service.dispatcher.in_flight))
+        return ReadyOut(ready=False, fleet_connected=False, drones=0, queued=0, held_by_drones=0)
+    connected = service.gateway.is_open()
+    if not connected:
+        response.status_code = status.HTTP_503_SERVICE_UNAVAILABLE
+    return ReadyOut(ready=connected, fleet_connected=connected, drones=len(service.gateway.drones()),
+                    queued=service.dispatcher.queued, held_by_drones=len(service.dispatcher.in_flight))

@@ -64,8 +64,12 @@ class ZenohGateway:
             self.ready.set()
             await asyncio.Event().wait()  # until cancelled: everything else comes through the callbacks
         finally:
+            self.ready.clear()
             self.node = None
             await node.close()
+
+    def is_open(self) -> bool:
+        return self.ready.is_set()
 
     async def assign(self, drone: str, mail: MailOrder) -> None:
         client = await self._client()

@@ -118,6 +118,7 @@ async def running(settings: ApiSettings, workspace: Workspace,
     gateway = gateway or SimulatedGateway(workspace, step_s=None)
     app = create_app(settings, gateway, workspace)
     async with app.router.lifespan_context(app):
+        await asyncio.wait_for(gateway.opened.wait(), 5)  # ready, as a client waiting on /readyz finds it
         transport = httpx.ASGITransport(app=app)
         async with httpx.AsyncClient(transport=transport, base_url="http://test") as client:
             yield Harness(app, client, gateway)

@@ -66,12 +66,17 @@ class SimulatedGateway:
         self.assigned: list[tuple[str, str]] = []  #: (drone, mail id) as assigned
         self.cancelled: list[tuple[str, str]] = []
         self._views = {d: self._view(sim) for d, sim in self._drones.items()}
+        self.opened = asyncio.Event()  #: run() sets it; a test may clear it (the links to the fleet went down)
 
     # ------------------------------------------------------------ gateway
     def listen(self, listener: FleetListener) -> None:
         self.listener = listener
 
+    def is_open(self) -> bool:
+        return self.opened.is_set()
+
     async def run(self) -> None:
+        self.opened.set()
         self.publish()
         if self.step_s is None:
             await asyncio.Event().wait()  # the test steps the drones

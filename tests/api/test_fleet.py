@@ -46,6 +46,12 @@ def test_health_readiness_openapi_and_dashboard(settings: ApiSettings, workspace
             assert (await h.client.get("/healthz")).json() == {"status": "ok"}
             ready = await h.client.get("/readyz")
             assert ready.status_code == 200 and ready.json()["ready"] is True and ready.json()["drones"] == 3
+            assert ready.json()["fleet_connected"] is True
+            h.gateway.opened.clear()  # the links to the fleet went down: mail taken now would reach nobody
+            ready = await h.client.get("/readyz")
+            assert ready.status_code == 503 and ready.json()["ready"] is False
+            assert ready.json()["fleet_connected"] is False and ready.json()["drones"] == 3
+            h.gateway.opened.set()
             doc = (await h.client.get("/openapi.json")).json()
             assert {"/v1/mail", "/v1/mail/{mail_id}", "/v1/mail/{mail_id}/cancel", "/v1/fleet", "/v1/workspace",
                     "/v1/events", "/healthz", "/readyz"} <= set(doc["paths"])
