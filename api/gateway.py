@@ -127,7 +127,8 @@ class FleetGateway(Protocol):
         ...
 
     def is_open(self) -> bool:
-        """Whether the links to the fleet are up (the service can reach the drones)."""
+        """Whether the service is linked to the fleet (over Zenoh: its session has a link to a peer or a
+        router), so that a mail taken can reach a drone."""
         ...
 
     async def assign(self, drone: str, mail: MailOrder) -> None:

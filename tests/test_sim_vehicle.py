@@ -15,6 +15,7 @@ import math
 import os
 import signal
 import socket
+import statistics
 import subprocess
 import sys
 import threading
@@ -33,7 +34,7 @@ from drona_gcs.geo import GeoFrame
 from drona_gcs.workspace_files import load_workspace
 from fleet.cli import main as drona_main
 from fleet.sim.config import VehicleConfig
-from fleet.sim.fleet import FleetConfig, placements, run_fleet
+from fleet.sim.fleet import FleetConfig, pack_datagrams, placements, run_fleet
 from fleet.sim.mav import mavlink2
 from fleet.sim.model import VehicleModel
 from fleet.sim.personality import ARDUPILOT, PX4, px4_mode
@@ -466,3 +467,30 @@ def test_vehicles_given_a_rate_at_once_stream_out_of_step_with_each_other() -> N
     firsts = [times[0] for times in sent]
     assert len({round(t, 3) for t in firsts}) == len(vehicles)  # no two in the same step
     assert max(firsts) - min(firsts) > 0.1
+
+
+def test_a_vehicles_streams_asked_one_by_one_leave_together_and_keep_their_time() -> None:
+    """A ground station asks for its streams one command after another: those at one rate (or at a
+    multiple of it) still go out in the same tick, as an autopilot's stream groups do, and a late
+    tick does not shift them apart."""
+    local, glob = mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
+    battery = mavlink2.MAVLINK_MSG_ID_BATTERY_STATUS
+    streams = Streams({}, 0.0, phase=0.3)
+    streams.set_interval(local, 100_000, 0.011)  # asked 20 ms apart, each acknowledged in between
+    streams.set_interval(glob, 100_000, 0.031)
+    streams.set_interval(battery, 400_000, 0.051)
+    # The simulator's 50 Hz ticks, then one 0.263 s late (a stalled process): its ticks shift.
+    ticks = [k * 0.02 for k in range(1, 151)] + [3.263 + k * 0.02 for k in range(50)]
+    sent = {t: set(streams.due(t)) - {mavlink2.MAVLINK_MSG_ID_HEARTBEAT} for t in ticks}
+    with_local = [t for t, ids in sent.items() if local in ids]
+    assert all(glob in sent[t] for t in with_local) and all(local in sent[t] for t, ids in sent.items() if glob in ids)
+    assert all(local in ids for ids in sent.values() if battery in ids)  # a quarter of the rate, same ticks
+    assert 0.08 < statistics.median(b - a for a, b in itertools.pairwise(with_local)) < 0.12
+
+
+def test_a_ticks_messages_share_datagrams_up_to_the_size_limit() -> None:
+    frames = [bytes([i]) * size for i, size in enumerate([300, 500, 400, 900, 2000, 10])]
+    datagrams = list(pack_datagrams(frames, limit=1400))
+    assert b"".join(datagrams) == b"".join(frames)  # nothing lost, nothing reordered
+    assert [len(d) for d in datagrams] == [1200, 900, 2000, 10]  # a frame over the limit goes alone
+    assert list(pack_datagrams([])) == []

@@ -262,3 +262,47 @@ def test_the_answers_of_a_sessions_drones_to_one_request_travel_as_one_message()
     answers, messages = asyncio.run(scenario())
     assert sorted(answers[:3]) == [b"a", b"b", b"c"]
     assert messages[0].split(b"\n") == answers[:3]
+
+
+def test_the_service_gateway_is_open_only_while_linked_to_the_fleet() -> None:
+    """``/readyz`` reads it: an open session that no peer is linked to reaches no drone."""
+    import argparse
+    import asyncio
+    import socket
+
+    from drona_gcs.workspace import Workspace
+    from fleet.sim.ports import free_port
+    from fleet.transport.gateway import ZenohGateway
+    from fleet.transport.node import ZenohNode, ZenohSettings
+
+    endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    ws = Workspace.build(size=(2, 2, 1), cell_size_m=1.0, tau_s=1.0)
+
+    async def until(gateway: ZenohGateway, linked: bool) -> bool:
+        for _ in range(100):  # polled, as /readyz asks it
+            if gateway.is_open() is linked:
+                return True
+            await asyncio.sleep(0.05)
+        return False
+
+    async def scenario() -> tuple[bool, bool, bool, bool]:
+        gateway = ZenohGateway(ws, argparse.Namespace(fleet="t", connect=[endpoint], zenoh_config=None))
+        running = asyncio.create_task(gateway.run())
+        try:
+            await asyncio.wait_for(gateway.ready.wait(), 10)
+            alone = gateway.is_open()
+            peer = await ZenohNode.open(ZenohSettings(listen=(endpoint,)), "agent")
+            linked = await until(gateway, True)
+            await peer.close()
+            cut = await until(gateway, False)
+        finally:
+            running.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await running
+        return alone, linked, cut, gateway.is_open()
+
+    alone, linked, cut, after = asyncio.run(scenario())
+    assert not alone, "open with nobody to link to"
+    assert linked, "a peer came up where the gateway connects: never linked"
+    assert cut, "the peer left: still linked"
+    assert not after

@@ -34,8 +34,8 @@ class AgentSettings(BaseSettings):
     record: Path | None = None
     clock_offset_s: float = 0.0  #: simulation only: shift this process's clock to test the skew check
     lead_steps: Annotated[int, Field(ge=1)] | None = None  #: steps between planning and a plan's start
-    #: the rate the link repeats the last setpoint at (PX4 leaves OFFBOARD when it falls below 2 Hz)
-    rate_hz: Annotated[float, Field(ge=2)] = 10.0
+    #: the rate the link repeats the last setpoint at (PX4 leaves OFFBOARD at 2 Hz or less)
+    rate_hz: Annotated[float, Field(gt=2)] = 10.0
     telemetry_hz: Annotated[float, Field(gt=0)] = 10.0  #: the rate asked of the vehicle's position streams
     drain_per_step: Annotated[float, Field(gt=0)] = 1.0  #: battery points a step of flight costs (planning model)
     safe_threshold: Annotated[float, Field(ge=0, lt=100)] = 20.0

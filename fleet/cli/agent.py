@@ -49,7 +49,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add("--lead-steps", type=int, help="steps from planning to a plan's start (default: Delta + 1 + climb)")
     add("--clock-offset", dest="clock_offset_s", type=float,
         help="simulation only: shift this process's clock by S seconds (tests the skew check)")
-    add("--telemetry-hz", type=float, help="rate asked of the vehicle's position and battery streams (default 10)")
+    add("--telemetry-hz", type=float, help="rate asked of the vehicle's position streams; the landed state comes at "
+                                           "half of it, battery and status at a quarter (default 10)")
+    add("--rate-hz", type=float, help="the link repeats the last setpoint at this rate, over 2 (PX4 leaves OFFBOARD "
+                                      "at 2 Hz or less) (default 10) [DRONA_RATE_HZ]")
     add("--drain-per-step", type=float, help="battery points one step of flight costs, for planning (default 1)")
     add("--no-adopt-mail", dest="adopt_mail", action="store_const", const=False,
         help="do not take over a departed drone's mail (when `drona serve` dispatches, it reassigns it)")

@@ -148,12 +148,13 @@ DATA_STREAMS[mavlink2.MAV_DATA_STREAM_ALL] = tuple(i for ids in DATA_STREAMS.val
 class Streams:
     """Message id -> interval, and when each is next due. HEARTBEAT is always in.
 
-    A vehicle's streams keep time on one grid: a stream is due at ``origin + k * interval``, so
-    streams at the same rate (or at multiples of it) go out in the same tick, and in one datagram,
-    as an autopilot's scheduler sends a group of streams together. The first rate set places the
-    grid, ``phase`` (a fraction of that interval) after it was set: real autopilots send on their
-    own schedulers, out of step with each other; vehicles of one simulator given their rates at
-    the same moment would otherwise all send in one burst.
+    The streams a ground station asks for keep time on one grid: such a stream is due at
+    ``origin + k * interval``, so streams at the same rate (or at multiples of it) go out in the
+    same tick, and in one datagram, as an autopilot's scheduler sends a group of streams together.
+    The first rate set places the grid, ``phase`` (a fraction of that interval) after it was set:
+    real autopilots send on their own schedulers, out of step with each other; vehicles of one
+    simulator given their rates at the same moment would otherwise all send in one burst. (The
+    HEARTBEAT and the streams a vehicle boots with keep their own time, from boot.)
     """
 
     def __init__(self, intervals: dict[int, float], now: float, phase: float = 0.0) -> None:
@@ -178,12 +179,14 @@ class Streams:
         return self._interval.get(msg_id)
 
     def due(self, now: float) -> list[int]:
-        """Ids due at ``now``; each is then next due one interval later (never in the past)."""
+        """Ids due at ``now``; each is then next due at its first time after ``now`` on its schedule
+        (one interval later, unless a late tick missed more: it keeps its time, so a group stays one)."""
         out = []
         for msg_id, due in self._due.items():
             if now >= due:
                 out.append(msg_id)
-                self._due[msg_id] = max(due + self._interval[msg_id], now)
+                interval = self._interval[msg_id]
+                self._due[msg_id] = due + (math.floor((now - due) / interval) + 1) * interval
         return out
 
 

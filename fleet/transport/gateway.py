@@ -69,7 +69,7 @@ class ZenohGateway:
             await node.close()
 
     def is_open(self) -> bool:
-        return self.ready.is_set()
+        return self.ready.is_set() and self.node is not None and self.node.linked()
 
     async def assign(self, drone: str, mail: MailOrder) -> None:
         client = await self._client()

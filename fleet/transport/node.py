@@ -185,6 +185,17 @@ class ZenohNode:
         finally:
             query.drop()  # the query ends (the asker stops waiting) once every reply is sent
 
+    def linked(self) -> bool:
+        """Whether the session has a link to another Zenoh peer or router (an open session may have none:
+        nobody listens where it connects yet, or every link was cut)."""
+        if self.closed:
+            return False
+        try:
+            info = self.session.info
+            return any(True for _ in info.peers_zid()) or any(True for _ in info.routers_zid())
+        except zenoh.ZError:  # closed under us
+            return False
+
     def token(self, key: str) -> None:
         self._declared.append(self.session.liveliness().declare_token(key))
 

@@ -88,7 +88,10 @@ def not_ready(t: Telemetry) -> str | None:
 class SetpointSink(Protocol):
     """Where the setpoint loop sends targets and reads positions."""
 
-    async def send_position_target(self, target: Ned) -> None: ...
+    async def send_position_target(self, target: Ned) -> None:
+        """Fly to ``target``. The sink keeps repeating the last target to the vehicle (PX4 leaves
+        OFFBOARD without a stream): the setpoint loop sends one only when the target moves."""
+        ...
 
     def last_position(self) -> Position | None: ...
 

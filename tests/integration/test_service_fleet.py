@@ -72,7 +72,8 @@ def start_service(fleet: FleetProcesses, db: Path) -> str:
             if httpx.get(f"{url}/readyz", timeout=1).status_code == 200:
                 return url
         except httpx.TransportError:
-            time.sleep(0.2)
+            pass
+        time.sleep(0.2)  # not up yet, or up but not yet linked to the fleet (503)
     raise AssertionError(f"the service did not come up\n{fleet.logs()}")
 
 
