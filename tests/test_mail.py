@@ -25,8 +25,10 @@ from drona_gcs.stack.mail import (
     GoTo,
     MailAction,
     MailDelivered,
+    MailLost,
     MailPickedUp,
     MailPlanner,
+    MailRejected,
     MailRequest,
     MailStarted,
     Phase,
@@ -135,6 +137,27 @@ def test_pickup_then_dropoff_then_parking() -> None:
     assert mp.decide(3, 92, ()) == [GoTo(P2, 72 - 14, Phase.TO_PARKING)]
     assert mp.leg_done() == []
     assert mp.decide(4, 87, ()) == []  # parked: nothing to do
+
+
+@pytest.mark.parametrize("picked_up", [False, True], ids=["before-pickup", "on-board"])
+def test_a_vehicle_down_by_itself_hands_back_every_mail_and_its_leg_ends_with_none(picked_up: bool) -> None:
+    mp = planner()
+    m = mail("m", c(2, 2), c(4, 4), priority=5, seq=1)
+    urgent, later = mail("u", c(3, 3), c(6, 6), priority=9, seq=2), mail("l", c(1, 5), c(6, 2), priority=1, seq=3)
+    mp.assign(m)
+    mp.decide(0, 100, ())
+    if picked_up:
+        mp.leg_done()
+        mp.decide(1, 96, ())  # on its way to the drop-off
+    mp.assign(later)
+    mp.assign(urgent)
+    handed = mp.abandon("vehicle down")
+    # The waiting mail most urgent first, then the one under way: lost on board, else rejected.
+    under_way = MailLost(m, "vehicle down") if picked_up else MailRejected(m, "vehicle down")
+    assert handed == [MailRejected(urgent, "vehicle down"), MailRejected(later, "vehicle down"), under_way]
+    assert (mp.queue, mp.current, mp.carrying) == ([], None, False)
+    assert mp.leg_done() == []  # the executor flew the leg to its end: no pickup, no delivery to report
+    assert mp.abandon("again") == []
 
 
 def test_leg_done_without_a_leg_is_a_violation() -> None:

@@ -92,6 +92,11 @@ class DroneStack:
         """Drop a mail that waits in the queue (False if it is under way or unknown)."""
         return self.mail.cancel(mail_id)
 
+    def vehicle_down(self, reason: str) -> list[DroneAction]:
+        """The vehicle came down by itself: hand every mail back (see MailPlanner.abandon). The
+        runtime starts no new task meanwhile (``may_plan`` False at :meth:`step`)."""
+        return list(self.mail.abandon(reason))
+
     def peer_left(self, drone: str, silent_since: int | None = None) -> list[DroneAction]:
         return self._protocol(PeerLeft(drone, silent_since))
 

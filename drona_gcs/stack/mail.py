@@ -31,7 +31,8 @@ hovering where they block corridors: a parked drone is an obstacle for every
 plan (the paper notes MRMP is incomplete because parked robots can wall others
 in). Chargers are for charging: a charged drone leaves for a parking cell.
 A failed leg is retried after ``retry_steps``, towards the next candidate when
-the goal was a charger or parking cell. Mail is never dropped.
+the goal was a charger or parking cell. Mail is never dropped: a drone whose
+vehicle came down by itself hands all of it back (:meth:`MailPlanner.abandon`).
 
 A leg to a cell another drone is known to rest on would cost a whole
 coordination round with every peer and end in no plan, so it counts as failed
@@ -136,7 +137,15 @@ class MailRejected:
     reason: str
 
 
-MailAction = GoTo | MailStarted | MailPickedUp | MailDelivered | MailRejected
+@dataclass(frozen=True)
+class MailLost:
+    """A mail on board a vehicle that came down by itself: it is wherever the vehicle is."""
+
+    request: MailRequest
+    reason: str
+
+
+MailAction = GoTo | MailStarted | MailPickedUp | MailDelivered | MailRejected | MailLost
 
 
 @dataclass
@@ -177,6 +186,18 @@ class MailPlanner:
         dropped = len(kept) != len(self.queue)
         self.queue = kept
         return dropped
+
+    def abandon(self, reason: str) -> list[MailAction]:
+        """The vehicle came down by itself (a failsafe, a pilot) and flies no more legs: every mail
+        is handed back, most urgent first. One waiting, or not picked up yet, is rejected (another
+        drone may fly it); one on board is lost (it is wherever the vehicle is). A leg under way
+        ends with no mail: its end reports nothing."""
+        handed: list[MailAction] = [MailRejected(r, reason) for r in sorted(self.queue, key=lambda r: r.rank)]
+        self.queue = []
+        if self.current is not None:
+            handed.append(MailLost(self.current, reason) if self.carrying else MailRejected(self.current, reason))
+            self.current, self.carrying = None, False
+        return handed
 
     def battery_low(self) -> None:
         self.low = True

@@ -34,6 +34,7 @@ from drona_gcs.stack.drone import DroneStack, StackConfig
 from drona_gcs.stack.mail import (
     GoTo,
     MailDelivered,
+    MailLost,
     MailPickedUp,
     MailRejected,
     MailRequest,
@@ -328,8 +329,8 @@ def _note(action: object) -> str:
         return f"task planner: go to {list(action.goal)} for {action.purpose.value}{by}"
     if isinstance(action, (MailStarted, MailPickedUp, MailDelivered)):
         return f"{type(action).__name__} {action.request.id}"
-    if isinstance(action, MailRejected):
-        return f"MailRejected {action.request.id}: {action.reason}"
+    if isinstance(action, (MailRejected, MailLost)):
+        return f"{type(action).__name__} {action.request.id}: {action.reason}"
     if isinstance(action, (BatteryLow, BatteryRecharged)):
         return f"{type(action).__name__} at {action.level:.0f}%"
     return ""

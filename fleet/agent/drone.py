@@ -30,7 +30,7 @@ from typing import TextIO
 from drona_gcs.geo import GeoFrame
 from drona_gcs.stack.battery import BatteryLow, BatteryRecharged
 from drona_gcs.stack.drone import DroneAction, DroneStack
-from drona_gcs.stack.mail import GoTo, MailDelivered, MailPickedUp, MailRejected, MailStarted
+from drona_gcs.stack.mail import GoTo, MailDelivered, MailLost, MailPickedUp, MailRejected, MailStarted
 from drona_gcs.stack.protocol import Broadcast, Send, StartExecuting, State, TaskFailed
 from drona_gcs.workspace import Cell, Workspace
 from fleet.agent.clocksync import ClockCheck, OffsetSample
@@ -86,6 +86,9 @@ class DroneAgent:
         self.actual: Cell | None = None
         self.battery_pct = 100.0
         self.may_plan = True
+        #: the vehicle came down by itself: its mail is handed back and it starts no task, for good (a
+        #: vehicle may be anywhere once down: it rejoins the fleet when its agent is restarted)
+        self.down = False
         self.task_since: float | None = None
         self.metrics = Metrics()
         self.lease_steps = 0  #: the Zenoh lease in steps (set by the host)
@@ -118,7 +121,7 @@ class DroneAgent:
     def tick(self, step: int) -> Sequence[object]:
         """The setpoint loop's boundary: the whole stack steps (executor, battery, task planner)."""
         level = self._battery()
-        actions = self.stack.step(step, level, may_plan=self.may_plan and self.mail.accepting)
+        actions = self.stack.step(step, level, may_plan=self.may_plan and self.mail.accepting and not self.down)
         self._carry_out(actions)
         return actions
 
@@ -132,11 +135,16 @@ class DroneAgent:
             self.record.write(f'{{"step": {report.step - 1}, "drone": "{self.me}", '
                               f'"cell": [{self.actual[0]}, {self.actual[1]}, {self.actual[2]}], '
                               f'"delta": {self.delta}}}\n')
-        down = self.vehicle.grounded_by_itself()
-        lagging = report.lagging and self.vehicle.settled and not down
+        if not self.down and self.vehicle.grounded_by_itself():
+            self.down = True
+            self.mail.refusal = "its vehicle came down by itself"
+            where = f"in {list(self.actual)}" if self.actual is not None else "outside the grid"
+            log.warning("%s: the vehicle came down by itself %s: its mail is handed back", self.me, where)
+            self._carry_out(self.stack.vehicle_down(f"drone {self.me}'s vehicle came down by itself {where}"))
+        lagging = report.lagging and self.vehicle.settled and not self.down
         self._alarm("lag", f"vehicle {report.error_m:.1f} m from its cell" if lagging else None)
-        self._alarm("down", "vehicle: on the ground while its plan flies (a failsafe or a pilot?); "
-                    "it is not taken up again by itself" if down else None)
+        self._alarm("down", "vehicle: came down while its plan flew (a failsafe or a pilot?); its mail was handed "
+                    "back and it starts no task; restart its agent once it is back in service" if self.down else None)
         self._alarm("behind", f"catching up after a stall (boundaries taken back to back): {report.behind} "
                     "cells of its plan still to fly through" if report.behind else None)
         # A plan scheduled but not begun still needs the climb: the lead steps are for it.
@@ -184,7 +192,7 @@ class DroneAgent:
                 self._started(action)
             elif isinstance(action, TaskFailed):
                 log.warning("%s: no plan for task %s: %s", self.me, action.task.id, action.reason)
-            elif isinstance(action, (MailStarted, MailPickedUp, MailDelivered, MailRejected)):
+            elif isinstance(action, (MailStarted, MailPickedUp, MailDelivered, MailRejected, MailLost)):
                 asyncio.get_running_loop().call_soon(self.mail.progress, action)
             elif isinstance(action, (BatteryLow, BatteryRecharged)):
                 log.info("%s: battery %s", self.me, type(action).__name__)

@@ -16,7 +16,15 @@ from collections.abc import Callable, Collection
 
 from drona_gcs.errors import ProblemError
 from drona_gcs.stack.drone import DroneStack
-from drona_gcs.stack.mail import MailDelivered, MailPickedUp, MailRejected, MailRequest, MailStarted, mail_cell_problem
+from drona_gcs.stack.mail import (
+    MailDelivered,
+    MailLost,
+    MailPickedUp,
+    MailRejected,
+    MailRequest,
+    MailStarted,
+    mail_cell_problem,
+)
 from drona_gcs.workspace import Cell
 from fleet.transport.keys import FleetKeys
 from fleet.transport.node import Query, ZenohNode
@@ -35,9 +43,9 @@ from fleet.transport.wire import (
 
 log = logging.getLogger(__name__)
 
-MailProgress = MailStarted | MailPickedUp | MailDelivered | MailRejected
+MailProgress = MailStarted | MailPickedUp | MailDelivered | MailRejected | MailLost
 PROGRESS = {MailStarted: MailStatus.STARTED, MailPickedUp: MailStatus.PICKED_UP,
-            MailDelivered: MailStatus.DELIVERED, MailRejected: MailStatus.REJECTED}
+            MailDelivered: MailStatus.DELIVERED, MailRejected: MailStatus.REJECTED, MailLost: MailStatus.FAILED}
 
 
 class MailDesk:
@@ -46,6 +54,7 @@ class MailDesk:
         self.me, self.stack, self.node, self.keys, self.clock = stack.me, stack, node, keys, clock
         self.on_change = on_change  #: the drone's state changed (a mail taken)
         self.accepting = True  #: False once shutting down: no new mail
+        self.refusal: str | None = None  #: why this drone takes no mail for now (its vehicle is down)
         self.adopt = True  #: off when a service dispatches the mail (it reassigns a lost drone's)
         self.seq = 0
         self.delivered: set[str] = set()  #: a repeated order for one of these is acknowledged, not flown again
@@ -98,6 +107,8 @@ class MailDesk:
         """Queue ``order``; False if this drone already has it (a repeated order). ProblemError if unusable."""
         if not self.accepting:
             raise ProblemError(f"drone {self.me} is shutting down")
+        if self.refusal is not None:
+            raise ProblemError(f"drone {self.me} takes no mail: {self.refusal}")
         if order.id in self.delivered or any(m.id == order.id for m in self.held()):
             return False
         pickup, dropoff = self._cell("pickup", order.pickup), self._cell("dropoff", order.dropoff)
@@ -120,7 +131,7 @@ class MailDesk:
         status = PROGRESS[type(action)]
         if status is MailStatus.DELIVERED:
             self.delivered.add(action.request.id)
-        self.report(action.request.id, status, action.reason if isinstance(action, MailRejected) else "")
+        self.report(action.request.id, status, action.reason if isinstance(action, (MailRejected, MailLost)) else "")
         self.publish_held()
 
     def report(self, mail_id: str, status: MailStatus, reason: str = "", drone: str | None = None) -> None:
