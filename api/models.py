@@ -136,7 +136,7 @@ class HealthOut(BaseModel):
 
 class ReadyOut(BaseModel):
     ready: bool
-    fleet_connected: bool  #: the gateway's links to the fleet (Zenoh) are up
+    fleet_connected: bool  #: the gateway is linked to the fleet (its Zenoh session has a peer or router)
     drones: int
     queued: int
     held_by_drones: int

@@ -1,5 +1,5 @@
-"""``/healthz`` (the process answers) and ``/readyz`` (the store and the dispatcher run, and the links to
-the fleet are up: a mail taken then could not reach any drone); no token needed."""
+"""``/healthz`` (the process answers) and ``/readyz`` (the store and the dispatcher run, and the service
+is linked to the fleet: unlinked, a mail it took could reach no drone); no token needed."""
 
 from __future__ import annotations
 

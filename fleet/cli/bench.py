@@ -99,7 +99,8 @@ def _add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--loops", type=int, help="setpoint loops for the jitter (default 32; 8 with --quick)")
     group.add_argument("--tau", type=float, default=1.0, help="seconds per step (default 1)")
     group.add_argument("--boundaries", type=int, help="step boundaries per loop (default 20; 5 with --quick)")
-    group.add_argument("--rate-hz", type=float, default=10.0, help="each link repeats its setpoint at (default 10)")
+    group.add_argument("--rate-hz", type=float, default=10.0,
+                       help="Hz at which each link repeats its setpoint (default 10)")
     group.add_argument("--only", choices=["telemetry", "jitter"], help="run only one of the two measurements")
 
 
