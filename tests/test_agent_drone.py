@@ -6,13 +6,24 @@ import asyncio
 
 from drona_gcs.errors import ProblemError
 from drona_gcs.geo import GeoFrame
+from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.drone import DroneStack, StackConfig
+from drona_gcs.stack.messages import ReqForCurrentTraj, TaskId
 from drona_gcs.workspace import Workspace
 from fleet.agent.drone import DroneAgent
 from fleet.executor import StepReport
 from fleet.transport.keys import FleetKeys
-from fleet.transport.wire import MailOrder, MailStatus, MailStatusReport, decode
+from fleet.transport.wire import (
+    MailOrder,
+    MailStatus,
+    MailStatusReport,
+    PlanAnnounce,
+    WireTrajectory,
+    decode,
+    encode,
+    from_core,
+)
 from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry
 
 #: With a parking cell: an idle drone that may plan flies there (a drone that is down must not).
@@ -91,3 +102,35 @@ def test_a_vehicle_down_by_itself_hands_its_mail_back_and_the_drone_starts_no_ta
     assert "Completed" in kinds  # the leg under way was flown to its end, with no mail
     refusal = [str(a) for a in later if isinstance(a, Exception)]
     assert refusal == ["drone d1 takes no mail: its vehicle came down by itself"]
+
+
+def test_a_departed_peer_last_heard_after_its_plan_holds_only_where_it_rested() -> None:
+    """A killed agent's liveliness goes at once, but a cut link's only when the lease runs out, so the
+    peer may have gone silent a lease ago: the rest of its plan from then on is held for good. Not
+    from before it was last heard, though: a peer heard from after its plan ended is where it rested,
+    and holding the cells it flew through before (a mail's pickup, say) would block them for good."""
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0, drones={"d1": (0, 0, 0), "d2": (7, 0, 0)})
+    frame = GeoFrame(ws)
+    flown = Trajectory(10, tuple((7 - min(k, 7), min(max(k - 7, 0), 7), 0) for k in range(16)))  # steps 10..25
+
+    async def scenario(heard_after_the_plan: bool) -> dict[str, Trajectory]:
+        node = RecordingNode()
+        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+        agent = DroneAgent(stack, node, KEYS, ScriptedVehicle(), frame, lambda: 1000.0)  # type: ignore[arg-type]
+        agent.lease_steps = 20
+        for step in range(41):
+            agent.tick(step)
+            if step == 9:  # d2 announces the plan it flies from step 10
+                announce = PlanAnnounce(trajectory=WireTrajectory.of(flown))
+                agent._on_plan(KEYS.plan("d2"), encode("d2", 1000.0, announce))
+        if heard_after_the_plan:  # d2 starts a round for a new task, then is killed
+            request = ReqForCurrentTraj(TaskId(40, "d2", 2), "d2")
+            agent._on_protocol(KEYS.proto("all"), encode("d2", 1000.0, from_core(request)))
+        agent._on_liveliness(KEYS.alive("d2"), False)
+        return stack.protocol.ghost_obstacles()
+
+    rested = asyncio.run(scenario(heard_after_the_plan=True))
+    assert [t.cells for t in rested.values()] == [(flown.last,)]  # held: only where it rested
+    # Not heard from since its plan: it may have stopped anywhere on the rest of it from a lease ago.
+    unheard = asyncio.run(scenario(heard_after_the_plan=False))
+    assert {t.last for t in unheard.values()} == set(flown.cells[40 - 20 - 1 - 10:])

@@ -92,6 +92,8 @@ class DroneAgent:
         self.task_since: float | None = None
         self.metrics = Metrics()
         self.lease_steps = 0  #: the Zenoh lease in steps (set by the host)
+        #: the step at which each peer was last heard from (a protocol message, a plan, a clock reply)
+        self.heard_at: dict[str, int] = {}
         self.mail = MailDesk(stack, node, keys, clock, on_change=self.publish_state_soon)
         self._state_scheduled = False
 
@@ -232,6 +234,7 @@ class DroneAgent:
         if envelope.sender not in self.stack.protocol.peers:
             log.warning("%s: dropped a message from %r, not a peer of this fleet", self.me, envelope.sender)
             return
+        self.heard_at[envelope.sender] = self.stack.now
         self._carry_out(self.stack.receive(message))
 
     def _on_plan(self, key: str, payload: bytes) -> None:
@@ -240,9 +243,10 @@ class DroneAgent:
         except WireError as exc:
             log.warning("%s: dropped a plan on %s: %s", self.me, key, exc)
             return
-        body = envelope.body
-        if isinstance(body, PlanAnnounce) and envelope.sender != self.me:
-            self.stack.heard(envelope.sender, body.trajectory.core())
+        body, sender = envelope.body, envelope.sender
+        if isinstance(body, PlanAnnounce) and sender != self.me and sender in self.stack.protocol.peers:
+            self.heard_at[sender] = self.stack.now
+            self.stack.heard(sender, body.trajectory.core())
 
     def _on_liveliness(self, key: str, alive: bool) -> None:
         peer = self.keys.last_chunk(key)
@@ -257,9 +261,16 @@ class DroneAgent:
         else:
             self.alive.discard(peer)
             self.clocks.forget(peer)
-            # A lost link is noticed when the lease runs out: it may have gone silent that long ago.
-            self._carry_out(self.stack.peer_left(peer, self.stack.now - self.lease_steps))
+            self._carry_out(self.stack.peer_left(peer, self._silent_since(peer)))
             self.mail.adopt_from(peer, self.alive)
+
+    def _silent_since(self, peer: str) -> int:
+        """The earliest step ``peer`` may have gone silent at. A lost link is noticed only when the
+        lease runs out, so that long ago; but not before it was last heard from (the core holds its
+        plan from ``lead_steps`` before that, which covers the skew and a message's way here). Held for
+        good are the cells of its plan from then on: too early a guess holds cells it flew through
+        long ago, and a mail there is never delivered."""
+        return max(self.stack.now - self.lease_steps, self.heard_at.get(peer, -self.lease_steps))
 
     def _joined(self, peer: str) -> None:
         """A peer (re)joined: take it where it was last heard of (its start, if never). A coordinating
@@ -326,6 +337,7 @@ class DroneAgent:
         for peer, sample in samples.items():
             if peer != self.me and peer in self.alive:
                 self.clocks.observe(peer, sample)
+                self.heard_at[peer] = self.stack.now
         alarm = self.clocks.alarm()
         if (alarm is None) != self.may_plan:
             log.warning("%s: %s", self.me, alarm or "clock skew back within beta: planning again")
