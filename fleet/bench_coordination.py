@@ -58,11 +58,16 @@ class CoordinationResult:
 
 
 def bench_workspace(agents: int) -> str:
-    """A square grid with room for every drone, parking on the rim and two chargers."""
+    """A square grid with room for every drone, a parking cell of its own on the rim, and two chargers.
+
+    A parking cell per drone matters: with fewer, idle drones race for the nearest free one, and
+    every race lost is a coordination round that ends in no plan (and holds up the rounds after it).
+    """
     side = max(12, 2 * int(agents**0.5) + 8)
+    while len(_rim(side)) < agents:
+        side += 1
     starts = [(2 + 2 * (i % ((side - 4) // 2)), 2 + 2 * (i // ((side - 4) // 2))) for i in range(agents)]
-    rim = [(x, 0) for x in range(1, side - 1, 2)] + [(x, side - 1) for x in range(1, side - 1, 2)]
-    rim += [(0, y) for y in range(2, side - 2, 2)] + [(side - 1, y) for y in range(2, side - 2, 2)]
+    rim = _rim(side)
     return "\n".join([
         f"name: bench-{agents}", f"size: [{side}, {side}, 1]", "cell_size_m: 1.0", "tau_s: 0.5", "beta_s: 0.2",
         "geo_origin: {lat: 47.397742, lon: 8.545594, alt_m: 488.0, layer0_alt_m: 2.0}",
@@ -70,6 +75,12 @@ def bench_workspace(agents: int) -> str:
         "parking: [" + ", ".join(f"[{x}, {y}, 0]" for x, y in rim[:agents]) + "]",
         "drones:", *(f"  d{i + 1}: [{x}, {y}, 0]" for i, (x, y) in enumerate(starts)),
     ]) + "\n"
+
+
+def _rim(side: int) -> list[tuple[int, int]]:
+    """Every other cell of the grid's edge, the corners (the chargers) left out."""
+    rim = [(x, 0) for x in range(1, side - 1, 2)] + [(x, side - 1) for x in range(1, side - 1, 2)]
+    return rim + [(0, y) for y in range(2, side - 2, 2)] + [(side - 1, y) for y in range(2, side - 2, 2)]
 
 
 async def run_bench(agents: int, processes: int, seconds: float, steady_after: float, workdir: Path,

@@ -9,20 +9,25 @@ from drona_gcs.geo import GeoFrame
 from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.drone import DroneStack, StackConfig
-from drona_gcs.stack.messages import ReqForCurrentTraj, TaskId
+from drona_gcs.stack.messages import CurrentTraj, ReqForCurrentTraj, TaskId
+from drona_gcs.stack.protocol import State
 from drona_gcs.workspace import Workspace
 from fleet.agent.drone import DroneAgent
 from fleet.executor import StepReport
 from fleet.transport.keys import FleetKeys
 from fleet.transport.wire import (
+    CurTrajTo,
+    Envelope,
     MailOrder,
     MailStatus,
     MailStatusReport,
     PlanAnnounce,
+    ReqTraj,
     WireTrajectory,
     decode,
     encode,
     from_core,
+    to_core,
 )
 from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry
 
@@ -134,3 +139,42 @@ def test_a_departed_peer_last_heard_after_its_plan_holds_only_where_it_rested() 
     # Not heard from since its plan: it may have stopped anywhere on the rest of it from a lease ago.
     unheard = asyncio.run(scenario(heard_after_the_plan=False))
     assert {t.last for t in unheard.values()} == set(flown.cells[40 - 20 - 1 - 10:])
+
+
+def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_everyone() -> None:
+    """Drones that asked while this one coordinated wait for its new plan; it goes to them as one
+    ``cur_traj_to`` on proto/all, not one message each (a fleet given mail at once chains every round
+    through these answers). Each waiting drone reads its own answer out of it."""
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0,
+                         drones={"d1": (0, 0, 0), "d2": (7, 0, 0), "d3": (7, 7, 0), "d4": (0, 7, 0)})
+
+    async def scenario(waiting: list[str]) -> list[tuple[str, Envelope]]:
+        node = RecordingNode()
+        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+        agent = DroneAgent(stack, node, KEYS, ScriptedVehicle(), GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
+        agent.mail.take(MailOrder(id="m", pickup=[3, 3, 0], dropoff=[5, 5, 0], priority=1))
+        agent.tick(0)
+        mine = next(b.task_id.core() for k, p in node.puts if isinstance(b := decode(p).body, ReqTraj))
+        for peer in waiting:  # lower priorities (later stamps): they wait for my plan
+            request = ReqForCurrentTraj(TaskId(mine.stamp + 5, peer, 1), peer)
+            agent._on_protocol(KEYS.proto("all"), encode(peer, 1000.0, from_core(request)))
+        node.puts.clear()
+        for peer in ("d2", "d3", "d4"):
+            answer = CurrentTraj(peer, Trajectory.stationary(ws.drones[peer], 0), mine)
+            agent._on_protocol(KEYS.proto("d1"), encode(peer, 1000.0, from_core(answer)))
+        assert stack.protocol.state is State.EXECUTING
+        return [(k, decode(p)) for k, p in node.puts if k.startswith(KEYS.proto(""))]
+
+    sent = asyncio.run(scenario(["d2", "d3"]))
+    assert [key for key, _ in sent] == [KEYS.proto("all")]
+    envelope = sent[0][1]
+    assert isinstance(envelope, Envelope) and isinstance(envelope.body, CurTrajTo)
+    assert set(envelope.body.replies) == {"d2", "d3"}
+    for peer in ("d2", "d3"):
+        answer = to_core(envelope, peer)
+        assert isinstance(answer, CurrentTraj) and answer.in_reply_to.drone == peer
+        assert answer.trajectory.last == (3, 3, 0)  # the new plan, to the pickup
+    assert to_core(envelope, "d4") is None  # d4 did not wait: nothing in it for d4
+    # A single drone waiting gets its answer on its own key, as ever.
+    alone = asyncio.run(scenario(["d2"]))
+    assert [(key, type(e.body).__name__) for key, e in alone] == [(KEYS.proto("d2"), "CurTraj")]

@@ -11,7 +11,7 @@ from drona_gcs.motion import Trajectory
 from drona_gcs.stack.messages import CurrentTraj, ReqForCurrentTraj, TaskId
 from fleet.agent.clocksync import ClockCheck, OffsetSample
 from fleet.transport.keys import FleetKeys, check_name
-from fleet.transport.wire import MailOrder, WireError, decode, encode, from_core, to_core
+from fleet.transport.wire import MailOrder, WireError, answers, decode, encode, from_core, to_core
 
 TASK = TaskId(12, "d1", 3)
 
@@ -23,19 +23,30 @@ TASK = TaskId(12, "d1", 3)
 def test_protocol_messages_round_trip(message: object) -> None:
     envelope = decode(encode("d1", 5.5, from_core(message)))  # type: ignore[arg-type]
     assert envelope.sender == "d1" and envelope.sent_at == 5.5
-    assert to_core(envelope) == message
+    assert to_core(envelope, "d2") == message
+
+
+def test_one_answer_to_several_drones_is_each_ones_answer_and_nothing_to_the_others() -> None:
+    trajectory = Trajectory(40, ((1, 2, 0), (2, 2, 0)))
+    asked_by_d3, asked_by_d4 = TaskId(12, "d3", 1), TaskId(13, "d4", 2)
+    envelope = decode(encode("d1", 5.5, answers(trajectory, {"d3": asked_by_d3, "d4": asked_by_d4})))
+    assert to_core(envelope, "d3") == CurrentTraj("d1", trajectory, asked_by_d3)
+    assert to_core(envelope, "d4") == CurrentTraj("d1", trajectory, asked_by_d4)
+    assert to_core(envelope, "d5") is None
 
 
 def envelope(body: dict[str, object], **over: object) -> bytes:
-    return json.dumps({"v": 2, "sender": "d2", "sent_at": 1.0, "body": body, **over}).encode()
+    return json.dumps({"v": 3, "sender": "d2", "sent_at": 1.0, "body": body, **over}).encode()
 
 
 @pytest.mark.parametrize("payload, problem", [
     (b"not json", "Invalid JSON"),
-    (envelope({"kind": "clock_ping"}, v=1), "v: Input should be 2"),
+    (envelope({"kind": "clock_ping"}, v=2), "v: Input should be 3"),
     (envelope({"kind": "teleport"}), "does not match any of the expected tags"),
     (envelope({"kind": "req_traj", "task_id": {"stamp": "12", "drone": "d1", "seq": 1}}),
      "body.req_traj.task_id.stamp"),
+    (envelope({"kind": "cur_traj_to", "replies": {}, "trajectory": {"start_step": 3, "cells": [[1, 1, 0]]}}),
+     "replies"),
     (envelope({"kind": "req_traj", "task_id": {"stamp": 1, "drone": "d1", "seq": 1}, "extra": 1}), "extra"),
     (envelope({"kind": "cur_traj", "in_reply_to": {"stamp": 1, "drone": "d1", "seq": 1},
                "trajectory": {"start_step": 3, "cells": []}}), "cells"),
@@ -62,7 +73,7 @@ def test_a_payload_handed_to_every_drone_of_a_process_is_validated_once() -> Non
 def test_a_non_protocol_body_is_not_taken_for_a_protocol_message() -> None:
     order = MailOrder(id="m1", pickup=[1, 2, 0], dropoff=[3, 4, 0], priority=5)
     with pytest.raises(WireError, match="not a protocol message"):
-        to_core(decode(encode("cli", 0.0, order)))
+        to_core(decode(encode("cli", 0.0, order)), "d1")
 
 
 def test_keys_live_under_the_fleet_and_names_must_be_single_chunks() -> None:

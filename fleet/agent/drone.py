@@ -28,9 +28,11 @@ from dataclasses import dataclass, field
 from typing import TextIO
 
 from drona_gcs.geo import GeoFrame
+from drona_gcs.motion import Trajectory
 from drona_gcs.stack.battery import BatteryLow, BatteryRecharged
 from drona_gcs.stack.drone import DroneAction, DroneStack
 from drona_gcs.stack.mail import GoTo, MailDelivered, MailLost, MailPickedUp, MailRejected, MailStarted
+from drona_gcs.stack.messages import CurrentTraj, TaskId
 from drona_gcs.stack.protocol import Broadcast, Send, StartExecuting, State, TaskFailed
 from drona_gcs.workspace import Cell, Workspace
 from fleet.agent.clocksync import ClockCheck, OffsetSample
@@ -42,12 +44,16 @@ from fleet.transport.node import Query, ZenohNode
 from fleet.transport.wire import (
     ClockPing,
     ClockPong,
+    CurTraj,
+    CurTrajTo,
     DroneState,
     Health,
     PlanAnnounce,
+    ReqTraj,
     TaskView,
     WireError,
     WireTrajectory,
+    answers,
     decode,
     encode,
     from_core,
@@ -182,12 +188,14 @@ class DroneAgent:
         # to peers that waited for this plan). What only informs (mail progress, the plan's
         # announcement) goes out once the work at hand is done: at a step boundary the process's
         # other drones send their requests first.
-        for action in sorted(actions, key=_urgency):
+        for action in _coalesced(sorted(actions, key=_urgency)):
             if isinstance(action, Send):
-                self._send(action.to, action.message)
+                self._send(action.to, from_core(action.message))
             elif isinstance(action, Broadcast):
                 # One put that Zenoh fans out to every peer (N - 1 messages on the wire, one call here).
-                self._send(BROADCAST, action.message, copies=len(self.stack.protocol.members))
+                self._send(BROADCAST, from_core(action.message), copies=len(self.stack.protocol.members))
+            elif isinstance(action, Answers):
+                self._send(BROADCAST, answers(action.trajectory, action.replies), copies=len(action.replies))
             elif isinstance(action, GoTo):
                 self.task_since = self.clock()
             elif isinstance(action, StartExecuting):
@@ -199,8 +207,8 @@ class DroneAgent:
             elif isinstance(action, (BatteryLow, BatteryRecharged)):
                 log.info("%s: battery %s", self.me, type(action).__name__)
 
-    def _send(self, to: str, message: object, copies: int = 1) -> None:
-        payload = encode(self.me, self.clock(), from_core(message))  # type: ignore[arg-type]
+    def _send(self, to: str, body: ReqTraj | CurTraj | CurTrajTo, copies: int = 1) -> None:
+        payload = encode(self.me, self.clock(), body)
         self.node.put(self.keys.proto(to), payload)
         self.metrics.messages_sent += copies
 
@@ -225,7 +233,7 @@ class DroneAgent:
     def _on_protocol(self, key: str, payload: bytes) -> None:
         try:
             envelope = decode(payload)
-            message = to_core(envelope)
+            message = to_core(envelope, self.me)
         except WireError as exc:
             log.warning("%s: dropped a message on %s: %s", self.me, key, exc)
             return
@@ -235,7 +243,8 @@ class DroneAgent:
             log.warning("%s: dropped a message from %r, not a peer of this fleet", self.me, envelope.sender)
             return
         self.heard_at[envelope.sender] = self.stack.now
-        self._carry_out(self.stack.receive(message))
+        if message is not None:  # None: an answer to other drones only
+            self._carry_out(self.stack.receive(message))
 
     def _on_plan(self, key: str, payload: bytes) -> None:
         try:
@@ -355,6 +364,42 @@ class DroneAgent:
     def busy(self) -> bool:
         """Flying a plan or coordinating one: not yet safe to leave."""
         return self.stack.protocol.state is not State.WAIT_FOR_TASK or self.stack.executor.flying
+
+
+@dataclass(frozen=True)
+class Answers:
+    """Several ``Send(CurrentTraj)`` with one trajectory, sent as one message to everyone."""
+
+    trajectory: Trajectory
+    replies: dict[str, TaskId]  #: drone answered -> the request it answers
+
+
+#: Answers with one trajectory to at least this many drones go as one message to everyone.
+#: A new plan answers every drone that waited for it: when many coordinate at once (a fleet
+#: given mail together), one put and one delivery per host instead of one per drone.
+COALESCE_FROM = 2
+
+
+def _coalesced(actions: Sequence[DroneAction]) -> list[DroneAction | Answers]:
+    """``actions`` with the answers that share a trajectory joined into one :class:`Answers`, in
+    the place of the first of them (a drone answered twice keeps its second answer apart)."""
+    groups: dict[Trajectory, dict[str, TaskId]] = {}
+    for action in actions:
+        if isinstance(action, Send) and isinstance(action.message, CurrentTraj):
+            groups.setdefault(action.message.trajectory, {}).setdefault(action.to, action.message.in_reply_to)
+    out: list[DroneAction | Answers] = []
+    joined: set[Trajectory] = set()
+    for action in actions:
+        if isinstance(action, Send) and isinstance(action.message, CurrentTraj):
+            trajectory = action.message.trajectory
+            replies = groups[trajectory]
+            if len(replies) >= COALESCE_FROM and replies[action.to] == action.message.in_reply_to:
+                if trajectory not in joined:
+                    joined.add(trajectory)
+                    out.append(Answers(trajectory, replies))
+                continue
+        out.append(action)
+    return out
 
 
 def _urgency(action: DroneAction) -> int:

@@ -11,6 +11,10 @@ fatal).
 The bodies, by key (see :mod:`fleet.transport.keys`):
 
 * ``proto/<drone>``: ``req_traj`` and ``cur_traj``, Protocol 1's two messages.
+* ``proto/all``: a ``req_traj`` to everyone; a ``cur_traj_to``, one trajectory
+  answering the requests of several drones at once (a new plan, to every
+  drone that waited for it), which each drone named in ``replies`` takes as
+  its ``cur_traj`` and the others ignore.
 * ``plan/<drone>``: ``plan``, a drone's new trajectory once planned.
 * ``state/<drone>``: ``state``, what a drone publishes at every step boundary
   and answers queries with (cell, trajectory, battery, task, queue, health).
@@ -29,6 +33,7 @@ from __future__ import annotations
 
 import enum
 import functools
+from collections.abc import Mapping
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -37,7 +42,9 @@ from drona_gcs.errors import DronaError
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj, TaskId
 
-VERSION = 2  #: 2: a Zenoh message may carry several envelopes, one per line (fleet.transport.node)
+#: 2: a Zenoh message may carry several envelopes, one per line (fleet.transport.node);
+#: 3: ``cur_traj_to``, one answer to several drones.
+VERSION = 3
 
 CellList = Annotated[list[int], Field(min_length=3, max_length=3)]
 
@@ -92,6 +99,14 @@ class ReqTraj(_Strict):
 class CurTraj(_Strict):
     kind: Literal["cur_traj"] = "cur_traj"
     in_reply_to: WireTaskId
+    trajectory: WireTrajectory
+
+
+class CurTrajTo(_Strict):
+    """One trajectory answering several drones' requests: ``replies`` maps each drone to its request."""
+
+    kind: Literal["cur_traj_to"] = "cur_traj_to"
+    replies: Annotated[dict[str, WireTaskId], Field(min_length=1)]
     trajectory: WireTrajectory
 
 
@@ -206,14 +221,14 @@ class ClockPong(_Strict):
 
 
 Body = Annotated[
-    ReqTraj | CurTraj | PlanAnnounce | DroneState | HeldMail | MailOrder | MailCancel | MailAck | MailStatusReport
-    | ClockPing | ClockPong,
+    ReqTraj | CurTraj | CurTrajTo | PlanAnnounce | DroneState | HeldMail | MailOrder | MailCancel | MailAck
+    | MailStatusReport | ClockPing | ClockPong,
     Field(discriminator="kind"),
 ]
 
 
 class Envelope(_Strict):
-    v: Literal[2] = VERSION
+    v: Literal[3] = VERSION
     sender: Annotated[str, Field(min_length=1)]
     sent_at: float
     body: Body
@@ -246,14 +261,29 @@ def from_core(message: Message) -> ReqTraj | CurTraj:
     return CurTraj(in_reply_to=WireTaskId.of(message.in_reply_to), trajectory=WireTrajectory.of(message.trajectory))
 
 
-def to_core(envelope: Envelope) -> Message:
-    """The protocol message in ``envelope`` (the sender is the envelope's)."""
+def answers(trajectory: Trajectory, replies: Mapping[str, TaskId]) -> CurTrajTo:
+    """One ``cur_traj_to`` for several ``CurrentTraj`` with the same trajectory: ``replies`` maps
+    each drone answered to the request it answers."""
+    return CurTrajTo(replies={drone: WireTaskId.of(task) for drone, task in replies.items()},
+                     trajectory=WireTrajectory.of(trajectory))
+
+
+def to_core(envelope: Envelope, me: str) -> Message | None:
+    """The protocol message for drone ``me`` in ``envelope`` (the sender is the envelope's); None
+    for a ``cur_traj_to`` that answers others only."""
     body = envelope.body
     if isinstance(body, ReqTraj):
         return ReqForCurrentTraj(body.task_id.core(), envelope.sender)
     if isinstance(body, CurTraj):
-        try:
-            return CurrentTraj(envelope.sender, body.trajectory.core(), body.in_reply_to.core())
-        except DronaError as exc:
-            raise WireError(f"cur_traj from {envelope.sender!r}: {exc}") from exc
-    raise WireError(f"{body.kind} is not a protocol message")
+        request = body.in_reply_to
+    elif isinstance(body, CurTrajTo):
+        found = body.replies.get(me)
+        if found is None:
+            return None
+        request = found
+    else:
+        raise WireError(f"{body.kind} is not a protocol message")
+    try:
+        return CurrentTraj(envelope.sender, body.trajectory.core(), request.core())
+    except DronaError as exc:
+        raise WireError(f"{body.kind} from {envelope.sender!r}: {exc}") from exc
