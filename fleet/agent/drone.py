@@ -382,7 +382,7 @@ COALESCE_FROM = 2
 
 def _coalesced(actions: Sequence[DroneAction]) -> list[DroneAction | Answers]:
     """``actions`` with the answers that share a trajectory joined into one :class:`Answers`, in
-    the place of the first of them (a drone answered twice keeps its second answer apart)."""
+    the place of the first of them (a drone answered twice, to two requests, keeps the second apart)."""
     if sum(isinstance(a, Send) and isinstance(a.message, CurrentTraj) for a in actions) < COALESCE_FROM:
         return list(actions)  # mostly: one answer, or none
     groups: dict[Trajectory, dict[str, TaskId]] = {}
