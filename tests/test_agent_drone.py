@@ -143,7 +143,7 @@ def test_a_departed_peer_last_heard_after_its_plan_holds_only_where_it_rested() 
 
 def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_everyone() -> None:
     """Drones that asked while this one coordinated wait for its new plan; it goes to them as one
-    ``cur_traj_to`` on proto/all, not one message each (a fleet given mail at once chains every round
+    ``cur_traj_to`` on the answers key, not one message each (a fleet given mail at once chains every round
     through these answers). Each waiting drone reads its own answer out of it."""
     ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0,
                          drones={"d1": (0, 0, 0), "d2": (7, 0, 0), "d3": (7, 7, 0), "d4": (0, 7, 0)})
@@ -163,10 +163,10 @@ def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_ever
             answer = CurrentTraj(peer, Trajectory.stationary(ws.drones[peer], 0), mine)
             agent._on_protocol(KEYS.proto("d1"), encode(peer, 1000.0, from_core(answer)))
         assert stack.protocol.state is State.EXECUTING
-        return [(k, decode(p)) for k, p in node.puts if k.startswith(KEYS.proto(""))]
+        return [(k, decode(p)) for k, p in node.puts if k.startswith(KEYS.proto("")) or k == KEYS.answers()]
 
     sent = asyncio.run(scenario(["d2", "d3"]))
-    assert [key for key, _ in sent] == [KEYS.proto("all")]
+    assert [key for key, _ in sent] == [KEYS.answers()]
     envelope = sent[0][1]
     assert isinstance(envelope, Envelope) and isinstance(envelope.body, CurTrajTo)
     assert set(envelope.body.replies) == {"d2", "d3"}

@@ -317,3 +317,64 @@ def test_the_service_gateway_is_open_only_while_linked_to_the_fleet() -> None:
     assert linked, "a peer came up where the gateway connects: never linked"
     assert cut, "the peer left: still linked"
     assert not after
+
+
+def test_a_subscription_that_goes_first_is_handed_its_samples_before_ordinary_ones_waiting() -> None:
+    """Answers go first: when the whole fleet asks at once, the first drone's answers must not wait
+    behind every other request. Three requests and then an answer arrive while the loop is busy;
+    the answer is handled first, the requests in their order. So is an answer that arrives while a
+    request is being handled: before the next request."""
+    import asyncio
+    import socket
+    import threading
+    import time
+
+    from fleet.sim.ports import free_port
+    from fleet.transport.node import ZenohNode, ZenohSettings
+
+    endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+
+    async def scenario() -> list[bytes]:
+        host = await ZenohNode.open(ZenohSettings(listen=(endpoint,)), "host")
+        outside = await ZenohNode.open(ZenohSettings(connect=(endpoint,)), "outside")
+        handled: list[bytes] = []
+        done, linked = asyncio.Event(), asyncio.Event()
+
+        def send_while_busy(*keys: str) -> None:
+            """From another thread, while the loop sleeps: every sample is in the inbox when it wakes."""
+            sender = threading.Thread(target=lambda: [outside.put(k, k.encode()) for k in keys])
+            sender.start()
+            sender.join()
+            time.sleep(0.5)  # Zenoh delivers on its own threads: let it hand everything over
+
+        def on_sample(key: str, payload: bytes) -> None:
+            if key == "t/ping":
+                linked.set()
+                return
+            handled.append(payload)
+            if payload == b"t/request/go":
+                send_while_busy("t/request/1", "t/request/2", "t/request/3", "t/answer/1")
+            elif payload == b"t/request/1":
+                send_while_busy("t/answer/2")
+            if len(handled) == 6:
+                done.set()
+
+        try:
+            host.subscribe("t/request/*", on_sample)
+            host.subscribe("t/answer/*", on_sample, first=True)
+            host.subscribe("t/ping", on_sample)
+            for _ in range(100):  # until the host's subscriptions have reached the outside session
+                outside.put("t/ping", b"")
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(linked.wait(), 0.05)
+                if linked.is_set():
+                    break
+            outside.put("t/request/go", b"t/request/go")
+            await asyncio.wait_for(done.wait(), 10)
+            return handled
+        finally:
+            await outside.close()
+            await host.close()
+
+    assert asyncio.run(scenario()) == [b"t/request/go", b"t/answer/1", b"t/request/1", b"t/answer/2",
+                                       b"t/request/2", b"t/request/3"]

@@ -107,7 +107,10 @@ class DroneAgent:
     async def start(self) -> None:
         """Declare everything, then join: answer before anyone can ask."""
         node, keys = self.node, self.keys
-        node.subscribe(keys.proto(self.me), self._on_protocol)
+        # Answers first: a drone that coordinates waits for them, while a request can wait its turn
+        # (see fleet.transport.node).
+        node.subscribe(keys.proto(self.me), self._on_protocol, first=True)
+        node.subscribe(keys.answers(), self._on_protocol, first=True)
         # A request to everyone: this host's drones answer it in one message (see ZenohNode.subscribe).
         node.subscribe(keys.proto(BROADCAST), self._on_protocol, gather=True)
         node.subscribe(keys.plan(), self._on_plan)
@@ -190,12 +193,14 @@ class DroneAgent:
         # other drones send their requests first.
         for action in _coalesced(sorted(actions, key=_urgency)):
             if isinstance(action, Send):
-                self._send(action.to, from_core(action.message))
+                self._send(self.keys.proto(action.to), from_core(action.message))
             elif isinstance(action, Broadcast):
                 # One put that Zenoh fans out to every peer (N - 1 messages on the wire, one call here).
-                self._send(BROADCAST, from_core(action.message), copies=len(self.stack.protocol.members))
+                self._send(self.keys.proto(BROADCAST), from_core(action.message),
+                           copies=len(self.stack.protocol.members))
             elif isinstance(action, Answers):
-                self._send(BROADCAST, answers(action.trajectory, action.replies), copies=len(action.replies))
+                self._send(self.keys.answers(), answers(action.trajectory, action.replies),
+                           copies=len(action.replies))
             elif isinstance(action, GoTo):
                 self.task_since = self.clock()
             elif isinstance(action, StartExecuting):
@@ -207,9 +212,9 @@ class DroneAgent:
             elif isinstance(action, (BatteryLow, BatteryRecharged)):
                 log.info("%s: battery %s", self.me, type(action).__name__)
 
-    def _send(self, to: str, body: ReqTraj | CurTraj | CurTrajTo, copies: int = 1) -> None:
+    def _send(self, key: str, body: ReqTraj | CurTraj | CurTrajTo, copies: int = 1) -> None:
         payload = encode(self.me, self.clock(), body)
-        self.node.put(self.keys.proto(to), payload)
+        self.node.put(key, payload)
         self.metrics.messages_sent += copies
 
     def _started(self, action: StartExecuting) -> None:
@@ -368,13 +373,14 @@ class DroneAgent:
 
 @dataclass(frozen=True)
 class Answers:
-    """Several ``Send(CurrentTraj)`` with one trajectory, sent as one message to everyone."""
+    """Several ``Send(CurrentTraj)`` with one trajectory, sent as one message on the fleet's
+    ``answers`` key (each drone answered takes its own)."""
 
     trajectory: Trajectory
     replies: dict[str, TaskId]  #: drone answered -> the request it answers
 
 
-#: Answers with one trajectory to at least this many drones go as one message to everyone.
+#: Answers with one trajectory to at least this many drones go as one message to every drone.
 #: A new plan answers every drone that waited for it: when many coordinate at once (a fleet
 #: given mail together), one put and one delivery per host instead of one per drone.
 COALESCE_FROM = 2

@@ -3,6 +3,7 @@
 =============================  =============================================
 ``alive/<drone>``              liveliness token: the drone is a member
 ``proto/<drone>``              Protocol 1 messages to the drone (``proto/all``: to every drone)
+``answers``                    one trajectory answering several drones' requests (each takes its own)
 ``state/<drone>``              the drone's state (published each step; queryable)
 ``plan/<drone>``               the drone's new plan, once made
 ``held/<drone>``               the mail the drone holds (published on change; queryable)
@@ -44,6 +45,9 @@ class FleetKeys:
 
     def proto(self, drone: str) -> str:
         return f"{self.root}/proto/{drone}"
+
+    def answers(self) -> str:
+        return f"{self.root}/answers"
 
     def state(self, drone: str = "*") -> str:
         return f"{self.root}/state/{drone}"

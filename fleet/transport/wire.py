@@ -11,10 +11,11 @@ fatal).
 The bodies, by key (see :mod:`fleet.transport.keys`):
 
 * ``proto/<drone>``: ``req_traj`` and ``cur_traj``, Protocol 1's two messages.
-* ``proto/all``: a ``req_traj`` to everyone; a ``cur_traj_to``, one trajectory
-  answering the requests of several drones at once (a new plan, to every
-  drone that waited for it), which each drone named in ``replies`` takes as
-  its ``cur_traj`` and the others ignore.
+* ``proto/all``: a ``req_traj`` to everyone.
+* ``answers``: ``cur_traj_to``, one trajectory answering the requests of
+  several drones at once (a new plan, to every drone that waited for it),
+  which each drone named in ``replies`` takes as its ``cur_traj`` and the
+  others ignore.
 * ``plan/<drone>``: ``plan``, a drone's new trajectory once planned.
 * ``state/<drone>``: ``state``, what a drone publishes at every step boundary
   and answers queries with (cell, trajectory, battery, task, queue, health).
