@@ -8,14 +8,15 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 
 import pytest
 
+from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from drona_gcs.geo import Ned
 from fleet.agent.vehicle import VehicleSupervisor
 from fleet.clock import cancel_all
-from fleet.vehicle.link import LandedState, Telemetry, VehicleLink
+from fleet.vehicle.link import Autopilot, LandedState, Telemetry, VehicleLink
 from tests.test_vehicle_link import connected, fake_vehicle, run
 
 FLIGHT_ALT_M = 8.0
@@ -94,3 +95,55 @@ def test_a_vehicle_down_by_itself_raises_the_question_and_needs_no_landing(perso
             assert [a for a in alarms if a is not None] == []
 
     run(scenario)
+
+
+class TakeoffRefused:
+    """An ArduCopter link whose NAV_TAKEOFF is refused, reporting ``landed`` 0.3 m up; in GUIDED it
+    climbs to the setpoints when told nothing else."""
+
+    def __init__(self, landed: LandedState) -> None:
+        self.landed, self.takeoffs = landed, 0
+
+    def telemetry(self) -> Telemetry:
+        return Telemetry(Autopilot.ARDUPILOT, True, "GUIDED", None, None, None, 0.3, 90, 16.0, 3, 10,
+                         self.landed, 1.0)
+
+    async def follow_setpoints(self) -> None:
+        pass
+
+    async def takeoff(self, altitude_m: float) -> None:
+        self.takeoffs += 1
+        raise VehicleCommandRejected("NAV_TAKEOFF", 4)
+
+    async def wait_until(self, predicate: Callable[[Telemetry], bool], timeout: float, what: str) -> None:
+        if self.landed is not LandedState.ON_GROUND:
+            self.landed = LandedState.IN_AIR  # GUIDED follows the setpoints up
+        if not predicate(self.telemetry()):
+            raise VehicleError(f"no {what}")
+
+
+@pytest.mark.parametrize("landed, refused", [(LandedState.LANDING, False), (LandedState.ON_GROUND, True)])
+def test_a_takeoff_refused_in_the_air_is_no_failure_and_on_the_ground_it_is(landed: LandedState,
+                                                                            refused: bool) -> None:
+    """A landing called back just above the ground: telemetry still says LANDING at 0.3 m, so the
+    supervisor asks for a take-off, which ArduCopter refuses in the air. The vehicle climbs anyway
+    (GUIDED): no alarm, no retry a second later. On the ground, the refusal is an alarm."""
+    async def scenario() -> tuple[list[str | None], TakeoffRefused, bool]:
+        link = TakeoffRefused(landed)
+        alarms: list[str | None] = []
+        supervisor = VehicleSupervisor("d1", link, FLIGHT_ALT_M, alarms.append,  # type: ignore[arg-type]
+                                       lambda: Ned(0.0, 0.0, -FLIGHT_ALT_M), arrival_m=0.5)
+        supervisor.want_airborne(True)
+        runner = asyncio.create_task(supervisor.run())
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(supervisor.reached.wait(), 0.5)
+        supervisor.stop()
+        await asyncio.wait_for(runner, 5)
+        return alarms, link, supervisor.airborne
+
+    alarms, link, airborne = asyncio.run(scenario())
+    assert link.takeoffs == 1
+    if refused:
+        assert not airborne and alarms == ["vehicle: cannot take off: NAV_TAKEOFF rejected with result 4"]
+    else:
+        assert airborne and [a for a in alarms if a is not None] == []

@@ -15,7 +15,7 @@ import logging
 import math
 from collections.abc import Callable
 
-from drona_gcs.errors import VehicleError
+from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from drona_gcs.geo import Ned
 from fleet.clock import cancel_all
 from fleet.vehicle.link import Autopilot, LandedState, Telemetry, VehicleLink
@@ -132,7 +132,15 @@ class VehicleSupervisor:
         t = link.telemetry()
         flying = t.landed is LandedState.IN_AIR or (t.height_m or 0.0) > 0.5
         if t.autopilot is Autopilot.ARDUPILOT and not flying:  # PX4 climbs to the streamed setpoint by itself
-            await link.takeoff(self.takeoff_alt_m)
+            try:
+                await link.takeoff(self.takeoff_alt_m)
+            except VehicleCommandRejected:
+                # ArduCopter refuses a take-off in the air: a landing called back just above the ground,
+                # before telemetry (landed state at a few Hz) showed it back in the air. In GUIDED it
+                # climbs to the setpoints as it is (as it does once a take-off is under way). On the
+                # ground, or not saying, the refusal is a real one.
+                if link.telemetry().landed in (LandedState.ON_GROUND, LandedState.UNDEFINED):
+                    raise
         await link.wait_until(lambda t: t.landed is LandedState.IN_AIR or (t.height_m or 0.0) > 0.5,
                               self.command_timeout_s, "the climb")
 
