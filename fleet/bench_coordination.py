@@ -78,9 +78,10 @@ def bench_workspace(agents: int) -> str:
 
 
 def _rim(side: int) -> list[tuple[int, int]]:
-    """Every other cell of the grid's edge, the corners (the chargers) left out."""
-    rim = [(x, 0) for x in range(1, side - 1, 2)] + [(x, side - 1) for x in range(1, side - 1, 2)]
-    return rim + [(0, y) for y in range(2, side - 2, 2)] + [(side - 1, y) for y in range(2, side - 2, 2)]
+    """The grid's edge, the corners (the chargers) left out: room for 4 (side - 2) drones, so the
+    grid grows with the square root of the fleet, not with the fleet."""
+    rim = [(x, 0) for x in range(1, side - 1)] + [(x, side - 1) for x in range(1, side - 1)]
+    return rim + [(0, y) for y in range(1, side - 1)] + [(side - 1, y) for y in range(1, side - 1)]
 
 
 async def run_bench(agents: int, processes: int, seconds: float, steady_after: float, workdir: Path,

@@ -24,6 +24,7 @@ from fleet.transport.wire import (
     PlanAnnounce,
     ReqTraj,
     WireTrajectory,
+    answers,
     decode,
     encode,
     from_core,
@@ -178,3 +179,30 @@ def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_ever
     # A single drone waiting gets its answer on its own key, as ever.
     alone = asyncio.run(scenario(["d2"]))
     assert [(key, type(e.body).__name__) for key, e in alone] == [(KEYS.proto("d2"), "CurTraj")]
+
+
+def test_an_answer_to_other_drones_tells_this_one_the_senders_new_plan() -> None:
+    """A ``cur_traj_to`` that does not name this drone still says where its sender now flies: the
+    sender counts as heard from, so the plan it flies must be known here too. If it then leaves
+    before its plan's announcement arrives, it is held along the new plan, not where the old one ended."""
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0,
+                         drones={"d1": (0, 0, 0), "d2": (7, 0, 0), "d3": (7, 7, 0)})
+    old = Trajectory(2, ((7, 0, 0), (6, 0, 0), (5, 0, 0)))
+    new = Trajectory(12, tuple((5, y, 0) for y in range(7)))  # steps 12..18, north along x = 5
+
+    async def scenario() -> dict[str, Trajectory]:
+        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+        agent = DroneAgent(stack, RecordingNode(), KEYS, ScriptedVehicle(), GeoFrame(ws),  # type: ignore[arg-type]
+                           lambda: 1000.0)
+        agent.lease_steps = 20
+        for step in range(11):
+            agent.tick(step)
+            if step == 1:
+                agent._on_plan(KEYS.plan("d2"), encode("d2", 1000.0, PlanAnnounce(trajectory=WireTrajectory.of(old))))
+        to_d3 = answers(new, {"d3": TaskId(9, "d3", 1)})
+        agent._on_protocol(KEYS.answers(), encode("d2", 1000.0, to_d3))
+        agent._on_liveliness(KEYS.alive("d2"), False)  # gone before the announcement of `new` came
+        return stack.protocol.ghost_obstacles()
+
+    held = {c for t in asyncio.run(scenario()).values() for c in t.cells}
+    assert held == set(new.cells)  # without it: only where the old plan ended, (5, 0, 0)

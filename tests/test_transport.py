@@ -340,12 +340,15 @@ def test_a_subscription_that_goes_first_is_handed_its_samples_before_ordinary_on
         handled: list[bytes] = []
         done, linked = asyncio.Event(), asyncio.Event()
 
-        def send_while_busy(*keys: str) -> None:
-            """From another thread, while the loop sleeps: every sample is in the inbox when it wakes."""
+        def send_while_busy(*keys: str, waiting: int) -> None:
+            """From another thread, while the loop is held here until Zenoh (on its own threads) has
+            handed every sample to the inbox: ``waiting`` items in it then."""
             sender = threading.Thread(target=lambda: [outside.put(k, k.encode()) for k in keys])
             sender.start()
             sender.join()
-            time.sleep(0.5)  # Zenoh delivers on its own threads: let it hand everything over
+            deadline = time.monotonic() + 5
+            while len(host._inbox._items) < waiting and time.monotonic() < deadline:
+                time.sleep(0.005)
 
         def on_sample(key: str, payload: bytes) -> None:
             if key == "t/ping":
@@ -353,9 +356,9 @@ def test_a_subscription_that_goes_first_is_handed_its_samples_before_ordinary_on
                 return
             handled.append(payload)
             if payload == b"t/request/go":
-                send_while_busy("t/request/1", "t/request/2", "t/request/3", "t/answer/1")
+                send_while_busy("t/request/1", "t/request/2", "t/request/3", "t/answer/1", waiting=4)
             elif payload == b"t/request/1":
-                send_while_busy("t/answer/2")
+                send_while_busy("t/answer/2", waiting=3)  # and requests 2 and 3
             if len(handled) == 6:
                 done.set()
 

@@ -3,7 +3,8 @@
 Everything the stack decides comes back as actions, carried out here:
 protocol messages go out on ``proto/<peer>``, requests to everyone on
 ``proto/all`` (one put that Zenoh fans out; a round is still 2(N-1)
-messages), mail progress on ``mail/status/<id>``, the mail held on
+messages), a new plan's answers to the drones that waited for it on
+``answers`` (one put, each of them takes its own), mail progress on ``mail/status/<id>``, the mail held on
 ``held/<me>`` when it changes, the drone's state on ``state/<me>`` at every
 step boundary. What comes in — peers' messages, mail orders, membership
 changes — is handed to the stack on the event loop, one event at a time,
@@ -107,8 +108,9 @@ class DroneAgent:
     async def start(self) -> None:
         """Declare everything, then join: answer before anyone can ask."""
         node, keys = self.node, self.keys
-        # Answers first: a drone that coordinates waits for them, while a request can wait its turn
-        # (see fleet.transport.node).
+        # Answers first: a drone that coordinates waits for them, while a request to everyone can
+        # wait its turn (see fleet.transport.node). (A request to this drone alone, asking again,
+        # comes on proto/<me> too, and goes first with the answers: it is rare.)
         node.subscribe(keys.proto(self.me), self._on_protocol, first=True)
         node.subscribe(keys.answers(), self._on_protocol, first=True)
         # A request to everyone: this host's drones answer it in one message (see ZenohNode.subscribe).
@@ -248,8 +250,12 @@ class DroneAgent:
             log.warning("%s: dropped a message from %r, not a peer of this fleet", self.me, envelope.sender)
             return
         self.heard_at[envelope.sender] = self.stack.now
-        if message is not None:  # None: an answer to other drones only
+        if message is not None:
             self._carry_out(self.stack.receive(message))
+        elif isinstance(envelope.body, CurTrajTo):  # answers to others: still the sender's new plan
+            # Heard now, so the plan it flies must be known now too: if it leaves before its plan's
+            # announcement comes, it is held along this plan, not the one before.
+            self.stack.heard(envelope.sender, envelope.body.trajectory.core())
 
     def _on_plan(self, key: str, payload: bytes) -> None:
         try:
@@ -382,7 +388,9 @@ class Answers:
 
 #: Answers with one trajectory to at least this many drones go as one message to every drone.
 #: A new plan answers every drone that waited for it: when many coordinate at once (a fleet
-#: given mail together), one put and one delivery per host instead of one per drone.
+#: given mail together), one put instead of one per drone, and with drones sharing a session
+#: (``--shared-session``) one delivery per host. Drones that did not wait get it too (one decode
+#: each, and they learn the plan before its announcement).
 COALESCE_FROM = 2
 
 

@@ -363,20 +363,27 @@ class _Inbox:
     the loop's timers and tasks keep their turns."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
-        self.loop = loop
+        self._loop = weakref.ref(loop)  # weak: the inbox is the loop's, and must not keep it alive
         self._lock = threading.Lock()  # Zenoh's threads put, the loop takes
         self._items: list[tuple[int, int, str, Callable[..., None], Sequence[Any]]] = []
         self._order = itertools.count()
         self._scheduled = False  #: a _take_one is queued on the loop
 
     def put(self, first: bool, name: str, callback: Callable[..., None], args: Sequence[Any]) -> None:
+        loop = self._loop()
+        if loop is None or loop.is_closed():
+            return  # a session that outlived its loop: nobody is left to hand it to
         with self._lock:
             heapq.heappush(self._items, (0 if first else 1, next(self._order), name, callback, args))
             if self._scheduled:
                 return
             self._scheduled = True
-        with contextlib.suppress(RuntimeError):  # the loop closed under us during shutdown
-            self.loop.call_soon_threadsafe(self._take_one)
+        try:
+            loop.call_soon_threadsafe(self._take_one)
+        except RuntimeError:  # the loop closed under us during shutdown
+            with self._lock:
+                self._items.clear()
+                self._scheduled = False
 
     def _take_one(self) -> None:
         with self._lock:
@@ -385,8 +392,9 @@ class _Inbox:
         try:
             _guarded(name, callback, args)
         finally:
-            if more:  # else a put meanwhile has queued a new turn itself
-                self.loop.call_soon(self._take_one)
+            loop = self._loop()
+            if more and loop is not None:  # else a put meanwhile has queued a new turn itself
+                loop.call_soon(self._take_one)
 
 
 #: One inbox per event loop, shared by every session the process has on it.
