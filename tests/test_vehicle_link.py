@@ -39,21 +39,22 @@ SCENARIO_DEADLINE_S = 30.0
 
 
 class Backend(Protocol):
-    def __call__(self, url: str, *, heartbeat_timeout: float = 3.0, frame: Any = None) -> VehicleLink: ...
+    def __call__(self, url: str, *, heartbeat_timeout: float = 3.0, frame: Any = None,
+                 stream_hz: float = 10.0) -> VehicleLink: ...
 
 
-def _pymavlink(url: str, *, heartbeat_timeout: float = 3.0, frame: Any = None) -> VehicleLink:
-    return PymavlinkLink(url, heartbeat_timeout=heartbeat_timeout, frame=frame, setpoint_hz=20.0)
+def _pymavlink(url: str, *, heartbeat_timeout: float = 3.0, frame: Any = None, stream_hz: float = 10.0) -> VehicleLink:
+    return PymavlinkLink(url, heartbeat_timeout=heartbeat_timeout, frame=frame, setpoint_hz=20.0, stream_hz=stream_hz)
 
 
-def _mavsdk(url: str, *, heartbeat_timeout: float = 3.0, frame: Any = None) -> VehicleLink:
+def _mavsdk(url: str, *, heartbeat_timeout: float = 3.0, frame: Any = None, stream_hz: float = 10.0) -> VehicleLink:
     try:
         from fleet.vehicle.mavsdk_link import MavsdkLink
     except Exception as exc:  # no package, or its native library does not load here
         reason = f"MAVSDK cannot run here: {type(exc).__name__}: {exc}"
         print(reason)
         pytest.skip(reason)
-    return MavsdkLink(url, heartbeat_timeout=heartbeat_timeout, frame=frame)
+    return MavsdkLink(url, heartbeat_timeout=heartbeat_timeout, frame=frame, stream_hz=stream_hz)
 
 
 #: Backend name -> factory. Every contract test below runs against each.

@@ -23,11 +23,11 @@ FLIGHT_ALT_M = 8.0
 
 
 @contextlib.asynccontextmanager
-async def supervising(personality: str) -> AsyncIterator[tuple[VehicleLink, VehicleSupervisor, list[str | None],
-                                                                list[Ned]]]:
+async def supervising(personality: str, stream_hz: float = 10.0) -> AsyncIterator[
+        tuple[VehicleLink, VehicleSupervisor, list[str | None], list[Ned]]]:
     """A fake vehicle and its supervisor, with setpoints to ``target[0]`` streamed as the agent's
     setpoint loop does, whatever the supervisor does; the alarms it raises are kept."""
-    async with fake_vehicle(personality, "udp") as fake, connected("pymavlink", fake) as link:
+    async with fake_vehicle(personality, "udp") as fake, connected("pymavlink", fake, stream_hz=stream_hz) as link:
         await link.wait_ready(timeout=5)
         alarms: list[str | None] = []
         target = [Ned(0.0, 0.0, -FLIGHT_ALT_M)]
@@ -92,6 +92,26 @@ def test_a_vehicle_down_by_itself_raises_the_question_and_needs_no_landing(perso
             supervisor.want_airborne(False)
             await asyncio.wait_for(supervisor.reached.wait(), 3)
             assert not supervisor.airborne and not supervisor.grounded_by_itself()
+            assert [a for a in alarms if a is not None] == []
+
+    run(scenario)
+
+
+@pytest.mark.parametrize("personality", ["ardupilot", "px4"])
+def test_a_vehicle_just_taken_off_is_not_down_by_itself(personality: str) -> None:
+    """The landed state comes at half the position rate (the agent's ``--telemetry-hz`` 4 gives it
+    2 Hz): a vehicle climbs past half a metre before it says it left the ground. Taken up, it must not
+    look grounded by itself on the last report from before the take-off: the agent would hand its
+    mail back and ground it for good."""
+    async def scenario() -> None:
+        async with supervising(personality, stream_hz=1.0) as (link, supervisor, alarms, _):
+            for _ in range(3):  # one take-off can win the race by luck
+                supervisor.want_airborne(True)
+                await asyncio.wait_for(supervisor.reached.wait(), 15)
+                assert supervisor.settled
+                assert not supervisor.grounded_by_itself(), f"just taken off, yet down: {link.telemetry()}"
+                supervisor.want_airborne(False)
+                await asyncio.wait_for(supervisor.reached.wait(), 30)
             assert [a for a in alarms if a is not None] == []
 
     run(scenario)

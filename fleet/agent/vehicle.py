@@ -141,8 +141,7 @@ class VehicleSupervisor:
                 # ground, or not saying, the refusal is a real one.
                 if link.telemetry().landed in (LandedState.ON_GROUND, LandedState.UNDEFINED):
                     raise
-        await link.wait_until(lambda t: t.landed is LandedState.IN_AIR or (t.height_m or 0.0) > 0.5,
-                              self.command_timeout_s, "the climb")
+        await link.wait_until(_off_the_ground, self.command_timeout_s, "the climb")
 
     async def _land(self) -> None:
         link = self.link
@@ -157,3 +156,11 @@ class VehicleSupervisor:
                               self.command_timeout_s, "the touchdown")
         if link.telemetry().armed:  # disarmed on the ground: a charger only charges a disarmed vehicle
             await link.disarm()
+
+
+def _off_the_ground(t: Telemetry) -> bool:
+    """Climbing or up, by the landed state; by the height where the autopilot does not report one.
+    Both where it does: the landed state comes at a lower rate than positions, and a vehicle half a
+    metre up may not have said it left the ground yet. Called airborne on that last report, it would
+    look grounded by itself (:meth:`VehicleSupervisor.grounded_by_itself`) at the next step boundary."""
+    return t.landed is LandedState.IN_AIR or ((t.height_m or 0.0) > 0.5 and t.landed is not LandedState.ON_GROUND)
