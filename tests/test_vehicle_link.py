@@ -374,8 +374,20 @@ def test_a_link_in_a_workspace_frame_flies_global_setpoints(backend: str) -> Non
             await link.follow_setpoints()
             target = Ned(place.home.north + 4.0, place.home.east - 3.0, -4.0)
             await link.send_position_target(target)
+            # On the way north and west: the velocity says so, in the frame's axes.
+            t = await link.wait_until(lambda t: t.velocity is not None and math.hypot(t.velocity.north,
+                                                                                      t.velocity.east) > 1.0,
+                                      5, "the flight to the target")
+            assert t.velocity is not None and t.velocity.north > 0 > t.velocity.east, t.velocity
             t = await link.wait_until(near(target, 0.3), 5, "the target")
             assert t.mode == "OFFBOARD"
+            if backend == "pymavlink":
+                # Positions and velocities come from GLOBAL_POSITION_INT: the local position is not
+                # asked for at the position rate (it was a third of what a vehicle sent).
+                streams = fake.nodes[0].model.streams
+                local = streams.interval(mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED)
+                glob = streams.interval(mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT)
+                assert glob is not None and local is not None and local >= 2 * glob, (local, glob)
 
     run(scenario)
 

@@ -37,16 +37,22 @@ class ClockCheck:
     beta_s: float
     keep: int = 4
     samples: dict[str, deque[OffsetSample]] = field(default_factory=dict)
+    #: each peer's tightest sample: the state a drone publishes at every step names them all
+    _best: dict[str, OffsetSample] | None = field(default=None, repr=False)
 
     def observe(self, peer: str, sample: OffsetSample) -> None:
         self.samples.setdefault(peer, deque(maxlen=self.keep)).append(sample)
+        self._best = None
 
     def forget(self, peer: str) -> None:
         self.samples.pop(peer, None)
+        self._best = None
 
     @property
     def peers(self) -> dict[str, OffsetSample]:
-        return {p: min(s, key=lambda x: x.error_s) for p, s in self.samples.items() if s}
+        if self._best is None:
+            self._best = {p: min(s, key=lambda x: x.error_s) for p, s in self.samples.items() if s}
+        return self._best
 
     def violations(self) -> dict[str, OffsetSample]:
         """The peers whose clock is provably more than beta from mine."""

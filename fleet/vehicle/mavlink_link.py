@@ -46,6 +46,10 @@ STREAMS = {mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED: Share.POSITION,
            mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: Share.POSITION,
            mavlink2.MAVLINK_MSG_ID_BATTERY_STATUS: Share.STATUS, mavlink2.MAVLINK_MSG_ID_SYS_STATUS: Share.STATUS,
            mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: Share.LANDED, mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT: Share.GPS}
+#: With a workspace frame, positions and velocities come from GLOBAL_POSITION_INT alone: the local
+#: position is asked for at the status rate only (a GCS sharing the vehicle may still want it). It
+#: was a third of all a fleet's vehicles sent, each decoded in pure Python by pymavlink.
+FRAMED_STREAMS = {**STREAMS, mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED: Share.STATUS}
 POSITION_ONLY = 0b110111111000  #: type_mask: use x, y, z; ignore velocity, acceleration, yaw and yaw rate
 GCS_COMPONENT = mavlink2.MAV_COMP_ID_MISSIONPLANNER
 _UNKNOWN_U16 = 0xFFFF
@@ -90,6 +94,8 @@ class PymavlinkLink:
         self.heartbeat_at: float | None = None
         self._ack_heartbeats: dict[int, int] = {}  #: command -> heartbeats seen when its ACK came
         self._latest: dict[str, tuple[float, Message]] = {}  #: telemetry: type -> (clock time, last message)
+        #: telemetry() as of the last message: read several times per drone at every step boundary
+        self._snapshot: Telemetry | None = None
         self.texts: collections.deque[tuple[float, int, str]] = collections.deque(maxlen=32)
         self.unhandled: collections.Counter[str] = collections.Counter()
         self._handlers: dict[str, Callable[[Message], None]] = {
@@ -114,7 +120,7 @@ class PymavlinkLink:
         self._send_heartbeat()
         try:
             await self._await_or_fail(self._expect("HEARTBEAT", _any), timeout, "a HEARTBEAT from a vehicle")
-            for msg_id, share in STREAMS.items():
+            for msg_id, share in self.streams.items():
                 await self.command(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 1e6 / (self.stream_hz * share))
         except BaseException:
             await self.close()
@@ -275,6 +281,9 @@ class PymavlinkLink:
 
     def last_position(self) -> Position | None:
         """LOCAL_POSITION_NED; with ``frame``, GLOBAL_POSITION_INT in the workspace frame."""
+        return self.telemetry().position
+
+    def _position(self) -> Position | None:
         kind = "LOCAL_POSITION_NED" if self.frame is None else "GLOBAL_POSITION_INT"
         if (entry := self._latest.get(kind)) is None:
             return None
@@ -287,7 +296,17 @@ class PymavlinkLink:
         msg = self._msg("GLOBAL_POSITION_INT")
         return None if msg is None else _geo(msg)
 
+    @property
+    def streams(self) -> dict[int, Share]:
+        """The telemetry asked for: message id -> rate as a share of ``stream_hz``."""
+        return STREAMS if self.frame is None else FRAMED_STREAMS
+
     def telemetry(self) -> Telemetry:
+        if self._snapshot is None:
+            self._snapshot = self._read_telemetry()
+        return self._snapshot
+
+    def _read_telemetry(self) -> Telemetry:
         local, glob, gps = self._msg("LOCAL_POSITION_NED"), self._msg("GLOBAL_POSITION_INT"), self._msg("GPS_RAW_INT")
         battery, status, state = self._msg("BATTERY_STATUS"), self._msg("SYS_STATUS"), self._msg("EXTENDED_SYS_STATE")
         pct, volts = None, None
@@ -300,8 +319,8 @@ class PymavlinkLink:
         landed = LandedState.UNDEFINED
         if state is not None and state.landed_state in iter(LandedState):
             landed = LandedState(state.landed_state)
-        return Telemetry(self.autopilot, self.armed, self.mode, self.last_position(),
-                         None if local is None else Ned(local.vx, local.vy, local.vz), self.last_global(),
+        return Telemetry(self.autopilot, self.armed, self.mode, self._position(),
+                         _velocity(local, glob, self.frame), self.last_global(),
                          None if glob is None else glob.relative_alt / 1000, pct, volts,
                          0 if gps is None else gps.fix_type, 0 if gps is None else gps.satellites_visible,
                          landed, self.heartbeat_at)
@@ -325,6 +344,7 @@ class PymavlinkLink:
             self.sysid = msg.get_srcSystem()  # the first autopilot that speaks is ours
         if msg.get_srcSystem() != self.sysid or msg.get_srcComponent() != self.compid:
             return
+        self._snapshot = None  # whatever it says may change the telemetry
         handler = self._handlers.get(kind)
         if handler is None:
             self.unhandled[kind] += 1
@@ -429,6 +449,14 @@ class PymavlinkLink:
         if self._transport is not None and self._dead is None:
             self._transport.send(msg.pack(self._enc))
             self._enc.seq = (self._enc.seq + 1) % 256
+
+
+def _velocity(local: Message | None, glob: Message | None, frame: GeoFrame | None) -> Ned | None:
+    """From the message the positions come from: LOCAL_POSITION_NED (m/s), or with a frame (whose
+    axes are north, east and down too) GLOBAL_POSITION_INT (cm/s)."""
+    if frame is None:
+        return None if local is None else Ned(local.vx, local.vy, local.vz)
+    return None if glob is None else Ned(glob.vx / 100, glob.vy / 100, glob.vz / 100)
 
 
 def _geo(msg: Message) -> GeoPoint:
