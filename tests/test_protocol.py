@@ -204,6 +204,19 @@ def test_a_higher_priority_request_is_answered_at_once_and_its_old_reply_dropped
     assert action.psi["b"] == b_plan
 
 
+def test_a_higher_priority_that_has_not_answered_is_not_asked_again() -> None:
+    """Two drones given tasks at once: b, ranked first, holds my request until it has planned, so
+    asking it again would only cost a message (one per pair of drones coordinating together)."""
+    proto = machine()
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    actions = proto.handle(ReqForCurrentTraj(ID_B_HIGH, "b"), 0)
+    assert actions == [Send("b", CurrentTraj("a", Trajectory.stationary(A, 0), ID_B_HIGH))]
+    assert proto.handle(CurrentTraj("c", location_of("c"), ID_A), 0) == []  # still waiting for b
+    b_plan = traj(2, (4, 4), (4, 3), (4, 2), (3, 2))
+    action = started(proto.handle(CurrentTraj("b", b_plan, ID_A), 1))
+    assert action.psi["b"] == b_plan
+
+
 def test_a_lower_priority_request_waits_for_my_new_trajectory() -> None:
     proto = machine({"a": A, "b": B, "c": C})
     proto.handle(NewTask(Task(ID_A, GOAL)), 0)

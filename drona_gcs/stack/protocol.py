@@ -17,9 +17,12 @@ settled here:
   before me, so any answer it already gave me (its location, if it was idle
   when my request arrived) is about to be stale. I drop it from Psi and ask it
   again; it now holds me in ``R_pend`` and sends its new trajectory once
-  planned. (With task ids from a hybrid logical clock this cannot happen: a
-  drone that answered my request has seen my stamp, so its next task ranks
-  below mine. It is kept because it costs nothing and ids need not be HLCs.)
+  planned. One that has not answered me yet is not asked again: it holds my
+  request in ``R_pend`` (or answers it once planned). (With task ids from a
+  hybrid logical clock an answer cannot be there: a drone that answered my
+  request has seen my stamp, so its next task ranks below mine. The rule is
+  kept because ids need not be HLCs; asking every higher priority again cost
+  a message per pair of drones coordinating at once.)
 * **Psi is rebuilt for every task.** Answers from an earlier round describe
   plans that may have been replaced since; planning with them is the race the
   paper's model checker found (seeded bug ``stale-trajectory``).
@@ -215,9 +218,8 @@ class CoordinationProtocol:
             return self._answer(event, now)
         if self._outranks(event.task_id, self.task.id):
             actions = self._answer(event, now)
-            if event.sender in self.members:
-                # It plans before me: whatever it told me is about to change. Ask again.
-                self.received.pop(event.sender, None)
+            if event.sender in self.members and self.received.pop(event.sender, None) is not None:
+                # It plans before me: what it told me is about to change. Ask again.
                 actions.append(Send(event.sender, ReqForCurrentTraj(self.task.id, self.me)))
             return actions
         self.pending[event.sender] = event.task_id
