@@ -379,6 +379,7 @@ def test_a_link_in_a_workspace_frame_flies_global_setpoints(backend: str) -> Non
                                                                                       t.velocity.east) > 1.0,
                                       5, "the flight to the target")
             assert t.velocity is not None and t.velocity.north > 0 > t.velocity.east, t.velocity
+            assert math.hypot(t.velocity.north, t.velocity.east) < 20, f"not in m/s: {t.velocity}"
             t = await link.wait_until(near(target, 0.3), 5, "the target")
             assert t.mode == "OFFBOARD"
             if backend == "pymavlink":

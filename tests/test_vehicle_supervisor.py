@@ -99,10 +99,10 @@ def test_a_vehicle_down_by_itself_raises_the_question_and_needs_no_landing(perso
 
 @pytest.mark.parametrize("personality", ["ardupilot", "px4"])
 def test_a_vehicle_just_taken_off_is_not_down_by_itself(personality: str) -> None:
-    """The landed state comes at half the position rate (the agent's ``--telemetry-hz`` 4 gives it
-    2 Hz): a vehicle climbs past half a metre before it says it left the ground. Taken up, it must not
-    look grounded by itself on the last report from before the take-off: the agent would hand its
-    mail back and ground it for good."""
+    """The landed state comes at half the position rate (2 Hz with ``--telemetry-hz`` 4, as the
+    coordination bench runs its agents): a vehicle climbs past half a metre before it says it left
+    the ground. Taken up, it must not look grounded by itself on the last report from before the
+    take-off: the agent would hand its mail back and ground it for good."""
     async def scenario() -> None:
         async with supervising(personality, stream_hz=1.0) as (link, supervisor, alarms, _):
             for _ in range(3):  # one take-off can win the race by luck
@@ -117,15 +117,16 @@ def test_a_vehicle_just_taken_off_is_not_down_by_itself(personality: str) -> Non
     run(scenario)
 
 
-class TakeoffRefused:
-    """An ArduCopter link whose NAV_TAKEOFF is refused, reporting ``landed`` 0.3 m up; in GUIDED it
-    climbs to the setpoints when told nothing else."""
+class ScriptedArduCopter:
+    """An ArduCopter link in GUIDED, armed, reporting ``landed`` at ``height_m`` above home. Its
+    NAV_TAKEOFF is refused (``refuses``) or climbs; told nothing else it climbs to the setpoints,
+    unless it counts itself on the ground."""
 
-    def __init__(self, landed: LandedState) -> None:
-        self.landed, self.takeoffs = landed, 0
+    def __init__(self, landed: LandedState, height_m: float = 0.3, refuses: bool = True) -> None:
+        self.landed, self.height_m, self.refuses, self.takeoffs = landed, height_m, refuses, 0
 
     def telemetry(self) -> Telemetry:
-        return Telemetry(Autopilot.ARDUPILOT, True, "GUIDED", None, None, None, 0.3, 90, 16.0, 3, 10,
+        return Telemetry(Autopilot.ARDUPILOT, True, "GUIDED", None, None, None, self.height_m, 90, 16.0, 3, 10,
                          self.landed, 1.0)
 
     async def follow_setpoints(self) -> None:
@@ -133,23 +134,20 @@ class TakeoffRefused:
 
     async def takeoff(self, altitude_m: float) -> None:
         self.takeoffs += 1
-        raise VehicleCommandRejected("NAV_TAKEOFF", 4)
+        if self.refuses:
+            raise VehicleCommandRejected("NAV_TAKEOFF", 4)
+        self.landed = LandedState.TAKEOFF
 
     async def wait_until(self, predicate: Callable[[Telemetry], bool], timeout: float, what: str) -> None:
         if self.landed is not LandedState.ON_GROUND:
-            self.landed = LandedState.IN_AIR  # GUIDED follows the setpoints up
+            self.landed, self.height_m = LandedState.IN_AIR, 2.0  # GUIDED follows the setpoints up
         if not predicate(self.telemetry()):
             raise VehicleError(f"no {what}")
 
 
-@pytest.mark.parametrize("landed, refused", [(LandedState.LANDING, False), (LandedState.ON_GROUND, True)])
-def test_a_takeoff_refused_in_the_air_is_no_failure_and_on_the_ground_it_is(landed: LandedState,
-                                                                            refused: bool) -> None:
-    """A landing called back just above the ground: telemetry still says LANDING at 0.3 m, so the
-    supervisor asks for a take-off, which ArduCopter refuses in the air. The vehicle climbs anyway
-    (GUIDED): no alarm, no retry a second later. On the ground, the refusal is an alarm."""
-    async def scenario() -> tuple[list[str | None], TakeoffRefused, bool]:
-        link = TakeoffRefused(landed)
+def launch_once(link: ScriptedArduCopter) -> tuple[list[str | None], bool]:
+    """The supervisor asked to fly once: the alarms it raised, and whether it ended airborne."""
+    async def scenario() -> tuple[list[str | None], bool]:
         alarms: list[str | None] = []
         supervisor = VehicleSupervisor("d1", link, FLIGHT_ALT_M, alarms.append,  # type: ignore[arg-type]
                                        lambda: Ned(0.0, 0.0, -FLIGHT_ALT_M), arrival_m=0.5)
@@ -159,11 +157,31 @@ def test_a_takeoff_refused_in_the_air_is_no_failure_and_on_the_ground_it_is(land
             await asyncio.wait_for(supervisor.reached.wait(), 0.5)
         supervisor.stop()
         await asyncio.wait_for(runner, 5)
-        return alarms, link, supervisor.airborne
+        return alarms, supervisor.airborne
 
-    alarms, link, airborne = asyncio.run(scenario())
+    return asyncio.run(scenario())
+
+
+@pytest.mark.parametrize("landed, refused", [(LandedState.LANDING, False), (LandedState.ON_GROUND, True)])
+def test_a_takeoff_refused_in_the_air_is_no_failure_and_on_the_ground_it_is(landed: LandedState,
+                                                                            refused: bool) -> None:
+    """A landing called back just above the ground: telemetry still says LANDING at 0.3 m, so the
+    supervisor asks for a take-off, which ArduCopter refuses in the air. The vehicle climbs anyway
+    (GUIDED): no alarm, no retry a second later. On the ground, the refusal is an alarm."""
+    link = ScriptedArduCopter(landed)
+    alarms, airborne = launch_once(link)
     assert link.takeoffs == 1
     if refused:
         assert not airborne and alarms == ["vehicle: cannot take off: NAV_TAKEOFF rejected with result 4"]
     else:
         assert airborne and [a for a in alarms if a is not None] == []
+
+
+def test_a_vehicle_on_the_ground_above_home_still_gets_its_takeoff() -> None:
+    """On the ground but 0.8 m above home (ground higher than home, a drifted barometer): ArduCopter
+    lifts off in GUIDED only once told to take off. Taken for flying by its height, it was never
+    told, and the climb waited out its timeout."""
+    link = ScriptedArduCopter(LandedState.ON_GROUND, height_m=0.8, refuses=False)
+    alarms, airborne = launch_once(link)
+    assert link.takeoffs == 1
+    assert airborne and [a for a in alarms if a is not None] == []

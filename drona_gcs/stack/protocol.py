@@ -22,7 +22,9 @@ settled here:
   hybrid logical clock an answer cannot be there: a drone that answered my
   request has seen my stamp, so its next task ranks below mine. The rule is
   kept because ids need not be HLCs; asking every higher priority again cost
-  a message per pair of drones coordinating at once.)
+  a message per pair of drones coordinating at once. Without HLC ids it
+  protects only answers that came in order: the second request carries the
+  same task id, so an old answer still on its way would count as the new one.)
 * **Psi is rebuilt for every task.** Answers from an earlier round describe
   plans that may have been replaced since; planning with them is the race the
   paper's model checker found (seeded bug ``stale-trajectory``).

@@ -12,7 +12,9 @@ alarms on any fleet with beta 0, and loopback round trips are ~0.1 ms.)
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
 
 
 @dataclass(frozen=True)
@@ -38,7 +40,7 @@ class ClockCheck:
     keep: int = 4
     samples: dict[str, deque[OffsetSample]] = field(default_factory=dict)
     #: each peer's tightest sample: the state a drone publishes at every step names them all
-    _best: dict[str, OffsetSample] | None = field(default=None, repr=False)
+    _best: Mapping[str, OffsetSample] | None = field(default=None, init=False, repr=False, compare=False)
 
     def observe(self, peer: str, sample: OffsetSample) -> None:
         self.samples.setdefault(peer, deque(maxlen=self.keep)).append(sample)
@@ -49,9 +51,10 @@ class ClockCheck:
         self._best = None
 
     @property
-    def peers(self) -> dict[str, OffsetSample]:
+    def peers(self) -> Mapping[str, OffsetSample]:
         if self._best is None:
-            self._best = {p: min(s, key=lambda x: x.error_s) for p, s in self.samples.items() if s}
+            best = {p: min(s, key=lambda x: x.error_s) for p, s in self.samples.items() if s}
+            self._best = MappingProxyType(best)  # read-only: it is handed to every caller until the next sample
         return self._best
 
     def violations(self) -> dict[str, OffsetSample]:

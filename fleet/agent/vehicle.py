@@ -130,7 +130,9 @@ class VehicleSupervisor:
         if not link.telemetry().armed:
             await link.arm()
         t = link.telemetry()
-        flying = t.landed is LandedState.IN_AIR or (t.height_m or 0.0) > 0.5
+        # On the ground yet over half a metre above home (ground higher than home, a barometer that
+        # drifted), ArduCopter still needs its take-off: the same rule as the climb's end.
+        flying = _off_the_ground(t)
         if t.autopilot is Autopilot.ARDUPILOT and not flying:  # PX4 climbs to the streamed setpoint by itself
             try:
                 await link.takeoff(self.takeoff_alt_m)
