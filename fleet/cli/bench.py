@@ -78,7 +78,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--agents", type=int, help="agents, each with its own fake vehicle "
                        "(default 32; 8 with --quick); "
                        "--seconds: how long to keep them busy (default 60; 15)")
-    group.add_argument("--processes", type=int, help="agent processes the agents are spread over (default 4)")
+    group.add_argument("--processes", type=int,
+                       help="agent processes the agents are spread over (default: one per CPU core available)")
     group.add_argument("--session-per-drone", action="store_true",
                        help="each agent with its own Zenoh session, as on a real fleet (default: the agents of a "
                             "process share one, `drona agent --shared-session`)")
