@@ -288,7 +288,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"drona bench coordination: {exc}", file=sys.stderr)
             return 1
     if args.json:
-        # No figure is null (not NaN: strict JSON parsers refuse it), e.g. no plan after the opening.
+        # A figure with nothing to go on (no plan after the opening) is null: strict JSON parsers refuse NaN.
         row = {"processes": processes, **asdict(result)}
         print(json.dumps({k: None if isinstance(v, float) and math.isnan(v) else v for k, v in row.items()}))
         return 0

@@ -47,8 +47,8 @@ STREAMS = {mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED: Share.POSITION,
            mavlink2.MAVLINK_MSG_ID_BATTERY_STATUS: Share.STATUS, mavlink2.MAVLINK_MSG_ID_SYS_STATUS: Share.STATUS,
            mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: Share.LANDED, mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT: Share.GPS}
 #: With a workspace frame, positions and velocities come from GLOBAL_POSITION_INT alone: the local
-#: position is asked for at the status rate only (a GCS sharing the vehicle may still want it). It
-#: was a third of all a fleet's vehicles sent, each decoded in pure Python by pymavlink.
+#: position is asked for at the status rate only (a GCS sharing the vehicle may still want it). At
+#: the position rate it was a third of the messages a vehicle sent, each decoded in pure Python.
 FRAMED_STREAMS = {**STREAMS, mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED: Share.STATUS}
 POSITION_ONLY = 0b110111111000  #: type_mask: use x, y, z; ignore velocity, acceleration, yaw and yaw rate
 GCS_COMPONENT = mavlink2.MAV_COMP_ID_MISSIONPLANNER
