@@ -2,15 +2,24 @@
 
 from __future__ import annotations
 
+import argparse
+import asyncio
 import contextlib
 import json
+import socket
+import threading
+import time
 
 import pytest
 
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.messages import CurrentTraj, ReqForCurrentTraj, TaskId
+from drona_gcs.workspace import Workspace
 from fleet.agent.clocksync import ClockCheck, OffsetSample
+from fleet.sim.ports import free_port
+from fleet.transport.gateway import ZenohGateway
 from fleet.transport.keys import FleetKeys, check_name
+from fleet.transport.node import ZenohNode, ZenohSettings
 from fleet.transport.wire import MailOrder, WireError, answers, decode, encode, from_core, to_core
 
 TASK = TaskId(12, "d1", 3)
@@ -112,12 +121,6 @@ def test_beta_zero_does_not_alarm_on_loopback_noise() -> None:
 
 def test_a_query_under_way_ends_when_its_session_closes() -> None:
     """A peer that never answers must not hang a closing agent (every wait is bounded)."""
-    import asyncio
-    import socket
-
-    from fleet.sim.ports import free_port
-    from fleet.transport.node import ZenohNode, ZenohSettings
-
     endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
 
     async def scenario() -> list[object]:
@@ -152,12 +155,6 @@ def test_drones_sharing_a_session_each_get_every_message_and_leave_alone() -> No
     """Views of one session: a subscription per view (one Zenoh subscriber underneath), local and
     remote puts reach each view once, a view that closes stops hearing and its token goes, and the
     others (and the session) carry on."""
-    import asyncio
-    import socket
-
-    from fleet.sim.ports import free_port
-    from fleet.transport.node import ZenohNode, ZenohSettings
-
     endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
 
     async def scenario() -> None:
@@ -229,12 +226,6 @@ def test_drones_sharing_a_session_each_get_every_message_and_leave_alone() -> No
 def test_the_answers_of_a_sessions_drones_to_one_request_travel_as_one_message() -> None:
     """Three drones share a session and each answers a request to everyone: the requester gets the
     three answers, each handed to its handler alone, in one Zenoh message (gathered)."""
-    import asyncio
-    import socket
-
-    from fleet.sim.ports import free_port
-    from fleet.transport.node import ZenohNode, ZenohSettings
-
     endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
 
     async def scenario() -> tuple[list[bytes], list[bytes]]:
@@ -277,15 +268,6 @@ def test_the_answers_of_a_sessions_drones_to_one_request_travel_as_one_message()
 
 def test_the_service_gateway_is_open_only_while_linked_to_the_fleet() -> None:
     """``/readyz`` reads it: an open session that no peer is linked to reaches no drone."""
-    import argparse
-    import asyncio
-    import socket
-
-    from drona_gcs.workspace import Workspace
-    from fleet.sim.ports import free_port
-    from fleet.transport.gateway import ZenohGateway
-    from fleet.transport.node import ZenohNode, ZenohSettings
-
     endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     ws = Workspace.build(size=(2, 2, 1), cell_size_m=1.0, tau_s=1.0)
 
@@ -324,14 +306,6 @@ def test_a_subscription_that_goes_first_is_handed_its_samples_before_ordinary_on
     behind every other request. Three requests and then an answer arrive while the loop is busy;
     the answer is handled first, the requests in their order. So is an answer that arrives while a
     request is being handled: before the next request."""
-    import asyncio
-    import socket
-    import threading
-    import time
-
-    from fleet.sim.ports import free_port
-    from fleet.transport.node import ZenohNode, ZenohSettings
-
     endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
 
     async def scenario() -> list[bytes]:

@@ -4,9 +4,9 @@ Everything the stack decides comes back as actions, carried out here:
 protocol messages go out on ``proto/<peer>``, requests to everyone on
 ``proto/all`` (one put that Zenoh fans out; a round is still 2(N-1)
 messages), a new plan's answers to the drones that waited for it on
-``answers`` (one put, each of them takes its own), mail progress on ``mail/status/<id>``, the mail held on
-``held/<me>`` when it changes, the drone's state on ``state/<me>`` at every
-step boundary. What comes in — peers' messages, mail orders, membership
+``answers`` (one put, each of them takes its own), mail progress on
+``mail/status/<id>``, the mail held on ``held/<me>`` when it changes, the
+drone's state on ``state/<me>`` at every step boundary. What comes in — peers' messages, mail orders, membership
 changes — is handed to the stack on the event loop, one event at a time,
 exactly as the systematic tester hands it.
 
@@ -397,12 +397,12 @@ COALESCE_FROM = 2
 def _coalesced(actions: Sequence[DroneAction]) -> list[DroneAction | Answers]:
     """``actions`` with the answers that share a trajectory joined into one :class:`Answers`, in
     the place of the first of them (a drone answered twice, to two requests, keeps the second apart)."""
-    if sum(isinstance(a, Send) and isinstance(a.message, CurrentTraj) for a in actions) < COALESCE_FROM:
-        return list(actions)  # mostly: one answer, or none
     groups: dict[Trajectory, dict[str, TaskId]] = {}
     for action in actions:
         if isinstance(action, Send) and isinstance(action.message, CurrentTraj):
             groups.setdefault(action.message.trajectory, {}).setdefault(action.to, action.message.in_reply_to)
+    if all(len(replies) < COALESCE_FROM for replies in groups.values()):
+        return list(actions)  # mostly: one answer, or none
     out: list[DroneAction | Answers] = []
     joined: set[Trajectory] = set()
     for action in actions:
