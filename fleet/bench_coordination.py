@@ -28,6 +28,7 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from drona_gcs.stack.protocol import State
 from drona_gcs.workspace import Cell, Workspace
 from drona_gcs.workspace_files import load_workspace
 from fleet.sim.ports import free_port_block, free_udp_base
@@ -223,7 +224,7 @@ async def _keep_busy(node: ZenohNode, keys: FleetKeys, workspace: Workspace, nam
                                              priority=rng.randint(0, 9)))
 
     node.subscribe(keys.status(), on_report)
-    before = await client.states()
+    before = await _between_rounds(client)
     for drone in names:
         for _ in range(2):
             await give(drone)
@@ -235,10 +236,23 @@ async def _keep_busy(node: ZenohNode, keys: FleetKeys, workspace: Workspace, nam
             break
         delivered += 1
         await give(drone)
-    after = await client.states()
+    after = await _between_rounds(client)
     sent = sum(s.messages_sent - before[d].messages_sent for d, s in after.items() if d in before)
     plans = sum(s.plans - before[d].plans for d, s in after.items() if d in before)
     return delivered, sent, plans
+
+
+async def _between_rounds(client: FleetClient, bound_s: float = 5.0) -> dict[str, DroneState]:
+    """The drones' states once none is coordinating (or after ``bound_s``). Messages and plans are
+    counted between two such snapshots: a round under way at the first (the drones park at start-up)
+    would add its plan without its request, and the messages per round would come out too few.
+    The states are asked again until then: nothing announces a fleet between rounds."""
+    deadline = time.monotonic() + bound_s
+    while True:
+        states = await client.states()
+        if all(s.mode != State.COORDINATING.value for s in states.values()) or time.monotonic() > deadline:
+            return states
+        await asyncio.sleep(0.02)
 
 
 def _list(cell: Cell) -> list[int]:
