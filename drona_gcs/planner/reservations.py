@@ -19,7 +19,6 @@ states, so a conflict test is one dict lookup.
 
 from __future__ import annotations
 
-from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from itertools import pairwise
@@ -92,13 +91,9 @@ class ReservationTable:
                 spans[cell] = [(lo, hi)]
             else:
                 found.append((lo, hi))
-            # A new reservation only takes time away: cut it out of what is cached. (Removing
-            # one gives time back only where no other drone holds it, so that recomputes.)
-            cached = cache.get(cell)
-            if cached is ALWAYS_FREE:  # the commonest: the first drone to pass by
-                cache[cell] = _passed_once(lo, hi)
-            elif cached is not None:
-                cache[cell] = _without(cached, lo, hi)
+            # Recomputed when next asked: a plan passes most of these cells, the next search
+            # asks for few of them, and cutting the new run out of each cached list cost more.
+            cache.pop(cell, None)
         cache.pop(entry.first, None)  # their bounds before and after change too
         cache.pop(entry.last, None)
         _join(self._pre_all, self.pre, entry.first, entry.pre_until, max)
@@ -229,20 +224,6 @@ def _passed_once(lo: int, hi: int) -> tuple[tuple[int, int], ...]:
     return (-FOREVER, lo - 1), (hi + 1, FOREVER)
 
 
-def _without(intervals: tuple[tuple[int, int], ...], lo: int, hi: int) -> tuple[tuple[int, int], ...]:
-    """``intervals`` (sorted, disjoint) less the steps ``lo..hi``."""
-    out: list[tuple[int, int]] = []
-    for first, last in intervals:
-        if last < lo or first > hi:
-            out.append((first, last))
-            continue
-        if first < lo:
-            out.append((first, lo - 1))
-        if last > hi:
-            out.append((hi + 1, last))
-    return tuple(out)
-
-
 def free_at(intervals: tuple[tuple[int, int], ...], step: int) -> bool:
     """Whether ``step`` lies in one of ``intervals``."""
     return any(lo <= step <= hi for lo, hi in intervals)
@@ -260,12 +241,9 @@ def _spans(cells: list[int], first_step: int, delta: int) -> tuple[tuple[int, in
 
 
 def _add(table: dict[int, int], keys: tuple[int, ...] | list[int]) -> None:
-    # Most keys are new: insert them all at C speed, then restore the counts of the rest.
-    counts = Counter(keys)
-    shared = {key: table[key] for key in counts.keys() & table.keys()}
-    table.update(counts)
-    for key, before in shared.items():
-        table[key] += before
+    get = table.get
+    for key in keys:
+        table[key] = get(key, 0) + 1
 
 
 def _sub(table: dict[int, int], keys: tuple[int, ...] | list[int]) -> None:
