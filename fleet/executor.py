@@ -10,9 +10,10 @@ the vehicle actually is (its cell and the distance to the cell it should be
 in) and flags a drone that lags its timed trajectory by more than
 ``lag_tolerance_m``: the safety argument assumes every drone follows its
 timed trajectory, so a lagging drone is an alarm, not a detail. A process
-that stalls past a boundary takes the missed ones back to back; the vehicle
-then flies the cells it missed in order (:meth:`SetpointLoop.take`), never
-straight across to the newest one.
+that stalls past a boundary takes the missed ones back to back, and a slow
+vehicle is still short of its cell when the next one comes; either way the
+vehicle flies the plan's cells in order (:meth:`SetpointLoop.take`), never
+straight across a turn to the newest one.
 """
 
 from __future__ import annotations
@@ -87,13 +88,15 @@ class SetpointLoop:
     def take(self, step: int, boundary: float) -> tuple[StepReport, Sequence[object]]:
         """Take boundary ``step`` (no I/O): the executor moves the target to its next cell.
 
-        Boundaries taken back to back (the process stalled past one) give the vehicle no time to
-        reach each cell: sent straight to the newest, it would cut the corner between them, through
-        a cell that was never reserved for it. So a cell it had no time to reach (the target moved
-        again within tau/2, and the vehicle is not in it) stays on its route, and so does every target
-        that comes while a route is pending: it flies the plan's cells in order, each as soon as it
-        is in the last, late (and flagged lagging) rather than off the path. Not covered: a vehicle
-        lagging without a stall (too slow) still gets each new target at its boundary.
+        A vehicle sent to the new target before it reached the last one flies straight at it, and
+        across a turn that cuts the corner, through a cell that was never reserved for it. This
+        happens when boundaries are taken back to back (the process stalled past one: the vehicle
+        had no time) and when the vehicle is too slow (wind, a low speed limit). So the last target
+        stays on the route when the vehicle is not in it and either it had no time (the target
+        moved again within tau/2) or the plan turns there (the vehicle, the last target and the
+        new one are not in a line); so does every target that comes while a route is pending. The
+        vehicle flies the plan's cells in order, each as soon as it is in the last, late (and
+        flagged lagging) rather than off the path.
         """
         now = self.clock()
         previous = self.target
@@ -101,12 +104,20 @@ class SetpointLoop:
         self.target = next(a.cell for a in actions if isinstance(a, Setpoint))
         if self.target != previous:
             # A target never aimed at (a route was pending) must be flown through too.
-            if self.route or (now - self.changed_at < self.tau / 2 and self._here() != previous):
+            if self.route or self._short_of(previous, now):
                 self.route.append(previous)
                 if len(self.route) > ROUTE_LIMIT:  # it is not following at all: keep the newest cells
                     del self.route[1]
             self.changed_at = now
         return self._report(step, previous, self.target, now - boundary), actions
+
+    def _short_of(self, previous: Cell, now: float) -> bool:
+        """Whether the vehicle, not yet in ``previous``, must fly through it before the new target."""
+        here = self._here()
+        if here in (previous, self.target):
+            return False
+        stalled = now - self.changed_at < self.tau / 2
+        return stalled or here is None or not _in_line(here, previous, self.target)
 
     def advance(self) -> bool:
         """Drop the route's cells up to the one the vehicle is in (it got that far); whether the aim
@@ -135,6 +146,17 @@ class SetpointLoop:
         error = math.dist((position.ned.north, position.ned.east, position.ned.down),
                           (should.north, should.east, should.down))
         return StepReport(step, target, fix.cell, error, error > self.tolerance, late, len(self.route))
+
+
+def _in_line(here: Cell, previous: Cell, target: Cell) -> bool:
+    """Whether ``previous`` lies on the straight way along one axis from ``here`` to ``target`` (a
+    vehicle flying straight from ``here`` to ``target`` passes it and no cell beside the line)."""
+    ahead = [b - a for a, b in zip(previous, target, strict=True)]
+    behind = [b - a for a, b in zip(here, previous, strict=True)]
+    if sum(map(abs, ahead)) != 1:
+        return False
+    axis = next(i for i, d in enumerate(ahead) if d)
+    return all(d == 0 for i, d in enumerate(behind) if i != axis) and behind[axis] * ahead[axis] > 0
 
 
 class SetpointFleet:

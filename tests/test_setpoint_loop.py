@@ -155,3 +155,76 @@ def test_a_stalled_process_catches_up_through_every_cell_and_cuts_no_corner(
     assert [FRAME.locate(end).cell for _, end in sink.legs] == list(plan.cells[1:])
     assert max(r.behind for r in reports) >= 1  # a cell it had no time to reach was kept
     assert reports[-1].behind == 0 and FRAME.locate(sink.here).cell == plan.cells[-1]
+
+
+ZIGZAG = Trajectory(2, ((0, 0, 0), (1, 0, 0), (2, 0, 0), (2, 1, 0), (2, 2, 0), (3, 2, 0), (4, 2, 0), (4, 3, 0)))
+
+
+def legs_off_the_plan(sink: CruisingSink, plan: Trajectory) -> list[str]:
+    """The straight legs the vehicle flew that cross a cell the plan never had."""
+    allowed, off = set(plan.cells), []
+    for start, end in sink.legs:
+        for i in range(101):
+            f = i / 100
+            point = Ned(start.north + f * (end.north - start.north), start.east + f * (end.east - start.east),
+                        end.down)
+            if FRAME.locate(point).cell not in allowed:
+                off.append(f"{start} -> {end} crosses {FRAME.locate(point).cell}")
+                break
+    return off
+
+
+@pytest.mark.parametrize("cells_a_step", [0.6, 0.7])
+def test_a_slow_vehicle_turns_in_the_plans_cells(cells_a_step: float) -> None:
+    """No stall, but a vehicle slower than a cell a step: at each turn it is still short of the
+    corner when the next cell comes. Sent straight there it would cut the corner; it must fly
+    through the corner first (late, rather than off the path)."""
+    async def scenario() -> tuple[CruisingSink, list[StepReport]]:
+        loop = asyncio.get_running_loop()
+        tau = 0.1
+        sink = CruisingSink(loop, FRAME.cell_to_ned((0, 0, 0)), speed=cells_a_step * 4.0 / tau)
+        executor = PlanExecutor((0, 0, 0))
+        executor.start(ZIGZAG)
+        reports: list[StepReport] = []
+        stop = asyncio.Event()
+
+        def on_step(report: StepReport, done: Sequence[ExecutorAction]) -> None:
+            reports.append(report)
+            if report.step >= 12 and not report.behind and FRAME.locate(sink.here).cell == ZIGZAG.cells[-1]:
+                stop.set()
+
+        runner = SetpointLoop(sink, FRAME, executor, loop.time() + 0.05, tau, loop.time, check_hz=100.0)
+        await asyncio.wait_for(runner.run(on_step, stop), timeout=10)
+        return sink, reports
+
+    sink, reports = asyncio.run(scenario())
+    assert legs_off_the_plan(sink, ZIGZAG) == []
+    assert [FRAME.locate(end).cell for _, end in sink.legs] == list(ZIGZAG.cells[1:])
+    assert max(r.behind for r in reports) >= 1  # the corner was kept on its route
+
+
+def test_a_vehicle_behind_on_a_straight_line_is_sent_on_at_once() -> None:
+    """Short of its cell on a straight line, a vehicle is sent on to the next (no corner to cut,
+    and stopping at each cell would only make it later)."""
+    async def scenario() -> CruisingSink:
+        loop = asyncio.get_running_loop()
+        tau = 0.1
+        sink = CruisingSink(loop, FRAME.cell_to_ned((0, 0, 0)), speed=0.8 * 4.0 / tau)
+        executor = PlanExecutor((0, 0, 0))
+        straight = Trajectory(2, ((0, 0, 0), (1, 0, 0), (2, 0, 0), (3, 0, 0), (4, 0, 0)))
+        executor.start(straight)
+        sent: list[tuple[int, Ned]] = []
+        stop = asyncio.Event()
+
+        def on_step(report: StepReport, done: Sequence[ExecutorAction]) -> None:
+            sent.append((report.step, sink.aim))
+            assert report.behind == 0
+            if report.step == 7:
+                stop.set()
+
+        runner = SetpointLoop(sink, FRAME, executor, loop.time() + 0.05, tau, loop.time, check_hz=100.0)
+        await asyncio.wait_for(runner.run(on_step, stop), timeout=10)
+        assert [(k, FRAME.locate(aim).cell) for k, aim in sent] == [(k, straight.at(k)) for k in range(8)]
+        return sink
+
+    asyncio.run(scenario())

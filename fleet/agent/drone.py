@@ -158,7 +158,7 @@ class DroneAgent:
         self._alarm("lag", f"vehicle {report.error_m:.1f} m from its cell" if lagging else None)
         self._alarm("down", "vehicle: came down while its plan flew (a failsafe or a pilot?); its mail was handed "
                     "back and it starts no task; restart its agent once it is back in service" if self.down else None)
-        self._alarm("behind", f"catching up after a stall (boundaries taken back to back): {report.behind} "
+        self._alarm("behind", f"catching up (a stall, or a vehicle too slow at a turn): {report.behind} "
                     "cells of its plan still to fly through" if report.behind else None)
         # A plan scheduled but not begun still needs the climb: the lead steps are for it.
         # Landing crosses only its own column when the cell is on the lowest layer; higher up it hovers.
