@@ -40,15 +40,15 @@ class StepReport:
     error_m: float  #: distance from the vehicle to the centre of the cell it should be in
     lagging: bool
     late_s: float  #: how late the boundary was taken on the local clock (jitter)
-    behind: int = 0  #: cells of the plan the vehicle must still fly through after a stall (see SetpointLoop)
+    behind: int = 0  #: cells of the plan the vehicle must still fly through before its target (see SetpointLoop.take)
 
 
 ROUTE_LIMIT = 64  #: cells kept for a vehicle that does not follow at all (it is flagged lagging anyway)
 
 
 class SetpointLoop:
-    """``check_hz``: how often, after a stall, the vehicle's position is checked to send it on to
-    the next cell of its route (no faster than telemetry comes is useful)."""
+    """``check_hz``: how often, while the vehicle has a route (cells to fly through before its
+    target), its position is checked to send it on to the next (no faster than telemetry comes is useful)."""
 
     def __init__(self, sink: SetpointSink, frame: GeoFrame, executor: PlanExecutor, epoch: float, tau: float,
                  clock: Callable[[], float], check_hz: float = 10.0, lag_tolerance_m: float | None = None,
@@ -61,7 +61,7 @@ class SetpointLoop:
         # By default a drone may trail by a cell: it is between two cells for most of a step.
         self.tolerance = lag_tolerance_m if lag_tolerance_m is not None else frame.ws.cell_size_m
         self.target = executor.cell
-        #: After a stall, the cells the vehicle must still fly through, in order, before ``target``.
+        #: Cells the vehicle must still fly through, in order, before ``target`` (see :meth:`take`).
         self.route: collections.deque[Cell] = collections.deque()
         self.changed_at = -math.inf  #: when the target last moved
         #: takes a boundary: the executor's own tick, or the whole drone stack's step (which ticks it)
@@ -92,11 +92,13 @@ class SetpointLoop:
         across a turn that cuts the corner, through a cell that was never reserved for it. This
         happens when boundaries are taken back to back (the process stalled past one: the vehicle
         had no time) and when the vehicle is too slow (wind, a low speed limit). So the last target
-        stays on the route when the vehicle is not in it and either it had no time (the target
-        moved again within tau/2) or the plan turns there (the vehicle, the last target and the
-        new one are not in a line); so does every target that comes while a route is pending. The
-        vehicle flies the plan's cells in order, each as soon as it is in the last, late (and
-        flagged lagging) rather than off the path.
+        stays on the route when the vehicle is in neither it nor the new target and either it had
+        no time (the target moved again within tau/2) or the plan turns there (the vehicle, the
+        last target and the new one are not in a line); so does every target that comes while a
+        route is pending. The vehicle flies the plan's cells in order, each as soon as it is in
+        the last, late (and flagged lagging) rather than off the path. Where telemetry puts the
+        vehicle in no cell (no position yet, or still below the grid on its climb) only a stall
+        counts: it is flagged lagging, and a route it could never be seen to fly would only grow.
         """
         now = self.clock()
         previous = self.target
@@ -117,7 +119,7 @@ class SetpointLoop:
         if here in (previous, self.target):
             return False
         stalled = now - self.changed_at < self.tau / 2
-        return stalled or here is None or not _in_line(here, previous, self.target)
+        return stalled or (here is not None and not _in_line(here, previous, self.target))
 
     def advance(self) -> bool:
         """Drop the route's cells up to the one the vehicle is in (it got that far); whether the aim
@@ -188,7 +190,7 @@ class SetpointFleet:
                 for loop in self.loops:
                     if loop.advance():
                         await loop.send()
-                # Nothing to do until the boundary but fly a route (a stall's catching up).
+                # Nothing to do until the boundary but fly a route (catching up on a stall or a turn).
                 routed = [loop.check_period for loop in self.loops if loop.route]
                 wake = self.clock() + min(routed) if routed else boundary
                 await _sleep_or_stop(stop, min(wake, boundary) - self.clock())

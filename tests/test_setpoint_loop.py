@@ -12,7 +12,7 @@ import pytest
 from drona_gcs.geo import GeoFrame, Ned
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.executor import Completed, ExecutorAction, PlanExecutor
-from drona_gcs.workspace import Workspace
+from drona_gcs.workspace import Cell, Workspace
 from fleet.executor import SetpointLoop, StepReport
 from fleet.vehicle.link import Position
 
@@ -174,7 +174,7 @@ def legs_off_the_plan(sink: CruisingSink, plan: Trajectory) -> list[str]:
     return off
 
 
-@pytest.mark.parametrize("cells_a_step", [0.6, 0.7])
+@pytest.mark.parametrize("cells_a_step", [0.4, 0.5])
 def test_a_slow_vehicle_turns_in_the_plans_cells(cells_a_step: float) -> None:
     """No stall, but a vehicle slower than a cell a step: at each turn it is still short of the
     corner when the next cell comes. Sent straight there it would cut the corner; it must fly
@@ -203,28 +203,37 @@ def test_a_slow_vehicle_turns_in_the_plans_cells(cells_a_step: float) -> None:
     assert max(r.behind for r in reports) >= 1  # the corner was kept on its route
 
 
+STRAIGHT = Trajectory(2, tuple((x, 0, 0) for x in range(6)))
+
+
 def test_a_vehicle_behind_on_a_straight_line_is_sent_on_at_once() -> None:
-    """Short of its cell on a straight line, a vehicle is sent on to the next (no corner to cut,
-    and stopping at each cell would only make it later)."""
-    async def scenario() -> CruisingSink:
+    """Short of its cell on a straight line (one cell behind, then two), a vehicle is sent on to the
+    next at each boundary: no corner to cut, and stopping at each cell would only make it later."""
+    tau = 0.3
+
+    async def scenario() -> list[tuple[StepReport, Cell | None, Cell | None]]:
         loop = asyncio.get_running_loop()
-        tau = 0.1
-        sink = CruisingSink(loop, FRAME.cell_to_ned((0, 0, 0)), speed=0.8 * 4.0 / tau)
+        sink = CruisingSink(loop, FRAME.cell_to_ned((0, 0, 0)), speed=0.6 * 4.0 / tau)
         executor = PlanExecutor((0, 0, 0))
-        straight = Trajectory(2, ((0, 0, 0), (1, 0, 0), (2, 0, 0), (3, 0, 0), (4, 0, 0)))
-        executor.start(straight)
-        sent: list[tuple[int, Ned]] = []
+        executor.start(STRAIGHT)
+        seen: list[tuple[StepReport, Cell | None, Cell | None]] = []
         stop = asyncio.Event()
 
         def on_step(report: StepReport, done: Sequence[ExecutorAction]) -> None:
-            sent.append((report.step, sink.aim))
-            assert report.behind == 0
-            if report.step == 7:
+            seen.append((report, FRAME.locate(sink.aim).cell, FRAME.locate(sink.here).cell))
+            if report.step == 8:
                 stop.set()
 
         runner = SetpointLoop(sink, FRAME, executor, loop.time() + 0.05, tau, loop.time, check_hz=100.0)
         await asyncio.wait_for(runner.run(on_step, stop), timeout=10)
-        assert [(k, FRAME.locate(aim).cell) for k, aim in sent] == [(k, straight.at(k)) for k in range(8)]
-        return sink
+        return seen
 
-    asyncio.run(scenario())
+    seen = asyncio.run(scenario())
+    late = max(report.late_s for report, _, _ in seen)
+    if late >= tau / 2:  # a boundary that late makes the next one a stall, which holds cells by design
+        reason = f"a boundary came {late:.2f} s late (the machine is too loaded to show this)"
+        print(reason)
+        pytest.skip(reason)
+    assert [(r.step, aim, r.behind) for r, aim, _ in seen] == [(k, STRAIGHT.at(k), 0) for k in range(9)]
+    # It was short of its cell, by one cell and by two, and still sent on.
+    assert {r.target[0] - here[0] for r, _, here in seen if here is not None and r.step <= 7} >= {2, 3}
