@@ -13,6 +13,8 @@ import contextlib
 import itertools
 import math
 import os
+import re
+import select
 import signal
 import socket
 import statistics
@@ -40,6 +42,7 @@ from fleet.sim.model import VehicleModel
 from fleet.sim.personality import ARDUPILOT, PX4, px4_mode
 from fleet.sim.ports import free_udp_base
 from fleet.sim.telemetry import Streams, battery_status, sys_status
+from fleet.sim.transport import SERIAL_TX_BUFFER, PtyLink
 
 ML = mavutil.mavlink
 REPO = Path(__file__).resolve().parents[1]
@@ -314,6 +317,86 @@ def test_cli_runs_two_vehicles_and_stops_on_sigterm(write_file: Callable[[str, s
                 proc.communicate()
                 raise
         assert proc.returncode == 0, err.decode()
+
+
+def stderr_lines(proc: subprocess.Popen[bytes], count: int, timeout: float) -> list[str]:
+    """The first ``count`` lines the process writes to stderr, waiting at most ``timeout`` s in all."""
+    assert proc.stderr is not None
+    lines, buffer, deadline = [], b"", time.monotonic() + timeout
+    while len(lines) < count and (left := deadline - time.monotonic()) > 0:
+        readable, _, _ = select.select([proc.stderr], [], [], left)
+        if not readable:
+            break
+        chunk = os.read(proc.stderr.fileno(), 4096)
+        if not chunk:
+            break
+        buffer += chunk
+        *done, buffer = buffer.split(b"\n")
+        lines += [line.decode() for line in done]
+    assert len(lines) >= count, f"wanted {count} lines on stderr, got {lines} {buffer!r}"
+    return lines[:count]
+
+
+def test_cli_serial_vehicles_say_their_device_and_answer_on_it() -> None:
+    """``--serial``: each vehicle on a pseudo-terminal whose device it prints; a ground station opens
+    that device as a serial port (pymavlink through pyserial) at the baud rate."""
+    proc = subprocess.Popen([sys.executable, "-m", "fleet.cli", "sim-vehicle", "--serial", "--baud", "115200",
+                             "--count", "2", "--speedup", "5"],
+                            cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        lines = stderr_lines(proc, 2, 10)
+        for sysid, line in enumerate(lines, start=1):
+            found = re.fullmatch(rf"drona sim-vehicle: system {sysid} \(ardupilot\) serial (/dev/\S+) at 115200 baud",
+                                 line)
+            assert found, line
+            with ground_station(found[1]) as gcs:
+                assert wait_for(gcs, "HEARTBEAT", 10).get_srcSystem() == sysid
+                assert command(gcs, ML.MAV_CMD_REQUEST_MESSAGE, ML.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+                               target=sysid) == ML.MAV_RESULT_ACCEPTED
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            _, err = proc.communicate(timeout=5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()
+            raise
+    assert proc.returncode == 0, err.decode()
+
+
+def test_a_serial_line_carries_no_more_than_its_baud_rate() -> None:
+    """9600 baud is 960 bytes a second: past the UART's buffer, messages go unsent, whole."""
+    async def scenario() -> None:
+        got: list[bytes] = []
+        link = await PtyLink.open(9600, lambda: got.append)
+        ground = os.open(link.device, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        try:
+            frame = bytes(range(100))
+            for _ in range(30):
+                link.send(frame)
+            assert read_all(ground) == frame * (SERIAL_TX_BUFFER // len(frame))  # 10 fit, none cut
+            assert link.unsent == 30 * len(frame) - SERIAL_TX_BUFFER // len(frame) * len(frame)
+            await asyncio.sleep(0.5)  # room for 480 bytes comes back (more if the sleep runs late)
+            for _ in range(10):
+                link.send(frame)
+            assert 4 * len(frame) <= len(read_all(ground)) <= 8 * len(frame)
+            os.write(ground, b"the other way")
+            async with asyncio.timeout(5):
+                while not got:
+                    await asyncio.sleep(0.01)
+            assert b"".join(got) == b"the other way"
+        finally:
+            link.close()
+            os.close(ground)
+
+    asyncio.run(scenario())
+
+
+def read_all(fd: int) -> bytes:
+    out = b""
+    while select.select([fd], [], [], 0.2)[0]:
+        out += os.read(fd, 4096)
+    return out
 
 
 def test_cli_refuses_more_vehicles_than_drones(write_file: Callable[[str, str], Path],

@@ -30,11 +30,14 @@ from fleet.sim.fleet import FleetConfig, SimNode, placements, run_fleet
 from fleet.sim.mav import mavlink2
 from fleet.sim.personality import PERSONALITIES, Personality
 from fleet.sim.ports import free_port
+from fleet.sim.transport import PtyLink
 from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry, VehicleLink, not_ready
 from fleet.vehicle.mavlink_link import PymavlinkLink
 from fleet.vehicle.urls import DEFAULT_BAUD, LinkUrl, LinkUrlError, Scheme, parse_link_url
 
 SPEEDUP = 10.0
+#: A companion computer's UART: the fake vehicle's telemetry, ten times faster (SPEEDUP), must fit.
+SERIAL_BAUD = 921600
 SCENARIO_DEADLINE_S = 30.0
 
 
@@ -69,7 +72,9 @@ CANNOT: dict[tuple[str, str, str], str] = {
 #: (its tcpout reconnects), so it sees the same missing HEARTBEATs as over UDP.
 #: The silence is measured when noticed, so its figure varies with scheduling; the timeout is named as set.
 NO_HEARTBEAT = r"no HEARTBEAT for \d+\.\d s \(timeout 0\.5 s\)"
-SILENT_WHY = {("pymavlink", "tcp"): "connection closed by the vehicle", ("mavsdk", "tcp"): NO_HEARTBEAT}
+SILENT_WHY = {("pymavlink", "tcp"): "connection closed by the vehicle", ("mavsdk", "tcp"): NO_HEARTBEAT,
+              # The fake's end of the pseudo-terminal closes: a USB serial adapter pulled out.
+              ("pymavlink", "serial"): "connection lost: device reports readiness to read but returned no data"}
 
 
 def skip_if_cannot(backend: str, test: str, transport: str) -> None:
@@ -95,12 +100,13 @@ class Fake:
 
 @contextlib.asynccontextmanager
 async def fake_vehicle(personality: str, transport: str, **vehicle: Any) -> AsyncIterator[Fake]:
-    """One fake vehicle in this event loop; ``url`` is how a ground station reaches it."""
-    tcp = transport == "tcp"
+    """One fake vehicle in this event loop; ``url`` is how a ground station reaches it. ``serial``: on a
+    pseudo-terminal at :data:`SERIAL_BAUD`, as a flight controller wired to a companion computer."""
+    tcp, serial = transport == "tcp", transport == "serial"
     port = free_port(socket.SOCK_STREAM if tcp else socket.SOCK_DGRAM)
     settings: dict[str, Any] = {"ready_after_s": 1.0, "auto_disarm_s": 60.0, "offboard_timeout_s": 5.0, **vehicle}
     config = FleetConfig(vehicle=VehicleConfig(personality=PERSONALITIES[personality], **settings), tcp=tcp,
-                         base_port=port, speedup=SPEEDUP)
+                         base_port=port, speedup=SPEEDUP, serial_baud=SERIAL_BAUD if serial else None)
     stop, started = asyncio.Event(), asyncio.Event()
     nodes: list[SimNode] = []
 
@@ -116,6 +122,9 @@ async def fake_vehicle(personality: str, transport: str, **vehicle: Any) -> Asyn
         task.result()  # raises why it did not start
     assert started.is_set(), "the fake vehicle did not start"
     url = f"tcp://127.0.0.1:{port}" if tcp else f"udpin://127.0.0.1:{port}"
+    if serial:
+        assert isinstance(nodes[0].link, PtyLink)
+        url = f"serial://{nodes[0].link.device}:{SERIAL_BAUD}"
     fake = Fake(url, PERSONALITIES[personality], stop, task, nodes)
     try:
         yield fake
@@ -154,7 +163,7 @@ AUTOPILOTS = {"ardupilot": Autopilot.ARDUPILOT, "px4": Autopilot.PX4}
 FOLLOW = {"ardupilot": "GUIDED", "px4": "OFFBOARD"}
 backends = pytest.mark.parametrize("backend", sorted(BACKENDS))
 personalities = pytest.mark.parametrize("personality", ["ardupilot", "px4"])
-transports = pytest.mark.parametrize("transport", ["udp", "tcp"])
+transports = pytest.mark.parametrize("transport", ["udp", "tcp", "serial"])
 
 
 # ------------------------------------------------------------------ contract: a whole flight
@@ -347,10 +356,11 @@ def test_connecting_to_nothing_fails_cleanly(backend: str, transport: str) -> No
     skip_if_cannot(backend, "connecting_to_nothing", transport)
 
     async def scenario() -> None:
-        url = (f"tcp://127.0.0.1:{free_port(socket.SOCK_STREAM)}" if transport == "tcp"
-               else f"udpin://127.0.0.1:{free_port(socket.SOCK_DGRAM)}")
+        url = {"tcp": f"tcp://127.0.0.1:{free_port(socket.SOCK_STREAM)}",
+               "udp": f"udpin://127.0.0.1:{free_port(socket.SOCK_DGRAM)}",
+               "serial": "serial:///dev/drona-test-no-such-port:57600"}[transport]
         link = BACKENDS[backend](url)
-        why = "cannot open" if transport == "tcp" else "waited 0.3 s for a HEARTBEAT"
+        why = "waited 0.3 s for a HEARTBEAT" if transport == "udp" else "cannot open"
         with pytest.raises(VehicleError, match=why):
             await link.connect(timeout=0.3)
         await link.close()

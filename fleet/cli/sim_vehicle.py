@@ -3,7 +3,10 @@
 Vehicle ``i`` (system id ``i + 1``) starts under drone ``i``'s start cell of ``--workspace``.
 Over UDP (the default, as PX4 SITL) it sends to a ground station listening on
 ``--host``:(14540 + i); with ``--tcp`` (as ArduPilot SITL) it listens on (5760 + 10 i).
-``--base-port`` moves either range. Stops cleanly on SIGINT or SIGTERM (exit 0).
+``--base-port`` moves either range. With ``--serial`` each vehicle is on a serial line
+instead, a pseudo-terminal at ``--baud`` (as a flight controller wired to a companion
+computer, or behind a telemetry radio): it prints the device to open, for example
+``drona agent --vehicle serial:///dev/pts/3:57600``. Stops cleanly on SIGINT or SIGTERM (exit 0).
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from fleet.sim.config import VehicleConfig
 from fleet.sim.fleet import FleetConfig, SimNode, run_fleet
 from fleet.sim.personality import PERSONALITIES
 from fleet.sim.physics import Limits
+from fleet.sim.transport import PtyLink
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -30,6 +34,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--autopilot", choices=sorted(PERSONALITIES), default="ardupilot",
                         help="personality: modes, results and streams of ArduCopter or PX4 (default ardupilot)")
     parser.add_argument("--tcp", action="store_true", help="TCP servers as ArduPilot SITL (default: UDP as PX4 SITL)")
+    parser.add_argument("--serial", action="store_true",
+                        help="each vehicle on a serial line, a pseudo-terminal whose device it prints (Linux)")
+    parser.add_argument("--baud", type=int, default=57600,
+                        help="with --serial: the line's baud rate, 10 bits a byte (default 57600, a telemetry radio)")
     parser.add_argument("--host", default="127.0.0.1", help="address to use (default 127.0.0.1)")
     parser.add_argument("--base-port", type=int, help="first port (default 14540 for UDP, 5760 for TCP)")
     parser.add_argument("--speedup", type=float, default=1.0, help="simulated seconds per wall-clock second")
@@ -65,6 +73,10 @@ def _config(args: argparse.Namespace) -> FleetConfig:
     for name in ("speedup", "max_speed"):
         if not getattr(args, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
+    if args.baud <= 0:
+        raise ValueError(f"--baud must be > 0, got {args.baud}")
+    if args.serial and args.tcp:
+        raise ValueError("--serial and --tcp: choose one link")
     if not 0 <= args.battery <= 100:
         raise ValueError(f"--battery must be within 0..100, got {args.battery}")
     vehicle = VehicleConfig(personality=PERSONALITIES[args.autopilot], limits=Limits(max_speed=args.max_speed),
@@ -72,7 +84,7 @@ def _config(args: argparse.Namespace) -> FleetConfig:
                             battery_pct=args.battery)
     key = parse_key(args.signing_key) if args.signing_key else None
     return FleetConfig(count=args.count, vehicle=vehicle, tcp=args.tcp, host=args.host, base_port=args.base_port,
-                       speedup=args.speedup, signing_key=key)
+                       speedup=args.speedup, signing_key=key, serial_baud=args.baud if args.serial else None)
 
 
 async def _serve(config: FleetConfig, workspace: Workspace | None) -> None:
@@ -84,7 +96,11 @@ async def _serve(config: FleetConfig, workspace: Workspace | None) -> None:
     def announce(nodes: list[SimNode]) -> None:
         kind = "tcp server" if config.tcp else "udp to"
         for i, node in enumerate(nodes):
-            print(f"drona sim-vehicle: system {node.system_id} ({config.vehicle.personality.name}) "
-                  f"{kind} {config.host}:{config.port(i)}", file=sys.stderr, flush=True)
+            if isinstance(node.link, PtyLink):
+                where = f"serial {node.link.device} at {config.serial_baud} baud"
+            else:
+                where = f"{kind} {config.host}:{config.port(i)}"
+            print(f"drona sim-vehicle: system {node.system_id} ({config.vehicle.personality.name}) {where}",
+                  file=sys.stderr, flush=True)
 
     await run_fleet(config, workspace, stop, on_ready=announce)

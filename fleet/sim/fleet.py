@@ -6,10 +6,12 @@ eastwards at ArduPilot SITL's default home. Its link is, as the real SITLs:
 
 * UDP (PX4 SITL): it sends to the ground station at ``host:(base_port + i)``, default base
   14540, and replies to whatever address last wrote to it;
-* TCP (ArduPilot SITL): a server on ``host:(base_port + 10 i)``, default base 5760.
+* TCP (ArduPilot SITL): a server on ``host:(base_port + 10 i)``, default base 5760;
+* serial (a flight controller's UART or telemetry radio): a pseudo-terminal at a baud rate.
 
 The messages a vehicle has to send at once (a tick's telemetry, a command's answers) go out
-together, several MAVLink packets to a datagram, as a real autopilot's do.
+together, several MAVLink packets to a datagram, as a real autopilot's do; on a serial line a
+message at a time, so that one the line has no room for is skipped whole.
 
 Local positions (LOCAL_POSITION_NED, SET_POSITION_TARGET_LOCAL_NED) are relative to the
 vehicle's own home on the ground, as a real autopilot's EKF origin; GLOBAL_POSITION_INT and
@@ -35,7 +37,7 @@ from fleet.sim.codec import Codec, decode
 from fleet.sim.config import Placement, VehicleConfig
 from fleet.sim.mav import Message
 from fleet.sim.model import VehicleModel
-from fleet.sim.transport import DataCallback, TcpServerLink, UdpLink
+from fleet.sim.transport import DataCallback, PtyLink, TcpServerLink, UdpLink
 
 UDP_BASE_PORT = 14540
 TCP_BASE_PORT = 5760
@@ -58,6 +60,7 @@ class FleetConfig:
     speedup: float = 1.0
     tick_s: float = 0.02  #: wall-clock seconds between physics/telemetry steps
     signing_key: bytes | None = None
+    serial_baud: int | None = None  #: set: each vehicle on a pseudo-terminal at this baud rate (no port)
 
     def port(self, index: int) -> int:
         if self.tcp:
@@ -104,13 +107,16 @@ class SimNode:
         self.model = model
         self.codec = codec
         self.clock = clock
-        self.link: UdpLink | TcpServerLink | None = None
+        self.link: UdpLink | TcpServerLink | PtyLink | None = None
 
     @property
     def system_id(self) -> int:
         return self.model.config.system_id
 
     async def open(self, config: FleetConfig, index: int) -> None:
+        if config.serial_baud is not None:
+            self.link = await PtyLink.open(config.serial_baud, self.session)
+            return
         port = config.port(index)
         if config.tcp:
             self.link = await TcpServerLink.open(config.host, port, self.session)
@@ -133,7 +139,8 @@ class SimNode:
     def send(self, messages: list[Message]) -> None:
         if self.link is None:
             return
-        for chunk in pack_datagrams(self.codec.encode(msg) for msg in messages):
+        frames = (self.codec.encode(msg) for msg in messages)
+        for chunk in frames if isinstance(self.link, PtyLink) else pack_datagrams(frames):
             self.link.send(chunk)
 
     def close(self) -> None:

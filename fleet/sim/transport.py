@@ -4,6 +4,9 @@
   ``host:port`` and replies to whichever address wrote to it last.
 * :class:`TcpServerLink`, as ArduPilot SITL: a TCP server; what the vehicle sends goes to
   every connected client.
+* :class:`PtyLink`, as a flight controller on a serial port (a telemetry radio, a companion
+  computer's UART): one end of a pseudo-terminal, the other end's device is what the ground
+  station opens; the line carries ``baud / 10`` bytes a second.
 
 Both are callback protocols, so they add no tasks of their own. ``new_session()`` is called
 once per byte stream (the UDP socket, each TCP connection) and returns the function that takes
@@ -14,6 +17,9 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import os
+import time
+import tty
 from collections.abc import Callable
 from typing import cast
 
@@ -128,3 +134,78 @@ class _TcpConnection(asyncio.Protocol):
     def close(self) -> None:
         if self._transport is not None:
             self._transport.close()
+
+
+#: What the line may carry ahead of its rate: a flight controller's UART transmit buffer.
+SERIAL_TX_BUFFER = 1024
+
+
+class PtyLink:
+    """A serial line on a pseudo-terminal. The ground station opens :attr:`device`.
+
+    The line is paced at its baud rate (10 bits a byte): what does not fit goes unsent, a
+    message at a time, as ArduPilot and PX4 skip a message when the UART has no room for it.
+    Bytes nobody reads wait in the terminal (a few KiB), then go unsent too.
+    """
+
+    def __init__(self, new_session: SessionFactory, baud: int) -> None:
+        if baud <= 0:
+            raise ValueError(f"the baud rate must be > 0, got {baud}")
+        self._on_data = new_session()
+        self.rate = baud / 10  #: bytes a second
+        self._master, self._slave = os.openpty()
+        # Raw at once: a terminal's line discipline would echo what we send back to us, and
+        # turn bytes into other bytes, before the ground station opens its end.
+        tty.setraw(self._slave)
+        os.set_blocking(self._master, False)
+        self.device = os.ttyname(self._slave)
+        self._room, self._at = float(SERIAL_TX_BUFFER), time.monotonic()
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self.unsent = 0  #: bytes the line had no room for
+
+    @classmethod
+    async def open(cls, baud: int, new_session: SessionFactory) -> PtyLink:
+        try:
+            link = cls(new_session, baud)
+        except OSError as exc:
+            raise VehicleError(f"cannot open a pseudo-terminal: {exc.strerror}") from exc
+        link._loop = asyncio.get_running_loop()
+        link._loop.add_reader(link._master, link._readable)
+        return link
+
+    def _readable(self) -> None:
+        try:
+            data = os.read(self._master, 4096)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError as exc:  # the terminal went away
+            log.debug("serial %s: %s", self.device, exc)
+            return
+        if data:
+            self._on_data(data)
+
+    def send(self, data: bytes) -> None:
+        if self._loop is None:
+            return
+        now = time.monotonic()
+        self._room = min(SERIAL_TX_BUFFER, self._room + (now - self._at) * self.rate)
+        self._at = now
+        if len(data) > self._room:
+            self.unsent += len(data)
+            return
+        try:
+            sent = os.write(self._master, data)
+        except (BlockingIOError, InterruptedError):
+            sent = 0
+        self._room -= sent
+        self.unsent += len(data) - sent
+
+    def close(self) -> None:
+        if self._loop is not None:
+            self._loop.remove_reader(self._master)
+            self._loop = None
+            os.close(self._master)
+            os.close(self._slave)
+
+    async def wait_closed(self) -> None:
+        return None

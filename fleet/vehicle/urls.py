@@ -8,7 +8,7 @@
 A bad string raises :class:`LinkUrlError` (a :class:`~drona_gcs.errors.DronaError` and a
 ``ValueError``) whose message quotes the string and says what is wrong with it.
 :func:`open_transport` opens a :class:`LinkUrl` as an asyncio transport that moves bytes and
-knows nothing about MAVLink (serial needs the optional pyserial-asyncio package).
+knows nothing about MAVLink (serial needs pyserial-asyncio: the ``serial`` extra).
 """
 
 from __future__ import annotations
@@ -178,9 +178,10 @@ async def open_transport(url: LinkUrl, on_data: Callable[[bytes], None],
             _, stream = await loop.create_connection(lambda: _Stream(on_data, on_lost), url.host, url.port)
             return stream
         try:
-            import serial_asyncio  # type: ignore[import-not-found]
+            import serial_asyncio  # type: ignore[import-untyped]  # no stubs
         except ImportError as exc:
-            raise VehicleError(f"{url}: serial links need pyserial-asyncio (pip install pyserial-asyncio)") from exc
+            raise VehicleError(f"{url}: serial links need pyserial-asyncio "
+                               "(pip install 'drona-gcs[serial]', or pip install pyserial-asyncio)") from exc
         serial = _Stream(on_data, on_lost)
         await serial_asyncio.create_serial_connection(loop, lambda: serial, url.device, baudrate=url.baud)
         return serial
