@@ -364,6 +364,26 @@ def test_cli_serial_vehicles_say_their_device_and_answer_on_it() -> None:
     assert proc.returncode == 0, err.decode()
 
 
+def test_cli_says_on_exit_when_a_serial_line_had_no_room() -> None:
+    """300 baud carries 30 bytes a second, far less than the HEARTBEATs alone at speedup 50 (a
+    kilobyte a second): past the UART's buffer, they have no room."""
+    proc = subprocess.Popen([sys.executable, "-m", "fleet.cli", "sim-vehicle", "--serial", "--baud", "300",
+                             "--speedup", "50"], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        stderr_lines(proc, 1, 10)  # serving
+        time.sleep(2.0)
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            _, err = proc.communicate(timeout=5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()
+            raise
+    assert proc.returncode == 0, err.decode()
+    assert re.search(r"system 1: the serial line had no room for \d+ of \d+ bytes \(\d+\.\d%\)", err.decode())
+
+
 def test_a_serial_line_carries_no_more_than_its_baud_rate() -> None:
     """9600 baud is 960 bytes a second: past the UART's buffer, messages go unsent, whole."""
     async def scenario() -> None:

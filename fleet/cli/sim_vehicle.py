@@ -93,7 +93,10 @@ async def _serve(config: FleetConfig, workspace: Workspace | None) -> None:
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
 
+    serving: list[SimNode] = []
+
     def announce(nodes: list[SimNode]) -> None:
+        serving.extend(nodes)
         kind = "tcp server" if config.tcp else "udp to"
         for i, node in enumerate(nodes):
             if isinstance(node.link, PtyLink):
@@ -104,3 +107,9 @@ async def _serve(config: FleetConfig, workspace: Workspace | None) -> None:
                   file=sys.stderr, flush=True)
 
     await run_fleet(config, workspace, stop, on_ready=announce)
+    for node in serving:  # whether the telemetry asked for fits the line (a radio's 57600 baud, say)
+        if isinstance(node.link, PtyLink) and node.link.unsent:
+            line = node.link
+            print(f"drona sim-vehicle: system {node.system_id}: the serial line had no room for {line.unsent} of "
+                  f"{line.sent + line.unsent} bytes ({100 * line.unsent / (line.sent + line.unsent):.1f}%): "
+                  "ask for less telemetry, or a higher baud rate", file=sys.stderr, flush=True)

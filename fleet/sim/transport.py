@@ -161,6 +161,7 @@ class PtyLink:
         self.device = os.ttyname(self._slave)
         self._room, self._at = float(SERIAL_TX_BUFFER), time.monotonic()
         self._loop: asyncio.AbstractEventLoop | None = None
+        self.sent = 0  #: bytes the line carried
         self.unsent = 0  #: bytes the line had no room for
 
     @classmethod
@@ -198,6 +199,7 @@ class PtyLink:
         except (BlockingIOError, InterruptedError):
             sent = 0
         self._room -= sent
+        self.sent += sent
         self.unsent += len(data) - sent
 
     def close(self) -> None:
