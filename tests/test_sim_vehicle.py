@@ -365,13 +365,14 @@ def test_cli_serial_vehicles_say_their_device_and_answer_on_it() -> None:
 
 
 def test_cli_says_on_exit_when_a_serial_line_had_no_room() -> None:
-    """300 baud carries 30 bytes a second, far less than the HEARTBEATs alone at speedup 50 (a
-    kilobyte a second): past the UART's buffer, they have no room."""
+    """300 baud carries 30 bytes a second; PX4 streams several kilobytes a second from boot at
+    speedup 5: past the UART's buffer, most of it has no room."""
     proc = subprocess.Popen([sys.executable, "-m", "fleet.cli", "sim-vehicle", "--serial", "--baud", "300",
-                             "--speedup", "50"], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+                             "--autopilot", "px4", "--speedup", "5"],
+                            cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
         stderr_lines(proc, 1, 10)  # serving
-        time.sleep(2.0)
+        time.sleep(1.0)
     finally:
         proc.send_signal(signal.SIGTERM)
         try:
@@ -384,39 +385,67 @@ def test_cli_says_on_exit_when_a_serial_line_had_no_room() -> None:
     assert re.search(r"system 1: the serial line had no room for \d+ of \d+ bytes \(\d+\.\d%\)", err.decode())
 
 
-def test_a_serial_line_carries_no_more_than_its_baud_rate() -> None:
-    """9600 baud is 960 bytes a second: past the UART's buffer, messages go unsent, whole."""
+@pytest.mark.parametrize("flags, problem", [
+    (["--serial", "--tcp"], "not allowed with argument"),
+    (["--serial", "--baud", "0"], "--baud must be > 0, got 0"),
+    (["--baud", "9600"], "--baud is the rate of a serial line: it needs --serial"),
+    (["--serial", "--base-port", "5760"], "--base-port: a serial line has no port"),
+])
+def test_cli_refuses_serial_flags_that_do_not_fit(flags: list[str], problem: str,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    try:
+        code = drona_main(["sim-vehicle", *flags])
+    except SystemExit as exc:  # argparse's own refusals
+        code = exc.code
+    assert code == 2
+    assert problem in capsys.readouterr().err
+
+
+def test_a_serial_line_drains_at_its_baud_rate_and_skips_what_has_no_room() -> None:
+    """9600 baud is 960 bytes a second. The UART's transmit buffer holds 1 KiB: of 30 messages of
+    100 bytes sent at once, 10 are queued and 20 skipped, whole. The queued ones reach the other
+    end one by one, none before its last byte is through (a timer never fires early)."""
     async def scenario() -> None:
+        loop = asyncio.get_running_loop()
         got: list[bytes] = []
-        link = await PtyLink.open(9600, lambda: got.append)
-        ground = os.open(link.device, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        heard, all_in = asyncio.Event(), asyncio.Event()
+
+        def on_data(data: bytes) -> None:
+            got.append(data)
+            heard.set()
+
+        link = await PtyLink.open(9600, lambda: on_data)
+        ground = -1
+        arrived, times = bytearray(), []
         try:
-            frame = bytes(range(100))
+            ground = os.open(link.device, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+
+            def readable() -> None:
+                arrived.extend(os.read(ground, 4096))
+                times.append((loop.time(), len(arrived)))
+                if len(arrived) >= 1000:
+                    all_in.set()
+
+            loop.add_reader(ground, readable)
+            start, frame = loop.time(), bytes(range(100))
             for _ in range(30):
                 link.send(frame)
-            assert read_all(ground) == frame * (SERIAL_TX_BUFFER // len(frame))  # 10 fit, none cut
-            assert link.unsent == 30 * len(frame) - SERIAL_TX_BUFFER // len(frame) * len(frame)
-            await asyncio.sleep(0.5)  # room for 480 bytes comes back (more if the sleep runs late)
-            for _ in range(10):
-                link.send(frame)
-            assert 4 * len(frame) <= len(read_all(ground)) <= 8 * len(frame)
+            assert link.unsent == (30 - SERIAL_TX_BUFFER // len(frame)) * len(frame)  # 10 fit in 1 KiB
+            async with asyncio.timeout(10):
+                await all_in.wait()
+            assert bytes(arrived) == frame * 10
+            assert all(at - start >= total / 960 - 1e-3 for at, total in times), times
             os.write(ground, b"the other way")
             async with asyncio.timeout(5):
-                while not got:
-                    await asyncio.sleep(0.01)
+                await heard.wait()
             assert b"".join(got) == b"the other way"
         finally:
+            if ground >= 0:
+                loop.remove_reader(ground)
+                os.close(ground)
             link.close()
-            os.close(ground)
 
     asyncio.run(scenario())
-
-
-def read_all(fd: int) -> bytes:
-    out = b""
-    while select.select([fd], [], [], 0.2)[0]:
-        out += os.read(fd, 4096)
-    return out
 
 
 def test_cli_refuses_more_vehicles_than_drones(write_file: Callable[[str, str], Path],

@@ -4,9 +4,10 @@ Vehicle ``i`` (system id ``i + 1``) starts under drone ``i``'s start cell of ``-
 Over UDP (the default, as PX4 SITL) it sends to a ground station listening on
 ``--host``:(14540 + i); with ``--tcp`` (as ArduPilot SITL) it listens on (5760 + 10 i).
 ``--base-port`` moves either range. With ``--serial`` each vehicle is on a serial line
-instead, a pseudo-terminal at ``--baud`` (as a flight controller wired to a companion
-computer, or behind a telemetry radio): it prints the device to open, for example
-``drona agent --vehicle serial:///dev/pts/3:57600``. Stops cleanly on SIGINT or SIGTERM (exit 0).
+instead, a pseudo-terminal that behaves like a UART at ``--baud`` (as a flight controller
+wired to a companion computer, or behind a telemetry radio): it prints the device to open,
+for example ``drona agent --vehicle serial:///dev/pts/3:57600``, and on exit how much of the
+telemetry the line had no room for, if any. Stops cleanly on SIGINT or SIGTERM (exit 0).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from fleet.sim.fleet import FleetConfig, SimNode, run_fleet
 from fleet.sim.personality import PERSONALITIES
 from fleet.sim.physics import Limits
 from fleet.sim.transport import PtyLink
+from fleet.vehicle.urls import DEFAULT_BAUD
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -33,10 +35,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--count", type=int, default=1, help="number of vehicles (default 1)")
     parser.add_argument("--autopilot", choices=sorted(PERSONALITIES), default="ardupilot",
                         help="personality: modes, results and streams of ArduCopter or PX4 (default ardupilot)")
-    parser.add_argument("--tcp", action="store_true", help="TCP servers as ArduPilot SITL (default: UDP as PX4 SITL)")
-    parser.add_argument("--serial", action="store_true",
-                        help="each vehicle on a serial line, a pseudo-terminal whose device it prints (Linux)")
-    parser.add_argument("--baud", type=int, default=57600,
+    link = parser.add_mutually_exclusive_group()
+    link.add_argument("--tcp", action="store_true", help="TCP servers as ArduPilot SITL (default: UDP as PX4 SITL)")
+    link.add_argument("--serial", action="store_true",
+                      help="each vehicle on a serial line, a pseudo-terminal whose device it prints (Linux)")
+    parser.add_argument("--baud", type=int,
                         help="with --serial: the line's baud rate, 10 bits a byte (default 57600, a telemetry radio)")
     parser.add_argument("--host", default="127.0.0.1", help="address to use (default 127.0.0.1)")
     parser.add_argument("--base-port", type=int, help="first port (default 14540 for UDP, 5760 for TCP)")
@@ -73,10 +76,13 @@ def _config(args: argparse.Namespace) -> FleetConfig:
     for name in ("speedup", "max_speed"):
         if not getattr(args, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
-    if args.baud <= 0:
-        raise ValueError(f"--baud must be > 0, got {args.baud}")
-    if args.serial and args.tcp:
-        raise ValueError("--serial and --tcp: choose one link")
+    if args.baud is not None and not args.serial:
+        raise ValueError("--baud is the rate of a serial line: it needs --serial")
+    if args.serial and args.base_port is not None:
+        raise ValueError("--base-port: a serial line has no port (each vehicle prints its device)")
+    baud = DEFAULT_BAUD if args.baud is None else args.baud
+    if baud <= 0:
+        raise ValueError(f"--baud must be > 0, got {baud}")
     if not 0 <= args.battery <= 100:
         raise ValueError(f"--battery must be within 0..100, got {args.battery}")
     vehicle = VehicleConfig(personality=PERSONALITIES[args.autopilot], limits=Limits(max_speed=args.max_speed),
@@ -84,7 +90,7 @@ def _config(args: argparse.Namespace) -> FleetConfig:
                             battery_pct=args.battery)
     key = parse_key(args.signing_key) if args.signing_key else None
     return FleetConfig(count=args.count, vehicle=vehicle, tcp=args.tcp, host=args.host, base_port=args.base_port,
-                       speedup=args.speedup, signing_key=key, serial_baud=args.baud if args.serial else None)
+                       speedup=args.speedup, signing_key=key, serial_baud=baud if args.serial else None)
 
 
 async def _serve(config: FleetConfig, workspace: Workspace | None) -> None:

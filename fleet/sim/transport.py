@@ -6,11 +6,11 @@
   every connected client.
 * :class:`PtyLink`, as a flight controller on a serial port (a telemetry radio, a companion
   computer's UART): one end of a pseudo-terminal, the other end's device is what the ground
-  station opens; the line carries ``baud / 10`` bytes a second.
+  station opens; the line carries ``baud / 10`` bytes a second, as a UART.
 
-Both are callback protocols, so they add no tasks of their own. ``new_session()`` is called
-once per byte stream (the UDP socket, each TCP connection) and returns the function that takes
-that stream's bytes, so each stream can keep its own parser.
+All are callback protocols, so they add no tasks of their own. ``new_session()`` is called
+once per byte stream (the UDP socket, each TCP connection, the serial line) and returns the
+function that takes that stream's bytes, so each stream can keep its own parser.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
-import time
+import termios
 import tty
 from collections.abc import Callable
 from typing import cast
@@ -136,76 +136,98 @@ class _TcpConnection(asyncio.Protocol):
             self._transport.close()
 
 
-#: What the line may carry ahead of its rate: a flight controller's UART transmit buffer.
+#: What the line may hold queued ahead of its rate: a flight controller's UART transmit buffer.
 SERIAL_TX_BUFFER = 1024
 
 
 class PtyLink:
     """A serial line on a pseudo-terminal. The ground station opens :attr:`device`.
 
-    The line is paced at its baud rate (10 bits a byte): what does not fit goes unsent, a
-    message at a time, as ArduPilot and PX4 skip a message when the UART has no room for it.
-    Bytes nobody reads wait in the terminal (a few KiB), then go unsent too.
+    As a UART: what the vehicle sends is queued in a transmit buffer (:data:`SERIAL_TX_BUFFER`)
+    that drains at the baud rate (10 bits a byte), and each message reaches the other end when
+    its last byte is through, behind everything queued before it. A message the buffer has no
+    room for is skipped whole, as ArduPilot and PX4 skip one when the UART lacks room. Bytes
+    nobody reads are lost, as on a wire nobody listens to. Not modelled: a pseudo-terminal has
+    no speed, so a ground station opening it at the wrong baud rate still reads it.
     """
 
-    def __init__(self, new_session: SessionFactory, baud: int) -> None:
+    def __init__(self, new_session: SessionFactory, baud: int, loop: asyncio.AbstractEventLoop) -> None:
         if baud <= 0:
             raise ValueError(f"the baud rate must be > 0, got {baud}")
         self._on_data = new_session()
+        self._loop = loop
         self.rate = baud / 10  #: bytes a second
         self._master, self._slave = os.openpty()
-        # Raw at once: a terminal's line discipline would echo what we send back to us, and
-        # turn bytes into other bytes, before the ground station opens its end.
-        tty.setraw(self._slave)
-        os.set_blocking(self._master, False)
-        self.device = os.ttyname(self._slave)
-        self._room, self._at = float(SERIAL_TX_BUFFER), time.monotonic()
-        self._loop: asyncio.AbstractEventLoop | None = None
+        try:
+            # Raw at once: a terminal's line discipline would echo what we send back to us, and
+            # turn bytes into other bytes, before the ground station opens its end.
+            tty.setraw(self._slave)
+            os.set_blocking(self._master, False)
+            self.device = os.ttyname(self._slave)
+            loop.add_reader(self._master, self._readable)
+        except BaseException:
+            os.close(self._master)
+            os.close(self._slave)
+            raise
+        self._drained_at = loop.time()  #: when the line will have sent everything queued
+        self._closed = False
         self.sent = 0  #: bytes the line carried
-        self.unsent = 0  #: bytes the line had no room for
+        self.unsent = 0  #: bytes the transmit buffer had no room for
 
     @classmethod
     async def open(cls, baud: int, new_session: SessionFactory) -> PtyLink:
         try:
-            link = cls(new_session, baud)
-        except OSError as exc:
-            raise VehicleError(f"cannot open a pseudo-terminal: {exc.strerror}") from exc
-        link._loop = asyncio.get_running_loop()
-        link._loop.add_reader(link._master, link._readable)
-        return link
+            return cls(new_session, baud, asyncio.get_running_loop())
+        except (OSError, termios.error) as exc:
+            raise VehicleError(f"cannot open a pseudo-terminal: {exc}") from exc
 
     def _readable(self) -> None:
         try:
             data = os.read(self._master, 4096)
         except (BlockingIOError, InterruptedError):
             return
-        except OSError as exc:  # the terminal went away
+        except OSError as exc:  # the terminal is gone (never while we hold its other end): stop reading
             log.debug("serial %s: %s", self.device, exc)
-            return
+            data = b""
         if data:
             self._on_data(data)
+        else:
+            self._loop.remove_reader(self._master)
+
+    def queued(self) -> float:
+        """Bytes in the transmit buffer now."""
+        return max(0.0, self._drained_at - self._loop.time()) * self.rate
 
     def send(self, data: bytes) -> None:
-        if self._loop is None:
+        if self._closed:
             return
-        now = time.monotonic()
-        self._room = min(SERIAL_TX_BUFFER, self._room + (now - self._at) * self.rate)
-        self._at = now
-        if len(data) > self._room:
+        if self.queued() + len(data) > SERIAL_TX_BUFFER:
             self.unsent += len(data)
             return
+        self._drained_at = max(self._loop.time(), self._drained_at) + len(data) / self.rate
+        self._loop.call_at(self._drained_at, self._deliver, data)
+
+    def _deliver(self, data: bytes) -> None:
+        if self._closed:
+            return
+        self.sent += len(data)
+        sent = self._write(data)
+        if sent < len(data):
+            # The other end's input is full: nobody reads it. What nobody read is lost, as
+            # on a wire, and the message goes whole behind it.
+            termios.tcflush(self._slave, termios.TCIFLUSH)
+            self._write(data[sent:])
+
+    def _write(self, data: bytes) -> int:
         try:
-            sent = os.write(self._master, data)
+            return os.write(self._master, data)
         except (BlockingIOError, InterruptedError):
-            sent = 0
-        self._room -= sent
-        self.sent += sent
-        self.unsent += len(data) - sent
+            return 0
 
     def close(self) -> None:
-        if self._loop is not None:
+        if not self._closed:
+            self._closed = True
             self._loop.remove_reader(self._master)
-            self._loop = None
             os.close(self._master)
             os.close(self._slave)
 
