@@ -19,6 +19,7 @@ import statistics
 import time
 from collections.abc import AsyncIterator, Callable, Coroutine
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Protocol
 
 import pytest
@@ -99,11 +100,12 @@ class Fake:
 
 
 @contextlib.asynccontextmanager
-async def fake_vehicle(personality: str, transport: str, **vehicle: Any) -> AsyncIterator[Fake]:
+async def fake_vehicle(personality: str, transport: str, port: int | None = None,
+                       **vehicle: Any) -> AsyncIterator[Fake]:
     """One fake vehicle in this event loop; ``url`` is how a ground station reaches it. ``serial``: on a
     pseudo-terminal at :data:`SERIAL_BAUD`, as a flight controller wired to a companion computer."""
     tcp, serial = transport == "tcp", transport == "serial"
-    port = free_port(socket.SOCK_STREAM if tcp else socket.SOCK_DGRAM)
+    port = port or free_port(socket.SOCK_STREAM if tcp else socket.SOCK_DGRAM)
     settings: dict[str, Any] = {"ready_after_s": 1.0, "auto_disarm_s": 60.0, "offboard_timeout_s": 5.0, **vehicle}
     config = FleetConfig(vehicle=VehicleConfig(personality=PERSONALITIES[personality], **settings), tcp=tcp,
                          base_port=port, speedup=SPEEDUP, serial_baud=SERIAL_BAUD if serial else None)
@@ -322,6 +324,61 @@ def test_takeoff_while_disarmed_is_rejected_with_the_mav_result(backend: str, pe
             assert time.monotonic() - started < 2.0
             with pytest.raises(VehicleError, match="unknown mode"):
                 await link.set_mode("SPORT")
+
+    run(scenario)
+
+
+# ------------------------------------------------------------------ a lost stream comes back
+async def telemetry_again(link: VehicleLink, fresh: Callable[[Telemetry], bool], timeout: float) -> Telemetry:
+    """Wait for ``fresh`` telemetry as the agent's supervisor does: a lost link fails at once, so
+    try again after a pause (the link opens the stream again every second) until ``timeout``."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            return await link.wait_until(fresh, max(0.1, deadline - time.monotonic()), "fresh telemetry")
+        except VehicleError:
+            if time.monotonic() > deadline:
+                raise
+            await asyncio.sleep(0.1)
+
+@personalities
+@pytest.mark.parametrize("transport", ["tcp", "serial"])
+def test_a_lost_stream_is_opened_again_and_its_telemetry_asked_for_again(
+        personality: str, transport: str, tmp_path: Path) -> None:
+    """SITL restarted, or a USB adapter pulled out and plugged back in: the link fails commands while
+    the stream is gone, opens it again by its name (TCP: the same port; serial: a by-id style link
+    that now points at the new device) and asks the new vehicle, which streams nothing yet, for the
+    telemetry again."""
+    async def scenario() -> None:
+        port = free_port(socket.SOCK_STREAM)
+        by_id = tmp_path / "usb-fake-if00"
+        url = f"tcp://127.0.0.1:{port}" if transport == "tcp" else f"serial://{by_id}:{SERIAL_BAUD}"
+
+        def point_at(fake: Fake) -> None:
+            if transport == "serial":
+                assert isinstance(fake.nodes[0].link, PtyLink)
+                by_id.unlink(missing_ok=True)
+                by_id.symlink_to(fake.nodes[0].link.device)
+
+        async with fake_vehicle(personality, transport, port=port) as first:
+            point_at(first)
+            link = _pymavlink(url, heartbeat_timeout=0.5)
+            await link.connect(timeout=5)
+            try:
+                await link.wait_ready(timeout=5)
+                await first.silence()
+                with pytest.raises(VehicleError):
+                    await link.arm()
+                async with fake_vehicle(personality, transport, port=port) as second:
+                    point_at(second)
+                    back = time.monotonic()
+                    # ArduPilot streams no position until asked: a fresh one shows the streams asked for again.
+                    await telemetry_again(link, lambda t: t.position is not None and t.position.at > back, 10)
+                    await link.wait_ready(timeout=5)
+                    await link.arm()
+                    assert link.telemetry().armed
+            finally:
+                await link.close()
 
     run(scenario)
 

@@ -12,6 +12,11 @@ confirms from the next HEARTBEAT what an autopilot may ACK without doing: ArduCo
 change before its position estimate yet stays in STABILIZE. A vehicle silent for
 ``heartbeat_timeout`` seconds fails every pending wait with a VehicleError.
 
+A TCP or serial link that is lost (SITL restarted, a USB adapter pulled out, a flight controller
+rebooted) fails every command at once, and is opened again every :data:`REOPEN_S` seconds until
+it comes back, by its name (a ``/dev/serial/by-id/...`` link finds the adapter wherever it comes
+back); then the telemetry streams are asked for again, as a rebooted autopilot forgot them.
+
 Positions: without ``frame`` they are in the autopilot's local NED frame (origin at its EKF origin,
 usually home). With a :class:`~drona_gcs.geo.GeoFrame` they are in that workspace's frame: targets go
 out as SET_POSITION_TARGET_GLOBAL_INT and positions come from GLOBAL_POSITION_INT, so vehicles
@@ -55,6 +60,8 @@ GCS_COMPONENT = mavlink2.MAV_COMP_ID_MISSIONPLANNER
 _UNKNOWN_U16 = 0xFFFF
 SETPOINT_SENT = "(setpoint sent)"  #: a pseudo message type: waiters on it are resolved as setpoints go out
 _SERIOUS = mavlink2.MAV_SEVERITY_WARNING  #: texts at this severity or worse explain a refusal
+REOPEN_S = 1.0  #: how often a lost TCP or serial link is opened again
+REOPEN_TIMEOUT_S = 5.0  #: how long one attempt may take (a TCP connect to a host that does not answer)
 
 
 def _command_name(command: int) -> str:
@@ -76,12 +83,14 @@ class PymavlinkLink:
         self.text_grace, self.stream_hz, self.setpoint_hz = text_grace, stream_hz, setpoint_hz
         self.sysid, self.compid = target_system, mavlink2.MAV_COMP_ID_AUTOPILOT1
         self._enc = mavlink2.MAVLink(None, srcSystem=source_system, srcComponent=GCS_COMPONENT)
-        self._dec = mavlink2.MAVLink(None)
-        self._dec.robust_parsing = True  # corrupt bytes decode as BAD_DATA instead of raising
+        self._dec = _decoder()
         self._transport: Transport | None = None
         self._tasks: list[asyncio.Task[None]] = []
         self._waiters: dict[asyncio.Future[Message], tuple[str | None, Callable[[Message], bool]]] = {}
-        self._dead: VehicleError | None = None  #: closed or the stream is gone: final
+        self._dead: VehicleError | None = None  #: closed, or the stream is gone (until it is opened again)
+        self._lost_at: float | None = None  #: when the stream was lost (None: not lost, or closed by us)
+        self._tried_at = -math.inf  #: the last attempt to open a lost stream again
+        self._closed = False  #: closed by us: a stream lost now is not opened again
         self._silent: VehicleError | None = None  #: no heartbeat lately: cleared by the next one
         self._started = clock()
         self._setpoint: Message | None = None  #: repeated at setpoint_hz (PX4 leaves OFFBOARD without it)
@@ -119,14 +128,19 @@ class PymavlinkLink:
         self._tasks = [asyncio.create_task(self._housekeeping()), asyncio.create_task(self._stream_setpoint())]
         self._send_heartbeat()
         try:
-            await self._await_or_fail(self._expect("HEARTBEAT", _any), timeout, "a HEARTBEAT from a vehicle")
-            for msg_id, share in self.streams.items():
-                await self.command(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 1e6 / (self.stream_hz * share))
+            await self._ask_for_streams(timeout)
         except BaseException:
             await self.close()
             raise
 
+    async def _ask_for_streams(self, timeout: float) -> None:
+        """Once a HEARTBEAT comes (within ``timeout``), the telemetry at our rates."""
+        await self._await_or_fail(self._expect("HEARTBEAT", _any), timeout, "a HEARTBEAT from a vehicle")
+        for msg_id, share in self.streams.items():
+            await self.command(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 1e6 / (self.stream_hz * share))
+
     async def close(self) -> None:
+        self._closed, self._lost_at = True, None
         await cancel_all(self._tasks)
         if self._transport is not None:
             self._transport.close()
@@ -427,12 +441,42 @@ class PymavlinkLink:
 
     def _on_lost(self, why: str) -> None:
         self._fail(VehicleError(f"{self.url}: {why}"), final=True)
+        if self._tasks and not self._closed:  # connected: the housekeeping opens it again
+            self._lost_at = self.clock()
+            log.warning("%s: %s; opening it again every %g s", self.url, why, REOPEN_S)
+
+    async def _reopen(self) -> None:
+        """One attempt to open a lost stream again; on success, ask for the telemetry again."""
+        self._tried_at = self.clock()
+        try:
+            transport = await asyncio.wait_for(open_transport(self.url, self._on_bytes, self._on_lost),
+                                               REOPEN_TIMEOUT_S)
+        except (VehicleError, TimeoutError) as exc:
+            log.debug("%s: not back yet: %s", self.url, exc)
+            return
+        log.warning("%s: open again after %.1f s", self.url, self.clock() - (self._lost_at or self._tried_at))
+        self._transport, self._lost_at, self._dead = transport, None, None
+        self._dec = _decoder()  # a frame cut by the loss must not swallow the first new one
+        self._send_heartbeat()
+        self._tasks = [task for task in self._tasks if not task.done()]
+        self._tasks.append(asyncio.create_task(self._streams_again()))
+
+    async def _streams_again(self) -> None:
+        try:
+            await self._ask_for_streams(self.heartbeat_timeout * 3)
+        except VehicleError as exc:  # silent or refusing: the watchdog and the next commands tell
+            log.warning("%s: telemetry not asked for again: %s", self.url, exc)
 
     async def _housekeeping(self) -> None:
-        """Our HEARTBEAT at 1 Hz (PX4 and ArduPilot watch for a GCS), and the vehicle's heartbeat watchdog."""
+        """Our HEARTBEAT at 1 Hz (PX4 and ArduPilot watch for a GCS), the vehicle's heartbeat watchdog,
+        and a lost stream opened again."""
         last_sent = self.clock()
         async for _ in periodic(min(0.25, self.heartbeat_timeout / 4)):
             now = self.clock()
+            if self._lost_at is not None:
+                if now - self._tried_at >= REOPEN_S:
+                    await self._reopen()
+                continue
             if now - last_sent >= 1.0:
                 self._send_heartbeat()
                 last_sent = now
@@ -449,6 +493,12 @@ class PymavlinkLink:
         if self._transport is not None and self._dead is None:
             self._transport.send(msg.pack(self._enc))
             self._enc.seq = (self._enc.seq + 1) % 256
+
+
+def _decoder() -> Any:
+    decoder = mavlink2.MAVLink(None)
+    decoder.robust_parsing = True  # corrupt bytes decode as BAD_DATA instead of raising
+    return decoder
 
 
 def _velocity(local: Message | None, glob: Message | None, frame: GeoFrame | None) -> Ned | None:

@@ -134,7 +134,7 @@ class _Datagrams(asyncio.DatagramProtocol):
 
 
 class _Stream(asyncio.Protocol):
-    """TCP or serial: one byte stream; losing it is final."""
+    """TCP or serial: one byte stream; once lost, the link opens a new one (PymavlinkLink)."""
 
     def __init__(self, on_data: Callable[[bytes], None], on_lost: Callable[[str], None]) -> None:
         self.on_data, self.on_lost = on_data, on_lost
