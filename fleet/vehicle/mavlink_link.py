@@ -12,10 +12,13 @@ confirms from the next HEARTBEAT what an autopilot may ACK without doing: ArduCo
 change before its position estimate yet stays in STABILIZE. A vehicle silent for
 ``heartbeat_timeout`` seconds fails every pending wait with a VehicleError.
 
-A TCP or serial link that is lost (SITL restarted, a USB adapter pulled out, a flight controller
-rebooted) fails every command at once, and is opened again every :data:`REOPEN_S` seconds until
-it comes back, by its name (a ``/dev/serial/by-id/...`` link finds the adapter wherever it comes
-back); then the telemetry streams are asked for again, as a rebooted autopilot forgot them.
+A TCP or serial stream that is lost (SITL restarted, a USB adapter pulled out, a flight
+controller on USB rebooted) fails every command at once, and is opened again every
+:data:`REOPEN_S` seconds until it comes back, by its name (a ``/dev/serial/by-id/...`` link finds
+the adapter wherever it comes back). UDP and a UART that stays connected lose nothing to reopen:
+the vehicle only goes silent. Either way, at the first HEARTBEAT after the stream came back or
+the silence ended, the telemetry streams are asked for again (a rebooted autopilot forgot them),
+at each HEARTBEAT until the requests are acknowledged.
 
 Positions: without ``frame`` they are in the autopilot's local NED frame (origin at its EKF origin,
 usually home). With a :class:`~drona_gcs.geo.GeoFrame` they are in that workspace's frame: targets go
@@ -91,6 +94,8 @@ class PymavlinkLink:
         self._lost_at: float | None = None  #: when the stream was lost (None: not lost, or closed by us)
         self._tried_at = -math.inf  #: the last attempt to open a lost stream again
         self._closed = False  #: closed by us: a stream lost now is not opened again
+        self._streams_wanted = False  #: ask for the telemetry streams at the next HEARTBEAT
+        self._asking: asyncio.Task[None] | None = None  #: the stream requests under way
         self._silent: VehicleError | None = None  #: no heartbeat lately: cleared by the next one
         self._started = clock()
         self._setpoint: Message | None = None  #: repeated at setpoint_hz (PX4 leaves OFFBOARD without it)
@@ -128,14 +133,14 @@ class PymavlinkLink:
         self._tasks = [asyncio.create_task(self._housekeeping()), asyncio.create_task(self._stream_setpoint())]
         self._send_heartbeat()
         try:
-            await self._ask_for_streams(timeout)
+            await self._await_or_fail(self._expect("HEARTBEAT", _any), timeout, "a HEARTBEAT from a vehicle")
+            await self._ask_for_streams()
         except BaseException:
             await self.close()
             raise
 
-    async def _ask_for_streams(self, timeout: float) -> None:
-        """Once a HEARTBEAT comes (within ``timeout``), the telemetry at our rates."""
-        await self._await_or_fail(self._expect("HEARTBEAT", _any), timeout, "a HEARTBEAT from a vehicle")
+    async def _ask_for_streams(self) -> None:
+        """The telemetry at our rates (every stream's request acknowledged, or VehicleError)."""
         for msg_id, share in self.streams.items():
             await self.command(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 1e6 / (self.stream_hz * share))
 
@@ -380,6 +385,11 @@ class PymavlinkLink:
                 future.set_exception(exc)
 
     def _on_heartbeat(self, msg: Message) -> None:
+        if self._silent is not None:  # back from a silence: maybe rebooted, its streams forgotten
+            self._streams_wanted = True
+        if self._streams_wanted and not self._closed and (self._asking is None or self._asking.done()):
+            self._asking = asyncio.get_running_loop().create_task(self._streams_again())
+            self._tasks[:] = [*(task for task in self._tasks if not task.done()), self._asking]
         self.autopilot = {mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA: Autopilot.ARDUPILOT,
                           mavlink2.MAV_AUTOPILOT_PX4: Autopilot.PX4}.get(msg.autopilot, Autopilot.OTHER)
         self.custom_mode = int(msg.custom_mode)
@@ -446,32 +456,42 @@ class PymavlinkLink:
             log.warning("%s: %s; opening it again every %g s", self.url, why, REOPEN_S)
 
     async def _reopen(self) -> None:
-        """One attempt to open a lost stream again; on success, ask for the telemetry again."""
+        """One attempt to open a lost stream again (the telemetry is asked for at the first HEARTBEAT)."""
         self._tried_at = self.clock()
+        self._dec = _decoder()  # a frame cut by the loss must not swallow the first new one
         try:
             transport = await asyncio.wait_for(open_transport(self.url, self._on_bytes, self._on_lost),
                                                REOPEN_TIMEOUT_S)
         except (VehicleError, TimeoutError) as exc:
             log.debug("%s: not back yet: %s", self.url, exc)
             return
+        if self._closed:  # closed while it opened
+            transport.close()
+            return
         log.warning("%s: open again after %.1f s", self.url, self.clock() - (self._lost_at or self._tried_at))
-        self._transport, self._lost_at, self._dead = transport, None, None
-        self._dec = _decoder()  # a frame cut by the loss must not swallow the first new one
+        self._transport, self._lost_at, self._dead, self._silent = transport, None, None, None
+        # What came before the loss is no news of the vehicle now; it gets a whole timeout to speak.
+        self._latest.clear()
+        self._snapshot = None
+        self.heartbeat_at = self.clock()
+        self._streams_wanted = True
         self._send_heartbeat()
-        self._tasks = [task for task in self._tasks if not task.done()]
-        self._tasks.append(asyncio.create_task(self._streams_again()))
 
     async def _streams_again(self) -> None:
         try:
-            await self._ask_for_streams(self.heartbeat_timeout * 3)
-        except VehicleError as exc:  # silent or refusing: the watchdog and the next commands tell
-            log.warning("%s: telemetry not asked for again: %s", self.url, exc)
+            await self._ask_for_streams()
+        except VehicleError as exc:  # asked again at the next HEARTBEAT
+            log.info("%s: telemetry streams not acknowledged yet: %s", self.url, exc)
+        else:
+            self._streams_wanted = False
 
     async def _housekeeping(self) -> None:
         """Our HEARTBEAT at 1 Hz (PX4 and ArduPilot watch for a GCS), the vehicle's heartbeat watchdog,
         and a lost stream opened again."""
         last_sent = self.clock()
         async for _ in periodic(min(0.25, self.heartbeat_timeout / 4)):
+            if self._closed:
+                return
             now = self.clock()
             if self._lost_at is not None:
                 if now - self._tried_at >= REOPEN_S:
