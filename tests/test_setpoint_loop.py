@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import pytest
 
@@ -113,51 +113,32 @@ class CruisingSink:
         return Position(self.here, self.at)
 
 
-LONG = Trajectory(2, ((0, 0, 0), (1, 0, 0), (2, 0, 0), (3, 0, 0), (3, 1, 0), (3, 2, 0)))
-
-
-@pytest.mark.parametrize("plan, cells_a_step, stalled_steps", [(TRAJ, 2.0, 3.5), (LONG, 1.2, 3.2)],
-                         ids=["fast-corner-in-the-stall", "slow-corner-after-the-stall"])
-def test_a_stalled_process_catches_up_through_every_cell_and_cuts_no_corner(
-        plan: Trajectory, cells_a_step: float, stalled_steps: float) -> None:
-    """The process stalls over boundaries before a corner. Sent straight to the newest cell, the
-    vehicle would fly across a cell the plan never reserved (with TRAJ, from (0,0,0) across (1,1,0));
-    it must fly the plan's cells in order instead, the corner too, even when it is still catching
-    up as the plan turns."""
+def cruise(plan: Trajectory, cells_a_step: float, tau: float,
+           until: Callable[[StepReport, CruisingSink], bool], check_hz: float = 40.0,
+           stall: tuple[int, float] | None = None) -> tuple[CruisingSink, list[StepReport]]:
+    """Fly ``plan`` with a :class:`CruisingSink` at ``cells_a_step`` until ``until(report, sink)``;
+    ``stall``: at that step the whole process blocks for that many seconds (a blocking call, a
+    paused VM)."""
     async def scenario() -> tuple[CruisingSink, list[StepReport]]:
         loop = asyncio.get_running_loop()
-        tau = 0.2
-        sink = CruisingSink(loop, FRAME.cell_to_ned((0, 0, 0)), speed=cells_a_step * 4.0 / tau)
-        executor = PlanExecutor((0, 0, 0))
+        sink = CruisingSink(loop, FRAME.cell_to_ned(plan.cells[0]), speed=cells_a_step * 4.0 / tau)
+        executor = PlanExecutor(plan.cells[0])
         executor.start(plan)
         reports: list[StepReport] = []
         stop = asyncio.Event()
 
         def on_step(report: StepReport, done: Sequence[ExecutorAction]) -> None:
             reports.append(report)
-            if report.step == 2:
-                time.sleep(stalled_steps * tau)  # the whole process stalls (a blocking call, a paused VM)
-            if report.step == 12:
+            if stall is not None and report.step == stall[0]:
+                time.sleep(stall[1])
+            if until(report, sink):
                 stop.set()
 
-        runner = SetpointLoop(sink, FRAME, executor, loop.time() + 0.05, tau, loop.time, check_hz=40.0)
+        runner = SetpointLoop(sink, FRAME, executor, loop.time() + 0.05, tau, loop.time, check_hz=check_hz)
         await asyncio.wait_for(runner.run(on_step, stop), timeout=10)
         return sink, reports
 
-    sink, reports = asyncio.run(scenario())
-    allowed = set(plan.cells)
-    for start, end in sink.legs:
-        for i in range(101):
-            f = i / 100
-            point = Ned(start.north + f * (end.north - start.north), start.east + f * (end.east - start.east),
-                        end.down)
-            assert FRAME.locate(point).cell in allowed, f"the leg {start} -> {end} crosses {FRAME.locate(point).cell}"
-    assert [FRAME.locate(end).cell for _, end in sink.legs] == list(plan.cells[1:])
-    assert max(r.behind for r in reports) >= 1  # a cell it had no time to reach was kept
-    assert reports[-1].behind == 0 and FRAME.locate(sink.here).cell == plan.cells[-1]
-
-
-ZIGZAG = Trajectory(2, ((0, 0, 0), (1, 0, 0), (2, 0, 0), (2, 1, 0), (2, 2, 0), (3, 2, 0), (4, 2, 0), (4, 3, 0)))
+    return asyncio.run(scenario())
 
 
 def legs_off_the_plan(sink: CruisingSink, plan: Trajectory) -> list[str]:
@@ -174,30 +155,38 @@ def legs_off_the_plan(sink: CruisingSink, plan: Trajectory) -> list[str]:
     return off
 
 
+LONG = Trajectory(2, ((0, 0, 0), (1, 0, 0), (2, 0, 0), (3, 0, 0), (3, 1, 0), (3, 2, 0)))
+
+
+@pytest.mark.parametrize("plan, cells_a_step, stalled_steps", [(TRAJ, 2.0, 3.5), (LONG, 1.2, 3.2)],
+                         ids=["fast-corner-in-the-stall", "slow-corner-after-the-stall"])
+def test_a_stalled_process_catches_up_through_every_cell_and_cuts_no_corner(
+        plan: Trajectory, cells_a_step: float, stalled_steps: float) -> None:
+    """The process stalls over boundaries before a corner. Sent straight to the newest cell, the
+    vehicle would fly across a cell the plan never reserved (with TRAJ, from (0,0,0) across (1,1,0));
+    it must fly the plan's cells in order instead, the corner too, even when it is still catching
+    up as the plan turns."""
+    tau = 0.2
+    sink, reports = cruise(plan, cells_a_step, tau, lambda report, _: report.step == 12,
+                           stall=(2, stalled_steps * tau))
+    assert legs_off_the_plan(sink, plan) == []
+    assert [FRAME.locate(end).cell for _, end in sink.legs] == list(plan.cells[1:])
+    assert max(r.behind for r in reports) >= 1  # a cell it had no time to reach was kept
+    assert reports[-1].behind == 0 and FRAME.locate(sink.here).cell == plan.cells[-1]
+
+
+ZIGZAG = Trajectory(2, ((0, 0, 0), (1, 0, 0), (2, 0, 0), (2, 1, 0), (2, 2, 0), (3, 2, 0), (4, 2, 0), (4, 3, 0)))
+
+
 @pytest.mark.parametrize("cells_a_step", [0.4, 0.5])
 def test_a_slow_vehicle_turns_in_the_plans_cells(cells_a_step: float) -> None:
     """No stall, but a vehicle slower than a cell a step: at each turn it is still short of the
     corner when the next cell comes. Sent straight there it would cut the corner; it must fly
     through the corner first (late, rather than off the path)."""
-    async def scenario() -> tuple[CruisingSink, list[StepReport]]:
-        loop = asyncio.get_running_loop()
-        tau = 0.1
-        sink = CruisingSink(loop, FRAME.cell_to_ned((0, 0, 0)), speed=cells_a_step * 4.0 / tau)
-        executor = PlanExecutor((0, 0, 0))
-        executor.start(ZIGZAG)
-        reports: list[StepReport] = []
-        stop = asyncio.Event()
+    def done(report: StepReport, sink: CruisingSink) -> bool:
+        return report.step >= 12 and not report.behind and FRAME.locate(sink.here).cell == ZIGZAG.cells[-1]
 
-        def on_step(report: StepReport, done: Sequence[ExecutorAction]) -> None:
-            reports.append(report)
-            if report.step >= 12 and not report.behind and FRAME.locate(sink.here).cell == ZIGZAG.cells[-1]:
-                stop.set()
-
-        runner = SetpointLoop(sink, FRAME, executor, loop.time() + 0.05, tau, loop.time, check_hz=100.0)
-        await asyncio.wait_for(runner.run(on_step, stop), timeout=10)
-        return sink, reports
-
-    sink, reports = asyncio.run(scenario())
+    sink, reports = cruise(ZIGZAG, cells_a_step, 0.1, done, check_hz=100.0)
     assert legs_off_the_plan(sink, ZIGZAG) == []
     assert [FRAME.locate(end).cell for _, end in sink.legs] == list(ZIGZAG.cells[1:])
     assert max(r.behind for r in reports) >= 1  # the corner was kept on its route
@@ -210,25 +199,13 @@ def test_a_vehicle_behind_on_a_straight_line_is_sent_on_at_once() -> None:
     """Short of its cell on a straight line (one cell behind, then two), a vehicle is sent on to the
     next at each boundary: no corner to cut, and stopping at each cell would only make it later."""
     tau = 0.3
+    seen: list[tuple[StepReport, Cell | None, Cell | None]] = []
 
-    async def scenario() -> list[tuple[StepReport, Cell | None, Cell | None]]:
-        loop = asyncio.get_running_loop()
-        sink = CruisingSink(loop, FRAME.cell_to_ned((0, 0, 0)), speed=0.6 * 4.0 / tau)
-        executor = PlanExecutor((0, 0, 0))
-        executor.start(STRAIGHT)
-        seen: list[tuple[StepReport, Cell | None, Cell | None]] = []
-        stop = asyncio.Event()
+    def record(report: StepReport, sink: CruisingSink) -> bool:
+        seen.append((report, FRAME.locate(sink.aim).cell, FRAME.locate(sink.here).cell))
+        return report.step == 8
 
-        def on_step(report: StepReport, done: Sequence[ExecutorAction]) -> None:
-            seen.append((report, FRAME.locate(sink.aim).cell, FRAME.locate(sink.here).cell))
-            if report.step == 8:
-                stop.set()
-
-        runner = SetpointLoop(sink, FRAME, executor, loop.time() + 0.05, tau, loop.time, check_hz=100.0)
-        await asyncio.wait_for(runner.run(on_step, stop), timeout=10)
-        return seen
-
-    seen = asyncio.run(scenario())
+    cruise(STRAIGHT, 0.6, tau, record, check_hz=100.0)
     late = max(report.late_s for report, _, _ in seen)
     if late >= tau / 2:  # a boundary that late makes the next one a stall, which holds cells by design
         reason = f"a boundary came {late:.2f} s late (the machine is too loaded to show this)"

@@ -309,14 +309,19 @@ def test_cli_runs_two_vehicles_and_stops_on_sigterm(write_file: Callable[[str, s
                 pos, want = wait_for(gcs, "GLOBAL_POSITION_INT"), frame.cell_to_global(cell)
                 assert (pos.lat, pos.lon, pos.relative_alt) == (round(want.lat * 1e7), round(want.lon * 1e7), 0)
         finally:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                _, err = proc.communicate(timeout=5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.communicate()
-                raise
+            err = terminate(proc)
         assert proc.returncode == 0, err.decode()
+
+
+def terminate(proc: subprocess.Popen[bytes]) -> bytes:
+    """SIGTERM, then what is left of its stderr once it exits (killed, and the test failed, after 5 s)."""
+    proc.send_signal(signal.SIGTERM)
+    try:
+        return proc.communicate(timeout=5)[1]
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        raise
 
 
 def stderr_lines(proc: subprocess.Popen[bytes], count: int, timeout: float) -> list[str]:
@@ -354,13 +359,7 @@ def test_cli_serial_vehicles_say_their_device_and_answer_on_it() -> None:
                 assert command(gcs, ML.MAV_CMD_REQUEST_MESSAGE, ML.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
                                target=sysid) == ML.MAV_RESULT_ACCEPTED
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            _, err = proc.communicate(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.communicate()
-            raise
+        err = terminate(proc)
     assert proc.returncode == 0, err.decode()
 
 
@@ -374,13 +373,7 @@ def test_cli_says_on_exit_when_a_serial_line_had_no_room() -> None:
         stderr_lines(proc, 1, 10)  # serving
         time.sleep(1.0)
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            _, err = proc.communicate(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.communicate()
-            raise
+        err = terminate(proc)
     assert proc.returncode == 0, err.decode()
     assert re.search(r"system 1: the serial line had no room for \d+ of \d+ bytes \(\d+\.\d%\)", err.decode())
 
