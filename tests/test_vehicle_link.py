@@ -341,18 +341,21 @@ async def telemetry_again(link: VehicleLink, fresh: Callable[[Telemetry], bool],
                 raise
             await asyncio.sleep(0.1)
 
-@pytest.mark.parametrize("transport", ["tcp", "serial"])
-def test_a_lost_stream_is_opened_again_and_its_telemetry_asked_for_again(transport: str, tmp_path: Path) -> None:
-    """SITL restarted, or a USB adapter pulled out and plugged back in: the link fails commands while
-    the stream is gone, opens it again by its name (TCP: the same port; serial: a by-id style link
-    that now points at the new device) and asks the new vehicle, which streams nothing yet, for the
-    telemetry again, however late its first HEARTBEAT. ArduCopter, as it streams nothing unasked."""
+@transports
+def test_a_vehicle_lost_or_silent_comes_back_with_its_telemetry_asked_for_again(transport: str,
+                                                                               tmp_path: Path) -> None:
+    """SITL restarted, a USB adapter pulled out and plugged back in, a vehicle rebooted behind UDP:
+    the link fails commands while the vehicle is gone, opens a lost stream again by its name (TCP: the
+    same port; serial: a by-id style link that now points at the new device; UDP loses no stream, the
+    vehicle only goes silent) and asks the new vehicle, which streams nothing yet, for the telemetry
+    again, however late its first HEARTBEAT. ArduCopter, as it streams nothing unasked."""
     personality, heartbeat_timeout = "ardupilot", 1.2
 
     async def scenario() -> None:
-        port = free_port(socket.SOCK_STREAM)
+        port = free_port(socket.SOCK_DGRAM if transport == "udp" else socket.SOCK_STREAM)
         by_id = tmp_path / "usb-fake-if00"
-        url = f"tcp://127.0.0.1:{port}" if transport == "tcp" else f"serial://{by_id}:{SERIAL_BAUD}"
+        url = {"tcp": f"tcp://127.0.0.1:{port}", "udp": f"udpin://127.0.0.1:{port}",
+               "serial": f"serial://{by_id}:{SERIAL_BAUD}"}[transport]
 
         def point_at(fake: Fake) -> None:
             if transport == "serial":
