@@ -441,6 +441,34 @@ def test_a_serial_line_drains_at_its_baud_rate_and_skips_what_has_no_room() -> N
     asyncio.run(scenario())
 
 
+def test_a_serial_line_nobody_reads_loses_whole_messages_only() -> None:
+    """Nobody has the device open while 40 kB go out, twice what the terminal holds: what is read
+    once somebody opens it starts and ends on message boundaries (a message cut by the full
+    terminal is not half there)."""
+    async def scenario() -> bytes:
+        link = await PtyLink.open(100_000_000, lambda: lambda data: None)  # 10 MB/s: the buffer never fills
+        try:
+            for i in range(400):
+                link.send(bytes([i % 256]) * 100)
+                await asyncio.sleep(0)  # a tick apart, as the fake's telemetry is
+            await asyncio.sleep(link.queued() / link.rate + 0.05)  # until the last one is through
+            ground = os.open(link.device, os.O_RDONLY | os.O_NOCTTY | os.O_NONBLOCK)
+            try:
+                data = b""
+                while select.select([ground], [], [], 0.1)[0]:
+                    data += os.read(ground, 65536)
+                return data
+            finally:
+                os.close(ground)
+        finally:
+            link.close()
+
+    data = asyncio.run(scenario())
+    assert 0 < len(data) < 40_000 and len(data) % 100 == 0, len(data)
+    chunks = [data[i:i + 100] for i in range(0, len(data), 100)]
+    assert all(chunk == chunk[:1] * 100 for chunk in chunks), [c[:1] + c[-1:] for c in chunks if c != c[:1] * 100]
+
+
 def test_cli_refuses_more_vehicles_than_drones(write_file: Callable[[str, str], Path],
                                                capsys: pytest.CaptureFixture[str]) -> None:
     ws_file = write_file("ws.yaml", "size: [4, 4, 1]\ndrones: {d1: [1, 0, 0]}\n")

@@ -211,12 +211,11 @@ class PtyLink:
         if self._closed:
             return
         self.sent += len(data)
-        sent = self._write(data)
-        if sent < len(data):
-            # The other end's input is full: nobody reads it. What nobody read is lost, as
-            # on a wire, and the message goes whole behind it.
+        if self._write(data) < len(data):
+            # The other end's input is full: nobody reads it. What nobody read is lost, as on a
+            # wire, the head of this message too (the flush takes it); the message goes again, whole.
             termios.tcflush(self._slave, termios.TCIFLUSH)
-            self._write(data[sent:])
+            self._write(data)
 
     def _write(self, data: bytes) -> int:
         try:
