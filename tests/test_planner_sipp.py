@@ -40,9 +40,9 @@ from tests.test_planner_properties import (
 )
 
 
-def _since(step: int | None) -> int | None:
-    """A step, with every "since ever" (far in the past) counted as one."""
-    return None if step is None else max(step, -(1 << 40))
+def _since(step: int | None, first: int) -> int | None:
+    """A step, with every step up to ``first`` (the first one asked about) counted as one."""
+    return None if step is None else max(step, first)
 
 
 def _free_at(intervals: tuple[tuple[int, int], ...], step: int) -> bool:
@@ -62,6 +62,16 @@ def test_safe_intervals_are_the_steps_without_conflict(data: st.DataObject, delt
         table.sync(fleet)
         keys.sync(fleet)
         horizon = max((t.end_step for t in fleet.values()), default=0) + delta + 3
+        # Searches start ever later, or sometimes earlier again: the intervals may forget
+        # the past, and must be right from the first step asked about on.
+        since = data.draw(st.none() | st.integers(-3, horizon), label="look from")
+        if since is not None:
+            table.look_from(since)
+        first = max(-3, table.horizon)
+        horizon = max(horizon, first)
+        fresh = ReservationTable(ws, delta, vertex_keys=False)  # nothing cached at an earlier horizon
+        fresh.sync(fleet)
+        fresh.look_from(first)
         for cell in free:
             cid = ws.cell_id(cell)
             intervals = table.safe_intervals(cid)
@@ -69,17 +79,24 @@ def test_safe_intervals_are_the_steps_without_conflict(data: st.DataObject, delt
             assert runs == sorted(runs)
             assert all(lo <= hi for lo, hi in runs)
             assert all(a[1] + 1 < b[0] for a, b in pairwise(runs)), runs  # maximal
-            for step in range(-3, horizon + 1):  # judged by the vertex keys
-                assert _free_at(intervals, step) == (not keys.conflicts(cid, step)), (cell, step, runs)
-                assert table.conflicts(cid, step) == keys.conflicts(cid, step)
+            taken = [step for step in range(first, horizon + 1) if keys.conflicts(cid, step)]
+            for step in range(first, horizon + 1):  # judged by the vertex keys
+                assert _free_at(intervals, step) == (step not in taken), (cell, step, runs)
+                assert table.conflicts(cid, step) == (step in taken)
             # Past the horizon nothing changes any more: the last run is open-ended or ends before.
             assert (runs[-1][1] == FOREVER) == (not keys.conflicts(cid, horizon)) if runs else True
-            # Both views agree on when the cell is free for good ("since ever" may differ by a step).
-            assert _since(table.goal_free_from(cid)) == _since(keys.goal_free_from(cid)), cell
-        # The search skips the swap test for cells nobody reserves: a swap's target cell is
-        # always one (the other drone sits there as I would leave for it).
+            # A cell taken only before the first step asked about is on the search's fast path
+            # (once its intervals are worked out again: what was cut for an earlier step stays).
+            assert (fresh.safe_intervals(cid) is ALWAYS_FREE) == (not taken), (cell, first, runs)
+            assert all(hi >= first for _, hi in fresh.safe_intervals(cid)), (cell, first)  # no dead runs
+            assert intervals is not ALWAYS_FREE or not taken
+            # Both views agree on when the cell is free for good.
+            assert _since(table.goal_free_from(cid), first) == _since(keys.goal_free_from(cid), first), cell
+        # The search skips the swap test for cells free from the first step on: a swap's target
+        # cell is never one (the other drone sits there as I would leave for it).
         for key in table.swaps:
-            assert table.safe_intervals(key % table.n) is not ALWAYS_FREE
+            if key // table.n // table.n >= first:
+                assert table.safe_intervals(key % table.n) is not ALWAYS_FREE
 
 
 def forced(problem: Problem) -> SafePlanner:

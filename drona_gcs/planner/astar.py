@@ -60,6 +60,8 @@ def search(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
     so the caller can compute the (costlier) seal pruning only when needed.
     ``layers`` only serve the space-time search.
     """
+    if not table.keeps_vertex:
+        table.look_from(n)
     goal_ready = table.goal_free_from(goal)
     if goal_ready is None:
         raise NoPlanFound("the goal is another drone's resting cell for good")

@@ -65,6 +65,9 @@ class ReservationTable:
         #: per cell, the ``(first, last)`` step runs of its vertex reservations (for safe intervals)
         self.spans: dict[int, list[tuple[int, int]]] = {}
         self.interval_cache: dict[int, tuple[tuple[int, int], ...]] = {}  #: cache of :meth:`safe_intervals`
+        #: No step before this one is asked about (:meth:`look_from`): safe intervals leave out
+        #: the runs that end before it.
+        self.horizon = -FOREVER
         self._entries: dict[str, _Entry] = {}
 
     # ----------------------------------------------------------- updates
@@ -141,6 +144,20 @@ class ReservationTable:
         return _Entry(traj, tuple(vertex), tuple(swaps), ids[0], ids[-1], m + d, end - d,
                       max(end - 1 + d, m + d), cell_last, spans)
 
+    def look_from(self, step: int) -> None:
+        """Only steps from ``step`` on are asked about until the next call.
+
+        Other drones' trajectories come whole, and by the time a drone plans, about
+        half of each lies in the past. The safe intervals then leave out the runs
+        that end before ``step``, and a cell whose reservations are all past is
+        :data:`ALWAYS_FREE`, which the search takes on its fast path. Moving the
+        horizon on keeps the cache (what was cut for an earlier step is still right
+        for a later one); moving it back empties the cache.
+        """
+        if step < self.horizon:
+            self.interval_cache.clear()
+        self.horizon = step
+
     # ----------------------------------------------------------- queries
     def static_from(self, step: int) -> int:
         """The first step from which only ``perm`` reservations remain (>= ``step``)."""
@@ -161,7 +178,7 @@ class ReservationTable:
         runs = self.safe_intervals(cell)
         if not runs or runs[-1][1] != FOREVER:
             return None  # a drone parks there for good
-        return runs[-1][0]
+        return runs[-1][0]  # before the horizon when the cell is free from it on: the same to a search
 
     def pre_keys(self, step: int) -> list[int]:
         """Vertex keys, from ``step`` on, of drones still sitting at their first cell."""
@@ -179,8 +196,11 @@ class ReservationTable:
         """The maximal runs ``(first, last)`` of steps in which ``cell`` is free, in order.
 
         Runs are open-ended (:data:`FOREVER`) at both ends where nobody sits there
-        before or after. Cached until a reservation of the cell changes: a plan
-        changes one drone's trajectory, while searches keep asking for the same cells.
+        before or after. Runs that end before :attr:`horizon` are left out, and a
+        cell free from the horizon on is :data:`ALWAYS_FREE`: the answer holds for
+        every step from the horizon on. Cached until a reservation of the cell
+        changes: a plan changes one drone's trajectory, while searches keep asking
+        for the same cells.
         """
         found = self.interval_cache.get(cell)
         if found is None:
@@ -191,11 +211,15 @@ class ReservationTable:
         if self.keeps_vertex:
             raise ValueError("safe intervals need a table built with vertex_keys=False")
         spans, pre, perm = self.spans.get(cell), self.pre.get(cell), self.perm.get(cell)
+        horizon = self.horizon
         if pre is None and perm is None:
             if spans is None:
                 return ALWAYS_FREE  # most cells: nobody ever comes by
             if len(spans) == 1:  # the commonest of the rest: one drone passes by
-                return _passed_once(*spans[0])
+                lo, hi = spans[0]
+                if hi < horizon:
+                    return ALWAYS_FREE
+                return ((-FOREVER, lo - 1), (hi + 1, FOREVER)) if lo > horizon else ((hi + 1, FOREVER),)
         blocked = sorted(spans) if spans is not None else []
         end = FOREVER if perm is None else perm - 1
         out: list[tuple[int, int]] = []
@@ -204,10 +228,13 @@ class ReservationTable:
             if lo > free_from:
                 if lo > end:
                     break
-                out.append((free_from, lo - 1))
+                if lo > horizon:  # else the run ends before the horizon
+                    out.append((free_from, lo - 1))
             if hi >= free_from:
                 free_from = hi + 1
-        if free_from <= end:
+        if free_from <= end and end >= horizon:
+            if not out and free_from <= horizon and end == FOREVER:
+                return ALWAYS_FREE  # every reservation is past
             out.append((free_from, end))
         return tuple(out)
 
@@ -217,11 +244,6 @@ class ReservationTable:
             return not free_at(self.safe_intervals(cell), step)
         return (step * self.n + cell in self.vertex or self.perm.get(cell, step + 1) <= step
                 or self.pre.get(cell, step - 1) >= step)
-
-
-def _passed_once(lo: int, hi: int) -> tuple[tuple[int, int], ...]:
-    """The safe intervals of a cell reserved only from ``lo`` to ``hi``."""
-    return (-FOREVER, lo - 1), (hi + 1, FOREVER)
 
 
 def free_at(intervals: tuple[tuple[int, int], ...], step: int) -> bool:
