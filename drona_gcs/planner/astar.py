@@ -128,7 +128,7 @@ def _taken_by_interval(table: ReservationTable) -> Callable[[int, int], bool]:
     cache, intervals = table.interval_cache, table.safe_intervals
 
     def taken(step: int, cell: int) -> bool:
-        found = cache.get(cell) or intervals(cell)
+        found = cache[cell] or intervals(cell)
         if found is ALWAYS_FREE:
             return False
         for lo, hi in found:  # noqa: SIM110 (free_at inlined: a generator costs more, every step of most plans)

@@ -64,7 +64,9 @@ class ReservationTable:
         self._perm_all: dict[int, list[int]] = {}
         #: per cell, the ``(first, last)`` step runs of its vertex reservations (for safe intervals)
         self.spans: dict[int, list[tuple[int, int]]] = {}
-        self.interval_cache: dict[int, tuple[tuple[int, int], ...]] = {}  #: cache of :meth:`safe_intervals`
+        #: cache of :meth:`safe_intervals` by cell (None: not worked out); a list, for the search's
+        #: inner loop, where indexing costs a fraction of a dict's ``get``
+        self.interval_cache: list[tuple[tuple[int, int], ...] | None] = [None] * self.n
         #: No step before this one is asked about (:meth:`look_from`): safe intervals leave out
         #: the runs that end before it.
         self.horizon = -FOREVER
@@ -96,9 +98,8 @@ class ReservationTable:
                 found.append((lo, hi))
             # Recomputed when next asked: a plan passes most of these cells, the next search
             # asks for few of them, and cutting the new run out of each cached list cost more.
-            cache.pop(cell, None)
-        cache.pop(entry.first, None)  # their bounds before and after change too
-        cache.pop(entry.last, None)
+            cache[cell] = None
+        cache[entry.first] = cache[entry.last] = None  # their bounds before and after change too
         _join(self._pre_all, self.pre, entry.first, entry.pre_until, max)
         _join(self._perm_all, self.perm, entry.last, entry.perm_from, min)
 
@@ -114,9 +115,8 @@ class ReservationTable:
             else:
                 found.remove((lo, hi))
             # Time comes back only where no other drone holds it: recomputed when next asked.
-            cache.pop(cell, None)
-        cache.pop(entry.first, None)  # their bounds before and after change too
-        cache.pop(entry.last, None)
+            cache[cell] = None
+        cache[entry.first] = cache[entry.last] = None  # their bounds before and after change too
         _leave(self._pre_all, self.pre, entry.first, entry.pre_until, max)
         _leave(self._perm_all, self.perm, entry.last, entry.perm_from, min)
 
@@ -155,7 +155,7 @@ class ReservationTable:
         for a later one); moving it back empties the cache.
         """
         if step < self.horizon:
-            self.interval_cache.clear()
+            self.interval_cache = [None] * self.n
         self.horizon = step
 
     # ----------------------------------------------------------- queries
@@ -202,7 +202,7 @@ class ReservationTable:
         changes: a plan changes one drone's trajectory, while searches keep asking
         for the same cells.
         """
-        found = self.interval_cache.get(cell)
+        found = self.interval_cache[cell]
         if found is None:
             found = self.interval_cache[cell] = self._free_runs(cell)
         return found

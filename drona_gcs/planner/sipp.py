@@ -90,7 +90,7 @@ def search_intervals(grid: GridIndex, table: ReservationTable, heuristic: GoalDi
         if expansions == budget:
             raise BudgetExceeded(expansions)
         idx, cell = divmod(key, n_cells)
-        hi = (cache.get(cell) or intervals(cell))[idx][1]
+        hi = (cache[cell] or intervals(cell))[idx][1]
         if cell == goal and hi == FOREVER:
             return _result(grid, table, key, start_key, g, parent, n, elapsed, expansions, generated)
         arrival = n + elapsed
@@ -103,7 +103,7 @@ def search_intervals(grid: GridIndex, table: ReservationTable, heuristic: GoalDi
                 h_now = get_h(nxt)
             if h_now >= UNREACHABLE:
                 continue  # a parked drone's cell, or cut off from the goal for good
-            ivs = cache.get(nxt) or intervals(nxt)
+            ivs = cache[nxt] or intervals(nxt)
             if ivs is ALWAYS_FREE:  # most cells, no other drone ever comes by: the loop below, inlined
                 # No head-on swap either: the other drone would be in `nxt` as I leave for it.
                 t = arrival + 1
