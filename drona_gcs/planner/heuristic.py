@@ -27,6 +27,16 @@ from drona_gcs.planner.grid import GridIndex
 UNREACHABLE = 1 << 40
 
 
+def as_int_if_whole(cost: float) -> float:
+    """``cost`` as an int when it is a whole number (the default costs are 1.0).
+
+    Distances and f values then stay ints: int arithmetic, comparisons and hashing
+    cost the searches' inner loops less than float ones, and ints mixed with
+    floats (such as :data:`UNREACHABLE`) less still.
+    """
+    return int(cost) if cost == int(cost) else cost
+
+
 class DistanceGraph:
     """The reversed move graph of one :class:`GridIndex`, ready for scipy."""
 
@@ -92,7 +102,7 @@ class DistanceGraph:
         order, pred = csgraph.breadth_first_order(self.matrix, goal, directed=True,
                                                   return_predecessors=True)
         assert self.unit is not None
-        return GoalDistance(goal, order, memoryview(pred), self.unit)
+        return GoalDistance(goal, order, memoryview(pred), as_int_if_whole(self.unit))
 
     def _dijkstra(self, goal: int) -> GoalDistance:
         dist = csgraph.dijkstra(self.matrix, directed=True, indices=goal)

@@ -44,7 +44,7 @@ from itertools import pairwise
 
 from drona_gcs.errors import NoPlanFound
 from drona_gcs.planner.grid import GridIndex
-from drona_gcs.planner.heuristic import UNREACHABLE, GoalDistance
+from drona_gcs.planner.heuristic import UNREACHABLE, GoalDistance, as_int_if_whole
 from drona_gcs.planner.reservations import ALWAYS_FREE, FOREVER, ReservationTable
 from drona_gcs.planner.result import BudgetExceeded, SearchResult, SearchStats
 
@@ -59,8 +59,8 @@ def search_intervals(grid: GridIndex, table: ReservationTable, heuristic: GoalDi
     :meth:`ReservationTable.safe_intervals`); ``g`` holds the earliest known
     arrival as steps after ``n``.
     """
-    unit = grid.uniform_cost
-    assert unit is not None, "SIPP needs every primitive to cost the same"
+    assert grid.uniform_cost is not None, "SIPP needs every primitive to cost the same"
+    unit = as_int_if_whole(grid.uniform_cost)
     n_cells, last_step, moves, swaps = table.n, n + max_length, grid.moves_only, table.swaps
     intervals, cache = table.safe_intervals, table.interval_cache
     first = next((j for j, (lo, hi) in enumerate(intervals(start)) if lo <= n <= hi), None)
