@@ -32,6 +32,7 @@ class GridIndex:
     uniform_cost: float | None  #: the common cost when every primitive costs the same (> 0)
     successors: tuple[tuple[tuple[int, float], ...], ...]  #: (next, cost) of every move and the hold
     moves_only: tuple[tuple[tuple[int, float], ...], ...]  #: the same without the hold
+    next_cells: tuple[tuple[int, ...], ...]  #: the cells of ``moves_only`` alone (uniform-cost searches)
     #: the primitive of each difference of cell ids along a move (0: hold)
     by_difference: dict[int, Primitive]
 
@@ -65,7 +66,8 @@ class GridIndex:
         by_difference = dict(steps)
         assert len(by_difference) == len(steps), "two primitives share an id difference"
         return cls(workspace, model, tuple(moves), tuple(tuple(r) for r in reverse), free, coords,
-                   hold, min(all_costs), uniform, successors, moves_only, by_difference)
+                   hold, min(all_costs), uniform, successors, moves_only,
+                   tuple(tuple(j for j, _ in m) for m in moves_only), by_difference)
 
     def trajectory(self, start_step: int, ids: list[int]) -> tuple[Trajectory, tuple[Primitive, ...]]:
         """The trajectory through cell ids ``ids`` (consecutive ones a move or a hold apart),

@@ -61,7 +61,7 @@ def search_intervals(grid: GridIndex, table: ReservationTable, heuristic: GoalDi
     """
     assert grid.uniform_cost is not None, "SIPP needs every primitive to cost the same"
     unit = as_int_if_whole(grid.uniform_cost)
-    n_cells, last_step, moves, swaps = table.n, n + max_length, grid.moves_only, table.swaps
+    n_cells, last_step, moves, swaps = table.n, n + max_length, grid.next_cells, table.swaps
     intervals, cache = table.safe_intervals, table.interval_cache
     first = next((j for j, (lo, hi) in enumerate(intervals(start)) if lo <= n <= hi), None)
     if first is None:  # the caller's check, kept: a bare StopIteration would name nothing
@@ -97,7 +97,7 @@ def search_intervals(grid: GridIndex, table: ReservationTable, heuristic: GoalDi
         leave_by = hi if hi < last_step else last_step - 1  # the last step I may still be here
         if arrival > leave_by:
             continue
-        for nxt, _ in moves[cell]:
+        for nxt in moves[cell]:
             h_now = known.get(nxt)
             if h_now is None:
                 h_now = get_h(nxt)
