@@ -7,11 +7,13 @@ STAMP := $(VENV)/.installed
 .PHONY: test lint bench bench-quick demo clean
 
 # System packages the project needs (installed only when missing, and only as root):
-# python3-venv for the environment, chromium for the dashboard's browser test.
-SYSTEM_PACKAGES := python3-venv chromium
+# python3-venv for the environment, chromium for the dashboard's browser test, gcc and
+# python3-dev to compile the planner's hot modules (setup.py; without them it stays pure Python).
+SYSTEM_PACKAGES := python3-venv chromium gcc python3-dev
 
-$(STAMP): pyproject.toml
-	@{ $(PY) -c 'import venv, ensurepip' 2>/dev/null && command -v chromium >/dev/null; } || { \
+$(STAMP): pyproject.toml setup.py
+	@{ $(PY) -c 'import venv, ensurepip' 2>/dev/null && command -v chromium >/dev/null \
+	   && command -v gcc >/dev/null; } || { \
 	  [ "$$(id -u)" = 0 ] && apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
 	    --no-install-recommends $(SYSTEM_PACKAGES) >/dev/null; } || echo "make: could not install $(SYSTEM_PACKAGES) (not root?)"
 	$(PY) -m venv $(VENV)
@@ -19,7 +21,16 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
-test: $(STAMP)
+# The planner's mypyc-compiled modules (setup.py) go stale when their sources change: the import
+# then falls back to the sources with a RuntimeWarning, an error under pytest. Rebuild them first.
+NATIVE_SOURCES := $(addprefix drona_gcs/planner/,grid.py reservations.py heuristic.py sipp.py astar.py)
+NATIVE_STAMP := drona_gcs/planner/_native_sources.sha256
+
+$(NATIVE_STAMP): setup.py $(NATIVE_SOURCES) | $(STAMP)
+	$(BIN)/pip install --quiet --no-deps -e .
+	touch $@  # also when the build fell back to pure Python (it then writes no stamp)
+
+test: $(STAMP) $(NATIVE_STAMP)
 	$(BIN)/ruff check drona_gcs fleet api tests
 	$(BIN)/mypy
 	$(BIN)/pytest -q
@@ -38,4 +49,5 @@ demo: $(STAMP)
 	$(BIN)/drona demo
 
 clean:
-	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache build
+	rm -f drona_gcs/planner/*.so $(NATIVE_STAMP)

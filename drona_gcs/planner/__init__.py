@@ -20,15 +20,20 @@ from collections import OrderedDict
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from drona_gcs.errors import ProblemError
-from drona_gcs.motion import Primitive, Trajectory
-from drona_gcs.planner.astar import BudgetExceeded, search
-from drona_gcs.planner.grid import GridIndex
-from drona_gcs.planner.heuristic import DistanceGraph, GoalDistance
-from drona_gcs.planner.layers import TimeLayers
-from drona_gcs.planner.reservations import ReservationTable
-from drona_gcs.planner.sealing import find_seal
-from drona_gcs.workspace import Cell, Workspace
+from drona_gcs.planner import _native
+
+#: Whether the hot modules (``_native.HOT``) run compiled by mypyc; chosen before they are imported.
+NATIVE = _native.select()
+
+from drona_gcs.errors import ProblemError  # noqa: E402
+from drona_gcs.motion import Primitive, Trajectory  # noqa: E402
+from drona_gcs.planner.astar import BudgetExceeded, search  # noqa: E402
+from drona_gcs.planner.grid import GridIndex  # noqa: E402
+from drona_gcs.planner.heuristic import DistanceGraph, GoalDistance  # noqa: E402
+from drona_gcs.planner.layers import TimeLayers  # noqa: E402
+from drona_gcs.planner.reservations import ReservationTable  # noqa: E402
+from drona_gcs.planner.sealing import find_seal  # noqa: E402
+from drona_gcs.workspace import Cell, Workspace  # noqa: E402
 
 __all__ = ["Plan", "SafePlanner", "check_endpoints"]
 

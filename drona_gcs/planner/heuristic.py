@@ -18,6 +18,8 @@ gives the graph back uncut.
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 from scipy.sparse import csgraph, csr_matrix
 
@@ -108,7 +110,8 @@ class DistanceGraph:
         dist = csgraph.dijkstra(self.matrix, directed=True, indices=goal)
         finite = np.isfinite(dist)
         dist[~finite] = UNREACHABLE
-        return GoalDistance(goal, np.flatnonzero(finite), None, 0.0, memoryview(dist))
+        # memoryview[float]: a bare memoryview's items are typed int, and mypyc checks them
+        return GoalDistance(goal, np.flatnonzero(finite), None, 0.0, cast("memoryview[float]", memoryview(dist)))
 
 
 class GoalDistance:
@@ -124,7 +127,7 @@ class GoalDistance:
     __slots__ = ("_full", "_pred", "_unit", "known", "reached")
 
     def __init__(self, goal: int, reached: np.ndarray, pred: memoryview | None, unit: float,
-                 full: memoryview | None = None) -> None:
+                 full: memoryview[float] | None = None) -> None:
         self.known: dict[int, float] = {goal: 0}
         self.reached = reached  #: every cell with a finite distance
         self._pred = pred
@@ -147,7 +150,7 @@ class GoalDistance:
         if found is not None:
             return found
         if self._full is not None:
-            value: float = self._full[cell]
+            value = self._full[cell]
             self.known[cell] = value
             return value
         known, pred, walk = self.known, self._pred, []

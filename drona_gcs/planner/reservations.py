@@ -28,8 +28,9 @@ from drona_gcs.workspace import Workspace
 
 #: The last step of a safe interval that never ends.
 FOREVER = 1 << 62
-#: The safe intervals of a cell nobody ever reserves (one shared tuple, so ``is`` tells).
-ALWAYS_FREE = ((-FOREVER, FOREVER),)
+#: The safe intervals of a cell nobody ever reserves (one shared tuple, so ``is`` tells). Typed as
+#: any length: mypyc keeps a fixed-length tuple unboxed and boxes a new one on every use.
+ALWAYS_FREE: tuple[tuple[int, int], ...] = ((-FOREVER, FOREVER),)
 
 
 @dataclass(frozen=True)

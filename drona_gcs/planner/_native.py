@@ -1,0 +1,77 @@
+"""Use the mypyc-compiled hot modules of the planner only when they match their sources.
+
+``pip install`` (and ``pip install -e .``) may compile :data:`HOT` with mypyc (see setup.py).
+The extension modules sit next to the .py files, and Python's import prefers them. So after an
+edit to one of the sources, an editable install would run the stale compiled code. The build
+records the sources' sha256 in :data:`STAMP`; :func:`select` compares them before the planner
+imports anything, and when they differ (or ``DRONA_PURE_PYTHON=1``) it loads all of
+:data:`HOT` from source instead: all of them, since compiled code of this group only accepts
+the compiled classes of the others. Not compiled itself.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import os
+import sys
+import warnings
+from importlib.machinery import EXTENSION_SUFFIXES
+
+#: The compiled modules, in an order in which each imports only earlier ones of them.
+HOT = ("grid", "reservations", "heuristic", "sipp", "astar")
+STAMP = "_native_sources.sha256"
+_PACKAGE = __name__.rpartition(".")[0]
+_DIR = os.path.dirname(os.path.abspath(__file__))
+
+
+def _compiled_present(names: list[str]) -> bool:
+    return any(f"{m}{suffix}" in names for m in HOT for suffix in EXTENSION_SUFFIXES)
+
+
+def _stale() -> str | None:
+    """Why the compiled modules must not be used, or None when they match the sources."""
+    try:
+        with open(os.path.join(_DIR, STAMP), encoding="utf-8") as f:
+            recorded = dict(line.split()[::-1] for line in f if line.strip())
+    except (OSError, ValueError):
+        return f"no valid {STAMP} (built by something else than setup.py?)"
+    for m in HOT:
+        with open(os.path.join(_DIR, f"{m}.py"), "rb") as src:
+            if hashlib.sha256(src.read()).hexdigest() != recorded.get(f"{m}.py"):
+                return f"{m}.py changed since it was compiled"
+    return None
+
+
+def _load_source(module: str) -> None:
+    name = f"{_PACKAGE}.{module}"
+    spec = importlib.util.spec_from_file_location(name, os.path.join(_DIR, f"{module}.py"))
+    assert spec is not None and spec.loader is not None
+    loaded = importlib.util.module_from_spec(spec)
+    sys.modules[name] = loaded
+    try:
+        spec.loader.exec_module(loaded)
+    except BaseException:
+        del sys.modules[name]
+        raise
+    setattr(sys.modules[_PACKAGE], module, loaded)
+
+
+def select() -> bool:
+    """Make the planner's imports of :data:`HOT` load the compiled modules when they are present
+    and fresh, else the sources; return whether they are compiled. Call before importing them."""
+    grid = sys.modules.get(f"{_PACKAGE}.grid")
+    if grid is not None:  # already chosen (the package is reloaded)
+        return not str(grid.__file__).endswith(".py")
+    if not _compiled_present(os.listdir(_DIR)):
+        return False  # a pure-Python install
+    why = "DRONA_PURE_PYTHON is set" if os.environ.get("DRONA_PURE_PYTHON", "") not in ("", "0") else _stale()
+    if why is None:
+        return True
+    if "DRONA_PURE_PYTHON" not in why:
+        warnings.warn(f"drona_gcs.planner runs its .py sources, not its compiled modules ({why}). They are "
+                      f"slower: rebuild with `pip install --no-deps -e .`, or delete {_DIR}/*.so",
+                      RuntimeWarning, stacklevel=2)
+    for m in HOT:
+        _load_source(m)
+    return False
