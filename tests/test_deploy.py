@@ -375,3 +375,7 @@ def test_compose_runs_a_router_four_vehicles_and_four_agents() -> None:
     containerfile = (CONTAINER_DIR / "Containerfile").read_text()
     assert "FROM docker.io/library/python:3.11-slim" in containerfile
     assert 'ENTRYPOINT ["drona"]' in containerfile
+    # The image compiles the planner (setup.py) and never takes a host's compiled modules.
+    assert "COPY pyproject.toml setup.py" in containerfile and "DRONA_NATIVE_REQUIRED=1 pip install" in containerfile
+    ignored = (CONTAINER_DIR / "Containerfile.dockerignore").read_text().splitlines()
+    assert {"!setup.py", "**/*.so", "**/_native_sources.sha256"} <= set(ignored)
