@@ -13,22 +13,23 @@ SYSTEM_PACKAGES := python3-venv chromium gcc python3-dev
 
 $(STAMP): pyproject.toml setup.py
 	@{ $(PY) -c 'import venv, ensurepip' 2>/dev/null && command -v chromium >/dev/null \
-	   && command -v gcc >/dev/null; } || { \
+	   && command -v gcc >/dev/null \
+	   && $(PY) -c 'import os, sysconfig; assert os.path.exists(sysconfig.get_path("include") + "/Python.h")' 2>/dev/null; } || { \
 	  [ "$$(id -u)" = 0 ] && apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
 	    --no-install-recommends $(SYSTEM_PACKAGES) >/dev/null; } || echo "make: could not install $(SYSTEM_PACKAGES) (not root?)"
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -e '.[dev]'
-	touch $(STAMP)
+	touch $(STAMP) $(NATIVE_STAMP)
 
 # The planner's mypyc-compiled modules (setup.py) go stale when their sources change: the import
-# then falls back to the sources with a RuntimeWarning, an error under pytest. Rebuild them first.
-NATIVE_SOURCES := $(addprefix drona_gcs/planner/,grid.py reservations.py heuristic.py sipp.py astar.py)
-NATIVE_STAMP := drona_gcs/planner/_native_sources.sha256
+# then falls back to the sources, slower, with a RuntimeWarning. Rebuild them first. (The stamp is
+# make's own: the build writes one too, but only when it compiled.)
+NATIVE_STAMP := $(VENV)/.native
 
-$(NATIVE_STAMP): setup.py $(NATIVE_SOURCES) | $(STAMP)
+$(NATIVE_STAMP): setup.py $(wildcard drona_gcs/planner/*.py) | $(STAMP)
 	$(BIN)/pip install --quiet --no-deps -e .
-	touch $@  # also when the build fell back to pure Python (it then writes no stamp)
+	touch $@
 
 test: $(STAMP) $(NATIVE_STAMP)
 	$(BIN)/ruff check drona_gcs fleet api tests
@@ -39,15 +40,15 @@ lint: $(STAMP)
 	$(BIN)/ruff check drona_gcs fleet api tests
 	$(BIN)/mypy
 
-bench: $(STAMP)
+bench: $(STAMP) $(NATIVE_STAMP)
 	$(BIN)/drona bench planner
 
-bench-quick: $(STAMP)
+bench-quick: $(STAMP) $(NATIVE_STAMP)
 	$(BIN)/drona bench planner --quick
 
-demo: $(STAMP)
+demo: $(STAMP) $(NATIVE_STAMP)
 	$(BIN)/drona demo
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache build
-	rm -f drona_gcs/planner/*.so $(NATIVE_STAMP)
+	rm -f drona_gcs/planner/*.so drona_gcs/planner/_native_sources.*.sha256

@@ -4,13 +4,16 @@ pyproject.toml holds all the metadata; this file only adds optional extension mo
 They are skipped, and the install stays pure Python, when ``DRONA_PURE_PYTHON=1``, when mypy
 is not importable, or when mypyc or the C compiler fails (set ``DRONA_NATIVE_REQUIRED=1`` to
 make those failures fatal instead, e.g. in CI). A successful build also writes
-``drona_gcs/planner/_native_sources.sha256``, the hashes of the sources it compiled, which
-:mod:`drona_gcs.planner._native` checks at import so a stale build never shadows edited code.
+``drona_gcs/planner/_native_sources.<cache tag>.sha256``, the hashes of the sources it compiled,
+which :mod:`drona_gcs.planner._native` checks at import so a stale build never shadows edited
+code. The list of modules, the stamp's name and the on/off rule of the environment variables
+come from that module, loaded here by path (it needs only the standard library).
 """
 
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import os
 import shutil
 import sys
@@ -24,13 +27,21 @@ from setuptools.command.build_py import build_py
 
 PACKAGE = "drona_gcs.planner"
 SOURCE_DIR = Path("drona_gcs", "planner")
-HOT = ["grid", "reservations", "heuristic", "sipp", "astar"]  # NOT __init__: tests patch its names
-STAMP = "_native_sources.sha256"
+
+
+def _load_native() -> Any:
+    spec = importlib.util.spec_from_file_location("_drona_native", SOURCE_DIR / "_native.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+NATIVE = _load_native()
+HOT: tuple[str, ...] = NATIVE.HOT  # NOT __init__: tests patch its names
+STAMP: str = NATIVE.STAMP
+_flag = NATIVE.flag
 GROUP = f"{PACKAGE}._native"  # the shared library: drona_gcs/planner/_native__mypyc.*.so
-
-
-def _flag(name: str) -> bool:
-    return os.environ.get(name, "").strip().lower() not in ("", "0", "false", "no")
 
 
 def _give_up(why: str) -> None:
@@ -80,13 +91,21 @@ def _mypyc_extensions() -> tuple[list[Any], str | None]:
 
 def _stale_outputs(package_dir: Path, keep: set[str]) -> list[Path]:
     """Compiled files of earlier builds in ``package_dir`` (a build dir, or the source tree after
-    an editable install) except those of modules in ``keep``, and the stamp unless ``keep``."""
+    an editable install) except this interpreter's of the modules in ``keep``, and every stamp
+    but this interpreter's (none without ``keep``). Another interpreter's compiled modules go
+    too: this build's stamp would vouch for them, and they were compiled from older sources."""
     if not package_dir.is_dir():
         return []
-    found = [p for p in package_dir.iterdir()  # the package has no other extension modules
-             if p.suffix in (".so", ".pyd") and p.name.split(".", 1)[0] not in keep]
-    stamp = package_dir / STAMP
-    return [*found, stamp] if stamp.exists() and not keep else found
+    suffix = sysconfig.get_config_var("EXT_SUFFIX") or ".so"
+    found = []
+    for path in package_dir.iterdir():  # the package has no other extension modules
+        if path.suffix in (".so", ".pyd"):
+            if not (path.name.split(".", 1)[0] in keep and path.name.endswith(suffix)):
+                found.append(path)
+        elif (path.name.startswith("_native_sources.") and path.name.endswith(".sha256")
+              and (not keep or path.name != STAMP)):
+            found.append(path)
+    return found
 
 
 class CleanBuildPy(build_py):
@@ -98,7 +117,7 @@ class CleanBuildPy(build_py):
 
     def run(self) -> None:
         super().run()
-        keep = {*HOT, "_native__mypyc"} if EXTENSIONS else set()
+        keep = {*HOT, NATIVE.GROUP_LIBRARY} if EXTENSIONS else set()
         dirs = [Path(self.build_lib, *PACKAGE.split("."))]
         if getattr(self, "editable_mode", False):
             dirs.append(SOURCE_DIR)

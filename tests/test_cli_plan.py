@@ -10,6 +10,7 @@ from typing import Any
 
 import pytest
 
+import drona_gcs.planner as planner
 from drona_gcs.motion import Trajectory
 from drona_gcs.safety import check_trajectory
 from drona_gcs.workspace_files import workspace_from_mapping
@@ -129,3 +130,4 @@ def test_bench_quick_json_rows(capsys: pytest.CaptureFixture[str]) -> None:
         assert row["plans"] == 12 and row["paper_ms"] == pytest.approx(17.4)
         assert 0 < row["median_ms"] <= row["p99_ms"]
         assert row["meets_target"] == (row["mean_ms"] <= row["target_ms"])
+        assert row["compiled"] is planner.NATIVE  # which planner code the figures are of

@@ -18,11 +18,20 @@ import sys
 import warnings
 from importlib.machinery import EXTENSION_SUFFIXES
 
-#: The compiled modules, in an order in which each imports only earlier ones of them.
+#: The compiled modules, in an order in which each imports only earlier ones of them. The one
+#: list: setup.py reads it from here (this module imports nothing but the standard library).
 HOT = ("grid", "reservations", "heuristic", "sipp", "astar")
-STAMP = "_native_sources.sha256"
+#: mypyc's shared library of the group, which every compiled module of it needs.
+GROUP_LIBRARY = "_native__mypyc"
+#: The sources' hashes, written by the build; one per interpreter ABI, as its .so files are.
+STAMP = f"_native_sources.{sys.implementation.cache_tag}.sha256"
 _PACKAGE = __name__.rpartition(".")[0]
 _DIR = os.path.dirname(os.path.abspath(__file__))
+
+
+def flag(name: str) -> bool:
+    """Whether the environment variable ``name`` is on: set, and not 0, false or no."""
+    return os.environ.get(name, "").strip().lower() not in ("", "0", "false", "no")
 
 
 def _compiled_present(names: list[str]) -> bool:
@@ -31,15 +40,24 @@ def _compiled_present(names: list[str]) -> bool:
 
 def _stale() -> str | None:
     """Why the compiled modules must not be used, or None when they match the sources."""
+    names = os.listdir(_DIR)
+    if not any(f"{GROUP_LIBRARY}{suffix}" in names for suffix in EXTENSION_SUFFIXES):
+        return f"{GROUP_LIBRARY} is missing for this interpreter"
     try:
         with open(os.path.join(_DIR, STAMP), encoding="utf-8") as f:
             recorded = dict(line.split()[::-1] for line in f if line.strip())
     except (OSError, ValueError):
         return f"no valid {STAMP} (built by something else than setup.py?)"
+    if set(recorded) != {f"{m}.py" for m in HOT}:
+        return f"{STAMP} names other modules than {', '.join(HOT)}"
     for m in HOT:
-        with open(os.path.join(_DIR, f"{m}.py"), "rb") as src:
-            if hashlib.sha256(src.read()).hexdigest() != recorded.get(f"{m}.py"):
-                return f"{m}.py changed since it was compiled"
+        try:
+            with open(os.path.join(_DIR, f"{m}.py"), "rb") as src:
+                digest = hashlib.sha256(src.read()).hexdigest()
+        except OSError as exc:
+            return f"{m}.py cannot be read ({exc.strerror})"
+        if digest != recorded[f"{m}.py"]:
+            return f"{m}.py changed since it was compiled"
     return None
 
 
@@ -65,7 +83,7 @@ def select() -> bool:
         return not str(grid.__file__).endswith(".py")
     if not _compiled_present(os.listdir(_DIR)):
         return False  # a pure-Python install
-    why = "DRONA_PURE_PYTHON is set" if os.environ.get("DRONA_PURE_PYTHON", "") not in ("", "0") else _stale()
+    why = "DRONA_PURE_PYTHON is set" if flag("DRONA_PURE_PYTHON") else _stale()
     if why is None:
         return True
     if "DRONA_PURE_PYTHON" not in why:

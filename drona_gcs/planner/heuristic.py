@@ -18,6 +18,7 @@ gives the graph back uncut.
 
 from __future__ import annotations
 
+import math
 from typing import cast
 
 import numpy as np
@@ -36,7 +37,7 @@ def as_int_if_whole(cost: float) -> float:
     cost the searches' inner loops less than float ones, and ints mixed with
     floats (such as :data:`UNREACHABLE`) less still.
     """
-    return int(cost) if cost == int(cost) else cost
+    return int(cost) if math.isfinite(cost) and cost == int(cost) else cost
 
 
 class DistanceGraph:

@@ -26,8 +26,8 @@ from itertools import pairwise
 from drona_gcs.motion import Trajectory
 from drona_gcs.workspace import Workspace
 
-#: The last step of a safe interval that never ends.
-FOREVER = 1 << 62
+#: The last step of a safe interval that never ends (the largest int compiled code keeps unboxed).
+FOREVER = (1 << 62) - 1
 #: The safe intervals of a cell nobody ever reserves (one shared tuple, so ``is`` tells). Typed as
 #: any length: mypyc keeps a fixed-length tuple unboxed and boxes a new one on every use.
 ALWAYS_FREE: tuple[tuple[int, int], ...] = ((-FOREVER, FOREVER),)
@@ -166,7 +166,8 @@ class ReservationTable:
         return max(step, latest + 1)
 
     def goal_free_from(self, cell: int) -> int | None:
-        """The earliest step from which ``cell`` stays unreserved forever; None if never."""
+        """The earliest step from which ``cell`` stays unreserved forever; None if never. For a
+        table of safe intervals, any step up to the :attr:`horizon` when it is free from there on."""
         if self.keeps_vertex:
             if cell in self.perm:
                 return None
@@ -240,8 +241,10 @@ class ReservationTable:
         return tuple(out)
 
     def conflicts(self, cell: int, step: int) -> bool:
-        """Whether being in ``cell`` at ``step`` clashes with a reservation."""
+        """Whether being in ``cell`` at ``step`` clashes with a reservation (``step`` not before
+        the :attr:`horizon`, for a table of safe intervals)."""
         if not self.keeps_vertex:
+            assert step >= self.horizon, f"step {step} is before the horizon {self.horizon}"
             return not free_at(self.safe_intervals(cell), step)
         return (step * self.n + cell in self.vertex or self.perm.get(cell, step + 1) <= step
                 or self.pre.get(cell, step - 1) >= step)

@@ -20,8 +20,9 @@ import statistics
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
+import drona_gcs.planner as planner_module
 from drona_gcs.bench.workload import TaskStream, random_workspace
 from drona_gcs.errors import NoPlanFound
 from drona_gcs.motion import Trajectory
@@ -59,6 +60,8 @@ class Row:
     target_ms: float
     speedup: float
     meets_target: bool
+    #: whether the planner ran its mypyc-compiled modules (``drona_gcs.planner.NATIVE``)
+    compiled: bool = field(default_factory=lambda: planner_module.NATIVE)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -192,6 +195,8 @@ def _measure(name: str, width: int, drones: int, delta: int, ws: object, rng: ra
 
 
 def _print_header() -> None:
+    how = "compiled (mypyc)" if planner_module.NATIVE else "pure Python (slower: see README, Benchmark)"
+    print(f"planner modules: {how}")
     print(f"{'planner':7} {'grid':>7} {'R':>4} {'D':>2} {'plans':>5} {'mean ms':>9} {'median':>8} "
           f"{'p99':>8} {'fails':>5} {'paper ms':>9} {'target':>7} {'x paper':>8}  ok")
 
