@@ -65,7 +65,7 @@ def search(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
     goal_ready = table.goal_free_from(goal)
     if goal_ready is None:
         raise NoPlanFound("the goal is another drone's resting cell for good")
-    goal_ready = max(goal_ready, n)  # the same to every use below; a step "since ever" is not
+    goal_ready = max(goal_ready, n)  # free "since ever" (far in the past) reads as free from n
     if goal_ready > n + max_length:  # arriving earlier, another drone would still come by
         raise NoPlanFound(f"the goal is taken until step {goal_ready}, beyond the plan's {max_length} steps")
     if table.conflicts(start, n):
