@@ -12,7 +12,6 @@ come from that module, loaded here by path (it needs only the standard library).
 
 from __future__ import annotations
 
-import hashlib
 import importlib.util
 import os
 import shutil
@@ -52,8 +51,7 @@ def _give_up(why: str) -> None:
 
 def _stamp_text() -> str:
     """sha256sum-format lines for the sources being compiled (read now, as mypyc reads them)."""
-    lines = [f"{hashlib.sha256((SOURCE_DIR / f'{m}.py').read_bytes()).hexdigest()}  {m}.py" for m in HOT]
-    return "\n".join(lines) + "\n"
+    return "".join(f"{digest}  {name}\n" for name, digest in NATIVE.source_digests(str(SOURCE_DIR)).items())
 
 
 #: setup.py commands that build: pip runs setup.py three times per install (egg_info, dist_info,
@@ -68,7 +66,7 @@ def _mypyc_extensions() -> tuple[list[Any], str | None]:
         _give_up(f"mypyc needs CPython, not {sys.implementation.name}")
         return [], None
     compiler = (os.environ.get("CC") or sysconfig.get_config_var("CC") or "cc").split()[0]
-    if shutil.which(compiler) is None:  # checked first: mypyc's type check and codegen take ~30 s
+    if shutil.which(compiler) is None:  # checked first: mypyc's type check and codegen take a while
         _give_up(f"no C compiler ({compiler} is not on PATH)")
         return [], None
     try:
@@ -102,7 +100,7 @@ def _stale_outputs(package_dir: Path, keep: set[str]) -> list[Path]:
         if path.suffix in (".so", ".pyd"):
             if not (path.name.split(".", 1)[0] in keep and path.name.endswith(suffix)):
                 found.append(path)
-        elif (path.name.startswith("_native_sources.") and path.name.endswith(".sha256")
+        elif (path.name.startswith(STAMP.split(".", 1)[0] + ".") and path.name.endswith(".sha256")
               and (not keep or path.name != STAMP)):
             found.append(path)
     return found

@@ -34,6 +34,17 @@ def flag(name: str) -> bool:
     return os.environ.get(name, "").strip().lower() not in ("", "0", "false", "no")
 
 
+def source_digests(directory: str) -> dict[str, str]:
+    """The sha256 of each :data:`HOT` module's source in ``directory``, by file name, in order:
+    what the build records in :data:`STAMP` and what :func:`select` compares (OSError if one is
+    missing)."""
+    digests = {}
+    for m in HOT:
+        with open(os.path.join(directory, f"{m}.py"), "rb") as src:
+            digests[f"{m}.py"] = hashlib.sha256(src.read()).hexdigest()
+    return digests
+
+
 def _compiled_present(names: list[str]) -> bool:
     return any(f"{m}{suffix}" in names for m in HOT for suffix in EXTENSION_SUFFIXES)
 
@@ -48,17 +59,14 @@ def _stale() -> str | None:
             recorded = dict(line.split()[::-1] for line in f if line.strip())
     except (OSError, ValueError):
         return f"no valid {STAMP} (built by something else than setup.py?)"
-    if set(recorded) != {f"{m}.py" for m in HOT}:
+    try:
+        now = source_digests(_DIR)
+    except OSError as exc:
+        return f"{os.path.basename(str(exc.filename))} cannot be read ({exc.strerror})"
+    if set(recorded) != set(now):
         return f"{STAMP} names other modules than {', '.join(HOT)}"
-    for m in HOT:
-        try:
-            with open(os.path.join(_DIR, f"{m}.py"), "rb") as src:
-                digest = hashlib.sha256(src.read()).hexdigest()
-        except OSError as exc:
-            return f"{m}.py cannot be read ({exc.strerror})"
-        if digest != recorded[f"{m}.py"]:
-            return f"{m}.py changed since it was compiled"
-    return None
+    changed = [name for name, digest in now.items() if digest != recorded[name]]
+    return f"{changed[0]} changed since it was compiled" if changed else None
 
 
 def _load_source(module: str) -> None:
@@ -83,10 +91,10 @@ def select() -> bool:
         return not str(grid.__file__).endswith(".py")
     if not _compiled_present(os.listdir(_DIR)):
         return False  # a pure-Python install
-    why = "DRONA_PURE_PYTHON is set" if flag("DRONA_PURE_PYTHON") else _stale()
-    if why is None:
-        return True
-    if "DRONA_PURE_PYTHON" not in why:
+    if not flag("DRONA_PURE_PYTHON"):  # (set: the sources, as asked, with no warning)
+        why = _stale()
+        if why is None:
+            return True
         warnings.warn(f"drona_gcs.planner runs its .py sources, not its compiled modules ({why}). They are "
                       f"slower: rebuild with `pip install --no-deps -e .`, or delete {_DIR}/*.so",
                       RuntimeWarning, stacklevel=2)

@@ -180,7 +180,7 @@ class ReservationTable:
         runs = self.safe_intervals(cell)
         if not runs or runs[-1][1] != FOREVER:
             return None  # a drone parks there for good
-        return runs[-1][0]  # before the horizon when the cell is free from it on: the same to a search
+        return runs[-1][0]
 
     def pre_keys(self, step: int) -> list[int]:
         """Vertex keys, from ``step`` on, of drones still sitting at their first cell."""
