@@ -6,6 +6,7 @@ import argparse
 import asyncio
 import contextlib
 import json
+import re
 import socket
 import threading
 import time
@@ -20,7 +21,7 @@ from fleet.sim.ports import free_port
 from fleet.transport.gateway import ZenohGateway
 from fleet.transport.keys import FleetKeys, check_name
 from fleet.transport.node import ZenohNode, ZenohSettings
-from fleet.transport.wire import MailOrder, WireError, answers, decode, encode, from_core, to_core
+from fleet.transport.wire import MailOrder, WireError, answers, checked, decode, encode, from_core, to_core, to_json
 
 TASK = TaskId(12, "d1", 3)
 
@@ -49,19 +50,22 @@ def envelope(body: dict[str, object], **over: object) -> bytes:
 
 
 @pytest.mark.parametrize("payload, problem", [
-    (b"not json", "Invalid JSON"),
-    (envelope({"kind": "clock_ping"}, v=2), "v: Input should be 3"),
-    (envelope({"kind": "teleport"}), "does not match any of the expected tags"),
+    (b"not json", "JSON is malformed"),
+    (envelope({"kind": "clock_ping"}, v=2), "Invalid enum value 2 - at `$.v`"),
+    (envelope({"kind": "teleport"}), "Invalid value 'teleport' - at `$.body.kind`"),
     (envelope({"kind": "req_traj", "task_id": {"stamp": "12", "drone": "d1", "seq": 1}}),
-     "body.req_traj.task_id.stamp"),
+     "Expected `int`, got `str` - at `$.body.task_id.stamp`"),
     (envelope({"kind": "cur_traj_to", "replies": {}, "trajectory": {"start_step": 3, "cells": [[1, 1, 0]]}}),
-     "replies"),
-    (envelope({"kind": "req_traj", "task_id": {"stamp": 1, "drone": "d1", "seq": 1}, "extra": 1}), "extra"),
+     "at `$.body.replies`"),
+    (envelope({"kind": "req_traj", "task_id": {"stamp": 1, "drone": "d1", "seq": 1}, "extra": 1}),
+     "unknown field `extra`"),
     (envelope({"kind": "cur_traj", "in_reply_to": {"stamp": 1, "drone": "d1", "seq": 1},
-               "trajectory": {"start_step": 3, "cells": []}}), "cells"),
-    (envelope({"kind": "mail", "id": "m/1", "pickup": [1, 2, 0], "dropoff": [3, 4, 0], "priority": 5}), "id"),
+               "trajectory": {"start_step": 3, "cells": []}}),
+     "at `$.body.trajectory.cells`"),
+    (envelope({"kind": "mail", "id": "m/1", "pickup": [1, 2, 0], "dropoff": [3, 4, 0], "priority": 5}),
+     "at `$.body.id`"),
     (envelope({"kind": "mail", "id": "m1", "pickup": [1, 2, 0], "dropoff": [3, 4, 0], "priority": 10}),
-     "priority"),
+     "Expected `int` <= 9 - at `$.body.priority`"),
 ])
 def test_a_malformed_or_foreign_payload_is_refused_naming_what_is_wrong(payload: bytes, problem: str) -> None:
     with pytest.raises(WireError, match="malformed message") as caught:
@@ -77,6 +81,23 @@ def test_a_payload_handed_to_every_drone_of_a_process_is_validated_once() -> Non
     for _ in range(2):  # a bad payload is refused every time, not remembered as good
         with pytest.raises(WireError, match="cels"):
             decode(broken)
+
+
+def test_the_wire_format_is_the_documented_json() -> None:
+    """Other tools read these bytes: the envelope's fields in order, the body tagged by its kind."""
+    payload = encode("d1", 5.5, from_core(ReqForCurrentTraj(TASK, "d1")))
+    assert payload == (b'{"v":3,"sender":"d1","sent_at":5.5,"body":{"kind":"req_traj",'
+                       b'"task_id":{"stamp":%d,"drone":"%s","seq":%d}}}' % (TASK.stamp, TASK.drone.encode(), TASK.seq))
+
+
+def test_a_message_built_by_hand_is_checked_as_one_from_the_wire() -> None:
+    order = checked(MailOrder, id="m1", pickup=[1, 2, 0], dropoff=[3, 4, 0], priority=5)
+    assert decode(encode("cli", 0.0, order)).body == order
+    assert to_json(order) == {"id": "m1", "pickup": [1, 2, 0], "dropoff": [3, 4, 0], "priority": 5, "note": None}
+    for fields, problem in (({"pickup": [1, 2]}, "at `$.pickup`"), ({"priority": 12}, "at `$.priority`"),
+                            ({"id": "m 1"}, "at `$.id`")):
+        with pytest.raises(WireError, match=re.escape(problem)):
+            checked(MailOrder, **{"id": "m1", "pickup": [1, 2, 0], "dropoff": [3, 4, 0], "priority": 5, **fields})
 
 
 def test_a_non_protocol_body_is_not_taken_for_a_protocol_message() -> None:

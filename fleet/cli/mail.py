@@ -21,7 +21,7 @@ from drona_gcs.errors import DronaError
 from fleet.transport.fleet_client import FleetClient
 from fleet.transport.keys import FleetKeys, check_name
 from fleet.transport.node import ZenohNode, ZenohSettings, agent_endpoint
-from fleet.transport.wire import MailOrder, MailStatus, MailStatusReport, WireError, decode
+from fleet.transport.wire import MailOrder, MailStatus, MailStatusReport, WireError, checked, decode, to_json
 
 #: With no endpoints given, look for the agents where `drona agent` listens by default on this machine.
 DEFAULT_AGENTS = 16
@@ -64,13 +64,13 @@ def run(args: argparse.Namespace) -> int:
         if args.drone:
             check_name("drone", args.drone)
         mail_id = check_name("mail id", args.id) if args.id else f"m-{uuid.uuid4().hex[:12]}"
-        order = MailOrder(id=mail_id, pickup=args.pickup, dropoff=args.dropoff, priority=args.priority,
-                          note=args.note)
+        order = checked(MailOrder, id=mail_id, pickup=args.pickup, dropoff=args.dropoff, priority=args.priority,
+                        note=args.note)
         if args.pickup == args.dropoff:
             raise ValueError(f"pickup and drop-off are the same cell {args.pickup}")
         if not args.timeout > 0:
             raise ValueError(f"--timeout must be > 0, got {args.timeout}")
-    except ValueError as exc:
+    except (ValueError, WireError) as exc:
         print(f"drona mail: {exc}", file=sys.stderr)
         return 2
     try:
@@ -121,7 +121,7 @@ async def _follow(mail_id: str, reports: asyncio.Queue[MailStatusReport], timeou
         except TimeoutError:
             print(f"drona mail: {mail_id} not delivered within {timeout:g} s", file=sys.stderr)
             return 1
-        _emit(report.model_dump(mode="json", exclude={"kind"}))
+        _emit(to_json(report))
         print(f"drona mail: {mail_id} {report.status.value} ({report.drone}, step {report.step})"
               f"{': ' + report.reason if report.reason else ''}", file=sys.stderr)
         if report.status in FINAL:

@@ -1,4 +1,4 @@
-"""What travels over Zenoh: versioned, validated JSON messages.
+"""What travels over Zenoh: versioned JSON messages, validated by msgspec.
 
 Every payload is one :class:`Envelope`: the format version ``v``, the
 ``sender`` and its clock time ``sent_at`` (seconds since the Unix epoch on the
@@ -35,9 +35,9 @@ from __future__ import annotations
 import enum
 import functools
 from collections.abc import Mapping
-from typing import Annotated, Literal
+from typing import Annotated, Any, Final, Literal, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+import msgspec
 
 from drona_gcs.errors import DronaError
 from drona_gcs.motion import Trajectory
@@ -45,20 +45,31 @@ from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj, Ta
 
 #: 2: a Zenoh message may carry several envelopes, one per line (fleet.transport.node);
 #: 3: ``cur_traj_to``, one answer to several drones.
-VERSION = 3
+VERSION: Final = 3
 
-CellList = Annotated[list[int], Field(min_length=3, max_length=3)]
+CellList = Annotated[list[int], msgspec.Meta(min_length=3, max_length=3)]
+#: A trajectory's cells are tuples as they come off the wire: a core Trajectory takes them as they are.
+CellTuples = Annotated[tuple[tuple[int, int, int], ...], msgspec.Meta(min_length=1)]
 
 
 class WireError(DronaError):
     """A payload that is not a valid message of this version."""
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
+class _Strict(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Every wire type: immutable, built by keyword, and no field it does not know (msgspec validates on
+    decoding, strictly: no "12" for 12; a message built here is checked with :func:`checked`)."""
 
 
-class WireTaskId(_Strict):
+class _Body(_Strict, frozen=True, kw_only=True, tag_field="kind"):
+    """An envelope's body, told apart by its ``kind``."""
+
+    @property
+    def kind(self) -> str:
+        return str(type(self).__struct_config__.tag)
+
+
+class WireTaskId(_Strict, frozen=True, kw_only=True):
     stamp: int
     drone: str
     seq: int
@@ -71,66 +82,54 @@ class WireTaskId(_Strict):
         return TaskId(self.stamp, self.drone, self.seq)
 
 
-class WireTrajectory(_Strict):
+class WireTrajectory(_Strict, frozen=True, kw_only=True):
     start_step: int
-    cells: Annotated[list[CellList], Field(min_length=1)]
+    cells: CellTuples
 
     @classmethod
     def of(cls, trajectory: Trajectory) -> WireTrajectory:
-        """Remembered for the last few trajectories: a drone answers every request of a round, and
-        publishes its state, with the same one. Shared, so never to be changed in place."""
-        return _wire_trajectory(trajectory)
+        return cls(start_step=trajectory.start_step, cells=trajectory.cells)
 
     def core(self) -> Trajectory:
-        # Each cell is three ints (validated): tuple() of it is a Cell, at C speed.
-        return Trajectory(self.start_step, tuple(map(tuple, self.cells)))  # type: ignore[arg-type]
-
-
-@functools.lru_cache(maxsize=256)
-def _wire_trajectory(trajectory: Trajectory) -> WireTrajectory:
-    return WireTrajectory(start_step=trajectory.start_step, cells=[list(c) for c in trajectory.cells])
+        return Trajectory(self.start_step, self.cells)
 
 
 # ------------------------------------------------------------- protocol
-class ReqTraj(_Strict):
-    kind: Literal["req_traj"] = "req_traj"
+class ReqTraj(_Body, frozen=True, kw_only=True, tag="req_traj"):
     task_id: WireTaskId
 
 
-class CurTraj(_Strict):
-    kind: Literal["cur_traj"] = "cur_traj"
+class CurTraj(_Body, frozen=True, kw_only=True, tag="cur_traj"):
     in_reply_to: WireTaskId
     trajectory: WireTrajectory
 
 
-class CurTrajTo(_Strict):
+class CurTrajTo(_Body, frozen=True, kw_only=True, tag="cur_traj_to"):
     """One trajectory answering several drones' requests: ``replies`` maps each drone to its request."""
 
-    kind: Literal["cur_traj_to"] = "cur_traj_to"
-    replies: Annotated[dict[str, WireTaskId], Field(min_length=1)]
+    replies: Annotated[dict[str, WireTaskId], msgspec.Meta(min_length=1)]
     trajectory: WireTrajectory
 
 
-class PlanAnnounce(_Strict):
+class PlanAnnounce(_Body, frozen=True, kw_only=True, tag="plan"):
     """A drone's new plan, to everyone, once made (peers outside the round learn where it goes)."""
 
-    kind: Literal["plan"] = "plan"
     trajectory: WireTrajectory
 
 
 # ---------------------------------------------------------------- state
-class Health(_Strict):
+class Health(_Strict, frozen=True, kw_only=True):
     ok: bool = True
-    alarms: list[str] = Field(default_factory=list)
+    alarms: list[str] = msgspec.field(default_factory=list)
 
 
-class TaskView(_Strict):
+class TaskView(_Strict, frozen=True, kw_only=True):
     goal: CellList
     purpose: str
     mail_id: str | None = None
 
 
-class MailView(_Strict):
+class MailView(_Strict, frozen=True, kw_only=True):
     """A mail a drone holds: queued, current (flying to its pickup) or on board."""
 
     id: str
@@ -140,8 +139,7 @@ class MailView(_Strict):
     stage: Literal["queued", "current", "carrying"]
 
 
-class DroneState(_Strict):
-    kind: Literal["state"] = "state"
+class DroneState(_Body, frozen=True, kw_only=True, tag="state"):
     drone: str
     step: int
     cell: CellList  #: where the stack holds the drone (its executor's cell)
@@ -153,39 +151,35 @@ class DroneState(_Strict):
     landed: bool
     task: TaskView | None = None
     trajectory: WireTrajectory | None = None
-    mail: list[MailView] = Field(default_factory=list)
-    health: Health = Field(default_factory=Health)
-    clock_offset_s: dict[str, float] = Field(default_factory=dict)  #: measured offset of each peer's clock
+    mail: list[MailView] = msgspec.field(default_factory=list)
+    health: Health = msgspec.field(default_factory=Health)
+    clock_offset_s: dict[str, float] = msgspec.field(default_factory=dict)  #: measured offset of each peer's clock
     plans: int = 0  #: plans made so far
     messages_sent: int = 0  #: protocol messages sent so far
     coordination_ms: float | None = None  #: the last plan's: task arrival to plan scheduled
 
 
-class HeldMail(_Strict):
+class HeldMail(_Body, frozen=True, kw_only=True, tag="held"):
     """The mail a drone holds, published when it changes: a drone's heir takes it over if it leaves."""
 
-    kind: Literal["held"] = "held"
     drone: str
     mail: list[MailView]
 
 
 # ----------------------------------------------------------------- mail
-class MailOrder(_Strict):
-    kind: Literal["mail"] = "mail"
-    id: Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.:-]+$")]
+class MailOrder(_Body, frozen=True, kw_only=True, tag="mail"):
+    id: Annotated[str, msgspec.Meta(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.:-]+$")]
     pickup: CellList
     dropoff: CellList
-    priority: Annotated[int, Field(ge=0, le=9)]
+    priority: Annotated[int, msgspec.Meta(ge=0, le=9)]
     note: str | None = None
 
 
-class MailCancel(_Strict):
-    kind: Literal["mail_cancel"] = "mail_cancel"
+class MailCancel(_Body, frozen=True, kw_only=True, tag="mail_cancel"):
     id: str
 
 
-class MailAck(_Strict):
-    kind: Literal["mail_ack"] = "mail_ack"
+class MailAck(_Body, frozen=True, kw_only=True, tag="mail_ack"):
     id: str
     drone: str
     accepted: bool
@@ -203,8 +197,7 @@ class MailStatus(enum.Enum):
     CANCELLED = "cancelled"  #: dropped from the queue on request
 
 
-class MailStatusReport(_Strict):
-    kind: Literal["mail_status"] = "mail_status"
+class MailStatusReport(_Body, frozen=True, kw_only=True, tag="mail_status"):
     id: str
     drone: str
     status: MailStatus
@@ -213,30 +206,31 @@ class MailStatusReport(_Strict):
 
 
 # ---------------------------------------------------------------- clock
-class ClockPing(_Strict):
-    kind: Literal["clock_ping"] = "clock_ping"
+class ClockPing(_Body, frozen=True, kw_only=True, tag="clock_ping"):
+    pass
 
 
-class ClockPong(_Strict):
-    kind: Literal["clock_pong"] = "clock_pong"
+class ClockPong(_Body, frozen=True, kw_only=True, tag="clock_pong"):
+    pass
 
 
-Body = Annotated[
-    ReqTraj | CurTraj | CurTrajTo | PlanAnnounce | DroneState | HeldMail | MailOrder | MailCancel | MailAck
-    | MailStatusReport | ClockPing | ClockPong,
-    Field(discriminator="kind"),
-]
+Body = (ReqTraj | CurTraj | CurTrajTo | PlanAnnounce | DroneState | HeldMail | MailOrder | MailCancel | MailAck
+        | MailStatusReport | ClockPing | ClockPong)
 
 
-class Envelope(_Strict):
+class Envelope(_Strict, frozen=True, kw_only=True):
     v: Literal[3] = VERSION
-    sender: Annotated[str, Field(min_length=1)]
+    sender: Annotated[str, msgspec.Meta(min_length=1)]
     sent_at: float
     body: Body
 
 
+_ENCODER = msgspec.json.Encoder()
+_DECODER = msgspec.json.Decoder(Envelope)
+
+
 def encode(sender: str, sent_at: float, body: Body) -> bytes:
-    return Envelope(sender=sender, sent_at=sent_at, body=body).model_dump_json().encode()
+    return _ENCODER.encode(Envelope(sender=sender, sent_at=sent_at, body=body))
 
 
 @functools.lru_cache(maxsize=256)
@@ -249,10 +243,28 @@ def decode(payload: bytes) -> Envelope:
     must not be changed in place either.
     """
     try:
-        return Envelope.model_validate_json(payload)
-    except ValidationError as exc:
-        problems = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'payload'}: {e['msg']}" for e in exc.errors()[:3])
-        raise WireError(f"malformed message: {problems}") from exc
+        return _DECODER.decode(payload)
+    except msgspec.DecodeError as exc:  # its ValidationError too: msgspec names the field ("at `$.body.id`")
+        raise WireError(f"malformed message: {exc}") from exc
+
+
+T = TypeVar("T", bound=_Strict)
+
+
+def checked(kind: type[T], **fields: Any) -> T:
+    """A message built from ``fields`` and validated as if it had come over the wire (building one by
+    hand checks nothing); :class:`WireError` naming what is wrong (a mail order typed by an operator)."""
+    try:
+        return msgspec.convert(fields, kind)
+    except msgspec.ValidationError as exc:
+        raise WireError(f"{exc}") from exc
+
+
+def to_json(message: _Strict) -> dict[str, Any]:
+    """``message`` as plain JSON values (a body without its ``kind``)."""
+    record: dict[str, Any] = msgspec.to_builtins(message)
+    record.pop("kind", None)
+    return record
 
 
 # ------------------------------------------------------ core <-> wire
