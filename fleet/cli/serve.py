@@ -28,6 +28,7 @@ import uvicorn
 
 from drona_gcs.errors import DronaError
 from drona_gcs.workspace import Workspace
+from fleet import loop
 
 #: --gateway name -> "module:factory"; factory(workspace, args) -> FleetGateway. The first is the default.
 GATEWAYS: dict[str, str] = {
@@ -73,11 +74,7 @@ def run(args: argparse.Namespace) -> int:
     # keep the cyclic GC from walking it again and again (full collections of 50+ ms otherwise).
     gc.collect()
     gc.freeze()
-    with contextlib.suppress(ImportError):
-        import uvloop  # with uvicorn[standard]: a faster event loop
-
-        return uvloop.run(_serve(app, settings.host, settings.port, args.log_level))
-    return asyncio.run(_serve(app, settings.host, settings.port, args.log_level))
+    return loop.run(_serve(app, settings.host, settings.port, args.log_level))
 
 
 def _settings(args: argparse.Namespace) -> tuple[Any, str | None]:
