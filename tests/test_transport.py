@@ -18,10 +18,12 @@ from drona_gcs.stack.messages import CurrentTraj, ReqForCurrentTraj, TaskId
 from drona_gcs.workspace import Workspace
 from fleet.agent.clocksync import ClockCheck, OffsetSample
 from fleet.sim.ports import free_port
+from fleet.sim.transport import UdpLink
 from fleet.transport.gateway import ZenohGateway
 from fleet.transport.keys import FleetKeys, check_name
 from fleet.transport.node import ZenohNode, ZenohSettings
 from fleet.transport.wire import MailOrder, WireError, answers, checked, decode, encode, from_core, to_core, to_json
+from fleet.vehicle.urls import open_transport, parse_link_url
 
 TASK = TaskId(12, "d1", 3)
 
@@ -51,6 +53,7 @@ def envelope(body: dict[str, object], **over: object) -> bytes:
 
 @pytest.mark.parametrize("payload, problem", [
     (b"not json", "JSON is malformed"),
+    (b'{"v": 3, "sender": "d\xff", "sent_at": 1.0, "body": {"kind": "clock_ping"}}', "not UTF-8"),
     (envelope({"kind": "clock_ping"}, v=2), "Invalid enum value 2 - at `$.v`"),
     (envelope({"kind": "teleport"}), "Invalid value 'teleport' - at `$.body.kind`"),
     (envelope({"kind": "req_traj", "task_id": {"stamp": "12", "drone": "d1", "seq": 1}}),
@@ -64,6 +67,11 @@ def envelope(body: dict[str, object], **over: object) -> bytes:
      "at `$.body.trajectory.cells`"),
     (envelope({"kind": "mail", "id": "m/1", "pickup": [1, 2, 0], "dropoff": [3, 4, 0], "priority": 5}),
      "at `$.body.id`"),
+    (envelope({"kind": "mail", "id": "m1\n", "pickup": [1, 2, 0], "dropoff": [3, 4, 0], "priority": 5}),
+     "at `$.body.id`"),  # a Zenoh key chunk: no newline, even a final one
+    (envelope({"kind": "held", "drone": "d1", "mail": [{"id": "m1", "pickup": [1, 2, 0], "dropoff": [3, 4, 0],
+                                                        "priority": 42, "stage": "queued"}]}),
+     "at `$.body.mail[0].priority`"),  # what an heir takes over is checked as an order is
     (envelope({"kind": "mail", "id": "m1", "pickup": [1, 2, 0], "dropoff": [3, 4, 0], "priority": 10}),
      "Expected `int` <= 9 - at `$.body.priority`"),
 ])
@@ -111,7 +119,7 @@ def test_keys_live_under_the_fleet_and_names_must_be_single_chunks() -> None:
     assert keys.proto("d1") == "drona/north/proto/d1"
     assert keys.alive() == "drona/north/alive/*"
     assert keys.last_chunk(keys.status("m-1")) == "m-1"
-    for bad in ("a/b", "*", "", "d 1"):
+    for bad in ("a/b", "*", "", "d 1", "d1\n"):
         with pytest.raises(ValueError, match="Zenoh key chunk"):
             check_name("drone", bad)
 
@@ -376,3 +384,35 @@ def test_a_subscription_that_goes_first_is_handed_its_samples_before_ordinary_on
 
     assert asyncio.run(scenario()) == [b"t/request/go", b"t/answer/1", b"t/request/1", b"t/answer/2",
                                        b"t/request/2", b"t/request/3"]
+
+
+@pytest.mark.parametrize("event_loop", ["asyncio", "uvloop"])
+def test_udp_links_given_a_host_name_send_on_either_event_loop(event_loop: str) -> None:
+    """uvloop's sendto looks no name up: the fake vehicle's link and a udpout:// link to "localhost"
+    must still reach their peer (the processes run on uvloop, fleet/loop.py)."""
+    receiver = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    receiver.bind(("127.0.0.1", 0))
+    receiver.settimeout(5)
+    port = receiver.getsockname()[1]
+
+    async def send_both() -> None:
+        vehicle_side = await UdpLink.open("localhost", port, lambda: lambda data: None)
+        ground_side = await open_transport(parse_link_url(f"udpout://localhost:{port}"), lambda data: None,
+                                           lambda why: None)
+        try:
+            vehicle_side.send(b"from the vehicle")
+            ground_side.send(b"from the ground")
+            await asyncio.sleep(0.05)  # the datagrams are on their way: nothing to wait on but the socket
+        finally:
+            vehicle_side.close()
+            ground_side.close()
+
+    try:
+        if event_loop == "uvloop":
+            uvloop = pytest.importorskip("uvloop", reason="uvloop is not installed here")
+            uvloop.run(send_both())
+        else:
+            asyncio.run(send_both())
+        assert {receiver.recv(64), receiver.recv(64)} == {b"from the vehicle", b"from the ground"}
+    finally:
+        receiver.close()

@@ -44,10 +44,12 @@ class UdpLink(asyncio.DatagramProtocol):
     async def open(cls, host: str, peer_port: int, new_session: SessionFactory) -> UdpLink:
         loop = asyncio.get_running_loop()
         try:
-            _, link = await loop.create_datagram_endpoint(lambda: cls((host, peer_port), new_session),
-                                                          local_addr=(host, 0))
+            transport, link = await loop.create_datagram_endpoint(lambda: cls((host, peer_port), new_session),
+                                                                  local_addr=(host, 0))
         except OSError as exc:
             raise VehicleError(f"cannot open a UDP socket on {host}: {exc.strerror}") from exc
+        # The address the host name resolved to: uvloop's sendto takes no name to look up.
+        link.peer = (transport.get_extra_info("sockname")[0], peer_port)
         return link
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:

@@ -48,6 +48,9 @@ from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj, Ta
 VERSION: Final = 3
 
 CellList = Annotated[list[int], msgspec.Meta(min_length=3, max_length=3)]
+#: A mail id is a Zenoh key chunk (mail/status/<id>); \Z, not $: "$" would let a final newline through.
+MailId = Annotated[str, msgspec.Meta(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.:-]+\Z")]
+Priority = Annotated[int, msgspec.Meta(ge=0, le=9)]
 #: A trajectory's cells are tuples as they come off the wire: a core Trajectory takes them as they are.
 CellTuples = Annotated[tuple[tuple[int, int, int], ...], msgspec.Meta(min_length=1)]
 
@@ -132,10 +135,10 @@ class TaskView(_Strict, frozen=True, kw_only=True):
 class MailView(_Strict, frozen=True, kw_only=True):
     """A mail a drone holds: queued, current (flying to its pickup) or on board."""
 
-    id: str
+    id: MailId  #: a departed peer's mail is taken over from these: checked as an order is
     pickup: CellList
     dropoff: CellList
-    priority: int
+    priority: Priority
     stage: Literal["queued", "current", "carrying"]
 
 
@@ -168,10 +171,10 @@ class HeldMail(_Body, frozen=True, kw_only=True, tag="held"):
 
 # ----------------------------------------------------------------- mail
 class MailOrder(_Body, frozen=True, kw_only=True, tag="mail"):
-    id: Annotated[str, msgspec.Meta(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.:-]+$")]
+    id: MailId
     pickup: CellList
     dropoff: CellList
-    priority: Annotated[int, msgspec.Meta(ge=0, le=9)]
+    priority: Priority
     note: str | None = None
 
 
@@ -246,12 +249,14 @@ def decode(payload: bytes) -> Envelope:
         return _DECODER.decode(payload)
     except msgspec.DecodeError as exc:  # its ValidationError too: msgspec names the field ("at `$.body.id`")
         raise WireError(f"malformed message: {exc}") from exc
+    except UnicodeDecodeError as exc:  # msgspec lets a string that is not UTF-8 through as this
+        raise WireError(f"malformed message: not UTF-8: {exc.reason} at byte {exc.start}") from exc
 
 
 T = TypeVar("T", bound=_Strict)
 
 
-def checked(kind: type[T], **fields: Any) -> T:
+def checked(kind: type[T], /, **fields: Any) -> T:
     """A message built from ``fields`` and validated as if it had come over the wire (building one by
     hand checks nothing); :class:`WireError` naming what is wrong (a mail order typed by an operator)."""
     try:

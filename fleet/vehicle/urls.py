@@ -126,7 +126,8 @@ class _Datagrams(asyncio.DatagramProtocol):
 
     def send(self, data: bytes) -> None:
         if self.transport is not None and self.peer is not None and not self.transport.is_closing():
-            self.transport.sendto(data, self.peer)
+            # udpout's socket is connected to its peer: no address (a host name given would not match it)
+            self.transport.sendto(data, self.peer if self.listening else None)
 
     def close(self) -> None:
         if self.transport is not None:
