@@ -3,7 +3,8 @@
 The agents run in ``--processes`` ``drona agent --count`` subprocesses (a Zenoh
 session per process, ``--shared-session``; or one per drone, as on a real
 fleet, with ``--session-per-drone``) against N fake vehicles in a ``drona sim-vehicle``
-subprocess; an outside session keeps every drone busy with mail over Zenoh.
+subprocess; an outside session keeps every drone busy with mail over Zenoh,
+from the moment every drone is alive and stepping (both processes flying).
 Latency is measured per plan, from the task's arrival (the task planner's
 decision at a step boundary) to the plan scheduled (the protocol's
 StartExecuting, after every peer answered): Protocol 1 over the network,
@@ -127,11 +128,19 @@ async def _measure(children: list[subprocess.Popen[bytes]], workspace: Workspace
     latencies: dict[tuple[str, int], tuple[float, float]] = {}  #: (drone, plan) -> (when seen, ms)
     alive: set[str] = set()
     all_up = asyncio.Event()
+    stepping: set[str] = set()
+    all_stepping = asyncio.Event()
 
     def on_state(key: str, payload: bytes) -> None:
         with contextlib.suppress(WireError):
             body = decode(payload).body
-            if isinstance(body, DroneState) and body.coordination_ms is not None and measuring.is_set():
+            if not isinstance(body, DroneState):
+                return
+            if body.step > 0:  # its first boundary taken: steps count from the fleet epoch
+                stepping.add(body.drone)
+                if stepping >= set(names):
+                    all_stepping.set()
+            if body.coordination_ms is not None and measuring.is_set():
                 latencies.setdefault((body.drone, body.plans), (time.monotonic(), body.coordination_ms))
 
     def on_alive(key: str, up: bool) -> None:
@@ -143,7 +152,11 @@ async def _measure(children: list[subprocess.Popen[bytes]], workspace: Workspace
     try:
         node.subscribe(keys.state(), on_state)
         node.watch_liveliness(keys.alive(), on_alive)
-        await _up_or_gone(all_up, children, 120)
+        await _up_or_gone(all_up, children, 120, "alive on Zenoh")
+        # And flying: a drone is alive (and takes mail) as soon as it joined, but its process steps only once
+        # all its drones have joined. Mail given before would measure the start-up of the last process
+        # (its queries to the fleet) as much as coordination.
+        await _up_or_gone(all_stepping, children, 60, "stepping")
         measuring.set()
         cpu0 = [_cpu_of(c.pid) for c in children]
         started = time.monotonic()
@@ -170,9 +183,10 @@ def _spawn(arguments: list[str]) -> subprocess.Popen[bytes]:
     return subprocess.Popen([sys.executable, "-m", "fleet.cli", *arguments], stdout=subprocess.DEVNULL)
 
 
-async def _up_or_gone(all_up: asyncio.Event, children: list[subprocess.Popen[bytes]], timeout_s: float) -> None:
-    """Until every agent is alive; :class:`BenchError` at once if a child process exits first (a bad
-    setting, a port taken: its own error is on stderr above), or after ``timeout_s``."""
+async def _up_or_gone(all_up: asyncio.Event, children: list[subprocess.Popen[bytes]], timeout_s: float,
+                      what: str) -> None:
+    """Until ``all_up`` (every agent ``what``); :class:`BenchError` at once if a child process exits first
+    (a bad setting, a port taken: its own error is on stderr above), or after ``timeout_s``."""
     loop = asyncio.get_running_loop()
     gone: asyncio.Future[None] = loop.create_future()
     fds = [os.pidfd_open(child.pid) for child in children]
@@ -188,7 +202,7 @@ async def _up_or_gone(all_up: asyncio.Event, children: list[subprocess.Popen[byt
             os.close(fd)
     _check_alive(children)
     if not all_up.is_set():
-        raise BenchError(f"the agents were not all alive on Zenoh after {timeout_s:g} s")
+        raise BenchError(f"the agents were not all {what} after {timeout_s:g} s")
 
 
 def _check_alive(children: list[subprocess.Popen[bytes]]) -> None:

@@ -331,10 +331,10 @@ def test_the_service_gateway_is_open_only_while_linked_to_the_fleet() -> None:
 
 
 def test_a_subscription_that_goes_first_is_handed_its_samples_before_ordinary_ones_waiting() -> None:
-    """Answers go first: when the whole fleet asks at once, the first drone's answers must not wait
-    behind every other request. Three requests and then an answer arrive while the loop is busy;
-    the answer is handled first, the requests in their order. So is an answer that arrives while a
-    request is being handled: before the next request."""
+    """What goes first (the protocol's messages, fleet.agent.drone) must not wait behind what can
+    (announced plans, states): three ordinary samples and then a first one arrive while the loop is
+    busy; the first one is handled first, the others in their order. So is one that arrives while an
+    ordinary one is being handled: before the next."""
     endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
 
     async def scenario() -> list[bytes]:

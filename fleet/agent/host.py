@@ -147,8 +147,13 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
         for agent in host.agents:
             _check_placement(agent)
         settle_gc()  # before the drones join: nobody waits on this process yet
-        for agent in host.agents:
-            await agent.start()
+        # Together: each joins with two queries to the fleet. One after the other, a 16-drone process began
+        # stepping 0.3-0.4 s after the other one of a 32-drone bench, its drones alive (and given mail)
+        # meanwhile; together, 0.06 s after.
+        joined = await asyncio.gather(*(agent.start() for agent in host.agents), return_exceptions=True)
+        for failure in joined:
+            if isinstance(failure, BaseException):
+                raise failure
         log.info("drones %s up: fleet %r, tau %.3g s, Delta %d, lead %d steps", ", ".join(host.names),
                  settings.fleet, ws.tau_s, ws.delta, lead)
         if on_ready is not None:

@@ -4,10 +4,10 @@ zenoh-python calls back on its own threads. Every callback here only hands
 the sample (key and bytes) to the event loop, through the loop's inbox
 (:class:`_Inbox`); the handlers run on the loop, one at a time, like
 everything else in the process. A subscription may go *first*: its samples
-are handed round before those of ordinary ones already waiting. Answers to a
-drone that coordinates go first: when the whole fleet asks at once, the
-first drone's answers would otherwise wait behind every other request, and
-every round behind all of them. Protocol messages are put with congestion control BLOCK (the
+are handed round before those of ordinary ones already waiting. The agents'
+protocol messages go first (see fleet.agent.drone): a drone that coordinates
+waits on them, while announced plans, states and mail can wait their turn
+when the whole fleet asks at once. Protocol messages are put with congestion control BLOCK (the
 default DROP lost 19% of a burst here).
 
 Drones hosted in one process with ``--shared-session`` share one session
