@@ -18,7 +18,7 @@ def _strict(constant: str) -> object:
 def test_a_short_run_gives_one_strict_json_row_with_its_figures() -> None:
     agents = 4
     done = subprocess.run([sys.executable, "-m", "fleet.cli", "bench", "coordination", "--agents", str(agents),
-                           "--seconds", "4", "--json"], check=False, capture_output=True, text=True, timeout=120)
+                           "--seconds", "4", "--json"], check=False, capture_output=True, text=True, timeout=240)
     assert done.returncode == 0, done.stderr[-2000:]
     row = json.loads(done.stdout.strip().splitlines()[-1], parse_constant=_strict)
     assert row["agents"] == agents

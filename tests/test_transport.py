@@ -19,9 +19,10 @@ from drona_gcs.workspace import Workspace
 from fleet.agent.clocksync import ClockCheck, OffsetSample
 from fleet.sim.ports import free_port
 from fleet.sim.transport import UdpLink
+from fleet.transport import node as node_module
 from fleet.transport.gateway import ZenohGateway
 from fleet.transport.keys import FleetKeys, check_name
-from fleet.transport.node import ZenohNode, ZenohSettings
+from fleet.transport.node import ORDINARY_WAITS_AT_MOST_S, ZenohNode, ZenohSettings, _Inbox
 from fleet.transport.wire import MailOrder, WireError, answers, checked, decode, encode, from_core, to_core, to_json
 from fleet.vehicle.urls import open_transport, parse_link_url
 
@@ -330,12 +331,15 @@ def test_the_service_gateway_is_open_only_while_linked_to_the_fleet() -> None:
     assert not after
 
 
-def test_a_subscription_that_goes_first_is_handed_its_samples_before_ordinary_ones_waiting() -> None:
+def test_a_subscription_that_goes_first_is_handed_its_samples_before_ordinary_ones_waiting(
+        monkeypatch: pytest.MonkeyPatch) -> None:
     """What goes first (the protocol's messages, fleet.agent.drone) must not wait behind what can
     (announced plans, states): three ordinary samples and then a first one arrive while the loop is
     busy; the first one is handled first, the others in their order. So is one that arrives while an
     ordinary one is being handled: before the next."""
     endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    # The order by kind alone: no ordinary sample is to wait long enough here to go first by age.
+    monkeypatch.setattr(node_module, "ORDINARY_WAITS_AT_MOST_S", 60.0)
 
     async def scenario() -> list[bytes]:
         host = await ZenohNode.open(ZenohSettings(listen=(endpoint,)), "host")
@@ -350,7 +354,7 @@ def test_a_subscription_that_goes_first_is_handed_its_samples_before_ordinary_on
             sender.start()
             sender.join()
             deadline = time.monotonic() + 5
-            while len(host._inbox._items) < waiting and time.monotonic() < deadline:
+            while len(host._inbox._first) + len(host._inbox._ordinary) < waiting and time.monotonic() < deadline:
                 time.sleep(0.005)
 
         def on_sample(key: str, payload: bytes) -> None:
@@ -358,15 +362,15 @@ def test_a_subscription_that_goes_first_is_handed_its_samples_before_ordinary_on
                 linked.set()
                 return
             handled.append(payload)
-            if payload == b"t/request/go":
-                send_while_busy("t/request/1", "t/request/2", "t/request/3", "t/answer/1", waiting=4)
-            elif payload == b"t/request/1":
-                send_while_busy("t/answer/2", waiting=3)  # and requests 2 and 3
+            if payload == b"t/plan/go":
+                send_while_busy("t/plan/1", "t/plan/2", "t/plan/3", "t/answer/1", waiting=4)
+            elif payload == b"t/plan/1":
+                send_while_busy("t/answer/2", waiting=3)  # and plans 2 and 3
             if len(handled) == 6:
                 done.set()
 
         try:
-            host.subscribe("t/request/*", on_sample)
+            host.subscribe("t/plan/*", on_sample)
             host.subscribe("t/answer/*", on_sample, first=True)
             host.subscribe("t/ping", on_sample)
             for _ in range(100):  # until the host's subscriptions have reached the outside session
@@ -375,15 +379,15 @@ def test_a_subscription_that_goes_first_is_handed_its_samples_before_ordinary_on
                     await asyncio.wait_for(linked.wait(), 0.05)
                 if linked.is_set():
                     break
-            outside.put("t/request/go", b"t/request/go")
+            outside.put("t/plan/go", b"t/plan/go")
             await asyncio.wait_for(done.wait(), 10)
             return handled
         finally:
             await outside.close()
             await host.close()
 
-    assert asyncio.run(scenario()) == [b"t/request/go", b"t/answer/1", b"t/request/1", b"t/answer/2",
-                                       b"t/request/2", b"t/request/3"]
+    assert asyncio.run(scenario()) == [b"t/plan/go", b"t/answer/1", b"t/plan/1", b"t/answer/2",
+                                       b"t/plan/2", b"t/plan/3"]
 
 
 @pytest.mark.parametrize("event_loop", ["asyncio", "uvloop"])
@@ -416,3 +420,20 @@ def test_udp_links_given_a_host_name_send_on_either_event_loop(event_loop: str) 
         assert {receiver.recv(64), receiver.recv(64)} == {b"from the vehicle", b"from the ground"}
     finally:
         receiver.close()
+
+
+def test_an_ordinary_item_that_waited_too_long_goes_before_first_ones() -> None:
+    """Protocol messages go first, but not for ever: a process busy coordinating for long must
+    still take mail orders and answer queries."""
+    async def scenario() -> list[str]:
+        inbox, handled = _Inbox(asyncio.get_running_loop()), []
+        inbox.put(False, "t", handled.append, ("old",))
+        time.sleep(ORDINARY_WAITS_AT_MOST_S * 1.5)  # the loop busy: nothing is taken meanwhile
+        inbox.put(True, "t", handled.append, ("first 1",))
+        inbox.put(True, "t", handled.append, ("first 2",))
+        inbox.put(False, "t", handled.append, ("new",))
+        for _ in range(8):  # one item per turn of the loop
+            await asyncio.sleep(0)
+        return handled
+
+    assert asyncio.run(scenario()) == ["old", "first 1", "first 2", "new"]

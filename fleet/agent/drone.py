@@ -121,7 +121,9 @@ class DroneAgent:
         node.queryable(keys.state(self.me), self._on_state_query)
         node.queryable(keys.clock(self.me), self._on_clock_query)
         self.mail.declare()
-        node.watch_liveliness(keys.alive(), self._on_liveliness)
+        # With the protocol's messages, in the order they came: a peer that left and came back must not have
+        # its new request handled before its leaving (which would drop the request, held for an answer).
+        node.watch_liveliness(keys.alive(), self._on_liveliness, first=True)
         # The token last: whoever sees us alive finds every queryable already declared (the
         # declarations reach a peer in order), so a mail order sent at once is answered.
         node.token(keys.alive(self.me))

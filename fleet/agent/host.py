@@ -151,9 +151,11 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
         # stepping 0.3-0.4 s after the other one of a 32-drone bench, its drones alive (and given mail)
         # meanwhile; together, 0.06 s after.
         joined = await asyncio.gather(*(agent.start() for agent in host.agents), return_exceptions=True)
-        for failure in joined:
-            if isinstance(failure, BaseException):
-                raise failure
+        failures = [failure for failure in joined if isinstance(failure, BaseException)]
+        if len(failures) == 1:
+            raise failures[0]
+        if failures:  # each drone's reason (the CLI prints every one)
+            raise BaseExceptionGroup("drones could not join the fleet", failures)
         log.info("drones %s up: fleet %r, tau %.3g s, Delta %d, lead %d steps", ", ".join(host.names),
                  settings.fleet, ws.tau_s, ws.delta, lead)
         if on_ready is not None:

@@ -30,12 +30,12 @@ a callback subscriber still declared at interpreter exit hangs it.
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextlib
-import heapq
-import itertools
 import json
 import logging
 import threading
+import time
 import weakref
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -210,11 +210,12 @@ class ZenohNode:
     def token(self, key: str) -> None:
         self._declared.append(self.session.liveliness().declare_token(key))
 
-    def watch_liveliness(self, key: str, on_change: Callable[[str, bool], None]) -> None:
-        """``on_change(key, alive)`` for every token under ``key``, those already alive first."""
+    def watch_liveliness(self, key: str, on_change: Callable[[str, bool], None], first: bool = False) -> None:
+        """``on_change(key, alive)`` for every token under ``key``, those already alive first. ``first``:
+        handed round with the first subscriptions' samples, in the order they all came (see subscribe)."""
 
         def on_sample(sample: zenoh.Sample) -> None:
-            self._to_loop(on_change, str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+            self._to_loop(on_change, str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT, first=first)
 
         self._declared.append(self.session.liveliness().declare_subscriber(key, on_sample, history=True))
 
@@ -356,17 +357,26 @@ class ZenohNode:
         self._inbox.put(first, self.name, callback, args)
 
 
+#: An ordinary item that has waited this long goes before the *first* ones: a process busy with
+#: protocol messages for long (a fleet given mail at once) still takes mail orders, answers queries
+#: and measures its clock.
+ORDINARY_WAITS_AT_MOST_S = 0.05
+
+_Item = tuple[float, str, Callable[..., None], Sequence[Any]]  #: (when handed in, node name, callback, args)
+
+
 class _Inbox:
     """What Zenoh's threads hand to one event loop: the *first* items, then the rest, each in
-    arrival order. One item per turn of the loop, so that an item handed in while another is
-    handled (an answer to a request being answered) is sorted in before the next is taken, and
-    the loop's timers and tasks keep their turns."""
+    arrival order (but an ordinary item never waits more than ``ORDINARY_WAITS_AT_MOST_S``). One
+    item per turn of the loop, so that an item handed in while another is handled (an answer to
+    a request being answered) is sorted in before the next is taken, and the loop's timers and
+    tasks keep their turns."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
         self._loop = weakref.ref(loop)  # weak: the inbox is the loop's, and must not keep it alive
         self._lock = threading.Lock()  # Zenoh's threads put, the loop takes
-        self._items: list[tuple[int, int, str, Callable[..., None], Sequence[Any]]] = []
-        self._order = itertools.count()
+        self._first: collections.deque[_Item] = collections.deque()
+        self._ordinary: collections.deque[_Item] = collections.deque()
         self._scheduled = False  #: a _take_one is queued on the loop
 
     def put(self, first: bool, name: str, callback: Callable[..., None], args: Sequence[Any]) -> None:
@@ -374,7 +384,7 @@ class _Inbox:
         if loop is None or loop.is_closed():
             return  # a session that outlived its loop: nobody is left to hand it to
         with self._lock:
-            heapq.heappush(self._items, (0 if first else 1, next(self._order), name, callback, args))
+            (self._first if first else self._ordinary).append((time.monotonic(), name, callback, args))
             if self._scheduled:
                 return
             self._scheduled = True
@@ -382,13 +392,17 @@ class _Inbox:
             loop.call_soon_threadsafe(self._take_one)
         except RuntimeError:  # the loop closed under us during shutdown
             with self._lock:
-                self._items.clear()
+                self._first.clear()
+                self._ordinary.clear()
                 self._scheduled = False
 
     def _take_one(self) -> None:
         with self._lock:
-            _, _, name, callback, args = heapq.heappop(self._items)
-            more = self._scheduled = bool(self._items)
+            ordinary = self._ordinary
+            overdue = bool(ordinary) and time.monotonic() - ordinary[0][0] > ORDINARY_WAITS_AT_MOST_S
+            queue = ordinary if overdue or not self._first else self._first
+            _, name, callback, args = queue.popleft()
+            more = self._scheduled = bool(self._first or ordinary)
         try:
             _guarded(name, callback, args)
         finally:
