@@ -4,7 +4,12 @@ The agents run in ``--processes`` ``drona agent --count`` subprocesses (a Zenoh
 session per process, ``--shared-session``; or one per drone, as on a real
 fleet, with ``--session-per-drone``) against N fake vehicles in a ``drona sim-vehicle``
 subprocess; an outside session keeps every drone busy with mail over Zenoh,
-from the moment every drone is alive and stepping (both processes flying).
+from the moment every drone is alive, stepping (every process flying) and
+parked: first two mails to every drone at once, so that the whole fleet
+coordinates at once (Protocol 1's worst case: each round waits for those
+before it in line), then one more each time one is delivered. Only the plans
+made for the mail count, not the drones' moves to their parking cells at
+start-up, made while the last process may still be joining.
 Latency is measured per plan, from the task's arrival (the task planner's
 decision at a step boundary) to the plan scheduled (the protocol's
 StartExecuting, after every peer answered): Protocol 1 over the network,
@@ -40,6 +45,7 @@ from fleet.transport.wire import DroneState, MailOrder, MailStatus, MailStatusRe
 
 VEHICLE_SPEEDUP = 2.0  #: enough to track a cell per tau; telemetry rates scale with it, as in SITL
 TELEMETRY_HZ = 4.0  #: position twice per step at tau 0.5 s
+IDLE_BOUND_S = 30.0  #: how long the drones may take to park at start-up (their moves take 10 s at most)
 
 
 @dataclass(frozen=True)
@@ -140,7 +146,8 @@ async def _measure(children: list[subprocess.Popen[bytes]], workspace: Workspace
                 stepping.add(body.drone)
                 if stepping >= set(names):
                     all_stepping.set()
-            if body.coordination_ms is not None and measuring.is_set():
+            # Only plans made for the mail: a state names the count of plans its latency is the last of.
+            if body.coordination_ms is not None and body.plans > counted_from.get(body.drone, sys.maxsize):
                 latencies.setdefault((body.drone, body.plans), (time.monotonic(), body.coordination_ms))
 
     def on_alive(key: str, up: bool) -> None:
@@ -148,7 +155,7 @@ async def _measure(children: list[subprocess.Popen[bytes]], workspace: Workspace
         if alive >= set(names):
             all_up.set()
 
-    measuring = asyncio.Event()
+    counted_from: dict[str, int] = {}  #: each drone's plans before the first mail
     try:
         node.subscribe(keys.state(), on_state)
         node.watch_liveliness(keys.alive(), on_alive)
@@ -157,10 +164,15 @@ async def _measure(children: list[subprocess.Popen[bytes]], workspace: Workspace
         # all its drones have joined. Mail given before would measure the start-up of the last process
         # (its queries to the fleet) as much as coordination.
         await _up_or_gone(all_stepping, children, 60, "stepping")
-        measuring.set()
+        client = FleetClient(node, keys, "bench")
+        # And parked (idle): given its mail at once, the whole fleet then coordinates at once, the worst
+        # case of Protocol 1 (each round waits for those before it in line). Their moves to their parking
+        # cells at start-up, made while the last process may still be joining, are not counted.
+        before = await _between_rounds(client, IDLE_BOUND_S, idle=True)
+        counted_from.update({drone: state.plans for drone, state in before.items()})
         cpu0 = [_cpu_of(c.pid) for c in children]
         started = time.monotonic()
-        delivered, sent, plans = await _keep_busy(node, keys, workspace, names, seconds, seed)
+        delivered, sent, plans = await _keep_busy(node, client, keys, workspace, names, seconds, seed, before)
         elapsed = time.monotonic() - started
         _check_alive(children)  # figures from a fleet that lost a process mean nothing
         cpu = [_cpu_of(c.pid) - c0 for c, c0 in zip(children, cpu0, strict=True)]
@@ -212,15 +224,15 @@ def _check_alive(children: list[subprocess.Popen[bytes]]) -> None:
             raise BenchError(f"`drona {command}` (pid {child.pid}) exited with code {code}; its error is above")
 
 
-async def _keep_busy(node: ZenohNode, keys: FleetKeys, workspace: Workspace, names: list[str], seconds: float,
-                     seed: int) -> tuple[int, int, int]:
-    """Two mails per drone at first, and one more each time one is delivered, for ``seconds``.
-    Returns the mails delivered, and the protocol messages sent and plans made meanwhile (from the states)."""
+async def _keep_busy(node: ZenohNode, client: FleetClient, keys: FleetKeys, workspace: Workspace, names: list[str],
+                     seconds: float, seed: int, before: dict[str, DroneState]) -> tuple[int, int, int]:
+    """Two mails per drone at first, and one more each time one is delivered, for ``seconds``. Returns
+    the mails delivered, and the protocol messages sent and plans made since the states ``before`` (the
+    fleet between rounds)."""
     rng = random.Random(seed)
     # Not where a drone starts either: one that has no mail yet rests there, and a mail there waits for it.
     free = sorted(workspace.main_region - set(workspace.parking) - set(workspace.charging_stations)
                   - set(workspace.drones.values()))
-    client = FleetClient(node, keys, "bench")
     deliveries: asyncio.Queue[str] = asyncio.Queue()
     count = delivered = 0
 
@@ -238,7 +250,6 @@ async def _keep_busy(node: ZenohNode, keys: FleetKeys, workspace: Workspace, nam
                                              priority=rng.randint(0, 9)))
 
     node.subscribe(keys.status(), on_report)
-    before = await _between_rounds(client)
     for drone in names:
         for _ in range(2):
             await give(drone)
@@ -256,15 +267,16 @@ async def _keep_busy(node: ZenohNode, keys: FleetKeys, workspace: Workspace, nam
     return delivered, sent, plans
 
 
-async def _between_rounds(client: FleetClient, bound_s: float = 5.0) -> dict[str, DroneState]:
-    """The drones' states once none is coordinating (or after ``bound_s``). Messages and plans are
-    counted between two such snapshots: a round under way at the first (the drones park at start-up)
-    would add its plan without its request, and the messages per round would come out too few.
-    The states are asked again until then: nothing announces a fleet between rounds."""
+async def _between_rounds(client: FleetClient, bound_s: float = 5.0, idle: bool = False) -> dict[str, DroneState]:
+    """The drones' states once none is coordinating (``idle``: none has a plan either, every one waits for
+    a task), or after ``bound_s``. Messages and plans are counted between two such snapshots: a round
+    under way at the first would add its plan without its request, and the messages per round would
+    come out too few. The states are asked again until then: nothing announces a fleet between rounds."""
+    busy = {State.COORDINATING.value, State.EXECUTING.value} if idle else {State.COORDINATING.value}
     deadline = time.monotonic() + bound_s
     while True:
         states = await client.states()
-        if all(s.mode != State.COORDINATING.value for s in states.values()) or time.monotonic() > deadline:
+        if all(s.mode not in busy for s in states.values()) or time.monotonic() > deadline:
             return states
         await asyncio.sleep(0.02)
 
