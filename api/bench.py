@@ -31,7 +31,7 @@ from urllib.parse import urlsplit
 from api.validation import MailChecker
 from drona_gcs.bench.workload import random_workspace
 from drona_gcs.workspace import Workspace
-from fleet import loop
+from fleet import runtime
 
 Pair = tuple[tuple[int, int, int], tuple[int, int, int]]  #: a pickup and a drop-off
 TARGET_RATE = 1000.0
@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     if args.url and not args.token:
         print("drona bench api: --url needs --token", file=sys.stderr)
         return 2
-    return loop.run(_main(args, seconds))
+    return runtime.run(_main(args, seconds))
 
 
 async def _main(args: argparse.Namespace, seconds: float) -> int:

@@ -393,7 +393,7 @@ def test_a_subscription_that_goes_first_is_handed_its_samples_before_ordinary_on
 @pytest.mark.parametrize("event_loop", ["asyncio", "uvloop"])
 def test_udp_links_given_a_host_name_send_on_either_event_loop(event_loop: str) -> None:
     """uvloop's sendto looks no name up: the fake vehicle's link and a udpout:// link to "localhost"
-    must still reach their peer (the processes run on uvloop, fleet/loop.py)."""
+    must still reach their peer (the processes run on uvloop, fleet/runtime.py)."""
     receiver = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     receiver.bind(("127.0.0.1", 0))
     receiver.settimeout(5)

@@ -111,8 +111,8 @@ class DroneAgent:
         # Protocol messages first (see fleet.transport.node), requests and answers alike, in the order they
         # came: a drone that coordinates waits on both (every peer's answer to its request, then the plans of
         # those before it in line), while announced plans, states, mail and clocks can wait their turn.
-        # With only the answers first, a fleet given mail at once starved the requests of the drones later
-        # in line (32 agents: the last planned 53-111 ms after its task came, with requests first 45-89).
+        # With only the answers first, the requests of the drones later in line waited while those before
+        # them planned, when the whole fleet coordinated at once.
         node.subscribe(keys.proto(self.me), self._on_protocol, first=True)
         node.subscribe(keys.answers(), self._on_protocol, first=True)
         # A request to everyone: this host's drones answer it in one message (see ZenohNode.subscribe).

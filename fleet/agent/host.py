@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import gc
 import logging
 import math
 import signal
@@ -32,6 +31,7 @@ from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.battery import BatteryModel
 from drona_gcs.stack.drone import DroneStack, StackConfig
 from drona_gcs.workspace import Workspace
+from fleet import runtime
 from fleet.agent.drone import BROADCAST, DroneAgent
 from fleet.agent.settings import AgentSettings
 from fleet.clock import cancel_all, periodic
@@ -146,10 +146,10 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
             host.agents.append(agent)
         for agent in host.agents:
             _check_placement(agent)
-        settle_gc()  # before the drones join: nobody waits on this process yet
-        # Together: each joins with two queries to the fleet. One after the other, a 16-drone process began
-        # stepping 0.3-0.4 s after the other one of a 32-drone bench, its drones alive (and given mail)
-        # meanwhile; together, 0.06 s after.
+        runtime.settle_gc()  # before the drones join: nobody waits on this process yet
+        # Together: each joins with two queries to the fleet, and the process steps only once all have
+        # joined, while those alive already take work (one after the other, a 16-drone process of a
+        # 32-drone bench began stepping 270-430 ms after the other; together, 60-230 ms).
         joined = await asyncio.gather(*(agent.start() for agent in host.agents), return_exceptions=True)
         failures = [failure for failure in joined if isinstance(failure, BaseException)]
         if len(failures) == 1:
@@ -166,14 +166,6 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
         await asyncio.gather(*(session.close() for session in sessions), return_exceptions=True)
         await asyncio.gather(*(link.close() for link in links), return_exceptions=True)
         log.info("drones %s left the fleet", ", ".join(host.names))
-
-
-def settle_gc() -> None:
-    """What is built by now (the planner's tables, the workspace, Zenoh's and pydantic's objects) lives
-    for good: collect once and keep the cyclic GC from walking it again and again (full collections
-    took 40-60 ms in a 16-drone process, stalling every coordination under way)."""
-    gc.collect()
-    gc.freeze()
 
 
 T = TypeVar("T")

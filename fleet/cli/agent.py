@@ -22,7 +22,7 @@ from pydantic import ValidationError
 
 from drona_gcs.errors import DronaError
 from drona_gcs.workspace_files import load_workspace
-from fleet import loop
+from fleet import runtime
 from fleet.agent.host import Host, install_signals, run_host, select_drones
 from fleet.agent.settings import AgentSettings
 
@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     host = Host(settings, workspace, names)
     try:
-        loop.run(_main(host))
+        runtime.run(_main(host))
     except (DronaError, OSError, ExceptionGroup) as exc:
         problems = _leaves(exc)
         if not all(isinstance(p, (DronaError, OSError)) for p in problems):

@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import gc
 import importlib
 import logging
 import socket
@@ -28,7 +27,7 @@ import uvicorn
 
 from drona_gcs.errors import DronaError
 from drona_gcs.workspace import Workspace
-from fleet import loop
+from fleet import runtime
 
 #: --gateway name -> "module:factory"; factory(workspace, args) -> FleetGateway. The first is the default.
 GATEWAYS: dict[str, str] = {
@@ -70,11 +69,8 @@ def run(args: argparse.Namespace) -> int:
     from api.main import create_app
 
     app = create_app(settings, gateway, workspace)
-    # What is built by now (FastAPI's routes, pydantic's validators, the workspace) lives for good:
-    # keep the cyclic GC from walking it again and again (full collections of 50+ ms otherwise).
-    gc.collect()
-    gc.freeze()
-    return loop.run(_serve(app, settings.host, settings.port, args.log_level))
+    runtime.settle_gc()  # FastAPI's routes, pydantic's validators and the workspace are built by now
+    return runtime.run(_serve(app, settings.host, settings.port, args.log_level))
 
 
 def _settings(args: argparse.Namespace) -> tuple[Any, str | None]:

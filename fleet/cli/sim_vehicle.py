@@ -21,7 +21,7 @@ from drona_gcs.errors import DronaError
 from drona_gcs.geo import check_speed
 from drona_gcs.workspace import Workspace
 from drona_gcs.workspace_files import load_workspace
-from fleet import loop
+from fleet import runtime
 from fleet.sim.codec import parse_key
 from fleet.sim.config import VehicleConfig
 from fleet.sim.fleet import FleetConfig, SimNode, run_fleet
@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"drona sim-vehicle: {exc}", file=sys.stderr)
         return 2
     try:
-        loop.run(_serve(config, workspace))
+        runtime.run(_serve(config, workspace))
     except DronaError as exc:
         print(f"drona sim-vehicle: {exc}", file=sys.stderr)
         return 2
