@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from drona_gcs.audit import Audit
 from fleet.transport.wire import MailOrder, MailStatus
 from tests.integration.harness import DRONA, FleetProcesses, Observer
 
@@ -50,9 +51,27 @@ def check_run(fleet: FleetProcesses, obs: Observer, orders: list[MailOrder]) -> 
     result = fleet.audit()
     assert set(result.trajectories) == set(fleet.drones)
     assert all(t.end_step - t.start_step > 20 for t in result.trajectories.values())  # the run was recorded
-    assert result.safe, f"collisions in the flown cells: {result.violations[:5]}"
+    assert result.safe, _unsafe(result, fleet)
     assert obs.priority_violations({o.id: o for o in orders}) == []
     assert min(obs.min_battery.values()) >= SAFE_THRESHOLD
+
+
+def _unsafe(result: Audit, fleet: FleetProcesses) -> str:
+    """What an auditor needs to judge a failure: the violations, the steps with no fix (filled with the cell
+    before), the flown cells around each violation, the agents' logs."""
+    return (f"collisions in the flown cells: {result.violations[:5]}; steps without a fix: {dict(result.gaps)}\n"
+            f"{_around(result)}\n{fleet.logs()}")
+
+
+def _around(result: Audit) -> str:
+    """The flown cells, a few steps either side of each violation, of the drones there."""
+    lines = []
+    for violation in result.violations[:3]:
+        for drone, flown in sorted(result.trajectories.items()):
+            if flown.start_step <= violation.step <= flown.end_step and flown.at(violation.step) == violation.cell:
+                steps = range(max(flown.start_step, violation.step - 3), min(flown.end_step, violation.step + 2) + 1)
+                lines.append(f"{drone} around step {violation.step}: {[flown.at(k) for k in steps]}")
+    return "\n".join(lines)
 
 
 @pytest.mark.parametrize("drones, mails, hosted", [(4, 8, False), (8, 12, False), (4, 8, True)],
@@ -109,7 +128,7 @@ def test_an_agent_killed_mid_coordination_neither_blocks_the_others_nor_loses_it
         assert codes["d2"] == -signal.SIGKILL
         assert all(codes[d] == 0 for d in ("d1", "d3", "d4")), f"{codes}\n{fleet.logs()}"
         result = fleet.audit()
-        assert result.safe, f"collisions in the flown cells: {result.violations[:5]}"
+        assert result.safe, _unsafe(result, fleet)
     finally:
         fleet.kill_all()
 
