@@ -13,7 +13,6 @@ figure and our target of 1/50 of it. Table 1's cells run the Z3 generator.
 from __future__ import annotations
 
 import argparse
-import gc
 import json
 import random
 import statistics
@@ -27,6 +26,7 @@ from drona_gcs.bench.workload import TaskStream, random_workspace
 from drona_gcs.errors import NoPlanFound
 from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
+from fleet import runtime
 
 #: Table 2 of the paper: mean seconds per plan of their A* plan generator, by (W, R).
 PAPER_ASTAR: dict[tuple[int, int], float] = {
@@ -170,10 +170,8 @@ def bench_smt(width: int, drones: int, tasks: int, seed: int) -> Row:
 def _measure(name: str, width: int, drones: int, delta: int, ws: object, rng: random.Random, tasks: int,
              plan: Callable[..., Trajectory], paper_s: float) -> Row:
     stream = TaskStream(ws, drones, rng)  # type: ignore[arg-type]
-    # As the agent does after start-up: the planner's tables live for good, so keep the
-    # cyclic GC from walking them again and again (pauses of several ms at 256x256).
-    gc.collect()
-    gc.freeze()
+    # As the agent does after start-up: the planner's tables live for good (pauses of several ms at 256x256).
+    runtime.settle_gc()
     times: list[float] = []
     failures = 0
     for _ in range(tasks):
