@@ -164,9 +164,12 @@ def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_ever
             answer = CurrentTraj(peer, Trajectory.stationary(ws.drones[peer], 0), mine)
             agent._on_protocol(KEYS.proto("d1"), encode(peer, 1000.0, from_core(answer)))
         assert stack.protocol.state is State.EXECUTING
-        return [(k, decode(p)) for k, p in node.puts if k.startswith(KEYS.proto("")) or k == KEYS.answers()]
+        await asyncio.sleep(0)  # the plan's announcement, if any, goes out once the answers have
+        protocol = (KEYS.proto(""), KEYS.answers(), KEYS.plan("d1"))
+        return [(k, decode(p)) for k, p in node.puts if k.startswith(protocol)]
 
     sent = asyncio.run(scenario(["d2", "d3"]))
+    # Every drone reads the answers: they are the plan's announcement too, and no other goes out.
     assert [key for key, _ in sent] == [KEYS.answers()]
     envelope = sent[0][1]
     assert isinstance(envelope, Envelope) and isinstance(envelope.body, CurTrajTo)
@@ -178,7 +181,8 @@ def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_ever
     assert to_core(envelope, "d4") is None  # d4 did not wait: nothing in it for d4
     # A single drone waiting gets its answer on its own key, as ever.
     alone = asyncio.run(scenario(["d2"]))
-    assert [(key, type(e.body).__name__) for key, e in alone] == [(KEYS.proto("d2"), "CurTraj")]
+    assert [(key, type(e.body).__name__) for key, e in alone] == [(KEYS.proto("d2"), "CurTraj"),
+                                                                  (KEYS.plan("d1"), "PlanAnnounce")]
 
 
 def test_an_answer_to_other_drones_tells_this_one_the_senders_new_plan() -> None:
@@ -206,3 +210,23 @@ def test_an_answer_to_other_drones_tells_this_one_the_senders_new_plan() -> None
 
     held = {c for t in asyncio.run(scenario()).values() for c in t.cells}
     assert held == set(new.cells)  # without it: only where the old plan ended, (5, 0, 0)
+
+
+def test_answers_for_a_round_that_is_over_still_tell_the_senders_new_plan() -> None:
+    """The answers key carries a new plan's only announcement (see the test above), so a drone it names
+    whose round is already over (its request answered twice, or it gave up) must still learn from it
+    where the sender now flies."""
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0, drones={"d1": (0, 0, 0), "d2": (7, 0, 0)})
+    new = Trajectory(12, tuple((7, y, 0) for y in range(7)))
+
+    async def scenario() -> Trajectory:
+        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+        agent = DroneAgent(stack, RecordingNode(), KEYS, ScriptedVehicle(), GeoFrame(ws),  # type: ignore[arg-type]
+                           lambda: 1000.0)
+        agent.tick(0)
+        assert stack.protocol.state is State.WAIT_FOR_TASK  # no round of d1's under way
+        late = answers(new, {"d1": TaskId(3, "d1", 1), "d9": TaskId(4, "d9", 1)})
+        agent._on_protocol(KEYS.answers(), encode("d2", 1000.0, late))
+        return stack.protocol.known["d2"]
+
+    assert asyncio.run(scenario()) == new

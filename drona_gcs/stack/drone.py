@@ -23,7 +23,7 @@ from drona_gcs.planner.heuristic import UNREACHABLE, GoalDistance
 from drona_gcs.stack.battery import BatteryLow, BatteryModel, BatteryMonitor, BatteryRecharged
 from drona_gcs.stack.executor import Completed, PlanExecutor, Setpoint
 from drona_gcs.stack.mail import Distance, GoTo, MailAction, MailPlanner, MailRequest
-from drona_gcs.stack.messages import HybridClock, Message, Task
+from drona_gcs.stack.messages import HybridClock, Message, ReqForCurrentTraj, Task
 from drona_gcs.stack.protocol import Action as ProtocolAction
 from drona_gcs.stack.protocol import (
     CoordinationProtocol,
@@ -79,9 +79,8 @@ class DroneStack:
         return max(self.executor.step, 0)
 
     def receive(self, message: Message) -> list[DroneAction]:
-        stamp = getattr(message, "task_id", None) or getattr(message, "in_reply_to", None)
-        if stamp is not None:
-            self.clock.observe(stamp.stamp)
+        stamp = message.task_id if isinstance(message, ReqForCurrentTraj) else message.in_reply_to
+        self.clock.observe(stamp.stamp)
         return self._protocol(message)
 
     def assign(self, request: MailRequest) -> list[DroneAction]:

@@ -4,7 +4,8 @@ Everything the stack decides comes back as actions, carried out here:
 protocol messages go out on ``proto/<peer>``, requests to everyone on
 ``proto/all`` (one put that Zenoh fans out; a round is still 2(N-1)
 messages), a new plan's answers to the drones that waited for it on
-``answers`` (one put, each of them takes its own), mail progress on
+``answers`` (one put, each of them takes its own; every drone reads it, so
+the plan needs no announcement on ``plan/<me>``), mail progress on
 ``mail/status/<id>``, the mail held on ``held/<me>`` when it changes, the
 drone's state on ``state/<me>`` at every step boundary. What comes in — peers' messages, mail orders, membership
 changes — is handed to the stack on the event loop, one event at a time,
@@ -197,7 +198,10 @@ class DroneAgent:
         # to peers that waited for this plan). What only informs (mail progress, the plan's
         # announcement) goes out once the work at hand is done: at a step boundary the process's
         # other drones send their requests first.
-        for action in _coalesced(sorted(actions, key=_urgency)):
+        # Mostly one answer, or nothing: a process hands every request of a burst to each of its drones.
+        ordered = _coalesced(sorted(actions, key=_urgency)) if len(actions) > 1 else actions
+        told_everyone = False  #: a new plan went to every drone with its answers: no announcement needed
+        for action in ordered:
             if isinstance(action, Send):
                 self._send(self.keys.proto(action.to), from_core(action.message))
             elif isinstance(action, Broadcast):
@@ -207,10 +211,11 @@ class DroneAgent:
             elif isinstance(action, Answers):
                 self._send(self.keys.answers(), answers(action.trajectory, action.replies),
                            copies=len(action.replies))
+                told_everyone = True
             elif isinstance(action, GoTo):
                 self.task_since = self.clock()
             elif isinstance(action, StartExecuting):
-                self._started(action)
+                self._started(action, announce=not told_everyone)
             elif isinstance(action, TaskFailed):
                 log.warning("%s: no plan for task %s: %s", self.me, action.task.id, action.reason)
             elif isinstance(action, (MailStarted, MailPickedUp, MailDelivered, MailRejected, MailLost)):
@@ -223,15 +228,19 @@ class DroneAgent:
         self.node.put(key, payload)
         self.metrics.messages_sent += copies
 
-    def _started(self, action: StartExecuting) -> None:
+    def _started(self, action: StartExecuting, announce: bool = True) -> None:
+        """A new plan. ``announce``: tell every drone where it goes (not if its answers, on the answers
+        key, already did: all drones read those, which saves a message per drone and plan when the
+        whole fleet coordinates at once)."""
         if self.task_since is not None:
             self.metrics.latencies_s.append(self.clock() - self.task_since)
             self.task_since = None
         self.metrics.plans += 1
         self.vehicle.want_airborne(True)
         self.publish_state_soon()  # after the answers to the peers that waited for this plan
-        announce = encode(self.me, self.clock(), PlanAnnounce(trajectory=WireTrajectory.of(action.trajectory)))
-        asyncio.get_running_loop().call_soon(self.node.put, self.keys.plan(self.me), announce)
+        if announce:
+            message = encode(self.me, self.clock(), PlanAnnounce(trajectory=WireTrajectory.of(action.trajectory)))
+            asyncio.get_running_loop().call_soon(self.node.put, self.keys.plan(self.me), message)
         if not log.isEnabledFor(logging.INFO):
             return  # the line below formats every trajectory avoided
         t = action.trajectory
@@ -244,22 +253,26 @@ class DroneAgent:
     def _on_protocol(self, key: str, payload: bytes) -> None:
         try:
             envelope = decode(payload)
+            if envelope.sender == self.me:
+                return  # my own request to everyone (proto/all) comes back to me too
             message = to_core(envelope, self.me)
         except WireError as exc:
             log.warning("%s: dropped a message on %s: %s", self.me, key, exc)
             return
-        if envelope.sender == self.me:
-            return  # my own request to everyone (proto/all) comes back to me too
         if envelope.sender not in self.stack.protocol.peers:
             log.warning("%s: dropped a message from %r, not a peer of this fleet", self.me, envelope.sender)
             return
         self.heard_at[envelope.sender] = self.stack.now
+        if isinstance(envelope.body, CurTrajTo):
+            # The sender's new plan, whoever it answers (a drone whose round is over too): heard now, so
+            # the plan it flies must be known now too (if it leaves, it is held along this plan, not the
+            # one before); and it comes with no announcement of its own (see _started).
+            known = message.trajectory if isinstance(message, CurrentTraj) else envelope.body.trajectory.core()
+            self.stack.heard(envelope.sender, known)
         if message is not None:
-            self._carry_out(self.stack.receive(message))
-        elif isinstance(envelope.body, CurTrajTo):  # answers to others: still the sender's new plan
-            # Heard now, so the plan it flies must be known now too: if it leaves before its plan's
-            # announcement comes, it is held along this plan, not the one before.
-            self.stack.heard(envelope.sender, envelope.body.trajectory.core())
+            actions = self.stack.receive(message)
+            if actions:
+                self._carry_out(actions)
 
     def _on_plan(self, key: str, payload: bytes) -> None:
         try:
@@ -394,7 +407,7 @@ class Answers:
 #: A new plan answers every drone that waited for it: when many coordinate at once (a fleet
 #: given mail together), one put instead of one per drone, and with drones sharing a session
 #: (``--shared-session``) one delivery per host. Drones that did not wait get it too (one decode
-#: each, and they learn the plan before its announcement).
+#: each): it is the plan's announcement, and no other goes out.
 COALESCE_FROM = 2
 
 
