@@ -37,7 +37,7 @@ def settle_gc() -> None:
     and again: full collections took 40-60 ms in a 16-drone agent process, stalling every coordination
     under way, and 50+ ms in the service. Then collect the young less often: when the whole fleet of
     32 drones coordinated at once, collections took 1.7-5.0 ms of each agent process's 85-135 ms
-    (CPython's default), none at all in it or the 5 s after it (every 20000)."""
+    (CPython's default), none at all in it or the 5 s after it (every 20000; one then has more to walk)."""
     gc.collect()
     gc.freeze()
     gc.set_threshold(YOUNG_COLLECTION_EVERY)
