@@ -272,14 +272,22 @@ async def _keep_busy(node: ZenohNode, client: FleetClient, keys: FleetKeys, work
 
 async def _between_rounds(client: FleetClient, bound_s: float = 5.0, idle: bool = False) -> dict[str, DroneState]:
     """The drones' states once none is coordinating (``idle``: none has a plan either, every one waits for
-    a task), or after ``bound_s``. Messages and plans are counted between two such snapshots: a round
-    under way at the first would add its plan without its request, and the messages per round would
-    come out too few. The states are asked again until then: nothing announces a fleet between rounds."""
+    a task), or after ``bound_s`` (saying on stderr which drones were still at it: the figures then
+    count part of a round, or mail given to a fleet not yet parked). Messages and plans are counted
+    between two such snapshots: a round under way at the first would add its plan without its request,
+    and the messages per round would come out too few. The states are asked again until then: nothing
+    announces a fleet between rounds."""
     busy = {State.COORDINATING.value, State.EXECUTING.value} if idle else {State.COORDINATING.value}
     deadline = time.monotonic() + bound_s
     while True:
         states = await client.states()
-        if all(s.mode not in busy for s in states.values()) or time.monotonic() > deadline:
+        still = sorted(drone for drone, state in states.items() if state.mode in busy)
+        if not still:
+            return states
+        if time.monotonic() > deadline:
+            doing = "flying or coordinating" if idle else "coordinating"
+            print(f"drona bench coordination: after {bound_s:g} s, drones still {doing}: {', '.join(still)}; "
+                  "measuring anyway", file=sys.stderr)
             return states
         await asyncio.sleep(0.02)
 

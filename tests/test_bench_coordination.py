@@ -3,12 +3,17 @@ gives one strict-JSON row (a missing figure is null, never NaN) with the layout 
 
 from __future__ import annotations
 
+import asyncio
 import json
 import os
 import subprocess
 import sys
 
-from fleet.bench_coordination import default_processes
+import pytest
+
+from drona_gcs.stack.protocol import State
+from fleet.bench_coordination import _between_rounds, default_processes
+from fleet.transport.wire import DroneState
 
 
 def _strict(constant: str) -> object:
@@ -29,3 +34,29 @@ def test_a_short_run_gives_one_strict_json_row_with_its_figures() -> None:
     assert 2 * (agents - 1) <= row["messages_per_round"] <= 4 * (agents - 1)
     assert row["steady_plans"] == 0 and row["steady_p50_ms"] is None  # 4 s: nothing after the opening
     assert row["cpu_ms_per_s_per_agent"] > 0
+
+
+class _Fleet:
+    """A fleet client whose drones answer with a fixed mode each."""
+
+    def __init__(self, modes: dict[str, State]) -> None:
+        self.modes, self.asked = modes, 0
+
+    async def states(self) -> dict[str, DroneState]:
+        self.asked += 1
+        return {d: DroneState(drone=d, step=1, cell=[0, 0, 0], mode=m.value, phase="idle", landed=False)
+                for d, m in self.modes.items()}
+
+
+def test_a_fleet_never_between_rounds_is_measured_anyway_saying_which_drones_were_busy(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """The benchmark waits for the fleet between rounds, but not for ever; the figures then count part
+    of a round (or mail given to drones not yet parked), and the user must be told which drones."""
+    busy = _Fleet({"d1": State.WAIT_FOR_TASK, "d2": State.EXECUTING, "d3": State.COORDINATING})
+    states = asyncio.run(_between_rounds(busy, 0.1, idle=True))  # type: ignore[arg-type]
+    assert set(states) == {"d1", "d2", "d3"} and busy.asked > 1
+    assert "after 0.1 s, drones still flying or coordinating: d2, d3; measuring anyway" in capsys.readouterr().err
+    # Between rounds a plan flown does not count; and a fleet between rounds is taken at once, silently.
+    flying = _Fleet({"d1": State.WAIT_FOR_TASK, "d2": State.EXECUTING})
+    assert set(asyncio.run(_between_rounds(flying, 5.0))) == {"d1", "d2"}  # type: ignore[arg-type]
+    assert flying.asked == 1 and capsys.readouterr().err == ""
