@@ -200,7 +200,7 @@ class DroneAgent:
         # other drones send their requests first.
         # Mostly one answer, or nothing: a process hands every request of a burst to each of its drones.
         ordered = _coalesced(sorted(actions, key=_urgency)) if len(actions) > 1 else actions
-        told_everyone = False  #: a new plan went to every drone with its answers: no announcement needed
+        told_everyone = False  # a new plan went to every drone with its answers: no announcement needed
         for action in ordered:
             if isinstance(action, Send):
                 self._send(self.keys.proto(action.to), from_core(action.message))
