@@ -130,7 +130,7 @@ def test_a_departed_peer_last_heard_after_its_plan_holds_only_where_it_rested() 
                 announce = PlanAnnounce(trajectory=WireTrajectory.of(flown))
                 agent._on_plan(KEYS.plan("d2"), encode("d2", 1000.0, announce))
         if heard_after_the_plan:  # d2 starts a round for a new task, then is killed
-            request = ReqForCurrentTraj(TaskId(40, "d2", 2), "d2")
+            request = ReqForCurrentTraj(TaskId(40, "d2", 2), "d2", flown)  # idle where its plan ended
             agent._on_protocol(KEYS.proto("all"), encode("d2", 1000.0, from_core(request)))
         agent._on_liveliness(KEYS.alive("d2"), False)
         return stack.protocol.ghost_obstacles()
@@ -157,10 +157,11 @@ def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_ever
         agent.tick(0)
         mine = next(b.task_id.core() for k, p in node.puts if isinstance(b := decode(p).body, ReqTraj))
         for peer in waiting:  # lower priorities (later stamps): they wait for my plan
-            request = ReqForCurrentTraj(TaskId(mine.stamp + 5, peer, 1), peer)
+            where = Trajectory.stationary(ws.drones[peer], 0)  # its answer too (see drona_gcs.stack.protocol)
+            request = ReqForCurrentTraj(TaskId(mine.stamp + 5, peer, 1), peer, where)
             agent._on_protocol(KEYS.proto("all"), encode(peer, 1000.0, from_core(request)))
         node.puts.clear()
-        for peer in ("d2", "d3", "d4"):
+        for peer in sorted({"d2", "d3", "d4"} - set(waiting)):
             answer = CurrentTraj(peer, Trajectory.stationary(ws.drones[peer], 0), mine)
             agent._on_protocol(KEYS.proto("d1"), encode(peer, 1000.0, from_core(answer)))
         assert stack.protocol.state is State.EXECUTING

@@ -73,6 +73,11 @@ def location_of(drone: str, now: int = 0) -> Trajectory:
     return Trajectory.stationary(STARTS[drone], now)
 
 
+def request(task_id: TaskId, sender: str, now: int = 0) -> ReqForCurrentTraj:
+    """``sender``'s request, carrying where it rests (its location since ``now``)."""
+    return ReqForCurrentTraj(task_id, sender, location_of(sender, now))
+
+
 # =========================================================== the state table
 EVENT_TYPES: tuple[type, ...] = (NewTask, PlanCompleted, PeerLeft, PeerJoined, ReqForCurrentTraj, CurrentTraj)
 #: What Protocol 1 takes in each state (paper section 3.1); the rest is a protocol violation.
@@ -97,7 +102,7 @@ def sample(event_type: type) -> Event:
         PlanCompleted: PlanCompleted(),
         PeerLeft: PeerLeft("b"),
         PeerJoined: PeerJoined("c", C),
-        ReqForCurrentTraj: ReqForCurrentTraj(ID_B_LOW, "b"),
+        ReqForCurrentTraj: request(ID_B_LOW, "b"),
         CurrentTraj: CurrentTraj("b", location_of("b"), ID_A),
     }
     return samples[event_type]
@@ -127,37 +132,43 @@ def test_every_state_event_pair(state: State, event_type: type) -> None:
 # ====================================================== answering requests
 def test_an_idle_drone_answers_with_its_location() -> None:
     proto = machine()
-    actions = proto.handle(ReqForCurrentTraj(ID_B_LOW, "b"), 3)
+    actions = proto.handle(request(ID_B_LOW, "b"), 3)
     assert actions == [Send("b", CurrentTraj("a", Trajectory.stationary(A, 3), ID_B_LOW))]
     assert proto.state is State.WAIT_FOR_TASK
 
 
 def test_a_drone_ignores_its_own_broadcast_request() -> None:
     proto = machine()
-    assert proto.handle(ReqForCurrentTraj(ID_A, "a"), 0) == []
+    assert proto.handle(request(ID_A, "a"), 0) == []
     proto.handle(NewTask(Task(ID_A, GOAL)), 0)
-    assert proto.handle(ReqForCurrentTraj(ID_A, "a"), 0) == []
+    assert proto.handle(request(ID_A, "a"), 0) == []
 
 
 def test_an_executing_drone_answers_with_its_trajectory_then_idle_with_the_finished_plan() -> None:
     proto = machine({"a": A})
     plan = started(proto.handle(NewTask(Task(ID_A, GOAL)), 0)).trajectory
     assert proto.state is State.EXECUTING
-    assert proto.handle(ReqForCurrentTraj(ID_B_LOW, "b"), 1) == [Send("b", CurrentTraj("a", plan, ID_B_LOW))]
+    assert proto.handle(request(ID_B_LOW, "b"), 1) == [Send("b", CurrentTraj("a", plan, ID_B_LOW))]
     proto.handle(PlanCompleted(), plan.end_step)
     assert (proto.state, proto.location) == (State.WAIT_FOR_TASK, GOAL)
     # idle after a plan: the plan itself, which ends at the location and forever stays there
-    [reply] = proto.handle(ReqForCurrentTraj(ID_C_LOW, "c"), 20)
+    [reply] = proto.handle(request(ID_C_LOW, "c"), 20)
     assert isinstance(reply, Send) and isinstance(reply.message, CurrentTraj)
     assert reply.message.trajectory.at(20) == GOAL and reply.message.in_reply_to == ID_C_LOW
 
 
 # ================================================================ new task
-def test_new_task_broadcasts_a_request_with_its_id() -> None:
+def test_new_task_broadcasts_a_request_with_its_id_and_where_it_is() -> None:
     proto = machine()
     task = Task(ID_A, GOAL)
-    assert proto.handle(NewTask(task), 0) == [Broadcast(ReqForCurrentTraj(ID_A, "a"))]
+    assert proto.handle(NewTask(task), 3) == [Broadcast(request(ID_A, "a", 3))]
     assert (proto.state, proto.task) == (State.COORDINATING, task)
+    proto.handle(CurrentTraj("b", location_of("b"), ID_A), 3)
+    plan = started(proto.handle(CurrentTraj("c", location_of("c"), ID_A), 3)).trajectory
+    proto.handle(PlanCompleted(), plan.end_step)
+    # idle after a plan, where it is is that plan (see current_trajectory)
+    later = TaskId(20, "a", 2)
+    assert proto.handle(NewTask(Task(later, A)), 30) == [Broadcast(ReqForCurrentTraj(later, "a", plan))]
 
 
 @pytest.mark.parametrize(("now", "lead"), [(0, 1), (5, 2), (7, 3)])
@@ -165,7 +176,7 @@ def test_with_no_peers_it_plans_at_once_lead_steps_ahead(now: int, lead: int) ->
     proto = machine({"a": A}, lead_steps=lead)
     task = Task(ID_A, GOAL)
     actions = proto.handle(NewTask(task), now)
-    assert actions[0] == Broadcast(ReqForCurrentTraj(ID_A, "a"))
+    assert actions[0] == Broadcast(request(ID_A, "a", now))
     action = started(actions)
     plan = action.trajectory
     assert action.task == task and action.psi == {}
@@ -187,14 +198,14 @@ def test_it_plans_once_every_peer_answered_against_their_answers() -> None:
 
 
 # ===================================================== requests while coordinating
-def test_a_higher_priority_request_is_answered_at_once_and_its_old_reply_dropped() -> None:
+def test_a_higher_priority_request_drops_its_old_reply_and_is_asked_again() -> None:
     proto = machine()
     proto.handle(NewTask(Task(ID_A, GOAL)), 0)
     assert proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0) == []  # b was idle
-    # b got a task of higher priority (a lower id): it plans first, so its answer is stale
-    actions = proto.handle(ReqForCurrentTraj(ID_B_HIGH, "b"), 1)
-    assert actions == [Send("b", CurrentTraj("a", Trajectory.stationary(A, 1), ID_B_HIGH)),
-                       Send("b", ReqForCurrentTraj(ID_A, "a"))]
+    # b got a task of higher priority (a lower id): it plans first, so its answer is stale. My
+    # request again is my answer: b holds it until it has planned, and takes my location from it.
+    actions = proto.handle(request(ID_B_HIGH, "b"), 1)
+    assert actions == [Send("b", request(ID_A, "a", 1))]
     assert "b" not in proto.received and "b" not in proto.pending
     # c answering no longer completes the round: b's answer was dropped
     assert proto.handle(CurrentTraj("c", location_of("c"), ID_A), 1) == []
@@ -204,32 +215,57 @@ def test_a_higher_priority_request_is_answered_at_once_and_its_old_reply_dropped
     assert action.psi["b"] == b_plan
 
 
-def test_a_higher_priority_that_has_not_answered_is_not_asked_again() -> None:
-    """Two drones given tasks at once: b, ranked first, holds my request until it has planned, so
-    asking it again would only cost a message (one per pair of drones coordinating together)."""
+def test_a_higher_priority_that_has_not_answered_is_neither_answered_nor_asked_again() -> None:
+    """Two drones given tasks at once: b, ranked first, holds my request until it has planned, and
+    takes my location from it. Answering or asking it again would only cost a message (one per
+    pair of drones coordinating together)."""
     proto = machine()
     proto.handle(NewTask(Task(ID_A, GOAL)), 0)
-    actions = proto.handle(ReqForCurrentTraj(ID_B_HIGH, "b"), 0)
-    assert actions == [Send("b", CurrentTraj("a", Trajectory.stationary(A, 0), ID_B_HIGH))]
+    assert proto.handle(request(ID_B_HIGH, "b"), 0) == []
     assert proto.handle(CurrentTraj("c", location_of("c"), ID_A), 0) == []  # still waiting for b
     b_plan = traj(2, (4, 4), (4, 3), (4, 2), (3, 2))
     action = started(proto.handle(CurrentTraj("b", b_plan, ID_A), 1))
     assert action.psi["b"] == b_plan
 
 
-def test_a_lower_priority_request_waits_for_my_new_trajectory() -> None:
+def test_a_higher_priority_my_request_did_not_reach_is_answered_at_once() -> None:
+    """c was gone when my request went out: it came back and asked before its return reached me.
+    It never got my request, so it gets my answer. Once back, it is asked, and answered no more.
+    A drone that leaves after my request went out may not have had it either: answered."""
+    proto = machine()
+    proto.handle(PeerLeft("c"), 0)
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    first, second = TaskId(2, "c", 1), TaskId(3, "c", 2)
+    assert proto.handle(request(first, "c"), 1) == [Send("c", CurrentTraj("a", Trajectory.stationary(A, 1), first))]
+    assert proto.handle(PeerJoined("c", C), 1) == [Send("c", request(ID_A, "a", 1))]
+    assert proto.handle(request(second, "c"), 1) == []
+    assert proto.state is State.COORDINATING  # waiting for b, and for c's plan
+    proto.handle(PeerLeft("b"), 1)  # gone silent after my request went out: it may never have had it
+    answer = CurrentTraj("a", Trajectory.stationary(A, 1), ID_B_HIGH)
+    assert proto.handle(request(ID_B_HIGH, "b"), 1) == [Send("b", answer)]
+
+
+def test_a_lower_priority_request_is_its_answer_and_waits_for_my_new_trajectory() -> None:
     proto = machine({"a": A, "b": B, "c": C})
     proto.handle(NewTask(Task(ID_A, GOAL)), 0)
-    assert proto.handle(ReqForCurrentTraj(ID_B_LOW, "b"), 0) == []
-    assert proto.handle(ReqForCurrentTraj(ID_C_LOW, "c"), 0) == []
-    assert proto.pending == {"b": ID_B_LOW, "c": ID_C_LOW}
-    proto.handle(CurrentTraj("b", location_of("b"), ID_A), 1)
-    actions = proto.handle(CurrentTraj("c", location_of("c"), ID_A), 1)
+    c_way = traj(0, (0, 4), (1, 4))  # c's last plan, which it flew and rests at the end of
+    assert proto.handle(request(ID_B_LOW, "b"), 0) == []
+    assert proto.pending == {"b": ID_B_LOW} and proto.received == {"b": location_of("b")}
+    actions = proto.handle(ReqForCurrentTraj(ID_C_LOW, "c", c_way), 1)
     plan = started(actions).trajectory
+    assert started(actions).psi == {"b": location_of("b"), "c": c_way}
     assert actions[0] == started(actions)  # it starts executing, then unblocks the waiting peers
     assert set(actions[1:]) == {Send("b", CurrentTraj("a", plan, ID_B_LOW)),
                                 Send("c", CurrentTraj("a", plan, ID_C_LOW))}
     assert proto.pending == {}
+
+
+def test_a_lower_priority_request_from_a_departed_drone_is_held_but_is_no_answer() -> None:
+    proto = machine()
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    proto.handle(PeerLeft("c"), 0)
+    assert proto.handle(request(ID_C_LOW, "c"), 0) == []
+    assert proto.pending == {"c": ID_C_LOW} and "c" not in proto.received
 
 
 # ================================================= stale, duplicate and foreign replies
@@ -325,11 +361,12 @@ def test_a_drone_resting_where_a_departed_peer_flew_through_can_still_leave() ->
 def test_the_last_awaited_peer_leaving_lets_it_plan_with_its_last_known_trajectory() -> None:
     proto = machine()
     proto.handle(NewTask(Task(ID_A, GOAL)), 0)
-    proto.handle(ReqForCurrentTraj(ID_C_LOW, "c"), 0)  # c waits for a's plan ...
-    proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0)
-    actions = proto.handle(PeerLeft("c"), 1)  # ... then leaves before answering
+    proto.handle(request(ID_C_LOW, "c"), 0)  # c waits for a's plan, its request its answer ...
+    proto.handle(PeerLeft("c"), 1)  # ... then leaves
+    actions = proto.handle(PeerLeft("b"), 1)  # b leaves before answering
     action = started(actions)
-    assert action.psi == {"b": location_of("b"), "c": Trajectory.stationary(C, 0)}  # where it was last known
+    # where they were last known, for good
+    assert action.psi == {"b": Trajectory.stationary(B, 0), "c": Trajectory.stationary(C, 0)}
     assert actions == [action]  # a departed drone is not answered
     assert proto.handle(PeerLeft("c"), 1) == []  # leaving twice changes nothing
 
@@ -337,7 +374,7 @@ def test_the_last_awaited_peer_leaving_lets_it_plan_with_its_last_known_trajecto
 def test_a_peer_joining_during_coordination_is_asked_and_waited_for() -> None:
     proto = machine({"a": A, "b": B})
     proto.handle(NewTask(Task(ID_A, GOAL)), 0)
-    assert proto.handle(PeerJoined("c", C), 1) == [Send("c", ReqForCurrentTraj(ID_A, "a"))]
+    assert proto.handle(PeerJoined("c", C), 1) == [Send("c", request(ID_A, "a", 1))]
     assert proto.handle(PeerJoined("c", C), 1) == []  # already a member
     assert proto.handle(CurrentTraj("b", location_of("b"), ID_A), 1) == []  # still waiting for c
     c_plan = traj(2, (0, 4), (0, 3), (1, 3))
@@ -349,7 +386,7 @@ def test_a_peer_joining_while_idle_is_asked_at_the_next_task() -> None:
     proto = machine({"a": A})
     assert proto.handle(PeerJoined("b", B), 0) == []
     actions = proto.handle(NewTask(Task(ID_A, GOAL)), 0)
-    assert actions == [Broadcast(ReqForCurrentTraj(ID_A, "a"))]  # it waits for b now
+    assert actions == [Broadcast(request(ID_A, "a"))]  # it waits for b now
     assert started(proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0)).psi == {"b": location_of("b")}
 
 
@@ -362,16 +399,15 @@ def test_no_plan_fails_the_task_and_answers_the_pending_peers() -> None:
     proto = machine(peers, workspace=CORRIDOR)
     task = Task(ID_A, (4, 0, 0))  # behind b, which stays parked
     proto.handle(NewTask(task), 3)
-    proto.handle(ReqForCurrentTraj(ID_C_LOW, "c"), 3)
-    proto.handle(CurrentTraj("b", Trajectory.stationary((2, 0, 0), 3), ID_A), 3)
-    actions = proto.handle(CurrentTraj("c", Trajectory.stationary((5, 0, 0), 3), ID_A), 4)
+    proto.handle(ReqForCurrentTraj(ID_C_LOW, "c", Trajectory.stationary((5, 0, 0), 3)), 3)
+    actions = proto.handle(CurrentTraj("b", Trajectory.stationary((2, 0, 0), 3), ID_A), 4)
     assert actions[0] == Send("c", CurrentTraj("a", Trajectory.stationary((0, 0, 0), 4), ID_C_LOW))
     [failed] = actions[1:]
     assert isinstance(failed, TaskFailed) and failed.task == task
     assert (proto.state, proto.task, proto.pending, proto.location) == (State.WAIT_FOR_TASK, None, {}, (0, 0, 0))
     # back in WaitForTaskRequest: it takes the next task
     assert proto.handle(NewTask(Task(TaskId(9, "a", 2), (1, 0, 0))), 5) == [Broadcast(ReqForCurrentTraj(
-        TaskId(9, "a", 2), "a"))]
+        TaskId(9, "a", 2), "a", Trajectory.stationary((0, 0, 0), 5)))]
 
 
 @pytest.mark.parametrize(("flight_steps", "hovering_since", "plans"), [

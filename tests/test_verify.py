@@ -10,10 +10,13 @@ from drona_gcs.errors import DronaError, ProblemError
 from drona_gcs.verify.explore import SEEDED_BUGS, Explorer, Scenario, Strategy, decode_token, encode_token
 from fleet.cli import main
 
-#: Which monitor each seeded bug should trip: (a) stale Psi, (b) collision, (e) battery.
+#: Which monitor each seeded bug should trip: (a) stale Psi, (b) collision, (d) a request never
+#: delivered, (e) battery.
 EXPECTED = {
     "stale-trajectory": {"a", "b"},
-    "tie-break-reversed": {"a", "b", "d"},
+    # Requests are answers to the drones before them in line: ranked the wrong way round, a drone
+    # may wait for good, and hover until its battery runs low.
+    "tie-break-reversed": {"a", "b", "d", "e"},
     "answer-while-coordinating": {"a", "b"},
     "no-battery-check": {"e"},
     "skip-delta": {"b"},

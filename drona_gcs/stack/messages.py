@@ -69,10 +69,15 @@ class Task:
 
 @dataclass(frozen=True)
 class ReqForCurrentTraj:
-    """Protocol 1: ``sender`` coordinates task ``task_id`` and asks for everyone's trajectory."""
+    """Protocol 1: ``sender`` coordinates task ``task_id`` and asks for everyone's trajectory.
+
+    ``trajectory`` is our addition: the sender's current trajectory, which a drone before it in
+    line takes as its answer (see :mod:`drona_gcs.stack.protocol`).
+    """
 
     task_id: TaskId
     sender: str
+    trajectory: Trajectory
 
 
 @dataclass(frozen=True)

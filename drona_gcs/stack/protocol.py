@@ -9,22 +9,35 @@ trajectory. A request whose task id is lower (a higher priority) than mine is
 answered at once with my current location; otherwise the requester waits in
 ``R_pend`` and gets my new trajectory once I have planned. Idle, I answer with
 my location; executing, with my trajectory. What the paper leaves open is
-settled here:
+settled here, and one message it sends is saved (the second point):
 
 * **Task ids** are ``(HLC stamp, drone, seq)`` (see :mod:`.messages`): globally
   unique and totally ordered with no central counter, so ties cannot happen.
-* **Answering a higher priority while coordinating.** The requester will plan
-  before me, so any answer it already gave me (its location, if it was idle
-  when my request arrived) is about to be stale. I drop it from Psi and ask it
-  again; it now holds me in ``R_pend`` and sends its new trajectory once
-  planned. One that has not answered me yet is not asked again: it holds my
-  request in ``R_pend`` (or answers it once planned). (With task ids from a
-  hybrid logical clock an answer cannot be there: a drone that answered my
-  request has seen my stamp, so its next task ranks below mine. The rule is
-  kept because ids need not be HLCs; asking every higher priority again cost
-  a message per pair of drones coordinating at once. Without HLC ids it
-  protects only answers that came in order: the second request carries the
-  same task id, so an old answer still on its way would count as the new one.)
+* **A request carries the requester's trajectory, and is its answer to the
+  drones before it in line.** A drone ahead of me in line (a lower task id)
+  that coordinates when my request comes holds me in ``R_pend`` and takes the
+  trajectory my request carries as my answer; so when its own request comes, I
+  do not answer it. Sound: my trajectory cannot change before that drone has
+  planned, since I wait for its new plan (unless it leaves, and is then held
+  as an obstacle as every departed drone is). Complete: my request went to
+  every member (broadcast, or sent when one joins), and that drone gets it
+  while it coordinates, because task ids come from hybrid logical clocks that
+  observe every stamp received (``DroneStack`` does): had my request reached
+  it before its task began, its task would rank below mine. (With ids that are
+  not HLCs a drone could wait for good.) A requester that is no member (gone
+  when my request went out, or since: it may never have had it) gets my answer
+  at once, as the paper has it. Without this, a fleet given tasks at once sent
+  an answer for every pair of drones before the first could plan (496 for 32
+  drones).
+* **A higher priority's request while coordinating, after it answered me.**
+  The answer may be its location from before its task (ids that are not
+  HLCs allow that), about to be stale since it plans before me: I drop it
+  from Psi and ask it again; it holds me in ``R_pend``, takes my trajectory
+  from that request and sends its new trajectory once planned. (With HLC ids
+  the answer is the new plan it sent once planned, its request having come
+  late; asked again, it answers with that plan. Without HLC ids this protects
+  only answers that came in order: the second request carries the same task
+  id, so an old answer still on its way would count as the new one.)
 * **Psi is rebuilt for every task.** Answers from an earlier round describe
   plans that may have been replaced since; planning with them is the race the
   paper's model checker found (seeded bug ``stale-trajectory``).
@@ -204,8 +217,12 @@ class CoordinationProtocol:
         if "stale-trajectory" not in self.bugs:  # the seeded bug keeps last round's answers
             self.received = {}
         self.pending = {}
-        actions: list[Action] = [Broadcast(ReqForCurrentTraj(event.task.id, self.me))]
+        actions: list[Action] = [Broadcast(self._request(now))]
         return actions + self._plan_if_ready(now)
+
+    def _request(self, now: int) -> ReqForCurrentTraj:
+        assert self.task is not None
+        return ReqForCurrentTraj(self.task.id, self.me, self.current_trajectory(now))
 
     def _answer(self, event: ReqForCurrentTraj, now: int) -> list[Action]:
         if event.sender == self.me:
@@ -219,13 +236,19 @@ class CoordinationProtocol:
         if "answer-while-coordinating" in self.bugs:
             return self._answer(event, now)
         if self._outranks(event.task_id, self.task.id):
-            actions = self._answer(event, now)
-            if event.sender in self.members and self.received.pop(event.sender, None) is not None:
-                # It plans before me: what it told me is about to change. Ask again.
-                actions.append(Send(event.sender, ReqForCurrentTraj(self.task.id, self.me)))
-            return actions
+            if event.sender not in self.members:
+                return self._answer(event, now)  # my request may not have reached it
+            # It plans before me, and takes my request (which went to every member) as my answer.
+            if self.received.pop(event.sender, None) is not None:
+                # What it told me is about to change. Ask again.
+                return [Send(event.sender, self._request(now))]
+            return []
         self.pending[event.sender] = event.task_id
-        return []
+        if event.sender not in self.members:
+            return []
+        # It waits for my plan, so the trajectory its request carries is its answer.
+        self.received[event.sender] = self.known[event.sender] = event.trajectory
+        return self._plan_if_ready(now)
 
     def _outranks(self, theirs: TaskId, mine: TaskId) -> bool:
         return theirs > mine if "tie-break-reversed" in self.bugs else theirs < mine
@@ -266,7 +289,7 @@ class CoordinationProtocol:
         # What it announces now is newer than anything we heard before it left.
         self.known[event.drone] = event.announced(now)
         if self.state is State.COORDINATING and self.task is not None:
-            return [Send(event.drone, ReqForCurrentTraj(self.task.id, self.me))]
+            return [Send(event.drone, self._request(now))]
         return []
 
     # ------------------------------------------------------------- planning

@@ -2,8 +2,9 @@
 
 Everything the stack decides comes back as actions, carried out here:
 protocol messages go out on ``proto/<peer>``, requests to everyone on
-``proto/all`` (one put that Zenoh fans out; a round is still 2(N-1)
-messages), a new plan's answers to the drones that waited for it on
+``proto/all`` (one put that Zenoh fans out; a round is 2(N-1) messages,
+fewer when drones coordinate at once: a request is its sender's answer to
+those before it in line), a new plan's answers to the drones that waited for it on
 ``answers`` (one put, each of them takes its own; every drone reads it, so
 the plan needs no announcement on ``plan/<me>``), mail progress on
 ``mail/status/<id>``, the mail held on ``held/<me>`` when it changes, the

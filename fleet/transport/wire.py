@@ -10,7 +10,8 @@ fatal).
 
 The bodies, by key (see :mod:`fleet.transport.keys`):
 
-* ``proto/<drone>``: ``req_traj`` and ``cur_traj``, Protocol 1's two messages.
+* ``proto/<drone>``: ``req_traj`` and ``cur_traj``, Protocol 1's two messages
+  (``req_traj`` carries the requester's trajectory: see :mod:`drona_gcs.stack.protocol`).
 * ``proto/all``: a ``req_traj`` to everyone.
 * ``answers``: ``cur_traj_to``, one trajectory answering the requests of
   several drones at once (a new plan, to every drone that waited for it),
@@ -44,8 +45,9 @@ from drona_gcs.motion import Trajectory
 from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj, TaskId
 
 #: 2: a Zenoh message may carry several envelopes, one per line (fleet.transport.node);
-#: 3: ``cur_traj_to``, one answer to several drones.
-VERSION: Final = 3
+#: 3: ``cur_traj_to``, one answer to several drones;
+#: 4: ``req_traj`` carries the requester's trajectory (its answer to the drones before it in line).
+VERSION: Final = 4
 
 CellList = Annotated[list[int], msgspec.Meta(min_length=3, max_length=3)]
 #: A mail id is a Zenoh key chunk (mail/status/<id>); \Z, not $: "$" would let a final newline through.
@@ -100,6 +102,7 @@ class WireTrajectory(_Strict, frozen=True, kw_only=True):
 # ------------------------------------------------------------- protocol
 class ReqTraj(_Body, frozen=True, kw_only=True, tag="req_traj"):
     task_id: WireTaskId
+    trajectory: WireTrajectory  #: the requester's, which a drone before it in line takes as its answer
 
 
 class CurTraj(_Body, frozen=True, kw_only=True, tag="cur_traj"):
@@ -222,7 +225,7 @@ Body = (ReqTraj | CurTraj | CurTrajTo | PlanAnnounce | DroneState | HeldMail | M
 
 
 class Envelope(_Strict, frozen=True, kw_only=True):
-    v: Literal[3] = VERSION
+    v: Literal[4] = VERSION
     sender: Annotated[str, msgspec.Meta(min_length=1)]
     sent_at: float
     body: Body
@@ -275,7 +278,7 @@ def to_json(message: _Strict) -> dict[str, Any]:
 # ------------------------------------------------------ core <-> wire
 def from_core(message: Message) -> ReqTraj | CurTraj:
     if isinstance(message, ReqForCurrentTraj):
-        return ReqTraj(task_id=WireTaskId.of(message.task_id))
+        return ReqTraj(task_id=WireTaskId.of(message.task_id), trajectory=WireTrajectory.of(message.trajectory))
     return CurTraj(in_reply_to=WireTaskId.of(message.in_reply_to), trajectory=WireTrajectory.of(message.trajectory))
 
 
@@ -291,7 +294,7 @@ def to_core(envelope: Envelope, me: str) -> Message | None:
     for a ``cur_traj_to`` that answers others only."""
     body = envelope.body
     if isinstance(body, ReqTraj):
-        return ReqForCurrentTraj(body.task_id.core(), envelope.sender)
+        return ReqForCurrentTraj(body.task_id.core(), envelope.sender, body.trajectory.core())
     if isinstance(body, CurTraj):
         request = body.in_reply_to
     elif isinstance(body, CurTrajTo):
