@@ -131,7 +131,7 @@ async def _measure(children: list[subprocess.Popen[bytes]], workspace: Workspace
                    port: int, seconds: float, steady_after: float, seed: int) -> CoordinationResult:
     keys = FleetKeys(fleet)
     node = await ZenohNode.open(ZenohSettings(connect=(f"tcp/127.0.0.1:{port}",)), "bench")
-    latencies: dict[tuple[str, int], tuple[float, float]] = {}  #: (drone, plan) -> (when seen, ms)
+    latencies = PlanLatencies()
     alive: set[str] = set()
     all_up = asyncio.Event()
     stepping: set[str] = set()
@@ -146,16 +146,13 @@ async def _measure(children: list[subprocess.Popen[bytes]], workspace: Workspace
                 stepping.add(body.drone)
                 if stepping >= set(names):
                     all_stepping.set()
-            # Only plans made for the mail: a state names the count of plans its latency is the last of.
-            if body.coordination_ms is not None and body.plans > counted_from.get(body.drone, sys.maxsize):
-                latencies.setdefault((body.drone, body.plans), (time.monotonic(), body.coordination_ms))
+            latencies.observe(body, time.monotonic())
 
     def on_alive(key: str, up: bool) -> None:
         (alive.add if up else alive.discard)(keys.last_chunk(key))
         if alive >= set(names):
             all_up.set()
 
-    counted_from: dict[str, int] = {}  #: each drone's plans before the first mail
     try:
         node.subscribe(keys.state(), on_state)
         node.watch_liveliness(keys.alive(), on_alive)
@@ -169,7 +166,7 @@ async def _measure(children: list[subprocess.Popen[bytes]], workspace: Workspace
         # case of Protocol 1 (each round waits for those before it in line). Their moves to their parking
         # cells at start-up, made while the last process may still be joining, are not counted.
         before = await _between_rounds(client, IDLE_BOUND_S, idle=True)
-        counted_from.update({drone: state.plans for drone, state in before.items()})
+        latencies.count_after(before)
         cpu0 = [_cpu_of(c.pid) for c in children]
         started = time.monotonic()
         delivered, sent, plans = await _keep_busy(node, client, keys, workspace, names, seconds, seed, before)
@@ -178,13 +175,36 @@ async def _measure(children: list[subprocess.Popen[bytes]], workspace: Workspace
         cpu = [_cpu_of(c.pid) - c0 for c, c0 in zip(children, cpu0, strict=True)]
     finally:
         await node.close()
-    values = sorted(ms for _, ms in latencies.values())
-    steady = sorted(ms for seen, ms in latencies.values() if seen >= started + steady_after)
+    values, steady = latencies.since(), latencies.since(started + steady_after)
     return CoordinationResult(
         len(names), elapsed, len(values), _percentile(values, 0.5), _percentile(values, 0.99), _percentile(values, 1),
         len(steady), _percentile(steady, 0.5), _percentile(steady, 0.99), _percentile(steady, 1),
         sent / plans if plans else float("nan"), 1000 * sum(cpu[1:]) / elapsed / len(names), cpu[0] / elapsed,
         delivered)
+
+
+class PlanLatencies:
+    """The coordination latency of every plan made for the mail, read from the drones' states.
+
+    A state names how many plans its drone has made and the latency of the last one. Only plans made
+    after :meth:`count_after` are counted: not the moves to the parking cells at start-up, nor any plan
+    of a drone missing from the states it was given. The states repeat a plan until the next: it is
+    taken once, when first seen."""
+
+    def __init__(self) -> None:
+        self._counted_from: dict[str, int] = {}  #: each drone's plans before the first mail
+        self._seen: dict[tuple[str, int], tuple[float, float]] = {}  #: (drone, plan) -> (when seen, ms)
+
+    def count_after(self, before: dict[str, DroneState]) -> None:
+        self._counted_from.update({drone: state.plans for drone, state in before.items()})
+
+    def observe(self, state: DroneState, now: float) -> None:
+        if state.coordination_ms is not None and state.plans > self._counted_from.get(state.drone, sys.maxsize):
+            self._seen.setdefault((state.drone, state.plans), (now, state.coordination_ms))
+
+    def since(self, when: float = -math.inf) -> list[float]:
+        """The latencies (ms) of the plans first seen at ``when`` or later, sorted."""
+        return sorted(ms for seen, ms in self._seen.values() if seen >= when)
 
 
 class BenchError(RuntimeError):

@@ -12,7 +12,7 @@ import sys
 import pytest
 
 from drona_gcs.stack.protocol import State
-from fleet.bench_coordination import _between_rounds, default_processes
+from fleet.bench_coordination import PlanLatencies, _between_rounds, default_processes
 from fleet.transport.wire import DroneState
 
 
@@ -62,3 +62,24 @@ def test_a_fleet_never_between_rounds_is_measured_anyway_saying_which_drones_wer
     flying = _Fleet({"d1": State.WAIT_FOR_TASK, "d2": State.EXECUTING})
     assert set(asyncio.run(_between_rounds(flying, 5.0))) == {"d1", "d2"}  # type: ignore[arg-type]
     assert flying.asked == 1 and capsys.readouterr().err == ""
+
+
+def _state(drone: str, plans: int, ms: float | None) -> DroneState:
+    return DroneState(drone=drone, step=1, cell=[0, 0, 0], mode=State.EXECUTING.value, phase="idle", landed=False,
+                      plans=plans, coordination_ms=ms)
+
+
+def test_only_plans_made_for_the_mail_count_each_once() -> None:
+    """The moves to the parking cells at start-up are planned too, while the last process may still be
+    joining: counted, they would measure start-up. A state repeats its drone's last plan: once only."""
+    latencies = PlanLatencies()
+    latencies.observe(_state("d1", 1, 900.0), now=1.0)  # parking, before the fleet was between rounds
+    latencies.count_after({"d1": _state("d1", 2, 800.0), "d2": _state("d2", 0, None)})
+    latencies.observe(_state("d1", 2, 800.0), now=2.0)  # still the parking plan
+    latencies.observe(_state("d3", 5, 700.0), now=2.0)  # a drone not between rounds: not counted
+    latencies.observe(_state("d1", 3, 12.0), now=3.0)
+    latencies.observe(_state("d1", 3, 12.0), now=4.0)  # the same plan, stated again
+    latencies.observe(_state("d2", 1, 30.0), now=5.0)
+    latencies.observe(_state("d2", 2, None), now=6.0)  # no latency reported: nothing to count
+    assert latencies.since() == [12.0, 30.0]
+    assert latencies.since(4.0) == [30.0]  # when first seen, not when stated again
