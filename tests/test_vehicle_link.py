@@ -341,14 +341,16 @@ async def telemetry_again(link: VehicleLink, fresh: Callable[[Telemetry], bool],
                 raise
             await asyncio.sleep(0.1)
 
+@backends
 @transports
-def test_a_vehicle_lost_or_silent_comes_back_with_its_telemetry_asked_for_again(transport: str,
+def test_a_vehicle_lost_or_silent_comes_back_with_its_telemetry_asked_for_again(backend: str, transport: str,
                                                                                tmp_path: Path) -> None:
     """SITL restarted, a USB adapter pulled out and plugged back in, a vehicle rebooted behind UDP:
     the link fails commands while the vehicle is gone, opens a lost stream again by its name (TCP: the
     same port; serial: a by-id style link that now points at the new device; UDP loses no stream, the
     vehicle only goes silent) and asks the new vehicle, which streams nothing yet, for the telemetry
-    again, however late its first HEARTBEAT. ArduCopter, as it streams nothing unasked."""
+    again, however late its first HEARTBEAT. ArduCopter, as it streams nothing unasked. (MAVSDK
+    reconnects TCP itself, but neither opens a serial device again nor asks for the streams again.)"""
     personality, heartbeat_timeout = "ardupilot", 1.2
 
     async def scenario() -> None:
@@ -365,7 +367,7 @@ def test_a_vehicle_lost_or_silent_comes_back_with_its_telemetry_asked_for_again(
 
         async with fake_vehicle(personality, transport, port=port) as first:
             point_at(first)
-            link = _pymavlink(url, heartbeat_timeout=heartbeat_timeout)
+            link = BACKENDS[backend](url, heartbeat_timeout=heartbeat_timeout)
             await link.connect(timeout=5)
             try:
                 await link.wait_ready(timeout=5)

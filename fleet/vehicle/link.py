@@ -15,6 +15,8 @@ from typing import Protocol
 
 from drona_gcs.geo import GeoPoint, Ned
 
+REOPEN_S = 1.0  #: how often a backend opens a lost TCP or serial link again
+
 
 class Share(float, enum.Enum):
     """Telemetry rates, as fractions of a link's ``stream_hz``. Positions come at the full rate (the

@@ -42,7 +42,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from drona_gcs.geo import GeoFrame, GeoPoint, Ned
 from fleet.clock import cancel_all, periodic
-from fleet.vehicle.link import Autopilot, LandedState, Position, Share, Telemetry, not_ready
+from fleet.vehicle.link import REOPEN_S, Autopilot, LandedState, Position, Share, Telemetry, not_ready
 from fleet.vehicle.modes import CONFIRM_HEARTBEATS, FOLLOW_MODE, LAND_MODE, ModeDoubt, mode_command, mode_name
 from fleet.vehicle.urls import LinkUrl, Transport, open_transport, parse_link_url
 
@@ -63,7 +63,6 @@ GCS_COMPONENT = mavlink2.MAV_COMP_ID_MISSIONPLANNER
 _UNKNOWN_U16 = 0xFFFF
 SETPOINT_SENT = "(setpoint sent)"  #: a pseudo message type: waiters on it are resolved as setpoints go out
 _SERIOUS = mavlink2.MAV_SEVERITY_WARNING  #: texts at this severity or worse explain a refusal
-REOPEN_S = 1.0  #: how often a lost TCP or serial link is opened again
 REOPEN_TIMEOUT_S = 5.0  #: how long one attempt may take (a TCP connect to a host that does not answer)
 
 

@@ -18,6 +18,12 @@ call the link gave up on is simply forgotten.
 
 MAVSDK hides the wire: a refused or closed TCP connection only shows in its log (its ``tcpout``
 reconnects in the background), so here both look like a vehicle that stopped sending HEARTBEATs.
+MAVSDK keeps a serial device open after it is gone (a USB adapter pulled out, a flight controller
+on USB rebooted), so a silent serial link is opened again by its name every :data:`REOPEN_S`
+seconds (a ``/dev/serial/by-id/...`` link finds the adapter wherever it comes back). At the first
+HEARTBEAT after a silence the telemetry streams are asked for again (a rebooted autopilot forgot
+them, and MAVSDK does not ask again), at each HEARTBEAT until every request is answered: as the
+pymavlink backend does both.
 
 Positions are local NED, or with a :class:`~drona_gcs.geo.GeoFrame` that workspace's frame (targets
 go out as global setpoints, positions come from the global position), as with the pymavlink backend.
@@ -30,6 +36,7 @@ import collections
 import contextlib
 import functools
 import json
+import logging
 import math
 import time
 from collections.abc import Awaitable, Callable
@@ -46,9 +53,11 @@ from mavsdk.plugins.telemetry import TelemetryError
 from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from drona_gcs.geo import GeoFrame, GeoPoint, Ned
 from fleet.clock import cancel_all, periodic
-from fleet.vehicle.link import Autopilot, LandedState, Position, Share, Telemetry, not_ready
+from fleet.vehicle.link import REOPEN_S, Autopilot, LandedState, Position, Share, Telemetry, not_ready
 from fleet.vehicle.modes import CONFIRM_HEARTBEATS, FOLLOW_MODE, LAND_MODE, ModeDoubt, mode_command, mode_name
 from fleet.vehicle.urls import LinkUrl, Scheme, parse_link_url
+
+log = logging.getLogger(__name__)
 
 ACCEPTED, TEMPORARILY_REJECTED, DENIED, UNSUPPORTED, FAILED = 0, 1, 2, 3, 4  #: MAV_RESULT
 SET_MESSAGE_INTERVAL, NAV_TAKEOFF, DO_SET_MODE = 511, 22, 176  #: MAV_CMD
@@ -87,6 +96,8 @@ class MavsdkLink:
         self.text_grace, self.stream_hz = text_grace, stream_hz
         self.sysid: int | None = None
         self._mavsdk: Mavsdk | None = None
+        self._connection: Any = None  #: MAVSDK's handle of our connection
+        self._reopened_at = -math.inf  #: the last attempt to open a silent serial link again
         self._action: Any = None
         self._offboard: Any = None
         self._telemetry: Any = None
@@ -97,6 +108,8 @@ class MavsdkLink:
         self._tick = asyncio.Event()  #: replaced after each update; waiters re-check their condition
         self._dead: VehicleError | None = None  #: closed: final
         self._silent: VehicleError | None = None  #: no heartbeat lately: cleared by the next one
+        self._streams_wanted = False  #: ask for the telemetry streams at the next HEARTBEAT
+        self._asking: asyncio.Task[None] | None = None  #: the stream requests under way
         self.autopilot: Autopilot | None = None
         self.custom_mode: int | None = None
         self._mode_doubt = ModeDoubt()
@@ -113,7 +126,7 @@ class MavsdkLink:
         self._mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
         try:
             try:
-                self._mavsdk.add_any_connection_with_handle(mavsdk_url(self.url))
+                self._connection = self._mavsdk.add_any_connection_with_handle(mavsdk_url(self.url))
             except MavsdkError as exc:
                 raise VehicleError(f"cannot open {self.url}: {exc}") from exc
             loop = asyncio.get_running_loop()
@@ -140,15 +153,26 @@ class MavsdkLink:
                 self._subscriptions.append((getattr(self._telemetry, f"unsubscribe_{name}"), handle))
             self._tasks.append(asyncio.create_task(self._watchdog()))
             await self._wait_for(lambda: self.heartbeats > 0, timeout, "a HEARTBEAT from a vehicle")
-            for name, share in TELEMETRY.items():  # ArduCopter streams nothing until asked
-                set_rate = getattr(self._telemetry, f"set_rate_{name}_async")
-                await self._call(f"set_rate_{name}", functools.partial(set_rate, self.stream_hz * share),
-                                 TelemetryError)
-            for msg_id, share in ((SYS_STATUS, Share.STATUS), (EXTENDED_SYS_STATE, Share.LANDED)):
-                await self.command("SET_MESSAGE_INTERVAL", SET_MESSAGE_INTERVAL, msg_id, 1e6 / (self.stream_hz * share))
+            await self._ask_for_streams()
         except BaseException:
             await self.close()
             raise
+
+    async def _ask_for_streams(self) -> None:
+        """The telemetry at our rates (ArduCopter streams nothing until asked); VehicleError if a request fails."""
+        for name, share in TELEMETRY.items():
+            set_rate = getattr(self._telemetry, f"set_rate_{name}_async")
+            await self._call(f"set_rate_{name}", functools.partial(set_rate, self.stream_hz * share), TelemetryError)
+        for msg_id, share in ((SYS_STATUS, Share.STATUS), (EXTENDED_SYS_STATE, Share.LANDED)):
+            await self.command("SET_MESSAGE_INTERVAL", SET_MESSAGE_INTERVAL, msg_id, 1e6 / (self.stream_hz * share))
+
+    async def _streams_again(self) -> None:
+        try:
+            await self._ask_for_streams()
+        except VehicleError as exc:  # asked again at the next HEARTBEAT
+            log.info("%s: telemetry streams not acknowledged yet: %s", self.url, exc)
+        else:
+            self._streams_wanted = False
 
     async def close(self) -> None:
         await cancel_all(self._tasks)
@@ -373,6 +397,11 @@ class MavsdkLink:
     def _on_heartbeat(self, msg: MavlinkMessage) -> None:
         if msg.component_id != 1:
             return
+        if self._silent is not None:  # back from a silence: maybe rebooted, its streams forgotten
+            self._streams_wanted = True
+        if self._streams_wanted and self._dead is None and (self._asking is None or self._asking.done()):
+            self._asking = asyncio.get_running_loop().create_task(self._streams_again())
+            self._tasks[:] = [*(task for task in self._tasks if not task.done()), self._asking]
         fields = json.loads(msg.fields_json)
         self.custom_mode = int(fields["custom_mode"])
         self.armed = bool(int(fields["base_mode"]) & SAFETY_ARMED)
@@ -396,6 +425,21 @@ class MavsdkLink:
                     and now - self.heartbeat_at > self.heartbeat_timeout:
                 self._fail(VehicleError(f"vehicle {self.sysid} on {self.url}: no HEARTBEAT for "
                                         f"{now - self.heartbeat_at:.1f} s (timeout {self.heartbeat_timeout} s)"))
+            if self.url.scheme is Scheme.SERIAL and self._silent is not None and self._dead is None \
+                    and now - self._reopened_at >= REOPEN_S:
+                self._reopen()
+
+    def _reopen(self) -> None:
+        """Open the serial device again by its name (the vehicle's streams are asked for at its first HEARTBEAT)."""
+        assert self._mavsdk is not None
+        self._reopened_at = self.clock()
+        if self._connection is not None:
+            self._mavsdk.remove_connection(self._connection)
+            self._connection = None
+        try:
+            self._connection = self._mavsdk.add_any_connection_with_handle(mavsdk_url(self.url))
+        except MavsdkError as exc:
+            log.debug("%s: not back yet: %s", self.url, exc)
 
     # ------------------------------------------------------------ plumbing
     def _notify(self) -> None:
