@@ -8,14 +8,46 @@ in the same units, whatever the autopilot.
 
 from __future__ import annotations
 
+import asyncio
 import enum
-from collections.abc import Callable
+import logging
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Protocol
 
+from drona_gcs.errors import VehicleError
 from drona_gcs.geo import GeoPoint, Ned
 
+log = logging.getLogger(__name__)
+
 REOPEN_S = 1.0  #: how often a backend opens a lost TCP or serial link again
+
+
+class StreamRequests:
+    """A backend's telemetry streams asked for again, at each HEARTBEAT once :attr:`wanted` (after a
+    silence or a stream opened again: a rebooted autopilot forgot them), until every request is
+    acknowledged. ``ask`` makes the requests (VehicleError if one fails); ``name`` is for the log."""
+
+    def __init__(self, ask: Callable[[], Awaitable[None]], name: str) -> None:
+        self.ask, self.name = ask, name
+        self.wanted = False
+        self._asking: asyncio.Task[None] | None = None  #: the requests under way
+
+    def on_heartbeat(self, after_silence: bool, tasks: list[asyncio.Task[None]]) -> None:
+        """At a HEARTBEAT (on the loop): ask if wanted and not already asking; the task joins ``tasks``
+        (the backend's, cancelled when it closes)."""
+        self.wanted = self.wanted or after_silence
+        if self.wanted and (self._asking is None or self._asking.done()):
+            self._asking = asyncio.get_running_loop().create_task(self._again())
+            tasks[:] = [*(task for task in tasks if not task.done()), self._asking]
+
+    async def _again(self) -> None:
+        try:
+            await self.ask()
+        except VehicleError as exc:  # asked again at the next HEARTBEAT
+            log.info("%s: telemetry streams not acknowledged yet: %s", self.name, exc)
+        else:
+            self.wanted = False
 
 
 class Share(float, enum.Enum):

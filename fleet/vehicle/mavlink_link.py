@@ -42,7 +42,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from drona_gcs.geo import GeoFrame, GeoPoint, Ned
 from fleet.clock import cancel_all, periodic
-from fleet.vehicle.link import REOPEN_S, Autopilot, LandedState, Position, Share, Telemetry, not_ready
+from fleet.vehicle.link import REOPEN_S, Autopilot, LandedState, Position, Share, StreamRequests, Telemetry, not_ready
 from fleet.vehicle.modes import CONFIRM_HEARTBEATS, FOLLOW_MODE, LAND_MODE, ModeDoubt, mode_command, mode_name
 from fleet.vehicle.urls import LinkUrl, Transport, open_transport, parse_link_url
 
@@ -93,8 +93,7 @@ class PymavlinkLink:
         self._lost_at: float | None = None  #: when the stream was lost (None: not lost, or closed by us)
         self._tried_at = -math.inf  #: the last attempt to open a lost stream again
         self._closed = False  #: closed by us: a stream lost now is not opened again
-        self._streams_wanted = False  #: ask for the telemetry streams at the next HEARTBEAT
-        self._asking: asyncio.Task[None] | None = None  #: the stream requests under way
+        self._streams = StreamRequests(self._ask_for_streams, str(self.url))
         self._silent: VehicleError | None = None  #: no heartbeat lately: cleared by the next one
         self._started = clock()
         self._setpoint: Message | None = None  #: repeated at setpoint_hz (PX4 leaves OFFBOARD without it)
@@ -384,11 +383,8 @@ class PymavlinkLink:
                 future.set_exception(exc)
 
     def _on_heartbeat(self, msg: Message) -> None:
-        if self._silent is not None:  # back from a silence: maybe rebooted, its streams forgotten
-            self._streams_wanted = True
-        if self._streams_wanted and not self._closed and (self._asking is None or self._asking.done()):
-            self._asking = asyncio.get_running_loop().create_task(self._streams_again())
-            self._tasks[:] = [*(task for task in self._tasks if not task.done()), self._asking]
+        if not self._closed:  # back from a silence: maybe rebooted, its streams forgotten
+            self._streams.on_heartbeat(self._silent is not None, self._tasks)
         self.autopilot = {mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA: Autopilot.ARDUPILOT,
                           mavlink2.MAV_AUTOPILOT_PX4: Autopilot.PX4}.get(msg.autopilot, Autopilot.OTHER)
         self.custom_mode = int(msg.custom_mode)
@@ -473,16 +469,8 @@ class PymavlinkLink:
         self._latest.clear()
         self._snapshot = None
         self.heartbeat_at = self.clock()
-        self._streams_wanted = True
+        self._streams.wanted = True
         self._send_heartbeat()
-
-    async def _streams_again(self) -> None:
-        try:
-            await self._ask_for_streams()
-        except VehicleError as exc:  # asked again at the next HEARTBEAT
-            log.info("%s: telemetry streams not acknowledged yet: %s", self.url, exc)
-        else:
-            self._streams_wanted = False
 
     async def _housekeeping(self) -> None:
         """Our HEARTBEAT at 1 Hz (PX4 and ArduPilot watch for a GCS), the vehicle's heartbeat watchdog,

@@ -53,7 +53,7 @@ from mavsdk.plugins.telemetry import TelemetryError
 from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from drona_gcs.geo import GeoFrame, GeoPoint, Ned
 from fleet.clock import cancel_all, periodic
-from fleet.vehicle.link import REOPEN_S, Autopilot, LandedState, Position, Share, Telemetry, not_ready
+from fleet.vehicle.link import REOPEN_S, Autopilot, LandedState, Position, Share, StreamRequests, Telemetry, not_ready
 from fleet.vehicle.modes import CONFIRM_HEARTBEATS, FOLLOW_MODE, LAND_MODE, ModeDoubt, mode_command, mode_name
 from fleet.vehicle.urls import LinkUrl, Scheme, parse_link_url
 
@@ -108,8 +108,7 @@ class MavsdkLink:
         self._tick = asyncio.Event()  #: replaced after each update; waiters re-check their condition
         self._dead: VehicleError | None = None  #: closed: final
         self._silent: VehicleError | None = None  #: no heartbeat lately: cleared by the next one
-        self._streams_wanted = False  #: ask for the telemetry streams at the next HEARTBEAT
-        self._asking: asyncio.Task[None] | None = None  #: the stream requests under way
+        self._streams = StreamRequests(self._ask_for_streams, str(self.url))
         self.autopilot: Autopilot | None = None
         self.custom_mode: int | None = None
         self._mode_doubt = ModeDoubt()
@@ -165,14 +164,6 @@ class MavsdkLink:
             await self._call(f"set_rate_{name}", functools.partial(set_rate, self.stream_hz * share), TelemetryError)
         for msg_id, share in ((SYS_STATUS, Share.STATUS), (EXTENDED_SYS_STATE, Share.LANDED)):
             await self.command("SET_MESSAGE_INTERVAL", SET_MESSAGE_INTERVAL, msg_id, 1e6 / (self.stream_hz * share))
-
-    async def _streams_again(self) -> None:
-        try:
-            await self._ask_for_streams()
-        except VehicleError as exc:  # asked again at the next HEARTBEAT
-            log.info("%s: telemetry streams not acknowledged yet: %s", self.url, exc)
-        else:
-            self._streams_wanted = False
 
     async def close(self) -> None:
         await cancel_all(self._tasks)
@@ -397,11 +388,8 @@ class MavsdkLink:
     def _on_heartbeat(self, msg: MavlinkMessage) -> None:
         if msg.component_id != 1:
             return
-        if self._silent is not None:  # back from a silence: maybe rebooted, its streams forgotten
-            self._streams_wanted = True
-        if self._streams_wanted and self._dead is None and (self._asking is None or self._asking.done()):
-            self._asking = asyncio.get_running_loop().create_task(self._streams_again())
-            self._tasks[:] = [*(task for task in self._tasks if not task.done()), self._asking]
+        if self._dead is None:  # back from a silence: maybe rebooted, its streams forgotten
+            self._streams.on_heartbeat(self._silent is not None, self._tasks)
         fields = json.loads(msg.fields_json)
         self.custom_mode = int(fields["custom_mode"])
         self.armed = bool(int(fields["base_mode"]) & SAFETY_ARMED)
