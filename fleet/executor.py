@@ -13,7 +13,10 @@ timed trajectory, so a lagging drone is an alarm, not a detail. A process
 that stalls past a boundary takes the missed ones back to back, and a slow
 vehicle is still short of its cell when the next one comes; either way the
 vehicle flies the plan's cells in order (:meth:`SetpointLoop.take`), never
-straight across a turn to the newest one.
+straight across a turn to the newest one. A vehicle whose link is down is one
+drone's problem: its loop sends nothing (:attr:`SetpointLoop.suspended`, set by
+its agent, which decides what it flies once the vehicle is back), and a send that
+fails is dropped, never the end of the process's other loops.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from drona_gcs.errors import VehicleError
 from drona_gcs.geo import GeoFrame
 from drona_gcs.stack.executor import PlanExecutor, Setpoint
 from drona_gcs.workspace import Cell
@@ -41,6 +45,7 @@ class StepReport:
     lagging: bool
     late_s: float  #: how late the boundary was taken on the local clock (jitter)
     behind: int = 0  #: cells of the plan the vehicle must still fly through before its target (see SetpointLoop.take)
+    planned: Cell | None = None  #: the cell the plan put the drone in for the step that just ended
 
 
 ROUTE_LIMIT = 64  #: cells kept for a vehicle that does not follow at all (it is flagged lagging anyway)
@@ -66,6 +71,7 @@ class SetpointLoop:
         self.changed_at = -math.inf  #: when the target last moved
         #: takes a boundary: the executor's own tick, or the whole drone stack's step (which ticks it)
         self.tick: Callable[[int], Sequence[object]] = tick or executor.tick
+        self.suspended = False  #: the vehicle is lost: nothing is sent until its agent says where it is
 
     def step_at(self, t: float) -> int:
         """The step under way at local time ``t``."""
@@ -83,7 +89,17 @@ class SetpointLoop:
         return self.route[0] if self.route else self.target
 
     async def send(self) -> None:
-        await self.sink.send_position_target(self.frame.cell_to_ned(self.aim))
+        if self.suspended:
+            return
+        try:
+            await self.sink.send_position_target(self.frame.cell_to_ned(self.aim))
+        except VehicleError:
+            return  # the link just went down: its agent sees it at the next boundary
+
+    def suspend(self, suspended: bool) -> None:
+        """Send nothing while ``suspended``; either way, forget the route (the plan was left or replaced)."""
+        self.suspended = suspended
+        self.route.clear()
 
     def take(self, step: int, boundary: float) -> tuple[StepReport, Sequence[object]]:
         """Take boundary ``step`` (no I/O): the executor moves the target to its next cell.
@@ -104,7 +120,7 @@ class SetpointLoop:
         previous = self.target
         actions = self.tick(step)
         self.target = next(a.cell for a in actions if isinstance(a, Setpoint))
-        if self.target != previous:
+        if self.target != previous and not self.suspended:
             # A target never aimed at (a route was pending) must be flown through too.
             if self.route or self._short_of(previous, now):
                 self.route.append(previous)
@@ -125,7 +141,7 @@ class SetpointLoop:
         """Drop the route's cells up to the one the vehicle is in (it got that far); whether the aim
         moved (send it now). Only the next two count: a plan may come back to a cell, and a vehicle
         may cross a whole cell between two looks."""
-        here = self._here() if self.route else None
+        here = self._here() if self.route and not self.suspended else None
         ahead = [*itertools.islice(self.route, 2), self.target][:2]
         if here is None or here not in ahead:
             return False
@@ -142,12 +158,12 @@ class SetpointLoop:
         """At boundary ``step`` the vehicle should have reached ``previous`` (last step's cell)."""
         position = self.sink.last_position()
         if position is None:
-            return StepReport(step, target, None, math.inf, True, late, len(self.route))
+            return StepReport(step, target, None, math.inf, True, late, len(self.route), previous)
         fix = self.frame.locate(position.ned)
         should = self.frame.cell_to_ned(previous)
         error = math.dist((position.ned.north, position.ned.east, position.ned.down),
                           (should.north, should.east, should.down))
-        return StepReport(step, target, fix.cell, error, error > self.tolerance, late, len(self.route))
+        return StepReport(step, target, fix.cell, error, error > self.tolerance, late, len(self.route), previous)
 
 
 def _in_line(here: Cell, previous: Cell, target: Cell) -> bool:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 
 from drona_gcs.errors import ProblemError
-from drona_gcs.geo import GeoFrame
+from drona_gcs.geo import GeoFrame, GeoPoint
 from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.drone import DroneStack, StackConfig
@@ -17,6 +17,7 @@ from fleet.executor import StepReport
 from fleet.transport.keys import FleetKeys
 from fleet.transport.wire import (
     CurTrajTo,
+    DroneState,
     Envelope,
     MailOrder,
     MailStatus,
@@ -53,21 +54,30 @@ class RecordingNode:
 
 
 class ScriptedVehicle:
-    """A vehicle whose telemetry the test sets: over (0, 0, 0), armed in the air until it comes down."""
+    """A vehicle whose telemetry the test sets: over (0, 0, 0), ready, armed in the air until it comes
+    down; ``lost`` is the link's problem while it does not answer."""
 
     def __init__(self) -> None:
         self.down = False
+        self.lost: str | None = None
+        self.cell = (0, 0, 0)
+        self.seen_at = 1.0  #: the link clock time of its position
+        self.estimate = True  #: the autopilot has its position estimate
 
     def telemetry(self) -> Telemetry:
         landed = LandedState.ON_GROUND if self.down else LandedState.IN_AIR
-        return Telemetry(Autopilot.ARDUPILOT, not self.down, "GUIDED", self.last_position(), None, None,
-                         None, 90, 16.0, 3, 10, landed, 1.0)
+        return Telemetry(Autopilot.ARDUPILOT, not self.down, "GUIDED", self.last_position(), None,
+                         self.last_global(), None if self.down else 2.0, 90, 16.0, 6 if self.estimate else 1,
+                         10, landed, self.seen_at, position_ok=self.estimate)
 
-    def last_position(self) -> Position:
-        return Position(FRAME.cell_to_ned((0, 0, 0)), 1.0)
+    def last_position(self) -> Position | None:
+        return Position(FRAME.cell_to_ned(self.cell), self.seen_at) if self.estimate else None
 
-    def last_global(self) -> None:
-        return None
+    def last_global(self) -> GeoPoint | None:
+        return FRAME.cell_to_global(self.cell) if self.estimate else None
+
+    def problem(self) -> str | None:
+        return self.lost
 
 
 def test_a_vehicle_down_by_itself_hands_its_mail_back_and_the_drone_starts_no_task() -> None:
@@ -231,3 +241,112 @@ def test_answers_for_a_round_that_is_over_still_tell_the_senders_new_plan() -> N
         return stack.protocol.known["d2"]
 
     assert asyncio.run(scenario()) == new
+
+
+def _state_of(agent: DroneAgent) -> DroneState:
+    return agent.state()
+
+
+def test_a_drone_whose_vehicle_waits_for_its_position_says_so_and_takes_no_mail() -> None:
+    """ArduCopter SITL needs about 45 s from boot to its position estimate: the drone is a member
+    meanwhile, says ``waiting_for_position``, refuses mail with the reason, and takes it once ready."""
+    async def scenario() -> None:
+        vehicle = ScriptedVehicle()
+        vehicle.estimate = False
+        stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
+        agent = DroneAgent(stack, RecordingNode(), KEYS, vehicle, FRAME, lambda: 1000.0)  # type: ignore[arg-type]
+        agent.tick(0)
+        view = agent.state().vehicle
+        assert view is not None and view.status == "waiting_for_position"
+        assert "position estimate" in view.reason
+        order = MailOrder(id="m", pickup=[3, 0, 0], dropoff=[5, 5, 0], priority=5)
+        try:
+            agent.mail.take(order)
+        except ProblemError as exc:
+            assert "its vehicle is not ready: no position estimate" in str(exc)
+        else:
+            raise AssertionError("a drone whose vehicle has no position took mail")
+        vehicle.estimate = True
+        agent.tick(1)
+        assert agent.state().vehicle.status == "ready"  # type: ignore[union-attr]
+        assert agent.mail.take(order)
+        agent.tick(2)
+        assert stack.protocol.state is not State.WAIT_FOR_TASK  # a task under way
+
+    asyncio.run(scenario())
+
+
+def test_a_lost_vehicle_is_its_drones_problem_and_back_in_a_held_cell_the_drone_carries_on() -> None:
+    """The link goes silent mid-plan: the drone stays a member, raises vehicle_lost, hands back the mail
+    it has not picked up, holds every cell its vehicle may be in (its answers say so) and takes no mail.
+    The vehicle answers again, seen in one of those cells: the drone rests there and takes mail again."""
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0, drones={"d1": (0, 0, 0), "d2": (7, 7, 0)})
+
+    async def scenario() -> None:
+        node, vehicle = RecordingNode(), ScriptedVehicle()
+        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+        agent = DroneAgent(stack, node, KEYS, vehicle, GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
+        agent.mail.take(MailOrder(id="m", pickup=[4, 0, 0], dropoff=[6, 3, 0], priority=5))
+        step = 0
+        while not stack.executor.flying:  # coordinate (d2 answers), then fly the first steps
+            agent.tick(step)
+            for k, p in list(node.puts):
+                body = decode(p).body
+                if isinstance(body, ReqTraj) and k == KEYS.proto("all"):
+                    reply = CurrentTraj("d2", Trajectory.stationary((7, 7, 0), 0), body.task_id.core())
+                    agent._on_protocol(KEYS.proto("d1"), encode("d2", 1000.0, from_core(reply)))
+                    node.puts.remove((k, p))
+            vehicle.cell = stack.executor.cell
+            step += 1
+        agent.tick(step)
+        plan = stack.protocol.trajectory
+        assert plan is not None
+        vehicle.cell, seen = stack.executor.cell, stack.executor.cell
+        agent.tick(step + 1)
+        vehicle.lost = "vehicle 1 on udpin://127.0.0.1:14540: no HEARTBEAT for 3.1 s (timeout 3.0 s)"
+        await asyncio.sleep(0)
+        agent.tick(step + 2)
+        await asyncio.sleep(0)
+        assert agent.alarms["vehicle_lost"].startswith("vehicle_lost: vehicle 1 on udpin")
+        assert node.statuses("m")[-1] == (MailStatus.REJECTED, "drone d1's vehicle is lost")
+        assert set(stack.protocol.holds()) >= set(plan.suffix_from(step + 2).cells) | {seen}
+        asked = ReqForCurrentTraj(TaskId(10**9, "d2", 9), "d2", Trajectory.stationary((7, 7, 0), step))
+        node.puts.clear()
+        agent._on_protocol(KEYS.proto("all"), encode("d2", 1000.0, from_core(asked)))
+        answer = to_core(decode(node.puts[-1][1]), "d2")
+        assert isinstance(answer, CurrentTraj) and set(answer.holds) == set(stack.protocol.holds())
+        with_mail = MailOrder(id="m2", pickup=[2, 2, 0], dropoff=[3, 5, 0], priority=5)
+        try:
+            agent.mail.take(with_mail)
+        except ProblemError as exc:
+            assert "its vehicle is lost" in str(exc)
+        else:
+            raise AssertionError("a drone whose vehicle is lost took mail")
+
+        back = plan.cells[-2]  # it held on along its plan, and is seen there
+        vehicle.lost, vehicle.seen_at, vehicle.cell = None, 2.0, back
+        agent.tick(step + 3)
+        assert "vehicle_lost" not in agent.alarms
+        assert (stack.executor.cell, stack.protocol.location, stack.protocol.holds()) == (back, back, ())
+        assert agent.mail.take(with_mail)
+
+    asyncio.run(scenario())
+
+
+def test_a_vehicle_back_outside_its_held_cells_leaves_its_drone_out_of_service() -> None:
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0, drones={"d1": (0, 0, 0)})
+
+    async def scenario() -> None:
+        vehicle = ScriptedVehicle()
+        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+        agent = DroneAgent(stack, RecordingNode(), KEYS, vehicle, GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
+        agent.tick(0)
+        vehicle.lost = "connection closed by the vehicle"
+        agent.tick(1)
+        vehicle.lost, vehicle.seen_at, vehicle.cell = None, 2.0, (5, 5, 0)  # in the air, far from its cell
+        agent.tick(2)
+        assert "not in a cell held for it" in agent.alarms["vehicle_lost"]
+        assert stack.protocol.holds() != ()  # still held where it may be
+        assert agent.mail.refusal is not None and "land it by hand" in agent.mail.refusal
+
+    asyncio.run(scenario())

@@ -31,10 +31,12 @@ from drona_gcs.stack.protocol import (
     PeerJoined,
     PeerLeft,
     PlanCompleted,
+    Relocated,
     Send,
     StartExecuting,
     State,
     TaskFailed,
+    VehicleLost,
 )
 from drona_gcs.workspace import Cell, Workspace
 from tests.stack_cluster import ProtocolCluster
@@ -79,10 +81,13 @@ def request(task_id: TaskId, sender: str, now: int = 0) -> ReqForCurrentTraj:
 
 
 # =========================================================== the state table
-EVENT_TYPES: tuple[type, ...] = (NewTask, PlanCompleted, PeerLeft, PeerJoined, ReqForCurrentTraj, CurrentTraj)
-#: What Protocol 1 takes in each state (paper section 3.1); the rest is a protocol violation.
+EVENT_TYPES: tuple[type, ...] = (NewTask, PlanCompleted, PeerLeft, PeerJoined, ReqForCurrentTraj, CurrentTraj,
+                                 VehicleLost, Relocated)
+#: What Protocol 1 takes in each state (paper section 3.1); the rest is a protocol violation. A vehicle
+#: found again is not placed while a round is under way (its request carried where it was).
 REJECTED = {(State.COORDINATING, NewTask), (State.EXECUTING, NewTask),
-            (State.WAIT_FOR_TASK, PlanCompleted), (State.COORDINATING, PlanCompleted)}
+            (State.WAIT_FOR_TASK, PlanCompleted), (State.COORDINATING, PlanCompleted),
+            (State.COORDINATING, Relocated)}
 
 
 def in_state(state: State) -> CoordinationProtocol:
@@ -104,6 +109,8 @@ def sample(event_type: type) -> Event:
         PeerJoined: PeerJoined("c", C),
         ReqForCurrentTraj: request(ID_B_LOW, "b"),
         CurrentTraj: CurrentTraj("b", location_of("b"), ID_A),
+        VehicleLost: VehicleLost(1, A),
+        Relocated: Relocated((1, 0, 0)),
     }
     return samples[event_type]
 
@@ -592,3 +599,37 @@ def test_an_observed_stamp_makes_later_ids_rank_below_it() -> None:
     assert later > seen and later > TaskId(seen.stamp, "zzz", 10**6)
     b.observe(3)  # an older stamp does not pull the clock back
     assert b.next_id(0) > later
+
+
+# ============================================================ a lost vehicle
+def test_a_drone_whose_vehicle_is_lost_holds_the_rest_of_its_plan_and_plans_nothing() -> None:
+    """Lost at step 4 of its plan, last seen in (1, 0): its vehicle may be anywhere on the rest of the
+    plan from then on. Its answers and requests say so; a task of its own finds no plan."""
+    proto = machine({"a": A, "b": B})
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    plan = started(proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0)).trajectory
+    assert proto.handle(VehicleLost(4, (1, 0, 0)), 4) == []
+    answer = proto.handle(request(ID_B_LOW, "b", 4), 4)
+    assert answer == [Send("b", CurrentTraj("a", plan, ID_B_LOW, ((1, 0, 0), A, *plan.suffix_from(4).cells)))]
+    assert set(answer[0].message.holds) == {A, (1, 0, 0), (2, 0, 0), (3, 0, 0), (4, 0, 0)}  # type: ignore[union-attr]
+
+    proto.handle(PlanCompleted(), plan.end_step)
+    actions = proto.handle(NewTask(Task(TaskId(20, "a", 2), (0, 3, 0))), 10)
+    assert actions[0] == Broadcast(ReqForCurrentTraj(TaskId(20, "a", 2), "a", plan, proto.holds()))
+    failed = proto.handle(CurrentTraj("b", location_of("b", 10), TaskId(20, "a", 2)), 10)
+    assert [type(a) for a in failed] == [TaskFailed] and "vehicle is lost" in failed[0].reason  # type: ignore[union-attr]
+
+    proto.handle(Relocated((2, 0, 0)), 11)
+    assert proto.holds() == () and proto.current_trajectory(11) == Trajectory.stationary((2, 0, 0), 11)
+
+
+def test_a_plan_avoids_every_cell_a_lost_peer_holds_for_good() -> None:
+    """b's vehicle is lost: the straight way from a to the goal crosses cells b holds, though b's own
+    trajectory (resting at B) never comes near. a plans around them, for good."""
+    proto = machine({"a": A, "b": B})
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    held = ((2, 0, 0), (2, 1, 0))
+    plan = started(proto.handle(CurrentTraj("b", location_of("b"), ID_A, held), 0))
+    assert not set(plan.trajectory.cells) & set(held)
+    assert check_trajectory(OPEN, plan.trajectory, {"hold": Trajectory.stationary((2, 0, 0), 0)}, 0) == []
+    assert manhattan(A, GOAL) < len(plan.trajectory.cells) - 1  # the detour

@@ -146,9 +146,10 @@ def test_ardupilot_guided_flight_over_tcp() -> None:
         assert hb.base_mode & ML.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
         assert {m.get_type() for m in drain(gcs, 0.3)} == {"HEARTBEAT"}  # stream rates are 0 until asked
 
-        # Before the position estimate: DO_SET_MODE is ACKed but the mode stays; arming fails with a reason.
+        # Before the position estimate, disarmed: GUIDED is taken (ArduCopter checks nothing while
+        # disarmed); arming fails with a reason.
         assert command(gcs, ML.MAV_CMD_DO_SET_MODE, 1, GUIDED) == ML.MAV_RESULT_ACCEPTED
-        assert mode_after(gcs) == STABILIZE
+        assert mode_after(gcs) == GUIDED
         assert command(gcs, ML.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ML.MAV_RESULT_FAILED
         assert "Need Position Estimate" in wait_for(gcs, "STATUSTEXT").text
 
@@ -159,8 +160,7 @@ def test_ardupilot_guided_flight_over_tcp() -> None:
         assert wait_for(gcs, "BATTERY_STATUS").battery_remaining == 100
         wait_for(gcs, "GPS_RAW_INT", 10, lambda m: m.fix_type >= 3)
 
-        assert command(gcs, ML.MAV_CMD_DO_SET_MODE, 1, GUIDED) == ML.MAV_RESULT_ACCEPTED
-        assert mode_after(gcs) == GUIDED
+        wait_for(gcs, "LOCAL_POSITION_NED", 5)  # with the estimate: the local position
         assert command(gcs, ML.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ML.MAV_RESULT_ACCEPTED
         assert wait_for(gcs, "HEARTBEAT").base_mode & ML.MAV_MODE_FLAG_SAFETY_ARMED
         assert command(gcs, ML.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 10) == ML.MAV_RESULT_ACCEPTED
@@ -194,7 +194,7 @@ def test_ardupilot_guided_flight_over_tcp() -> None:
 def test_ardupilot_command_rules_over_udp() -> None:
     base = free_udp_base(1)
     with ground_station(f"udpin:127.0.0.1:{base}") as gcs, \
-            sim_fleet(FleetConfig(vehicle=ardupilot(ready_after_s=0.0), base_port=base, speedup=10.0)):
+            sim_fleet(FleetConfig(vehicle=ardupilot(ready_after_s=0.001), base_port=base, speedup=10.0)):
         wait_for(gcs, "HEARTBEAT")
         takeoff = (ML.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 5)
         assert command(gcs, *takeoff) == ML.MAV_RESULT_FAILED  # disarmed, STABILIZE
@@ -223,12 +223,12 @@ def test_ardupilot_command_rules_over_udp() -> None:
 
 def test_ardupilot_refuses_to_arm_on_low_battery_and_disarms_itself() -> None:
     base = free_udp_base(1)
-    low = FleetConfig(vehicle=ardupilot(ready_after_s=0.0, battery_pct=10), base_port=base, speedup=10.0)
+    low = FleetConfig(vehicle=ardupilot(ready_after_s=0.001, battery_pct=10), base_port=base, speedup=10.0)
     with ground_station(f"udpin:127.0.0.1:{base}") as gcs, sim_fleet(low):
         wait_for(gcs, "HEARTBEAT")
         assert command(gcs, ML.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ML.MAV_RESULT_FAILED
         assert "Battery" in wait_for(gcs, "STATUSTEXT").text
-    idle = FleetConfig(vehicle=ardupilot(ready_after_s=0.0, auto_disarm_s=5.0), base_port=base, speedup=10.0)
+    idle = FleetConfig(vehicle=ardupilot(ready_after_s=0.001, auto_disarm_s=5.0), base_port=base, speedup=10.0)
     with ground_station(f"udpin:127.0.0.1:{base}") as gcs, sim_fleet(idle):
         wait_for(gcs, "HEARTBEAT")
         assert command(gcs, ML.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ML.MAV_RESULT_ACCEPTED
@@ -239,7 +239,7 @@ def test_ardupilot_refuses_to_arm_on_low_battery_and_disarms_itself() -> None:
 # ------------------------------------------------------------------ PX4
 def test_px4_offboard_needs_a_setpoint_stream() -> None:
     base = free_udp_base(1)
-    config = FleetConfig(vehicle=VehicleConfig(personality=PX4, ready_after_s=0.0), base_port=base, speedup=1.0)
+    config = FleetConfig(vehicle=VehicleConfig(personality=PX4, ready_after_s=0.001), base_port=base, speedup=1.0)
     with ground_station(f"udpin:127.0.0.1:{base}") as gcs, sim_fleet(config):
         hb = wait_for(gcs, "HEARTBEAT")
         assert (hb.autopilot, hb.custom_mode) == (ML.MAV_AUTOPILOT_PX4, AUTO_LOITER)
@@ -259,7 +259,7 @@ def test_px4_offboard_needs_a_setpoint_stream() -> None:
             received += drain(gcs, 0.1)
         gcs.mav.command_long_send(1, 1, *offboard[:1], 0, *offboard[1:], 0, 0, 0, 0)
         gcs.mav.command_long_send(1, 1, ML.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
-        for _ in range(20):  # keep streaming 2 s: it arms, switches and climbs to 3 m
+        for _ in range(30):  # keep streaming 3 s: it arms, switches, spools up (1 s) and climbs to 3 m
             setpoint()
             received += drain(gcs, 0.1)
         acks = {m.command: m.result for m in received if m.get_type() == "COMMAND_ACK"}
@@ -278,7 +278,7 @@ def test_px4_offboard_needs_a_setpoint_stream() -> None:
 # ------------------------------------------------------------------ signing
 def test_signing_ignores_unsigned_commands() -> None:
     base = free_udp_base(1)
-    config = FleetConfig(vehicle=ardupilot(ready_after_s=0.0), base_port=base, speedup=10.0, signing_key=SIGNING_KEY)
+    config = FleetConfig(vehicle=ardupilot(ready_after_s=0.001), base_port=base, speedup=10.0, signing_key=SIGNING_KEY)
     with ground_station(f"udpin:127.0.0.1:{base}") as gcs, sim_fleet(config):
         wait_for(gcs, "HEARTBEAT")
         gcs.mav.command_long_send(1, 1, ML.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
@@ -298,12 +298,14 @@ def test_cli_runs_two_vehicles_and_stops_on_sigterm(write_file: Callable[[str, s
     base = free_udp_base(2)
     with ground_station(f"udpin:127.0.0.1:{base}") as g1, ground_station(f"udpin:127.0.0.1:{base + 1}") as g2:
         proc = subprocess.Popen([sys.executable, "-m", "fleet.cli", "sim-vehicle", "--workspace", str(ws_file),
-                                 "--count", "2", "--base-port", str(base), "--speedup", "5"],
+                                 "--count", "2", "--base-port", str(base), "--speedup", "5", "--autopilot", "px4",
+                                 "--ready-after", "1"],
                                 cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         try:
             for gcs, sysid, cell in ((g1, 1, (1, 0, 0)), (g2, 2, (3, 2, 0))):
                 hb = wait_for(gcs, "HEARTBEAT", 10)
-                assert hb.get_srcSystem() == sysid
+                assert hb.get_srcSystem() == sysid  # PX4 SITL instances are systems 1, 2, ...
+                wait_for(gcs, "GPS_RAW_INT", 5, lambda m: m.fix_type >= 3)  # after its --ready-after
                 assert command(gcs, ML.MAV_CMD_REQUEST_MESSAGE, ML.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
                                target=sysid) == ML.MAV_RESULT_ACCEPTED
                 pos, want = wait_for(gcs, "GLOBAL_POSITION_INT"), frame.cell_to_global(cell)
@@ -350,7 +352,8 @@ def test_cli_serial_vehicles_say_their_device_and_answer_on_it() -> None:
                             cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
         lines = stderr_lines(proc, 2, 10)
-        for sysid, line in enumerate(lines, start=1):
+        sysid = 1  # every ArduPilot SITL instance is system 1: the link tells them apart
+        for line in lines:
             found = re.fullmatch(rf"drona sim-vehicle: system {sysid} \(ardupilot\) serial (/dev/\S+) at 115200 baud",
                                  line)
             assert found, line
@@ -500,7 +503,7 @@ def run_for(model: VehicleModel, now: float, seconds: float, dt: float = 0.1) ->
 
 
 def airborne_guided(model: VehicleModel, height: float) -> float:
-    now = 0.0
+    now = model.config.ready_s
     assert ack_of(model, now, ML.MAV_CMD_DO_SET_MODE, 1, GUIDED) == ML.MAV_RESULT_ACCEPTED
     assert ack_of(model, now, ML.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ML.MAV_RESULT_ACCEPTED
     assert ack_of(model, now, ML.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, height) == ML.MAV_RESULT_ACCEPTED
@@ -512,7 +515,7 @@ def test_model_global_setpoint_battery_rtl_and_charging(write_file: Callable[[st
                                    "geo_origin: {lat: 37.87, lon: -122.27, alt_m: 52}\n"
                                    "charging_stations: [[1, 1, 0]]\ndrones: {d1: [1, 1, 0]}\n"))
     (place,) = placements(ws, 1)
-    model = VehicleModel(ardupilot(ready_after_s=0.0), place, 0.0)
+    model = VehicleModel(ardupilot(ready_after_s=0.001), place, 0.0)
     now = airborne_guided(model, 10)
     assert model.body.height == pytest.approx(10, abs=0.25)
 
@@ -538,7 +541,7 @@ def test_model_global_setpoint_battery_rtl_and_charging(write_file: Callable[[st
 
 def test_model_velocity_setpoint_times_out_in_guided() -> None:
     (place,) = placements(None, 1)
-    model = VehicleModel(ardupilot(ready_after_s=0.0), place, 0.0)
+    model = VehicleModel(ardupilot(ready_after_s=0.001), place, 0.0)
     now = airborne_guided(model, 5)
     velocity_only = 0b110111000111
     deliver(model, GCS.set_position_target_local_ned_encode(0, 1, 1, ML.MAV_FRAME_LOCAL_NED, velocity_only,
@@ -552,12 +555,18 @@ def test_model_velocity_setpoint_times_out_in_guided() -> None:
 
 def test_model_px4_takeoff_default_height_then_loiter() -> None:
     (place,) = placements(None, 1)
-    model = VehicleModel(VehicleConfig(personality=PX4, ready_after_s=0.0), place, 0.0)
-    assert ack_of(model, 0.0, ML.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, math.nan) == ML.MAV_RESULT_TEMPORARILY_REJECTED
-    assert ack_of(model, 0.0, ML.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ML.MAV_RESULT_ACCEPTED
-    assert ack_of(model, 0.0, ML.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, math.nan) == ML.MAV_RESULT_ACCEPTED
+    model = VehicleModel(VehicleConfig(personality=PX4, ready_after_s=0.001), place, 0.0)
+    assert ack_of(model, 1.0, ML.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, math.nan) == ML.MAV_RESULT_TEMPORARILY_REJECTED
+    assert ack_of(model, 1.0, ML.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ML.MAV_RESULT_ACCEPTED
+    # A take-off refused (its AMSL altitude below home) is refused with no effect: no mode change, no climb.
+    below_home = model.home_global.alt_m - 5
+    refused = ML.MAV_RESULT_TEMPORARILY_REJECTED
+    assert ack_of(model, 1.0, ML.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, below_home) == refused
+    run_for(model, 1.0, 3)
+    assert (model.mode, model.body.height, model.takeoff_point) == ("AUTO.LOITER", 0.0, None)
+    assert ack_of(model, 4.0, ML.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, math.nan) == ML.MAV_RESULT_ACCEPTED
     assert model.mode == "AUTO.TAKEOFF"
-    run_for(model, 0.0, 8)
+    run_for(model, 4.0, 8)
     assert model.mode == "AUTO.LOITER"
     assert model.body.height == pytest.approx(2.5, abs=0.3)
 
@@ -565,7 +574,7 @@ def test_model_px4_takeoff_default_height_then_loiter() -> None:
 @pytest.mark.parametrize("personality", [ARDUPILOT, PX4], ids=lambda p: p.name)
 def test_model_acks_every_command_even_with_nan_params(personality: Any) -> None:
     (place,) = placements(None, 1)
-    model = VehicleModel(VehicleConfig(personality=personality, ready_after_s=0.0), place, 0.0)
+    model = VehicleModel(VehicleConfig(personality=personality, ready_after_s=0.001), place, 0.0)
     for cmd in [*model._commands, ML.MAV_CMD_DO_FLIGHTTERMINATION]:
         assert ack_of(model, 1.0, cmd, *[math.nan] * 7) in (ML.MAV_RESULT_ACCEPTED, ML.MAV_RESULT_DENIED,
                                                              ML.MAV_RESULT_FAILED, ML.MAV_RESULT_UNSUPPORTED,

@@ -26,14 +26,17 @@ import pytest
 
 from drona_gcs.errors import DronaError, VehicleCommandRejected, VehicleError
 from drona_gcs.geo import GeoPoint, Ned
+from fleet.clock import cancel_all
 from fleet.sim.config import VehicleConfig
 from fleet.sim.fleet import FleetConfig, SimNode, placements, run_fleet
 from fleet.sim.mav import mavlink2
+from fleet.sim.model import VehicleModel
 from fleet.sim.personality import PERSONALITIES, Personality
 from fleet.sim.ports import free_port
 from fleet.sim.transport import PtyLink
-from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry, VehicleLink, not_ready
+from fleet.vehicle.link import Autopilot, LandedState, Position, Readiness, Telemetry, VehicleLink, not_ready, readiness
 from fleet.vehicle.mavlink_link import PymavlinkLink
+from fleet.vehicle.policy import in_air
 from fleet.vehicle.urls import DEFAULT_BAUD, LinkUrl, LinkUrlError, Scheme, parse_link_url
 
 SPEEDUP = 10.0
@@ -210,6 +213,35 @@ def test_connect_arm_take_off_follow_setpoints_and_land(backend: str, personalit
 
 
 @backends
+def test_arducopter_gets_no_setpoint_from_arming_until_its_takeoff_is_over(backend: str) -> None:
+    """ArduCopter in GUIDED leaves its take-off for position control at the first setpoint, and then
+    stays on the ground. The agent's setpoint loop sends a target at every step boundary whatever the
+    vehicle does: the link must hold them back until the take-off is over (IN_AIR), then stream."""
+    async def scenario() -> None:
+        async with fake_vehicle("ardupilot", "udp") as fake, connected(backend, fake) as link:
+            await link.wait_ready(timeout=5)
+            await link.follow_setpoints()
+            target = Ned(3.0, 0.0, -6.0)
+
+            async def setpoint_loop() -> None:
+                while True:
+                    await link.send_position_target(target)
+                    await asyncio.sleep(0.05)
+
+            loop = asyncio.create_task(setpoint_loop())
+            try:
+                await link.arm()
+                await link.takeoff(6.0)
+                await link.wait_until(in_air, 5, "the end of the take-off")
+                assert (link.telemetry().height_m or 0.0) > 5.4
+                await link.wait_until(near(target, 0.3), 5, "the setpoint, once in the air")
+            finally:
+                await cancel_all([loop])
+
+    run(scenario)
+
+
+@backends
 @personalities
 def test_a_landing_given_up_before_its_confirmation_does_not_outlive_follow_setpoints(
         backend: str, personality: str) -> None:
@@ -287,7 +319,7 @@ def test_a_vehicle_that_reports_no_battery_level_is_not_ready() -> None:
 def test_arming_before_the_position_estimate_is_refused_with_the_reason(backend: str, personality: str) -> None:
     async def scenario() -> None:
         async with fake_vehicle(personality, "udp", ready_after_s=1000.0) as fake, connected(backend, fake) as link:
-            with pytest.raises(VehicleError, match="GPS fix"):
+            with pytest.raises(VehicleError, match="position"):  # no estimate yet
                 await link.wait_ready(timeout=0.3)
             with pytest.raises(VehicleCommandRejected) as refused:
                 await link.arm()
@@ -299,10 +331,30 @@ def test_arming_before_the_position_estimate_is_refused_with_the_reason(backend:
 
 
 @backends
-def test_a_mode_change_acked_but_not_taken_is_a_rejection(backend: str) -> None:
-    """ArduCopter ACKs GUIDED before its position estimate and stays in STABILIZE."""
+def test_before_its_position_estimate_arducopter_takes_guided_but_the_vehicle_waits_for_its_position(
+        backend: str) -> None:
+    """As ArduCopter SITL V4.7 does, disarmed: GUIDED is taken at once (the next HEARTBEAT says so), yet
+    arming is refused; the link says the vehicle waits for its position, not that it is broken."""
     async def scenario() -> None:
         async with fake_vehicle("ardupilot", "tcp", ready_after_s=1000.0) as fake, connected(backend, fake) as link:
+            await link.set_mode("GUIDED")
+            assert link.telemetry().mode == "GUIDED"
+            with pytest.raises(VehicleCommandRejected, match="Need Position Estimate"):
+                await link.arm()
+            await link.wait_until(lambda t: t.gps_fix > 0 or t.position_ok is not None, 5, "the EKF's word")
+            assert readiness(link.telemetry()) is Readiness.WAITING_FOR_POSITION
+
+    run(scenario)
+
+
+@backends
+def test_a_mode_change_acked_but_not_taken_is_a_rejection(backend: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """An autopilot that ACKs a mode change and stays where it was (older ArduCopter did so before its
+    position estimate): the next HEARTBEATs decide, not the ACK."""
+    monkeypatch.setattr(VehicleModel, "_set_mode", lambda self, base, custom, now: mavlink2.MAV_RESULT_ACCEPTED)
+
+    async def scenario() -> None:
+        async with fake_vehicle("ardupilot", "tcp") as fake, connected(backend, fake) as link:
             with pytest.raises(VehicleCommandRejected, match="stayed in STABILIZE") as refused:
                 await link.set_mode("GUIDED")
             assert refused.value.result == mavlink2.MAV_RESULT_ACCEPTED

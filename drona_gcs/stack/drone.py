@@ -6,9 +6,16 @@ messages between drones travel through the network, where the runtime (the
 agent daemon or the systematic tester) may delay and reorder them.
 
 Inputs: :meth:`DroneStack.receive` (a peer's message), :meth:`assign`
-(mail), :meth:`peer_left` / :meth:`peer_joined` (membership) and :meth:`step`
-(a step boundary of the local clock, with the battery level). Outputs are
-the actions below, which the runtime carries out.
+(mail), :meth:`peer_left` / :meth:`peer_joined` (membership), :meth:`vehicle_lost`
+/ :meth:`vehicle_back`, and :meth:`step` (a step boundary of the local clock, with
+the battery level and the cell telemetry puts the vehicle in). Outputs are the
+actions below, which the runtime carries out.
+
+Only physical truth counts: a leg is over (a mail picked up, delivered) when
+telemetry puts the vehicle in the leg's goal cell, not when its plan ends. The
+plan's last step ends at the boundary after it; by :data:`CONFIRM_STEPS` more,
+the vehicle must have been seen there (in the cell: cells are what separation is
+judged in), or the leg did not happen (:class:`LegNotFlown`) and is tried again.
 """
 
 from __future__ import annotations
@@ -32,13 +39,37 @@ from drona_gcs.stack.protocol import (
     PeerJoined,
     PeerLeft,
     PlanCompleted,
+    Relocated,
     StartExecuting,
     State,
     TaskFailed,
+    VehicleLost,
 )
 from drona_gcs.workspace import Cell, Workspace
 
-DroneAction = ProtocolAction | Setpoint | Completed | MailAction | BatteryLow | BatteryRecharged
+#: Boundaries after a plan's end by which the vehicle must have been seen in its goal: one for the
+#: move into the cell, one more for a vehicle that trails by a cell (the lag alarm's tolerance).
+CONFIRM_STEPS = 2
+
+
+@dataclass(frozen=True)
+class Arrival:
+    """A plan ended at ``goal``; the leg counts once telemetry puts the vehicle there, by ``deadline``."""
+
+    goal: Cell
+    deadline: int
+
+
+@dataclass(frozen=True)
+class LegNotFlown:
+    """A plan ended, yet telemetry never put the vehicle in its goal: the leg did not happen."""
+
+    goal: Cell
+    seen: Cell | None  #: where telemetry put the vehicle last (None: in no cell)
+
+
+DroneAction = (ProtocolAction | Setpoint | Completed | MailAction | BatteryLow | BatteryRecharged
+               | LegNotFlown)
 
 
 @dataclass(frozen=True)
@@ -72,6 +103,7 @@ class DroneStack:
         self.mail = MailPlanner(start, ws.charging_stations, own_parking(ws.parking, list(peers), me),
                                 _distance_function(planner),
                                 config.battery, recharged_level=config.recharged_mark, bugs=config.bugs)
+        self.arrival: Arrival | None = None  #: a plan ended; waiting to see the vehicle at its goal
 
     # ------------------------------------------------------------ inputs
     @property
@@ -96,6 +128,21 @@ class DroneStack:
         runtime starts no new task meanwhile (``may_plan`` False at :meth:`step`)."""
         return list(self.mail.abandon(reason))
 
+    def vehicle_lost(self, since: int, seen: Cell, reason: str) -> list[DroneAction]:
+        """The vehicle stopped answering at step ``since``, last seen in ``seen``: the protocol holds
+        every cell it may be in (see CoordinationProtocol.holds), and the mail not on board is handed
+        back for other drones to fly. The runtime starts no task meanwhile."""
+        return [*self._protocol(VehicleLost(since, seen)), *self.mail.release(reason)]
+
+    def vehicle_back(self, cell: Cell, landed: bool) -> list[DroneAction]:
+        """The lost vehicle is back, seen in ``cell`` (``landed``: on the ground below it): the drone
+        rests there, with no plan; the mail stays as it was. Not while coordinating (the runtime waits)."""
+        actions = self._protocol(Relocated(cell))
+        self.executor.relocate(cell)
+        self.mail.relocate(cell, landed)
+        self.arrival = None
+        return actions
+
     def peer_left(self, drone: str, silent_since: int | None = None) -> list[DroneAction]:
         return self._protocol(PeerLeft(drone, silent_since))
 
@@ -106,19 +153,21 @@ class DroneStack:
     def peer_joined(self, drone: str, cell: Cell, trajectory: Trajectory | None = None) -> list[DroneAction]:
         return self._protocol(PeerJoined(drone, cell, trajectory))
 
-    def step(self, step: int, battery_level: float, physical_time: int = 0,
+    def step(self, step: int, battery_level: float, flown: Cell | None, physical_time: int = 0,
              may_plan: bool = True) -> list[DroneAction]:
         """Step boundary ``step``: move, feel the battery, then let the task planner decide.
 
-        With ``may_plan`` False (the runtime found the clock-skew bound broken)
-        no new task starts: the drone finishes what it flies and holds.
+        ``flown``: the cell telemetry puts the vehicle in now (None: in none), which ends the
+        last step. With ``may_plan`` False (the runtime found the clock-skew bound broken, or the
+        vehicle is not ready) no new task starts: the drone finishes what it flies and holds.
         """
         actions: list[DroneAction] = []
         for done in self.executor.tick(step):
             actions.append(done)
             if isinstance(done, Completed):
                 actions += self._protocol(PlanCompleted())
-                actions += self.mail.leg_done()
+                self.arrival = Arrival(done.trajectory.last, step + CONFIRM_STEPS)
+        actions += self._arrive(step, flown)
         for event in self.monitor.reading(battery_level):
             actions.append(event)
             if isinstance(event, BatteryLow):
@@ -134,6 +183,19 @@ class DroneStack:
                                 decided.flight_steps, hovering)
                     actions += self._protocol(NewTask(task))
         return actions
+
+    def _arrive(self, step: int, flown: Cell | None) -> list[DroneAction]:
+        """A leg is over when the vehicle is seen at its goal; past the deadline it did not happen."""
+        arrival = self.arrival
+        if arrival is None:
+            return []
+        if flown == arrival.goal:
+            self.arrival = None
+            return list(self.mail.leg_done())
+        if step < arrival.deadline:
+            return []
+        self.arrival = None
+        return [LegNotFlown(arrival.goal, flown), *self.mail.leg_not_flown(step)]
 
     @property
     def landed(self) -> bool:

@@ -63,6 +63,10 @@ class PlanExecutor:
                                     f"{list(self.cell)}")
         self.trajectory, self.state = trajectory, ExecutorState.EXECUTING
 
+    def relocate(self, cell: Cell) -> None:
+        """The vehicle is in ``cell`` (found there after it was lost): hold it, with no trajectory."""
+        self.cell, self.state, self.trajectory = cell, ExecutorState.HOLDING, None
+
     def tick(self, step: int) -> list[ExecutorAction]:
         """Take step boundary ``step`` (each exactly once, in order)."""
         if step != self.step + 1 and self.step >= 0:

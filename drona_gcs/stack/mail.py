@@ -54,6 +54,7 @@ from drona_gcs.workspace import Cell, Workspace
 
 #: distance(a, b): steps of the shortest static path from a to b (large if none).
 Distance = Callable[[Cell, Cell], int]
+MAX_MISSES = 3  #: plans to a pickup that end with the vehicle not there, before the mail is handed back
 
 
 def mail_cell_problem(workspace: Workspace, cell: Cell) -> tuple[str, str] | None:
@@ -173,6 +174,7 @@ class MailPlanner:
     goal_taken: bool = False  #: the leg under way goes to a cell another drone was known to rest on
     blocked: Cell | None = None  #: the goal of the failed leg, while it is believed taken
     backoff: int = 0  #: the back-off of retries towards cells believed taken, steps (0: none)
+    misses: int = 0  #: legs in a row whose plan ended with the vehicle not seen at the goal
 
     # ---------------------------------------------------------- inputs
     def assign(self, request: MailRequest) -> None:
@@ -199,6 +201,16 @@ class MailPlanner:
             self.current, self.carrying = None, False
         return handed
 
+    def release(self, reason: str) -> list[MailAction]:
+        """Hand back every mail not on board, most urgent first (the vehicle is lost: another drone
+        may fly them); mail on board stays. A leg to a pickup under way ends with no mail."""
+        handed: list[MailAction] = [MailRejected(r, reason) for r in sorted(self.queue, key=lambda r: r.rank)]
+        self.queue = []
+        if self.current is not None and not self.carrying:
+            handed.append(MailRejected(self.current, reason))
+            self.current = None
+        return handed
+
     def battery_low(self) -> None:
         self.low = True
 
@@ -211,7 +223,7 @@ class MailPlanner:
         """The protocol completed the current leg: we are at ``goal``."""
         if self.goal is None:
             raise ProtocolViolation(f"leg done while {self.phase.value}, with no leg under way")
-        self.cell, self.goal = self.goal, None
+        self.cell, self.goal, self.misses = self.goal, None, 0
         self.tried.clear()
         self.blocked, self.backoff = None, 0
         self.landed_here = self.cell in self.parking or self.cell in self.chargers
@@ -227,6 +239,34 @@ class MailPlanner:
         else:
             self.phase = Phase.IDLE
         return actions
+
+    def leg_not_flown(self, now: int) -> list[MailAction]:
+        """The plan ended but telemetry never put the vehicle at the goal: the leg did not happen. It
+        is tried again at once (the vehicle may only be late); a pickup missed :data:`MAX_MISSES`
+        times in a row is handed back, for another drone to fly. Mail on board stays on board."""
+        current, carrying = self.current, self.carrying
+        self.misses += 1
+        self.goal, self.phase, self.retry_at = None, Phase.IDLE, now
+        if current is None or carrying:
+            return []
+        self.current = None
+        if self.misses < MAX_MISSES:
+            self.queue.append(current)
+            return []
+        self.misses = 0
+        return [MailRejected(current, f"its vehicle never reached the pickup {list(current.pickup)} "
+                                      f"({MAX_MISSES} plans flown, none seen there)")]
+
+    def relocate(self, cell: Cell, landed: bool) -> None:
+        """The vehicle was lost and is back in ``cell``: a leg under way is over (not flown), the
+        mail stays as it was (on board, or in the queue), and the next decision starts from here."""
+        self.cell, self.goal, self.landed_here, self.retry_at = cell, None, landed, 0
+        if self.current is not None and not self.carrying:
+            self.queue.append(self.current)
+            self.current = None
+        if self.phase is not Phase.CHARGING:
+            self.phase = Phase.IDLE
+        self.tried.clear()
 
     def leg_failed(self, now: int) -> None:
         """No plan was found: land here and try again a little later, from the ground."""

@@ -72,12 +72,14 @@ class ReqForCurrentTraj:
     """Protocol 1: ``sender`` coordinates task ``task_id`` and asks for everyone's trajectory.
 
     ``trajectory`` is our addition: the sender's current trajectory, which a drone before it in
-    line takes as its answer (see :mod:`drona_gcs.stack.protocol`).
+    line takes as its answer (see :mod:`drona_gcs.stack.protocol`); so is ``holds``.
     """
 
     task_id: TaskId
     sender: str
     trajectory: Trajectory
+    #: cells the sender's vehicle may be in for good, its trajectory aside (its vehicle is lost)
+    holds: tuple[Cell, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -85,12 +87,14 @@ class CurrentTraj:
     """Protocol 1: ``sender``'s current trajectory, answering request ``in_reply_to``.
 
     ``in_reply_to`` is our addition: a reply to an older request (delayed or
-    duplicated on the network) is recognised and dropped, never planned with.
+    duplicated on the network) is recognised and dropped, never planned with. So is
+    ``holds``: cells the sender's vehicle may be in for good, besides its trajectory (lost).
     """
 
     sender: str
     trajectory: Trajectory
     in_reply_to: TaskId
+    holds: tuple[Cell, ...] = ()
 
     def __post_init__(self) -> None:
         if not self.trajectory.cells:

@@ -50,6 +50,13 @@ settled here, and one message it sends is saved (the second point):
   safety first. Since it may have stopped anywhere along the rest of its
   last known trajectory, every cell of that rest is held for good. ``PeerJoined``
   (again) makes it a peer; if I am coordinating, I ask it too.
+* **My vehicle can be lost** (its link closed or silent). It may then be anywhere on
+  my trajectory from when it was last seen, or where it was seen: I keep answering with
+  my trajectory and also name those cells (``holds``), which every peer holds for good
+  in the Psi of its next plans; I plan nothing meanwhile (a task fails at once). Once
+  the vehicle is back and seen in a cell, I rest there with no plan (``Relocated``):
+  the holds end with the next answers I give. Plans made before the loss avoided only my
+  trajectory: what a vehicle does while nobody hears it is beyond any protocol.
 * **No plan found:** I stay where I am, answer my pending peers with my
   location, and report ``TaskFailed`` so the task planner retries or
   reassigns the task. Nothing is dropped.
@@ -112,7 +119,23 @@ class PeerJoined:
         return self.trajectory if self.trajectory is not None else Trajectory.stationary(self.cell, now)
 
 
-Event = NewTask | PlanCompleted | PeerLeft | PeerJoined | ReqForCurrentTraj | CurrentTraj
+@dataclass(frozen=True)
+class VehicleLost:
+    """My vehicle stopped answering at step ``since``; it was last seen in ``seen``."""
+
+    since: int
+    seen: Cell
+
+
+@dataclass(frozen=True)
+class Relocated:
+    """My vehicle is back and seen in ``cell`` (or landed below it): I rest there, with no plan."""
+
+    cell: Cell
+
+
+Event = (NewTask | PlanCompleted | PeerLeft | PeerJoined | ReqForCurrentTraj | CurrentTraj | VehicleLost
+         | Relocated)
 
 
 # ----------------------------------------------------------------- actions
@@ -161,6 +184,8 @@ class CoordinationProtocol:
     pending: dict[str, TaskId] = field(default_factory=dict)  #: R_pend, with their task ids
     ghosts: dict[str, Trajectory] = field(default_factory=dict)  #: departed drones, kept as obstacles
     known: dict[str, Trajectory] = field(default_factory=dict)  #: last trajectory heard of each peer
+    lost: VehicleLost | None = None  #: my vehicle is lost: what I hold besides my trajectory
+    peer_holds: dict[str, tuple[Cell, ...]] = field(default_factory=dict)  #: what this round's answers hold
 
     def __post_init__(self) -> None:
         self.members = set(self.peers) - {self.me}
@@ -193,6 +218,16 @@ class CoordinationProtocol:
             return self.trajectory
         return Trajectory.stationary(self.location, now)
 
+    def holds(self) -> tuple[Cell, ...]:
+        """Cells my lost vehicle may be in, besides my trajectory: the rest of my plan from when it
+        was last seen, where it was seen, and where I rest (none while my vehicle answers)."""
+        if self.lost is None:
+            return ()
+        cells = [self.lost.seen, self.location]
+        if self.trajectory is not None:
+            cells += self.trajectory.suffix_from(self.lost.since).cells
+        return tuple(dict.fromkeys(cells))
+
     def ghost_obstacles(self, sparing: Cell | None = None) -> dict[str, Trajectory]:
         """Departed drones, for planning. One that left in the middle of a plan may have stopped
         anywhere along the rest of it (its agent died; its autopilot holds), so every cell of that
@@ -215,19 +250,19 @@ class CoordinationProtocol:
     def _on_new_task(self, event: NewTask, now: int) -> list[Action]:
         self.task, self.state = event.task, State.COORDINATING
         if "stale-trajectory" not in self.bugs:  # the seeded bug keeps last round's answers
-            self.received = {}
+            self.received, self.peer_holds = {}, {}
         self.pending = {}
         actions: list[Action] = [Broadcast(self._request(now))]
         return actions + self._plan_if_ready(now)
 
     def _request(self, now: int) -> ReqForCurrentTraj:
         assert self.task is not None
-        return ReqForCurrentTraj(self.task.id, self.me, self.current_trajectory(now))
+        return ReqForCurrentTraj(self.task.id, self.me, self.current_trajectory(now), self.holds())
 
     def _answer(self, event: ReqForCurrentTraj, now: int) -> list[Action]:
         if event.sender == self.me:
             return []
-        return [Send(event.sender, CurrentTraj(self.me, self.current_trajectory(now), event.task_id))]
+        return [Send(event.sender, CurrentTraj(self.me, self.current_trajectory(now), event.task_id, self.holds()))]
 
     def _on_request_while_coordinating(self, event: ReqForCurrentTraj, now: int) -> list[Action]:
         assert self.task is not None
@@ -239,6 +274,7 @@ class CoordinationProtocol:
             if event.sender not in self.members:
                 return self._answer(event, now)  # my request may not have reached it
             # It plans before me, and takes my request (which went to every member) as my answer.
+            self.peer_holds.pop(event.sender, None)
             if self.received.pop(event.sender, None) is not None:
                 # What it told me is about to change. Ask again.
                 return [Send(event.sender, self._request(now))]
@@ -248,6 +284,7 @@ class CoordinationProtocol:
             return []
         # It waits for my plan, so the trajectory its request carries is its answer.
         self.received[event.sender] = self.known[event.sender] = event.trajectory
+        self.peer_holds[event.sender] = event.holds
         return self._plan_if_ready(now)
 
     def _outranks(self, theirs: TaskId, mine: TaskId) -> bool:
@@ -259,6 +296,7 @@ class CoordinationProtocol:
             return []  # an answer to an older request, or from a drone that left
         self.received[event.sender] = event.trajectory
         self.known[event.sender] = event.trajectory
+        self.peer_holds[event.sender] = event.holds
         return self._plan_if_ready(now)
 
     def _ignore(self, event: Event, now: int) -> list[Action]:
@@ -279,6 +317,7 @@ class CoordinationProtocol:
         silent = now if event.silent_since is None else min(now, event.silent_since)
         self.ghosts[event.drone] = last.suffix_from(silent - self.lead_steps)
         self.pending.pop(event.drone, None)
+        self.peer_holds.pop(event.drone, None)
         return self._plan_if_ready(now) if self.state is State.COORDINATING else []
 
     def _on_peer_joined(self, event: PeerJoined, now: int) -> list[Action]:
@@ -292,16 +331,28 @@ class CoordinationProtocol:
             return [Send(event.drone, self._request(now))]
         return []
 
+    def _on_vehicle_lost(self, event: VehicleLost, now: int) -> list[Action]:
+        self.lost = event
+        return []
+
+    def _on_relocated(self, event: Relocated, now: int) -> list[Action]:
+        self.location, self.trajectory, self.task, self.lost = event.cell, None, None, None
+        self.state = State.WAIT_FOR_TASK
+        return []
+
     # ------------------------------------------------------------- planning
     def _plan_if_ready(self, now: int) -> list[Action]:
         if not self.members.issubset(self.received):
             return []
         assert self.task is not None
         task = self.task
-        psi = {**self.ghost_obstacles(sparing=self.location), **{p: self.received[p] for p in self.members}}
+        psi = {**self.ghost_obstacles(sparing=self.location), **self._held_by_peers(now),
+               **{p: self.received[p] for p in self.members}}
         start_step = now + self.lead_steps
         max_length = task.max_length(start_step)
         try:
+            if self.lost is not None:
+                raise NoPlanFound("my vehicle is lost")
             if max_length is not None and max_length < 0:
                 raise NoPlanFound("the battery no longer affords the task")
             plan = self.plan(self.location, task.goal, start_step, psi, max_length)
@@ -313,9 +364,15 @@ class CoordinationProtocol:
         self.trajectory, self.state = plan.trajectory, State.EXECUTING
         return [StartExecuting(task, plan.trajectory, psi), *self._release_pending(plan.trajectory)]
 
+    def _held_by_peers(self, now: int) -> dict[str, Trajectory]:
+        """The cells this round's answers hold besides their trajectories, as obstacles for good."""
+        return {f"{peer}~{i}": Trajectory.stationary(cell, now) for peer, cells in self.peer_holds.items()
+                if peer in self.members for i, cell in enumerate(cells)}
+
     def _release_pending(self, trajectory: Trajectory) -> Iterable[Action]:
         pending, self.pending = self.pending, {}
-        return [Send(peer, CurrentTraj(self.me, trajectory, task_id)) for peer, task_id in pending.items()]
+        holds = self.holds()
+        return [Send(peer, CurrentTraj(self.me, trajectory, task_id, holds)) for peer, task_id in pending.items()]
 
 
 # Handlers take (protocol, event of the row's type, now); Callable[..., ...] since each takes its own type.
@@ -330,12 +387,15 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         CurrentTraj: CoordinationProtocol._ignore,
         PeerLeft: CoordinationProtocol._on_peer_left,
         PeerJoined: CoordinationProtocol._on_peer_joined,
+        VehicleLost: CoordinationProtocol._on_vehicle_lost,
+        Relocated: CoordinationProtocol._on_relocated,
     },
     State.COORDINATING: {
         ReqForCurrentTraj: CoordinationProtocol._on_request_while_coordinating,
         CurrentTraj: CoordinationProtocol._on_reply,  # -> EXECUTING, or WAIT_FOR_TASK if no plan
         PeerLeft: CoordinationProtocol._on_peer_left,
         PeerJoined: CoordinationProtocol._on_peer_joined,
+        VehicleLost: CoordinationProtocol._on_vehicle_lost,  # the round ends in no plan
     },
     State.EXECUTING: {
         ReqForCurrentTraj: CoordinationProtocol._answer,  # with my trajectory
@@ -343,5 +403,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PlanCompleted: CoordinationProtocol._on_completed,  # -> WAIT_FOR_TASK
         PeerLeft: CoordinationProtocol._on_peer_left,
         PeerJoined: CoordinationProtocol._on_peer_joined,
+        VehicleLost: CoordinationProtocol._on_vehicle_lost,
+        Relocated: CoordinationProtocol._on_relocated,  # -> WAIT_FOR_TASK
     },
 }

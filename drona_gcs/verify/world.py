@@ -266,7 +266,8 @@ class World:
         self.battery[drone] = self._battery_after_step(stack, self.battery[drone])
         self.monitors.battery(drone, step, self.battery[drone])
         self.trace.append(f"{drone} steps to {step} (battery {self.battery[drone]:.0f})")
-        self._carry_out(drone, stack.step(step, self.battery[drone]))
+        # The model's vehicles fly their plans exactly: each is where its last step took it.
+        self._carry_out(drone, stack.step(step, self.battery[drone], flown=stack.executor.cell))
         self.monitors.position(drone, step, stack.executor.cell, self.steps)
         if self.injected == len(self.config.requests):
             self.monitors.liveness(min(self.steps.values()) - self.last_injection_step)

@@ -18,30 +18,32 @@ Membership is Zenoh liveliness: a peer whose token goes is the protocol's
 peers not alive are marked left, so nobody waits for a drone that never came.
 
 Mail orders, cancellations, progress and the heir's adoption of a departed
-peer's mail live in :mod:`fleet.agent.maildesk`.
+peer's mail live in :mod:`fleet.agent.maildesk`; what the agent knows of its
+vehicle (ready, lost, back) in :mod:`fleet.agent.watch`. A drone takes tasks only
+while its vehicle is ready, answering, and placed where the stack holds it.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
-import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TextIO
 
 from drona_gcs.geo import GeoFrame
-from drona_gcs.motion import Trajectory
 from drona_gcs.stack.battery import BatteryLow, BatteryRecharged
-from drona_gcs.stack.drone import DroneAction, DroneStack
+from drona_gcs.stack.drone import DroneAction, DroneStack, LegNotFlown
 from drona_gcs.stack.mail import GoTo, MailDelivered, MailLost, MailPickedUp, MailRejected, MailStarted
-from drona_gcs.stack.messages import CurrentTraj, TaskId
+from drona_gcs.stack.messages import CurrentTraj
 from drona_gcs.stack.protocol import Broadcast, Send, StartExecuting, State, TaskFailed
 from drona_gcs.workspace import Cell, Workspace
 from fleet.agent.clocksync import ClockCheck, OffsetSample
 from fleet.agent.maildesk import MailDesk
+from fleet.agent.outbox import Answers, coalesced, urgency
 from fleet.agent.vehicle import VehicleSupervisor
-from fleet.executor import StepReport
+from fleet.agent.watch import Seen, VehicleWatch, Verdict, record_line
+from fleet.executor import SetpointLoop, StepReport
 from fleet.transport.keys import FleetKeys
 from fleet.transport.node import Query, ZenohNode
 from fleet.transport.wire import (
@@ -62,7 +64,8 @@ from fleet.transport.wire import (
     from_core,
     to_core,
 )
-from fleet.vehicle.link import VehicleLink
+from fleet.vehicle.link import Readiness, VehicleLink, not_ready
+from fleet.vehicle.policy import DEFAULT_TIMEOUTS, Timeouts
 
 log = logging.getLogger(__name__)
 
@@ -81,7 +84,8 @@ class Metrics:
 
 class DroneAgent:
     def __init__(self, stack: DroneStack, node: ZenohNode, keys: FleetKeys, link: VehicleLink,
-                 frame: GeoFrame, clock: Callable[[], float], record: TextIO | None = None) -> None:
+                 frame: GeoFrame, clock: Callable[[], float], record: TextIO | None = None,
+                 timeouts: Timeouts = DEFAULT_TIMEOUTS) -> None:
         self.me, self.stack, self.node, self.keys = stack.me, stack, node, keys
         self.link, self.frame, self.clock, self.record = link, frame, clock, record
         self.ws: Workspace = stack.config.workspace
@@ -90,7 +94,13 @@ class DroneAgent:
         self.alarms: dict[str, str] = {}
         self.vehicle = VehicleSupervisor(
             self.me, link, frame.layer_height_m(stack.executor.cell[2]), lambda text: self._alarm("vehicle", text),
-            target=lambda: frame.cell_to_ned(stack.executor.cell), arrival_m=ARRIVAL_FRACTION * self.ws.cell_size_m)
+            target=lambda: frame.cell_to_ned(stack.executor.cell), arrival_m=ARRIVAL_FRACTION * self.ws.cell_size_m,
+            timeouts=timeouts)
+        self.watch = VehicleWatch(link, frame)
+        self.setpoints: SetpointLoop | None = None  #: this drone's setpoint loop (set by the host)
+        #: why the drone takes no task until its agent is restarted (its vehicle is not where it is held)
+        self.out_of_service: str | None = None
+        self.placed = False  #: its vehicle was seen at its start cell (checked once it has a position)
         self.alive: set[str] = set()
         self.actual: Cell | None = None
         self.battery_pct = 100.0
@@ -138,30 +148,88 @@ class DroneAgent:
 
     # ------------------------------------------------------ step boundary
     def tick(self, step: int) -> Sequence[object]:
-        """The setpoint loop's boundary: the whole stack steps (executor, battery, task planner)."""
+        """The setpoint loop's boundary: the vehicle judged, then the whole stack steps (executor, battery,
+        task planner) with the cell telemetry puts the vehicle in."""
+        self._watch_vehicle(step)
         level = self._battery()
-        actions = self.stack.step(step, level, may_plan=self.may_plan and self.mail.accepting and not self.down)
+        actions = self.stack.step(step, level, self.watch.flown(), may_plan=self._may_plan())
         self._carry_out(actions)
         return actions
 
+    def _may_plan(self) -> bool:
+        self.mail.refusal = self._refusal()
+        return self.may_plan and self.mail.accepting and self.mail.refusal is None
+
+    def _refusal(self) -> str | None:
+        """Why this drone takes no mail and starts no task now (None: it may)."""
+        if self.down:
+            return "its vehicle came down by itself"
+        if self.out_of_service is not None:
+            return self.out_of_service
+        readiness = self.watch.readiness()
+        if readiness is Readiness.LOST:
+            return "its vehicle is lost"
+        if readiness is not Readiness.READY:
+            return f"its vehicle is not ready: {not_ready(self.link.telemetry())}"
+        return None if self.placed else "its vehicle has not been placed yet"
+
+    # ------------------------------------------------------------- vehicle
+    def _watch_vehicle(self, step: int) -> None:
+        """Lost, back, placed: what the vehicle did since the last boundary, and what the drone does about it."""
+        protocol = self.stack.protocol
+        verdict = self.watch.boundary(step, protocol.holds(), placeable=protocol.state is not State.COORDINATING)
+        if verdict.seen is Seen.LOST:
+            self._lost(step, verdict)
+        elif verdict.seen is Seen.BACK:
+            self._back(verdict)
+        elif verdict.seen is Seen.BACK_ELSEWHERE:
+            self.out_of_service = f"{verdict.reason}: land it by hand, then restart its agent"
+            log.error("%s: %s", self.me, self.out_of_service)
+            self._alarm("vehicle_lost", f"vehicle_lost: {self.out_of_service}")
+        if not self.placed and not self.watch.lost and self.watch.readiness() is Readiness.READY:
+            self._place()
+
+    def _lost(self, step: int, verdict: Verdict) -> None:
+        seen = self.watch.last_seen or self.stack.executor.cell
+        log.warning("%s: vehicle lost (%s): holding every cell it may be in, taking no task", self.me, verdict.reason)
+        self._alarm("vehicle_lost", f"vehicle_lost: {verdict.reason}")
+        self.vehicle.pause(True)
+        if self.setpoints is not None:
+            self.setpoints.suspend(True)
+        self._carry_out(self.stack.vehicle_lost(step, seen, f"drone {self.me}'s vehicle is lost"))
+
+    def _back(self, verdict: Verdict) -> None:
+        assert verdict.cell is not None
+        where = "landed below" if verdict.landed else "in"
+        log.warning("%s: vehicle back, %s %s: it rests there", self.me, where, list(verdict.cell))
+        self._alarm("vehicle_lost", None)
+        self._carry_out(self.stack.vehicle_back(verdict.cell, verdict.landed))
+        self.vehicle.pause(False, airborne=not verdict.landed)
+        if self.setpoints is not None:
+            self.setpoints.suspend(False)
+
+    def _place(self) -> None:
+        """Checked once the vehicle is located (see VehicleWatch.misplaced): judged once, for good."""
+        self.placed = True
+        self.out_of_service = self.watch.misplaced(self.stack.executor.cell)
+        if self.out_of_service is not None:
+            log.error("%s: %s", self.me, self.out_of_service)
+            self._alarm("placement", f"placement: {self.out_of_service}")
+
     def on_step(self, report: StepReport, actions: Sequence[object]) -> None:
         """After the boundary's setpoints went out: judge the vehicle, record it, publish the state."""
-        self.actual = self.actual_cell()
+        self.actual = self.watch.recorded_cell()
         if self.actual is None:
             log.debug("%s: no cell at step %d: position %s", self.me, report.step, self.link.last_position())
         if self.record is not None and self.actual is not None:
-            # At boundary k the vehicle should be where step k - 1 took it.
-            self.record.write(f'{{"step": {report.step - 1}, "drone": "{self.me}", '
-                              f'"cell": [{self.actual[0]}, {self.actual[1]}, {self.actual[2]}], '
-                              f'"delta": {self.delta}}}\n')
-        if not self.down and self.vehicle.grounded_by_itself():
+            self.record.write(record_line(report.step - 1, self.me, self.actual, report.planned, self.delta))
+        if not self.down and not self.watch.lost and self.vehicle.grounded_by_itself():
             self.down = True
             self.mail.refusal = "its vehicle came down by itself"
             where = f"in {list(self.actual)}" if self.actual is not None else "outside the grid"
             log.warning("%s: the vehicle came down by itself %s: its mail is handed back", self.me, where)
             self._carry_out(self.stack.vehicle_down(f"drone {self.me}'s vehicle came down by itself {where}"))
-        lagging = report.lagging and self.vehicle.settled and not self.down
-        self._alarm("lag", f"vehicle {report.error_m:.1f} m from its cell" if lagging else None)
+        self._alarm("lag", self._lag(report))
         self._alarm("down", "vehicle: came down while its plan flew (a failsafe or a pilot?); its mail was handed "
                     "back and it starts no task; restart its agent once it is back in service" if self.down else None)
         self._alarm("behind", f"catching up (a stall, or a vehicle too slow at a turn): {report.behind} "
@@ -173,25 +241,20 @@ class DroneAgent:
         # Half a period later: at the boundary every drone of the fleet is busy, and answers come first.
         self.publish_state_soon(self.ws.tau_s / 2)
 
+    def _lag(self, report: StepReport) -> str | None:
+        """Trailing its timed trajectory, or on the ground while its plan flies: the separation argument
+        assumes every drone is where its plan says."""
+        if self.down or self.watch.lost:
+            return None
+        if self.stack.executor.flying and not self.vehicle.settled:
+            return "lag: vehicle not in the air while its plan flies"
+        return f"lag: vehicle {report.error_m:.1f} m from its cell" if report.lagging and self.vehicle.settled else None
+
     def _battery(self) -> float:
         pct = self.link.telemetry().battery_pct
         if pct is not None:
             self.battery_pct = float(pct)
         return self.battery_pct
-
-    def actual_cell(self) -> Cell | None:
-        """Where telemetry puts the vehicle; landed (below the grid) it is in its cell's column."""
-        position = self.link.last_position()
-        if position is None:
-            return None
-        fix = self.frame.locate(position.ned)
-        if fix.cell is not None:
-            return fix.cell
-        east, north = position.ned.east, position.ned.north
-        size = self.ws.cell_size_m
-        cell = (math.floor(east / size), math.floor(north / size), 0)
-        below = -position.ned.down < self.ws.geo.layer0_alt_m
-        return cell if below and self.ws.in_bounds(cell) else None
 
     # -------------------------------------------------------------- actions
     def _carry_out(self, actions: Sequence[DroneAction]) -> None:
@@ -200,7 +263,7 @@ class DroneAgent:
         # announcement) goes out once the work at hand is done: at a step boundary the process's
         # other drones send their requests first.
         # Mostly one answer, or nothing: a process hands every request of a burst to each of its drones.
-        ordered = _coalesced(sorted(actions, key=_urgency)) if len(actions) > 1 else actions
+        ordered = coalesced(sorted(actions, key=urgency)) if len(actions) > 1 else actions
         told_everyone = False  # a new plan went to every drone with its answers: no announcement needed
         for action in ordered:
             if isinstance(action, Send):
@@ -210,15 +273,21 @@ class DroneAgent:
                 self._send(self.keys.proto(BROADCAST), from_core(action.message),
                            copies=len(self.stack.protocol.members))
             elif isinstance(action, Answers):
-                self._send(self.keys.answers(), answers(action.trajectory, action.replies),
+                self._send(self.keys.answers(), answers(action.trajectory, action.replies, action.holds),
                            copies=len(action.replies))
                 told_everyone = True
             elif isinstance(action, GoTo):
                 self.task_since = self.clock()
             elif isinstance(action, StartExecuting):
+                self._alarm("leg", None)  # trying again (or a new leg)
                 self._started(action, announce=not told_everyone)
             elif isinstance(action, TaskFailed):
                 log.warning("%s: no plan for task %s: %s", self.me, action.task.id, action.reason)
+            elif isinstance(action, LegNotFlown):
+                seen = "in no cell" if action.seen is None else f"in {list(action.seen)}"
+                text = f"leg_not_flown: the plan ended at {list(action.goal)}, telemetry put the vehicle {seen}"
+                log.warning("%s: %s", self.me, text)
+                self._alarm("leg", text)
             elif isinstance(action, (MailStarted, MailPickedUp, MailDelivered, MailRejected, MailLost)):
                 asyncio.get_running_loop().call_soon(self.mail.progress, action)
             elif isinstance(action, (BatteryLow, BatteryRecharged)):
@@ -337,7 +406,8 @@ class DroneAgent:
             health=Health(ok=not alarms, alarms=alarms),
             clock_offset_s={p: round(s.offset_s, 6) for p, s in sorted(self.clocks.peers.items())},
             plans=self.metrics.plans, messages_sent=self.metrics.messages_sent,
-            coordination_ms=round(self.metrics.latencies_s[-1] * 1000, 3) if self.metrics.latencies_s else None)
+            coordination_ms=round(self.metrics.latencies_s[-1] * 1000, 3) if self.metrics.latencies_s else None,
+            vehicle=self.watch.view())
 
     def publish_state(self) -> None:
         self._state_scheduled = False
@@ -393,52 +463,3 @@ class DroneAgent:
     def busy(self) -> bool:
         """Flying a plan or coordinating one: not yet safe to leave."""
         return self.stack.protocol.state is not State.WAIT_FOR_TASK or self.stack.executor.flying
-
-
-@dataclass(frozen=True)
-class Answers:
-    """Several ``Send(CurrentTraj)`` with one trajectory, sent as one message on the fleet's
-    ``answers`` key (each drone answered takes its own)."""
-
-    trajectory: Trajectory
-    replies: dict[str, TaskId]  #: drone answered -> the request it answers
-
-
-#: Answers with one trajectory to at least this many drones go as one message to every drone.
-#: A new plan answers every drone that waited for it: when many coordinate at once (a fleet
-#: given mail together), one put instead of one per drone, and with drones sharing a session
-#: (``--shared-session``) one delivery per host. Drones that did not wait get it too (one decode
-#: each): it is the plan's announcement, and no other goes out.
-COALESCE_FROM = 2
-
-
-def _coalesced(actions: Sequence[DroneAction]) -> list[DroneAction | Answers]:
-    """``actions`` with the answers that share a trajectory joined into one :class:`Answers`, in
-    the place of the first of them (a drone answered twice, to two requests, keeps the second apart)."""
-    groups: dict[Trajectory, dict[str, TaskId]] = {}
-    for action in actions:
-        if isinstance(action, Send) and isinstance(action.message, CurrentTraj):
-            groups.setdefault(action.message.trajectory, {}).setdefault(action.to, action.message.in_reply_to)
-    if all(len(replies) < COALESCE_FROM for replies in groups.values()):
-        return list(actions)  # mostly: one answer, or none
-    out: list[DroneAction | Answers] = []
-    joined: set[Trajectory] = set()
-    for action in actions:
-        if isinstance(action, Send) and isinstance(action.message, CurrentTraj):
-            trajectory = action.message.trajectory
-            replies = groups[trajectory]
-            if len(replies) >= COALESCE_FROM and replies[action.to] == action.message.in_reply_to:
-                if trajectory not in joined:
-                    joined.add(trajectory)
-                    out.append(Answers(trajectory, replies))
-                continue
-        out.append(action)
-    return out
-
-
-def _urgency(action: DroneAction) -> int:
-    """Protocol messages (and the task's arrival time, which comes before its request), then a new
-    plan's bookkeeping, then the rest; a stable sort keeps the order within each."""
-    if isinstance(action, (GoTo, Send, Broadcast)):
-        return 0
-    return 1 if isinstance(action, StartExecuting) else 2

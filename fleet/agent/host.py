@@ -2,8 +2,10 @@
 
 Start-up, per drone and concurrently: open its own Zenoh session (or, with
 ``--shared-session``, one for the process that its drones share, each with its
-own declarations), connect its vehicle and wait until it is ready; then every
-drone joins the fleet.
+own declarations), connect its vehicle and give it ``ready_timeout_s`` to be
+ready; then every drone joins the fleet. A vehicle still not ready (ArduCopter
+SITL needs about 45 s for its position estimate) joins ``waiting_for_position``
+and takes no task until it is; its placement is checked once it has a position.
 Steps are counted on the process's clock from the fleet epoch.
 
 Shutdown (SIGINT or SIGTERM): no new mail or tasks; drones flying a plan
@@ -25,7 +27,7 @@ from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TextIO, TypeVar
 
-from drona_gcs.errors import DronaError
+from drona_gcs.errors import DronaError, VehicleError
 from drona_gcs.geo import GeoFrame
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.battery import BatteryModel
@@ -40,11 +42,13 @@ from fleet.transport.keys import FleetKeys, check_name
 from fleet.transport.node import ZenohNode, ZenohSettings, agent_endpoint
 from fleet.vehicle.link import VehicleLink
 from fleet.vehicle.mavlink_link import PymavlinkLink
+from fleet.vehicle.policy import Timeouts
 
 log = logging.getLogger(__name__)
 
 CLIMB_RATE_M_S = 1.5  #: a cautious take-off climb rate, for the default lead time
 ARM_AND_MODE_S = 2.0  #: mode change, arming and take-off command acknowledged
+SPOOL_UP_S = 4.0  #: an accepted take-off to leaving the ground (ArduCopter SITL: about 3.5 s)
 LANDING_BOUND_S = 30.0  #: at shutdown, how long the drones may take to land
 
 
@@ -84,8 +88,8 @@ def select_drones(settings: AgentSettings, workspace: Workspace) -> list[str]:
 
 
 def default_lead_steps(workspace: Workspace) -> int:
-    """Delta + 1, plus the steps a landed drone needs to climb into the grid."""
-    climb_s = ARM_AND_MODE_S + workspace.geo.layer0_alt_m / CLIMB_RATE_M_S
+    """Delta + 1, plus the steps a landed drone needs to take off and climb into the grid."""
+    climb_s = ARM_AND_MODE_S + SPOOL_UP_S + workspace.geo.layer0_alt_m / CLIMB_RATE_M_S
     return workspace.delta + 1 + math.ceil(climb_s / workspace.tau_s)
 
 
@@ -140,7 +144,7 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
         links = await _all_or_none([_connect(host, frame, name) for name in host.names], lambda link: link.close())
         for node, link, name in zip(nodes, links, host.names, strict=True):
             stack = DroneStack(name, config, ws.drones)
-            agent = DroneAgent(stack, node, keys, link, frame, host.clock, record)
+            agent = DroneAgent(stack, node, keys, link, frame, host.clock, record, timeouts(settings))
             agent.mail.adopt = settings.adopt_mail
             agent.lease_steps = math.ceil(settings.lease_s / ws.tau_s)
             host.agents.append(agent)
@@ -184,24 +188,43 @@ async def _all_or_none(starts: Sequence[Awaitable[T]], close: Callable[[T], Awai
 
 def _check_placement(agent: DroneAgent) -> None:
     """The stack starts the drone at its workspace start cell: its vehicle must be there (in that
-    column), or its first plan would fly it from elsewhere across cells nobody reserved."""
-    start, here = agent.stack.executor.cell, agent.actual_cell()
-    if here is None or here[:2] != start[:2]:
-        where = f"over cell {list(here)}" if here is not None else "outside the grid (or without a position)"
-        raise DronaError(f"drone {agent.me}: its vehicle is {where}, not at its start cell {list(start)}: "
-                         "bring it there, or give the workspace its cell")
+    column), or its first plan would fly it from elsewhere across cells nobody reserved. A vehicle
+    without a position yet is placed by its agent once it has one."""
+    start, here = agent.stack.executor.cell, agent.watch.recorded_cell()
+    if here is None:
+        return
+    if here[:2] != start[:2]:
+        raise DronaError(f"drone {agent.me}: its vehicle is over cell {list(here)}, not at its start cell "
+                         f"{list(start)}: bring it there, or give the workspace its cell")
+    agent.placed = True
+
+
+def timeouts(settings: AgentSettings) -> Timeouts:
+    return Timeouts(takeoff_start_s=settings.takeoff_timeout_s, command_s=settings.command_timeout_s)
+
+
+def open_link(settings: AgentSettings, url: str, frame: GeoFrame) -> VehicleLink:
+    """The vehicle link of ``--backend``: pymavlink (the default), or MAVSDK (the ``mavsdk`` extra)."""
+    hz, rate, limits = settings.telemetry_hz, settings.rate_hz, timeouts(settings)
+    if settings.backend == "mavsdk":
+        try:
+            from fleet.vehicle.mavsdk_link import MavsdkLink
+        except ImportError as exc:
+            raise DronaError(f"--backend mavsdk needs MAVSDK (pip install 'drona-gcs[mavsdk]'): {exc}") from exc
+        return MavsdkLink(url, frame=frame, stream_hz=hz, setpoint_hz=rate, timeouts=limits)
+    return PymavlinkLink(url, frame=frame, stream_hz=hz, setpoint_hz=rate, timeouts=limits)
 
 
 async def _connect(host: Host, frame: GeoFrame, name: str) -> VehicleLink:
     settings, ws = host.settings, host.workspace
-    link = PymavlinkLink(vehicle_url(settings, ws, name), frame=frame, stream_hz=settings.telemetry_hz,
-                         setpoint_hz=settings.rate_hz)
+    link = open_link(settings, vehicle_url(settings, ws, name), frame)
     try:
         await link.connect()
-        await link.wait_ready(settings.ready_timeout_s)
     except BaseException:
         await link.close()
         raise
+    with contextlib.suppress(VehicleError):  # not ready yet: it joins waiting for its position
+        await link.wait_ready(settings.ready_timeout_s)
     return link
 
 
@@ -210,7 +233,8 @@ async def _fly(host: Host, frame: GeoFrame, record: TextIO | None) -> None:
     # A route after a stall is checked as often as positions come.
     loops = [SetpointLoop(agent.link, frame, agent.stack.executor, settings.epoch, ws.tau_s, host.clock,
                           settings.telemetry_hz, tick=agent.tick) for agent in host.agents]
-
+    for agent, loop in zip(host.agents, loops, strict=True):
+        agent.setpoints = loop
     def on_step(i: int, report: StepReport, actions: Sequence[object]) -> None:
         host.agents[i].on_step(report, actions)
         if i == len(host.agents) - 1:

@@ -7,7 +7,7 @@ lists come comma-separated (``DRONA_CONNECT=tcp/10.0.0.2:7448,tcp/10.0.0.3:7448`
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
@@ -40,7 +40,11 @@ class AgentSettings(BaseSettings):
     drain_per_step: Annotated[float, Field(gt=0)] = 1.0  #: battery points a step of flight costs (planning model)
     safe_threshold: Annotated[float, Field(ge=0, lt=100)] = 20.0
     clock_check_s: Annotated[float, Field(gt=0)] = 5.0  #: how often to measure the peers' clock offsets
-    ready_timeout_s: Annotated[float, Field(gt=0)] = 60.0  #: the vehicle's readiness at start-up
+    #: at start-up, how long a vehicle may take to be ready before its drone joins anyway, waiting for it
+    ready_timeout_s: Annotated[float, Field(ge=0)] = 5.0
+    backend: Literal["pymavlink", "mavsdk"] = "pymavlink"  #: the vehicle link's MAVLink library
+    takeoff_timeout_s: Annotated[float, Field(gt=0)] = 10.0  #: an accepted take-off to leaving the ground
+    command_timeout_s: Annotated[float, Field(gt=0)] = 30.0  #: a whole take-off or landing
     shared_session: bool = False  #: simulation: the process's drones share one Zenoh session (one each by default)
     adopt_mail: bool = True  #: take over a departed peer's mail (turn off when a service dispatches it)
     log_level: str = "INFO"

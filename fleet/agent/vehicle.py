@@ -6,6 +6,9 @@ crosses no other drone's cell. The agent states what it wants with
 :meth:`VehicleSupervisor.want_airborne`; :meth:`run` carries it out in order,
 one command sequence at a time, and reports failures as alarms rather than
 dying: a vehicle that refuses to arm must not take the agent down with it.
+A take-off is over when the autopilot says so (see :mod:`fleet.vehicle.policy`):
+ArduCopter takes no setpoint until then. While the vehicle is lost nothing is
+tried (:meth:`VehicleSupervisor.pause`).
 """
 
 from __future__ import annotations
@@ -19,16 +22,18 @@ from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from drona_gcs.geo import Ned
 from fleet.clock import cancel_all
 from fleet.vehicle.link import Autopilot, LandedState, Telemetry, VehicleLink
+from fleet.vehicle.policy import DEFAULT_TIMEOUTS, Timeouts, in_air
 
 log = logging.getLogger(__name__)
 
 
 class VehicleSupervisor:
     def __init__(self, name: str, link: VehicleLink, takeoff_alt_m: float, on_alarm: Callable[[str | None], None],
-                 target: Callable[[], Ned], arrival_m: float, command_timeout_s: float = 30.0) -> None:
+                 target: Callable[[], Ned], arrival_m: float, timeouts: Timeouts = DEFAULT_TIMEOUTS) -> None:
         self.name, self.link, self.takeoff_alt_m = name, link, takeoff_alt_m
         self.target, self.arrival_m = target, arrival_m
-        self.on_alarm, self.command_timeout_s = on_alarm, command_timeout_s
+        self.on_alarm, self.command_timeout_s = on_alarm, timeouts.command_s
+        self.paused = False  #: the vehicle is lost: no command is tried
         self.wanted = False
         self.airborne = False  #: the last sequence that completed left it in the air
         self._changed = asyncio.Event()
@@ -66,10 +71,19 @@ class VehicleSupervisor:
         self._stopping = True
         self._changed.set()
 
+    def pause(self, paused: bool, airborne: bool | None = None) -> None:
+        """Try nothing while ``paused`` (the vehicle is lost). Back, ``airborne`` says where it was found:
+        what it is now, whatever the last sequence left it in."""
+        self.paused = paused
+        if airborne is not None:
+            self.airborne = airborne
+            self.reached.clear()
+        self._changed.set()
+
     async def run(self) -> None:
         """Until :meth:`stop`: bring the vehicle to what is wanted, each time the wish changes."""
         while not self._stopping:
-            if self.wanted != self.airborne:
+            if self.wanted != self.airborne and not self.paused:
                 await self._carry_out(self.wanted)
                 continue
             self._changed.clear()
@@ -143,7 +157,9 @@ class VehicleSupervisor:
                 # ground, or not saying, the refusal is a real one.
                 if link.telemetry().landed in (LandedState.ON_GROUND, LandedState.UNDEFINED):
                     raise
-        await link.wait_until(_off_the_ground, self.command_timeout_s, "the climb")
+        # Done when the autopilot says so: ArduCopter reports TAKEOFF until it is up, and only then
+        # takes setpoints (fleet.vehicle.policy).
+        await link.wait_until(in_air, self.command_timeout_s, "the climb")
 
     async def _land(self) -> None:
         link = self.link

@@ -54,6 +54,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add("--rate-hz", type=float, help="the link repeats the last setpoint at this rate, over 2 (PX4 leaves OFFBOARD "
                                       "at 2 Hz or less) (default 10) [DRONA_RATE_HZ]")
     add("--drain-per-step", type=float, help="battery points one step of flight costs, for planning (default 1)")
+    add("--backend", choices=["pymavlink", "mavsdk"],
+        help="the vehicle link's MAVLink library (default pymavlink; mavsdk needs the mavsdk extra) [DRONA_BACKEND]")
+    add("--ready-timeout", dest="ready_timeout_s", type=float,
+        help="at start-up, seconds a vehicle may take to be ready before its drone joins anyway, waiting for its "
+             "position (default 5)")
+    add("--takeoff-timeout", dest="takeoff_timeout_s", type=float,
+        help="seconds from an accepted take-off to leaving the ground (default 10; ArduCopter spools up ~3.5 s)")
+    add("--command-timeout", dest="command_timeout_s", type=float,
+        help="seconds a whole take-off or landing may take (default 30)")
     add("--no-adopt-mail", dest="adopt_mail", action="store_const", const=False,
         help="do not take over a departed drone's mail (when `drona serve` dispatches, it reassigns it)")
     add("--log-level", help="DEBUG, INFO (default), WARNING")

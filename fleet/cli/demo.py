@@ -29,6 +29,7 @@ from fleet.transport.node import AGENT_BASE_PORT
 
 DEMO_SIDE_X, DEMO_SIDE_Y = 16, 12
 STOP_TIMEOUT_S = 90.0  #: the agents may need a plan's length to finish and land
+DEMO_READY_AFTER_S = 8.0  #: shorter than a real SITL's 45 s: the dashboard shows the drones waiting, briefly
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -39,6 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add("--host", default="127.0.0.1", help="the service's address (default 127.0.0.1)")
     add("--tau", type=float, help="seconds per step (default: the workspace's; 1 s on the embedded one)")
     add("--speedup", type=float, default=1.0, help="the fake vehicles' simulated seconds per second (default 1)")
+    add("--ready-after", type=float, default=DEMO_READY_AFTER_S,
+        help="the fake vehicles' boot to their position estimate, simulated seconds (default "
+             f"{DEMO_READY_AFTER_S:g}; ArduCopter SITL takes 45: the drones wait for it, taking no mail)")
     add("--db", type=Path, default=Path("drona-demo.db"), help="SQLite database file (default drona-demo.db)")
     add("--record", type=Path, help="write every drone's actual cell at every step here, as JSON Lines")
     add("--token", help="the operator token (default: a new random one, printed)")
@@ -88,6 +92,8 @@ def run(args: argparse.Namespace) -> int:
 def _check(args: argparse.Namespace) -> None:
     if args.speedup <= 0:
         raise ValueError(f"--speedup must be > 0, got {args.speedup}")
+    if not args.ready_after > 0:
+        raise ValueError(f"--ready-after must be > 0, got {args.ready_after}")
     if args.tau is not None and args.tau <= 0:
         raise ValueError(f"--tau must be > 0, got {args.tau}")
     if not 0 < args.port < 65536:
@@ -117,7 +123,8 @@ async def _demo(args: argparse.Namespace, workspace: Path, drones: int, token: s
         loop.add_signal_handler(sig, stop.set)
     ws = ["--workspace", str(workspace)]
     vehicles = await _start("sim-vehicle", *ws, "--count", str(drones), "--speedup", str(args.speedup),
-                            "--autopilot", args.autopilot, "--base-port", str(args.vehicle_port))
+                            "--autopilot", args.autopilot, "--base-port", str(args.vehicle_port),
+                            "--ready-after", str(args.ready_after))
     zenoh = f"tcp/127.0.0.1:{args.zenoh_port}"
     agent_args = [*ws, "--count", str(drones), "--no-adopt-mail", "--vehicle-base-port", str(args.vehicle_port),
                   "--listen", zenoh, "--connect", zenoh]

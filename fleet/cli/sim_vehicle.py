@@ -45,8 +45,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", default="127.0.0.1", help="address to use (default 127.0.0.1)")
     parser.add_argument("--base-port", type=int, help="first port (default 14540 for UDP, 5760 for TCP)")
     parser.add_argument("--speedup", type=float, default=1.0, help="simulated seconds per wall-clock second")
-    parser.add_argument("--ready-after", type=float, default=2.0,
-                        help="simulated seconds from boot to a position estimate (arming refused before)")
+    parser.add_argument("--ready-after", type=float,
+                        help="simulated seconds from boot to a position estimate, arming refused before (default: "
+                             "as the autopilot's SITL, ArduCopter 45, PX4 15; may be shortened, not switched off)")
+    parser.add_argument("--spool-up", type=float,
+                        help="simulated seconds from an accepted take-off to leaving the ground (default: ArduCopter "
+                             "3.5, PX4 1)")
     parser.add_argument("--auto-disarm", type=float, default=10.0,
                         help="seconds armed on the ground without takeoff before disarming itself (default 10)")
     parser.add_argument("--max-speed", type=float, default=5.0, help="horizontal speed limit, m/s (default 5)")
@@ -87,7 +91,7 @@ def _config(args: argparse.Namespace) -> FleetConfig:
     if not 0 <= args.battery <= 100:
         raise ValueError(f"--battery must be within 0..100, got {args.battery}")
     vehicle = VehicleConfig(personality=PERSONALITIES[args.autopilot], limits=Limits(max_speed=args.max_speed),
-                            ready_after_s=args.ready_after, auto_disarm_s=args.auto_disarm,
+                            ready_after_s=args.ready_after, spool_up_s=args.spool_up, auto_disarm_s=args.auto_disarm,
                             battery_pct=args.battery)
     key = parse_key(args.signing_key) if args.signing_key else None
     return FleetConfig(count=args.count, vehicle=vehicle, tcp=args.tcp, host=args.host, base_port=args.base_port,

@@ -1,6 +1,8 @@
 """Many fake vehicles in one process: one simulated clock, one tick loop, one TaskGroup.
 
-Vehicle ``i`` (system id ``i + 1``) starts on the ground under drone ``i``'s start cell of the
+Vehicle ``i`` (system id ``i + 1``; with the ArduPilot personality 1, as every ArduPilot SITL
+instance: a ground station tells vehicles apart by their links) starts on the ground under drone
+``i``'s start cell of the
 workspace (``workspace.drones`` order); without a workspace the vehicles stand 5 m apart
 eastwards at ArduPilot SITL's default home. Its link is, as the real SITLs:
 
@@ -166,8 +168,9 @@ def build_nodes(config: FleetConfig, workspace: Workspace | None, clock: SimCloc
     now = clock.now()
     nodes = []
     for i, place in enumerate(placements(workspace, config.count)):
-        vehicle = replace(config.vehicle, system_id=i + 1)
-        codec = Codec(i + 1, signing_key=config.signing_key)
+        sysid = 1 if config.vehicle.personality.one_system_id else i + 1
+        vehicle = replace(config.vehicle, system_id=sysid, instance=i)
+        codec = Codec(sysid, signing_key=config.signing_key)
         nodes.append(SimNode(VehicleModel(vehicle, place, now), codec, clock))
     return nodes
 

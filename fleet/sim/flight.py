@@ -50,6 +50,8 @@ def _motion_target(m: VehicleModel, now: float) -> Target | None:
     if not m.airborne and m.takeoff_point is None and not (
             behaviour is Behaviour.FOLLOW and m.personality is not ARDUPILOT):
         return None  # armed on the ground, idle
+    if not m.airborne and now < m.climb_at:
+        return None  # the motors spool up
     if behaviour is Behaviour.TAKEOFF:
         return m.takeoff_point or HOLD_STILL
     if behaviour is Behaviour.FOLLOW:
@@ -92,7 +94,7 @@ def _after_motion(m: VehicleModel, now: float) -> None:
 
 
 def _current(m: VehicleModel) -> float:
-    if m.airborne or m.takeoff_point is not None:
+    if m.airborne or (m.takeoff_point is not None and m.last_step >= m.climb_at):
         return m.config.hover_current_a + 0.8 * m.body.ground_speed
     if m.armed:
         return 2.0

@@ -5,14 +5,21 @@ the motion and the battery to ``now`` (:mod:`fleet.sim.flight`) and returns the 
 due (:mod:`fleet.sim.telemetry`). Nothing here reads a clock or touches
 a socket, so a test can drive it directly and the runner can drive many from one loop.
 
-Behaviour copied from the real autopilots (see :mod:`fleet.sim.personality` for the numbers):
+Behaviour copied from the real autopilots (see :mod:`fleet.sim.personality` for the numbers,
+measured on their SITLs):
 
-* arming is refused until the vehicle is ready (``ready_after_s`` after boot: its position
-  estimate) and with a low battery; ArduCopter answers MAV_RESULT_FAILED with a STATUSTEXT;
-* ArduCopter ACKs MAV_CMD_DO_SET_MODE with ACCEPTED before it is ready, but stays in
-  STABILIZE: the mode is known only from the next HEARTBEAT (measured on SITL);
-* ArduCopter takes off only armed in GUIDED and not yet airborne, ignores setpoints outside
-  GUIDED and before takeoff, and holds at the last target;
+* a GPS fix comes ``gps_after_s`` after boot and the position estimate ``ready_after_s`` after
+  it (ArduCopter SITL: 12 and 45 s); before the estimate there is no LOCAL_POSITION_NED or
+  HOME_POSITION, ArduCopter's EKF_STATUS_REPORT has no absolute position and its
+  GLOBAL_POSITION_INT says 0 degrees until the fix (PX4 sends none);
+* arming is refused until the vehicle is ready and with a low battery; ArduCopter answers
+  MAV_RESULT_FAILED with a STATUSTEXT. Disarmed, ArduCopter takes any mode (GUIDED too)
+  before its estimate (``Copter::set_mode`` checks nothing while disarmed);
+* ArduCopter takes off only armed in GUIDED and not yet airborne; its motors spool up for
+  ``spool_up_s`` first (its landed state ON_GROUND), then it climbs (TAKEOFF) and holds there
+  (IN_AIR). A position setpoint in GUIDED switches it to position control at once, cancelling a
+  take-off: one that came before it left the ground leaves it there. It ignores setpoints
+  outside GUIDED and holds at the last target;
 * PX4 enters OFFBOARD only while setpoints stream (>= 2 Hz) and leaves it for AUTO.LOITER when
   they stop for more than ``offboard_timeout_s``;
 * a vehicle armed on the ground without taking off disarms itself after ``auto_disarm_s``;
@@ -70,6 +77,7 @@ class VehicleModel:
         self.armed = False
         self.airborne = False  #: has left the ground since the last touchdown
         self.takeoff_point: Target | None = None  #: a takeoff is under way to this point
+        self.climb_at = now  #: when the take-off's spool-up ends and the climb begins
         self.landed_since = now
         self.setpoint: Target | None = None
         self.setpoint_times: deque[float] = deque(maxlen=8)
@@ -77,7 +85,7 @@ class VehicleModel:
         self.battery = Battery(remaining=config.battery_pct / 100)
         # Each vehicle out of step with the others (the golden ratio spreads any number evenly).
         self.streams = telemetry.Streams(dict(self.personality.default_streams), now,
-                                         phase=config.system_id * 0.6180339887)
+                                         phase=(config.instance + 1) * 0.6180339887)
         self.unhandled: dict[str, int] = {}
         self._out: list[Message] = []
         self._handlers: dict[str, Callable[[Message, float], None]] = {
@@ -113,7 +121,11 @@ class VehicleModel:
 
     # ------------------------------------------------------------------ state
     def ready(self, now: float) -> bool:
-        return now - self.boot_time >= self.config.ready_after_s
+        """Has a position estimate (may arm)."""
+        return now - self.boot_time >= self.config.ready_s
+
+    def gps_fixed(self, now: float) -> bool:
+        return now - self.boot_time >= self.config.gps_s
 
     def boot_ms(self, now: float) -> int:
         return max(0, round((now - self.boot_time) * 1000))
@@ -127,10 +139,14 @@ class VehicleModel:
         return self.placement.frame.ned_to_global(Ned(h.north + b.north, h.east + b.east, h.down + b.down))
 
     def landed_state(self) -> int:
+        """As ArduCopter's ``landed_state()``: on the ground until it left it (the spool-up too), taking
+        off until its take-off is over, landing in LAND, else in the air."""
         state: int
-        if not self.airborne:
-            state = (mavlink2.MAV_LANDED_STATE_TAKEOFF if self.takeoff_point is not None and self.armed
-                     else mavlink2.MAV_LANDED_STATE_ON_GROUND)
+        climbing = self.takeoff_point is not None and self.armed and self.last_step >= self.climb_at
+        if not self.airborne and not climbing:
+            state = mavlink2.MAV_LANDED_STATE_ON_GROUND
+        elif self.takeoff_point is not None:
+            state = mavlink2.MAV_LANDED_STATE_TAKEOFF
         elif self.behaviour is Behaviour.LAND:
             state = mavlink2.MAV_LANDED_STATE_LANDING
         else:
@@ -197,12 +213,14 @@ class VehicleModel:
             return
         target, yaw = update
         self.setpoint_times.append(now)
-        if self.personality is ARDUPILOT and (self.behaviour is not Behaviour.FOLLOW or not self.airborne):
-            return  # ArduCopter uses setpoints only in GUIDED, once flying
+        if self.personality is ARDUPILOT and self.behaviour is not Behaviour.FOLLOW:
+            return  # ArduCopter uses setpoints only in GUIDED
         if target is not None:
             self.setpoint = target
             if self.personality is ARDUPILOT:
-                self.takeoff_point = None  # a new target supersedes the takeoff
+                # Position control from now on (mode_guided.cpp): the take-off is over, and on the
+                # ground position control does nothing: a vehicle still spooling up stays there.
+                self.takeoff_point = None
         if yaw is not None:
             self.body.yaw = yaw
 
@@ -248,16 +266,24 @@ class VehicleModel:
                 return self.personality.rejected, []
         self.armed = True
         self.landed_since = now
+        if self.personality is not ARDUPILOT:  # PX4 climbs to the offboard setpoint once spooled up
+            self.climb_at = now + self.config.spool_s
         return ACCEPTED, []
 
     def arming_problem(self, now: float) -> str:
         """Why arming would be refused now (the STATUSTEXT it sends), or "" when it may arm."""
+        if problem := self.prearm_problem(now):
+            return problem
+        if self.behaviour in (Behaviour.RTL, Behaviour.LAND):
+            return "Arm: Mode not armable"  # checked when arming, not among the pre-arm checks
+        return ""
+
+    def prearm_problem(self, now: float) -> str:
+        """The pre-arm checks SYS_STATUS reports ("" when they pass)."""
         if not self.ready(now):
             return self.personality.text_not_ready
         if self.battery.percent < self.config.min_arm_battery_pct:
             return self.personality.text_low_battery
-        if self.behaviour in (Behaviour.RTL, Behaviour.LAND):
-            return "Arm: Mode not armable"
         return ""
 
     def disarm(self, now: float) -> None:
@@ -278,9 +304,12 @@ class VehicleModel:
         name = self.personality.mode_name(custom_mode)
         if name is None:
             return self.personality.rejected
-        if not self.ready(now) and self.personality.behaviour(name) is not Behaviour.LAND:
-            # ArduCopter SITL before its position estimate: ACCEPTED, yet it stays where it was.
-            return ACCEPTED if self.personality is ARDUPILOT else self.personality.rejected
+        if not self.ready(now) and self.personality.behaviour(name) is not Behaviour.LAND and (
+                self.armed or self.personality is not ARDUPILOT):
+            # Disarmed, ArduCopter checks nothing (set_mode's ignore_checks); armed, or PX4, a mode
+            # that needs a position is refused without one.
+            self.text(mavlink2.MAV_SEVERITY_WARNING, "Mode change failed: requires position")
+            return self.personality.rejected
         if name == self.personality.follow_mode and self.personality is not ARDUPILOT and not self.streaming(now):
             self.text(mavlink2.MAV_SEVERITY_CRITICAL, "Switching to Offboard rejected: no setpoints")
             return self.personality.rejected
@@ -313,6 +342,7 @@ class VehicleModel:
         return bool(times) and now - times[-1] <= self.config.offboard_timeout_s
 
     def _cmd_takeoff(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
+        """Refused with no effect at all, or accepted: a take-off after the spool-up."""
         p = self.personality
         if not self.armed or self.airborne or self.takeoff_point is not None:
             return p.rejected, []
@@ -325,10 +355,9 @@ class VehicleModel:
             alt = cmd.params[6]
             height = (self.config.takeoff_alt_m if math.isnan(alt)
                       else alt if relative else alt - self.home_global.alt_m)
-            if p.takeoff_mode:
-                self.enter_mode(p.takeoff_mode, now)
         if not height > 0:
             return p.rejected, []
+        self.climb_at = now + self.config.spool_s
         self.takeoff_point = Target(self.body.north, self.body.east, -height)
         if p is ARDUPILOT:
             self.setpoint = self.takeoff_point  # GUIDED then holds there
@@ -355,15 +384,17 @@ class VehicleModel:
 
     def _cmd_request_message(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
         build = telemetry.REQUESTABLE.get(_int(cmd.params[0]) or 0)
-        if build is None:
+        msg = None if build is None else build(self, now)
+        if msg is None:  # unknown, or not known yet (home before the position estimate)
             return self.personality.rejected, []
-        return ACCEPTED, [build(self, now)]
+        return ACCEPTED, [msg]
 
     def _cmd_request_version(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
         return ACCEPTED, [telemetry.autopilot_version(self, now)]
 
     def _cmd_get_home(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
-        return ACCEPTED, [telemetry.home_position(self, now)]
+        home = telemetry.home_position(self, now)
+        return (self.personality.rejected, []) if home is None else (ACCEPTED, [home])
 
     # ------------------------------------------------------------------- time
     def step(self, now: float) -> list[Message]:
@@ -373,8 +404,9 @@ class VehicleModel:
         flight.advance(self, now, dt)
         out, self._out = self._out, []
         for msg_id in self.streams.due(now):
-            build = telemetry.REQUESTABLE[msg_id]
-            out.append(build(self, now))
+            msg = telemetry.REQUESTABLE[msg_id](self, now)
+            if msg is not None:  # a position before the estimate: the autopilot sends none
+                out.append(msg)
         return out
 
 

@@ -46,6 +46,14 @@ class Personality:
     default_streams: dict[int, float] = field(default_factory=dict)  #: message id -> interval (s) at boot
     text_not_ready: str = ""
     text_low_battery: str = ""
+    gps_fix_s: float = 10.0  #: boot to a GPS fix, by default
+    ready_s: float = 15.0  #: boot to a position estimate (arming possible), by default
+    gps_fix_type: int = mavlink2.GPS_FIX_TYPE_3D_FIX  #: what GPS_RAW_INT says once it has a fix
+    spool_up_s: float = 1.0  #: an accepted take-off to leaving the ground
+    #: every simulated vehicle has system id 1 (ArduPilot SITL's SYSID_THISMAV), not 1, 2, 3...
+    one_system_id: bool = False
+    #: GLOBAL_POSITION_INT before the position estimate: sent, at 0 degrees (ArduPilot), or not at all
+    stale_position: bool = False
 
     def mode_name(self, custom_mode: int) -> str | None:
         return next((name for name, (number, _) in self.modes.items() if number == custom_mode), None)
@@ -84,6 +92,13 @@ ARDUPILOT = Personality(
     flight_sw_version=(4 << 24) | (5 << 16) | (7 << 8) | 255,  # Copter 4.5.7 official
     text_not_ready="Arm: Need Position Estimate",
     text_low_battery="PreArm: Battery 1 below minimum arming capacity",
+    # Measured on ArduCopter SITL V4.7.0-dev.
+    gps_fix_s=12.0,
+    ready_s=45.0,
+    gps_fix_type=mavlink2.GPS_FIX_TYPE_RTK_FIXED,
+    spool_up_s=3.5,
+    one_system_id=True,
+    stale_position=True,
 )
 
 PX4 = Personality(

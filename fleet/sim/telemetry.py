@@ -44,11 +44,11 @@ def heartbeat(m: VehicleModel, now: float) -> Message:
 
 def sys_status(m: VehicleModel, now: float) -> Message:
     present = _SENSORS | mavlink2.MAV_SYS_STATUS_PREARM_CHECK
-    health = _SENSORS if m.ready(now) else _SENSORS & ~mavlink2.MAV_SYS_STATUS_SENSOR_GPS
+    health = _SENSORS if m.gps_fixed(now) else _SENSORS & ~mavlink2.MAV_SYS_STATUS_SENSOR_GPS
     # Both autopilots report their pre-arm checks here, and MAVSDK's health.is_armable reads this bit:
     # ArduPilot (GCS::update_sensor_status_flags) marks it healthy when armed or when the checks pass,
     # PX4 (SYS_STATUS stream) when its health-and-arming checks pass.
-    if m.armed or not m.arming_problem(now):
+    if m.armed or not m.prearm_problem(now):
         health |= mavlink2.MAV_SYS_STATUS_PREARM_CHECK
     b = m.battery
     return _ENC.sys_status_encode(present, present, health, 100, round(b.voltage * 1000),
@@ -68,12 +68,21 @@ def battery_status(m: VehicleModel, now: float) -> Message:
                                       round(b.energy_j / 100), b.percent, left, state)
 
 
-def local_position_ned(m: VehicleModel, now: float) -> Message:
+def local_position_ned(m: VehicleModel, now: float) -> Message | None:
+    """None before the position estimate: both autopilots send none (ArduPilot: no EKF origin yet)."""
+    if not m.ready(now):
+        return None
     p = m.body
     return _ENC.local_position_ned_encode(m.boot_ms(now), p.north, p.east, p.down, p.vn, p.ve, p.vd)
 
 
-def global_position_int(m: VehicleModel, now: float) -> Message:
+def global_position_int(m: VehicleModel, now: float) -> Message | None:
+    """Before the GPS fix ArduPilot sends its stale location, 0 degrees (its AHRS has no position to
+    give; ``GCS_MAVLINK::send_global_position_int`` sends it anyway); PX4 sends nothing until its
+    estimate is valid. ArduPilot's comes from the GPS before its EKF uses it."""
+    if not (m.gps_fixed(now) if m.personality.stale_position else m.ready(now)):
+        return _ENC.global_position_int_encode(m.boot_ms(now), 0, 0, 0, 0, 0, 0, 0, 0) \
+            if m.personality.stale_position else None
     g, p = m.global_position(), m.body
     return _ENC.global_position_int_encode(m.boot_ms(now), round(g.lat * 1e7), round(g.lon * 1e7),
                                            round(g.alt_m * 1000), round(p.height * 1000), round(p.vn * 100),
@@ -81,12 +90,26 @@ def global_position_int(m: VehicleModel, now: float) -> Message:
 
 
 def gps_raw_int(m: VehicleModel, now: float) -> Message:
-    g, p, ready = m.global_position(), m.body, m.ready(now)
-    fix = mavlink2.GPS_FIX_TYPE_3D_FIX if ready else mavlink2.GPS_FIX_TYPE_NO_FIX
+    g, p, fixed = m.global_position(), m.body, m.gps_fixed(now)
+    fix = m.personality.gps_fix_type if fixed else mavlink2.GPS_FIX_TYPE_NO_FIX
     course = _centidegrees(math.atan2(p.ve, p.vn)) if p.ground_speed > 0.1 else 0
-    return _ENC.gps_raw_int_encode(m.boot_ms(now) * 1000, fix, round(g.lat * 1e7), round(g.lon * 1e7),
-                                   round(g.alt_m * 1000), 121, 200, round(p.ground_speed * 100), course,
-                                   10 if ready else 0)
+    return _ENC.gps_raw_int_encode(m.boot_ms(now) * 1000, fix, round(g.lat * 1e7) if fixed else 0,
+                                   round(g.lon * 1e7) if fixed else 0, round(g.alt_m * 1000) if fixed else 0, 121,
+                                   200, round(p.ground_speed * 100), course, 10 if fixed else 0)
+
+
+#: EKF_STATUS_REPORT flags: before the GPS is used, attitude, velocity and the vertical position only,
+#: in constant-position mode; then the relative and absolute horizontal positions too.
+EKF_WITHOUT_GPS = 1 | 2 | 4 | 32 | 128
+EKF_WITH_GPS = 1 | 2 | 4 | 8 | 16 | 32 | 256 | 512
+
+
+def ekf_status_report(m: VehicleModel, now: float) -> Message | None:
+    """ArduPilot's word on its position estimate (PX4 has no such message)."""
+    if m.personality.autopilot != mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA:
+        return None
+    flags = EKF_WITH_GPS if m.ready(now) else EKF_WITHOUT_GPS
+    return _ENC.ekf_status_report_encode(flags, 0.01, 0.02, 0.03, 0.01, 0.0, 0.0)
 
 
 def extended_sys_state(m: VehicleModel, now: float) -> Message:
@@ -102,7 +125,10 @@ def attitude(m: VehicleModel, now: float) -> Message:
                                 0.0, 0.0, 0.0)
 
 
-def home_position(m: VehicleModel, now: float) -> Message:
+def home_position(m: VehicleModel, now: float) -> Message | None:
+    """None before the position estimate: home is set with it."""
+    if not m.ready(now):
+        return None
     h = m.home_global
     return _ENC.home_position_encode(round(h.lat * 1e7), round(h.lon * 1e7), round(h.alt_m * 1000),
                                      0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, m.boot_ms(now) * 1000)
@@ -114,7 +140,8 @@ def autopilot_version(m: VehicleModel, now: float) -> Message:
 
 
 #: Messages a ground station may stream with SET_MESSAGE_INTERVAL (and request once).
-STREAMABLE: dict[int, Callable[[VehicleModel, float], Message]] = {
+#: A builder returns None when the autopilot would send nothing now (no position estimate yet).
+STREAMABLE: dict[int, Callable[[VehicleModel, float], Message | None]] = {
     mavlink2.MAVLINK_MSG_ID_SYS_STATUS: sys_status,
     mavlink2.MAVLINK_MSG_ID_BATTERY_STATUS: battery_status,
     mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED: local_position_ned,
@@ -123,10 +150,11 @@ STREAMABLE: dict[int, Callable[[VehicleModel, float], Message]] = {
     mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: extended_sys_state,
     mavlink2.MAVLINK_MSG_ID_ATTITUDE: attitude,
     mavlink2.MAVLINK_MSG_ID_HOME_POSITION: home_position,
+    mavlink2.MAVLINK_MSG_ID_EKF_STATUS_REPORT: ekf_status_report,
 }
 
 #: Messages MAV_CMD_REQUEST_MESSAGE can ask for once.
-REQUESTABLE: dict[int, Callable[[VehicleModel, float], Message]] = {
+REQUESTABLE: dict[int, Callable[[VehicleModel, float], Message | None]] = {
     **STREAMABLE,
     mavlink2.MAVLINK_MSG_ID_HEARTBEAT: heartbeat,
     mavlink2.MAVLINK_MSG_ID_AUTOPILOT_VERSION: autopilot_version,

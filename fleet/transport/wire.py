@@ -46,8 +46,9 @@ from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj, Ta
 
 #: 2: a Zenoh message may carry several envelopes, one per line (fleet.transport.node);
 #: 3: ``cur_traj_to``, one answer to several drones;
-#: 4: ``req_traj`` carries the requester's trajectory (its answer to the drones before it in line).
-VERSION: Final = 4
+#: 4: ``req_traj`` carries the requester's trajectory (its answer to the drones before it in line);
+#: 5: protocol messages carry ``holds``, the cells a drone whose vehicle is lost holds besides its trajectory.
+VERSION: Final = 5
 
 CellList = Annotated[list[int], msgspec.Meta(min_length=3, max_length=3)]
 #: A mail id is a Zenoh key chunk (mail/status/<id>); \Z, not $: "$" would let a final newline through.
@@ -55,6 +56,7 @@ MailId = Annotated[str, msgspec.Meta(min_length=1, max_length=64, pattern=r"^[A-
 Priority = Annotated[int, msgspec.Meta(ge=0, le=9)]
 #: A trajectory's cells are tuples as they come off the wire: a core Trajectory takes them as they are.
 CellTuples = Annotated[tuple[tuple[int, int, int], ...], msgspec.Meta(min_length=1)]
+Holds = tuple[tuple[int, int, int], ...]
 
 
 class WireError(DronaError):
@@ -103,11 +105,13 @@ class WireTrajectory(_Strict, frozen=True, kw_only=True):
 class ReqTraj(_Body, frozen=True, kw_only=True, tag="req_traj"):
     task_id: WireTaskId
     trajectory: WireTrajectory  #: the requester's, which a drone before it in line takes as its answer
+    holds: Holds = ()  #: cells its lost vehicle may be in, besides the trajectory
 
 
 class CurTraj(_Body, frozen=True, kw_only=True, tag="cur_traj"):
     in_reply_to: WireTaskId
     trajectory: WireTrajectory
+    holds: Holds = ()
 
 
 class CurTrajTo(_Body, frozen=True, kw_only=True, tag="cur_traj_to"):
@@ -115,6 +119,7 @@ class CurTrajTo(_Body, frozen=True, kw_only=True, tag="cur_traj_to"):
 
     replies: Annotated[dict[str, WireTaskId], msgspec.Meta(min_length=1)]
     trajectory: WireTrajectory
+    holds: Holds = ()
 
 
 class PlanAnnounce(_Body, frozen=True, kw_only=True, tag="plan"):
@@ -145,6 +150,20 @@ class MailView(_Strict, frozen=True, kw_only=True):
     stage: Literal["queued", "current", "carrying"]
 
 
+class VehicleView(_Strict, frozen=True, kw_only=True):
+    """What the vehicle itself last reported, and whether it can fly plans."""
+
+    status: Literal["ready", "waiting_for_position", "not_ready", "lost"]
+    reason: str = ""  #: what keeps it from flying plans
+    mode: str | None = None
+    armed: bool = False
+    landed: str = "undefined"  #: MAV_LANDED_STATE, lower case: on_ground, takeoff, in_air, landing
+    height_m: float | None = None  #: above home
+    gps_fix: int = 0  #: GPS_FIX_TYPE: 3 is a 3D fix
+    satellites: int = 0
+    battery_v: float | None = None
+
+
 class DroneState(_Body, frozen=True, kw_only=True, tag="state"):
     drone: str
     step: int
@@ -163,6 +182,7 @@ class DroneState(_Body, frozen=True, kw_only=True, tag="state"):
     plans: int = 0  #: plans made so far
     messages_sent: int = 0  #: protocol messages sent so far
     coordination_ms: float | None = None  #: the last plan's: task arrival to plan scheduled
+    vehicle: VehicleView | None = None
 
 
 class HeldMail(_Body, frozen=True, kw_only=True, tag="held"):
@@ -225,7 +245,7 @@ Body = (ReqTraj | CurTraj | CurTrajTo | PlanAnnounce | DroneState | HeldMail | M
 
 
 class Envelope(_Strict, frozen=True, kw_only=True):
-    v: Literal[4] = VERSION
+    v: Literal[5] = VERSION
     sender: Annotated[str, msgspec.Meta(min_length=1)]
     sent_at: float
     body: Body
@@ -278,15 +298,17 @@ def to_json(message: _Strict) -> dict[str, Any]:
 # ------------------------------------------------------ core <-> wire
 def from_core(message: Message) -> ReqTraj | CurTraj:
     if isinstance(message, ReqForCurrentTraj):
-        return ReqTraj(task_id=WireTaskId.of(message.task_id), trajectory=WireTrajectory.of(message.trajectory))
-    return CurTraj(in_reply_to=WireTaskId.of(message.in_reply_to), trajectory=WireTrajectory.of(message.trajectory))
+        return ReqTraj(task_id=WireTaskId.of(message.task_id), trajectory=WireTrajectory.of(message.trajectory),
+                       holds=message.holds)
+    return CurTraj(in_reply_to=WireTaskId.of(message.in_reply_to), trajectory=WireTrajectory.of(message.trajectory),
+                   holds=message.holds)
 
 
-def answers(trajectory: Trajectory, replies: Mapping[str, TaskId]) -> CurTrajTo:
-    """One ``cur_traj_to`` for several ``CurrentTraj`` with the same trajectory: ``replies`` maps
-    each drone answered to the request it answers."""
+def answers(trajectory: Trajectory, replies: Mapping[str, TaskId], holds: Holds = ()) -> CurTrajTo:
+    """One ``cur_traj_to`` for several ``CurrentTraj`` with the same trajectory and holds: ``replies``
+    maps each drone answered to the request it answers."""
     return CurTrajTo(replies={drone: WireTaskId.of(task) for drone, task in replies.items()},
-                     trajectory=WireTrajectory.of(trajectory))
+                     trajectory=WireTrajectory.of(trajectory), holds=holds)
 
 
 def to_core(envelope: Envelope, me: str) -> Message | None:
@@ -294,7 +316,7 @@ def to_core(envelope: Envelope, me: str) -> Message | None:
     for a ``cur_traj_to`` that answers others only."""
     body = envelope.body
     if isinstance(body, ReqTraj):
-        return ReqForCurrentTraj(body.task_id.core(), envelope.sender, body.trajectory.core())
+        return ReqForCurrentTraj(body.task_id.core(), envelope.sender, body.trajectory.core(), body.holds)
     if isinstance(body, CurTraj):
         request = body.in_reply_to
     elif isinstance(body, CurTrajTo):
@@ -305,6 +327,6 @@ def to_core(envelope: Envelope, me: str) -> Message | None:
     else:
         raise WireError(f"{body.kind} is not a protocol message")
     try:
-        return CurrentTraj(envelope.sender, body.trajectory.core(), request.core())
+        return CurrentTraj(envelope.sender, body.trajectory.core(), request.core(), body.holds)
     except DronaError as exc:
         raise WireError(f"{body.kind} from {envelope.sender!r}: {exc}") from exc

@@ -104,6 +104,10 @@ class Telemetry:
     satellites: int
     landed: LandedState
     heartbeat_at: float | None  #: link clock time of the last HEARTBEAT
+    #: the autopilot's own word on its position estimate (ArduPilot: EKF_STATUS_REPORT); None: it says nothing
+    position_ok: bool | None = None
+    prearm_ok: bool | None = None  #: SYS_STATUS's pre-arm checks, where reported: the vehicle may arm
+    prearm_text: str = ""  #: the autopilot's last "PreArm: ..." text, which says what fails
 
 
 GPS_3D_FIX = 3  #: GPS_FIX_TYPE_3D_FIX
@@ -112,11 +116,40 @@ GPS_3D_FIX = 3  #: GPS_FIX_TYPE_3D_FIX
 def not_ready(t: Telemetry) -> str | None:
     """What keeps a vehicle from being ready to fly plans, first thing first (None: ready). The
     battery level too: the battery monitor keeps the drone above its safe threshold with it."""
-    problems = [(t.heartbeat_at is None, "no HEARTBEAT"), (t.position is None, "no position"),
-                (t.global_position is None, "no global position"),
-                (t.gps_fix < GPS_3D_FIX, f"GPS fix type {t.gps_fix}, need a 3D fix"),
-                (t.battery_pct is None, "no battery level (BATTERY_STATUS or SYS_STATUS)")]
-    return next((text for bad, text in problems if bad), None)
+    return next((text for _, text in _problems(t)), None)
+
+
+def _problems(t: Telemetry) -> list[tuple[bool, str]]:
+    """(a position problem, what it is) for everything that keeps the vehicle from flying plans."""
+    prearm = "pre-arm checks failing" + (f" ({t.prearm_text})" if t.prearm_text else "")
+    found = [(False, "no HEARTBEAT") if t.heartbeat_at is None else None,
+             (True, "no position estimate (the autopilot says so)") if t.position_ok is False else None,
+             (True, "no position") if t.position is None else None,
+             (True, "no global position") if t.global_position is None else None,
+             (True, f"GPS fix type {t.gps_fix}, need a 3D fix") if t.gps_fix < GPS_3D_FIX else None,
+             (False, "no battery level (BATTERY_STATUS or SYS_STATUS)") if t.battery_pct is None else None,
+             (False, prearm) if t.prearm_ok is False else None]
+    return [problem for problem in found if problem is not None]
+
+
+class Readiness(enum.Enum):
+    """Whether a vehicle can fly plans, as its drone's state reports it."""
+
+    READY = "ready"  #: position, GPS, battery and pre-arm checks good
+    WAITING_FOR_POSITION = "waiting_for_position"  #: no position estimate or GPS fix yet
+    NOT_READY = "not_ready"  #: something else (:func:`not_ready` says what)
+    LOST = "lost"  #: no HEARTBEAT lately: the link is gone or the vehicle silent
+
+
+def readiness(t: Telemetry, lost: bool = False) -> Readiness:
+    """What keeps the vehicle from flying plans, in one word. Waiting for its position is told apart:
+    ArduCopter SITL takes about 45 s from boot to its first estimate."""
+    problems = _problems(t)
+    if lost or t.heartbeat_at is None:
+        return Readiness.LOST
+    if not problems:
+        return Readiness.READY
+    return Readiness.WAITING_FOR_POSITION if problems[0][0] else Readiness.NOT_READY
 
 
 class SetpointSink(Protocol):
@@ -155,6 +188,9 @@ class VehicleLink(SetpointSink, Protocol):
     def last_global(self) -> GeoPoint | None: ...
 
     def telemetry(self) -> Telemetry: ...
+
+    def problem(self) -> str | None:
+        """Why the link cannot carry commands now: closed, lost, or the vehicle silent (None: it can)."""
 
     async def wait_until(self, predicate: Callable[[Telemetry], bool], timeout: float,
                          what: str) -> Telemetry:

@@ -44,6 +44,7 @@ from drona_gcs.geo import GeoFrame, GeoPoint, Ned
 from fleet.clock import cancel_all, periodic
 from fleet.vehicle.link import REOPEN_S, Autopilot, LandedState, Position, Share, StreamRequests, Telemetry, not_ready
 from fleet.vehicle.modes import CONFIRM_HEARTBEATS, FOLLOW_MODE, LAND_MODE, ModeDoubt, mode_command, mode_name
+from fleet.vehicle.policy import DEFAULT_TIMEOUTS, Timeouts, ekf_has_position, may_stream_setpoints, takeoff_started
 from fleet.vehicle.urls import LinkUrl, Transport, open_transport, parse_link_url
 
 log = logging.getLogger(__name__)
@@ -58,6 +59,8 @@ STREAMS = {mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED: Share.POSITION,
 #: position is asked for at the status rate only (a GCS sharing the vehicle may still want it). At
 #: the position rate it was a third of the messages a vehicle sent, each decoded in pure Python.
 FRAMED_STREAMS = {**STREAMS, mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED: Share.STATUS}
+#: ArduPilot's own word on its position estimate (see fleet.vehicle.policy); PX4 does not know the message.
+ARDUPILOT_STREAMS = {mavlink2.MAVLINK_MSG_ID_EKF_STATUS_REPORT: Share.STATUS}
 POSITION_ONLY = 0b110111111000  #: type_mask: use x, y, z; ignore velocity, acceleration, yaw and yaw rate
 GCS_COMPONENT = mavlink2.MAV_COMP_ID_MISSIONPLANNER
 _UNKNOWN_U16 = 0xFFFF
@@ -78,11 +81,12 @@ class PymavlinkLink:
     def __init__(self, url: str | LinkUrl, *, target_system: int | None = None, source_system: int = 255,
                  frame: GeoFrame | None = None, heartbeat_timeout: float = 3.0, ack_timeout: float = 1.0,
                  retries: int = 2, text_grace: float = 0.3, stream_hz: float = 10.0, setpoint_hz: float = 20.0,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 timeouts: Timeouts = DEFAULT_TIMEOUTS, clock: Callable[[], float] = time.monotonic) -> None:
         self.url = parse_link_url(url) if isinstance(url, str) else url
         self.frame, self.clock = frame, clock
         self.heartbeat_timeout, self.ack_timeout, self.retries = heartbeat_timeout, ack_timeout, retries
         self.text_grace, self.stream_hz, self.setpoint_hz = text_grace, stream_hz, setpoint_hz
+        self.timeouts = timeouts
         self.sysid, self.compid = target_system, mavlink2.MAV_COMP_ID_AUTOPILOT1
         self._enc = mavlink2.MAVLink(None, srcSystem=source_system, srcComponent=GCS_COMPONENT)
         self._dec = _decoder()
@@ -115,10 +119,10 @@ class PymavlinkLink:
             "COMMAND_ACK": self._on_command_ack,
             "STATUSTEXT": self._on_statustext,
             **dict.fromkeys(("LOCAL_POSITION_NED", "GLOBAL_POSITION_INT", "SYS_STATUS", "BATTERY_STATUS",
-                             "GPS_RAW_INT", "EXTENDED_SYS_STATE"), self._keep),  # read by telemetry()
+                             "GPS_RAW_INT", "EXTENDED_SYS_STATE", "EKF_STATUS_REPORT"), self._keep),  # telemetry()
             # Ignored on purpose:
             **dict.fromkeys(("ATTITUDE", "ATTITUDE_QUATERNION", "HOME_POSITION", "TIMESYNC", "SYSTEM_TIME",
-                             "AUTOPILOT_VERSION", "PARAM_VALUE", "RADIO_STATUS", "VFR_HUD", "EKF_STATUS_REPORT",
+                             "AUTOPILOT_VERSION", "PARAM_VALUE", "RADIO_STATUS", "VFR_HUD",
                              "ESTIMATOR_STATUS", "VIBRATION", "POWER_STATUS", "MEMINFO", "MISSION_CURRENT",
                              "NAV_CONTROLLER_OUTPUT", "POSITION_TARGET_LOCAL_NED", "POSITION_TARGET_GLOBAL_INT",
                              "ALTITUDE", "UTM_GLOBAL_POSITION"), _ignore),
@@ -228,8 +232,7 @@ class PymavlinkLink:
                 raise VehicleError(f"vehicle {self.sysid}: no global position, cannot take off")
             amsl = t.global_position.alt_m - t.height_m + altitude_m
             await self.command(mavlink2.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, amsl)
-        await self.wait_until(lambda t: t.landed in (LandedState.TAKEOFF, LandedState.IN_AIR)
-                              or (t.height_m or 0.0) > 0.3, self.heartbeat_timeout, "the takeoff to start")
+        await self.wait_until(takeoff_started, self.timeouts.takeoff_start_s, "the takeoff to start")
 
     async def land(self) -> None:
         """Land where it is (stops the setpoint stream); confirmed from the next HEARTBEAT's mode."""
@@ -281,7 +284,7 @@ class PymavlinkLink:
         self._send_setpoint()
 
     def _send_setpoint(self) -> None:
-        if self._setpoint is not None:
+        if self._setpoint is not None and may_stream_setpoints(self.telemetry()):
             self._send(self._setpoint)
             self._setpoints_sent += 1
             self._resolve(SETPOINT_SENT, self._setpoint)
@@ -307,16 +310,19 @@ class PymavlinkLink:
         at, msg = entry
         if self.frame is None:
             return Position(Ned(msg.x, msg.y, msg.z), at)
+        if msg.lat == msg.lon == 0:  # ArduPilot before its first estimate: stale zeros
+            return None
         return Position(self.frame.global_to_ned(_geo(msg)), at)
 
     def last_global(self) -> GeoPoint | None:
         msg = self._msg("GLOBAL_POSITION_INT")
-        return None if msg is None else _geo(msg)
+        return None if msg is None or msg.lat == msg.lon == 0 else _geo(msg)
 
     @property
     def streams(self) -> dict[int, Share]:
         """The telemetry asked for: message id -> rate as a share of ``stream_hz``."""
-        return STREAMS if self.frame is None else FRAMED_STREAMS
+        common = STREAMS if self.frame is None else FRAMED_STREAMS
+        return {**common, **ARDUPILOT_STREAMS} if self.autopilot is Autopilot.ARDUPILOT else common
 
     def telemetry(self) -> Telemetry:
         if self._snapshot is None:
@@ -340,7 +346,17 @@ class PymavlinkLink:
                          _velocity(local, glob, self.frame), self.last_global(),
                          None if glob is None else glob.relative_alt / 1000, pct, volts,
                          0 if gps is None else gps.fix_type, 0 if gps is None else gps.satellites_visible,
-                         landed, self.heartbeat_at)
+                         landed, self.heartbeat_at, self._position_ok(), _prearm_ok(status), self._prearm_text())
+
+    def _position_ok(self) -> bool | None:
+        """ArduPilot's EKF on its position (not reported yet: not ok); None for autopilots that do not say."""
+        if self.autopilot is not Autopilot.ARDUPILOT:
+            return None
+        ekf = self._msg("EKF_STATUS_REPORT")
+        return ekf is not None and ekf_has_position(int(ekf.flags), self.armed)
+
+    def _prearm_text(self) -> str:
+        return next((text for _, _, text in reversed(self.texts) if text.startswith("PreArm")), "")
 
     async def wait_until(self, predicate: Callable[[Telemetry], bool], timeout: float, what: str) -> Telemetry:
         if not predicate(self.telemetry()):
@@ -431,6 +447,10 @@ class PymavlinkLink:
         except TimeoutError:
             raise VehicleError(f"vehicle {self.sysid}: waited {timeout} s for {what}{detail()}") from None
 
+    def problem(self) -> str | None:
+        error = self._dead or self._silent
+        return None if error is None else str(error)
+
     def _check_alive(self) -> None:
         if error := self._dead or self._silent:
             raise error
@@ -514,6 +534,14 @@ def _velocity(local: Message | None, glob: Message | None, frame: GeoFrame | Non
     if frame is None:
         return None if local is None else Ned(local.vx, local.vy, local.vz)
     return None if glob is None else Ned(glob.vx / 100, glob.vy / 100, glob.vz / 100)
+
+
+def _prearm_ok(status: Message | None) -> bool | None:
+    """SYS_STATUS's pre-arm check bit (ArduPilot: healthy when armed or the checks pass); None if not reported."""
+    bit = mavlink2.MAV_SYS_STATUS_PREARM_CHECK
+    if status is None or not status.onboard_control_sensors_present & status.onboard_control_sensors_enabled & bit:
+        return None
+    return bool(status.onboard_control_sensors_health & bit)
 
 
 def _geo(msg: Message) -> GeoPoint:

@@ -55,6 +55,7 @@ from drona_gcs.geo import GeoFrame, GeoPoint, Ned
 from fleet.clock import cancel_all, periodic
 from fleet.vehicle.link import REOPEN_S, Autopilot, LandedState, Position, Share, StreamRequests, Telemetry, not_ready
 from fleet.vehicle.modes import CONFIRM_HEARTBEATS, FOLLOW_MODE, LAND_MODE, ModeDoubt, mode_command, mode_name
+from fleet.vehicle.policy import DEFAULT_TIMEOUTS, Timeouts, ekf_has_position, may_stream_setpoints, takeoff_started
 from fleet.vehicle.urls import LinkUrl, Scheme, parse_link_url
 
 log = logging.getLogger(__name__)
@@ -62,7 +63,10 @@ log = logging.getLogger(__name__)
 ACCEPTED, TEMPORARILY_REJECTED, DENIED, UNSUPPORTED, FAILED = 0, 1, 2, 3, 4  #: MAV_RESULT
 SET_MESSAGE_INTERVAL, NAV_TAKEOFF, DO_SET_MODE = 511, 22, 176  #: MAV_CMD
 ARM_DISARM, NAV_LAND = 400, 21
-SYS_STATUS, EXTENDED_SYS_STATE = 1, 245  #: message ids MAVSDK has no set_rate_* for
+SYS_STATUS, EXTENDED_SYS_STATE, EKF_STATUS_REPORT = 1, 245, 193  #: message ids MAVSDK has no set_rate_* for
+PREARM_CHECK = 1 << 28  #: MAV_SYS_STATUS_PREARM_CHECK
+POSITION_ONLY = 0b110111111000  #: SET_POSITION_TARGET_* type_mask: x, y, z only
+LOCAL_NED, GLOBAL_INT = 1, 5  #: MAV_FRAME
 CUSTOM_MODE_ENABLED, SAFETY_ARMED = 1, 128  #: MAV_MODE_FLAG
 SETPOINTS_BEFORE_START = 3  #: at MAVSDK's own 20 Hz
 SERIOUS = 4  #: MAV_SEVERITY_WARNING: texts at this severity or worse explain a refusal
@@ -89,11 +93,13 @@ class MavsdkLink:
 
     def __init__(self, url: str | LinkUrl, *, frame: GeoFrame | None = None, heartbeat_timeout: float = 3.0,
                  command_timeout: float = 3.0, text_grace: float = 0.3, stream_hz: float = 10.0,
+                 setpoint_hz: float = 20.0, timeouts: Timeouts = DEFAULT_TIMEOUTS,
                  clock: Callable[[], float] = time.monotonic) -> None:
         self.url = parse_link_url(url) if isinstance(url, str) else url
         self.frame, self.clock = frame, clock
         self.heartbeat_timeout, self.command_timeout = heartbeat_timeout, command_timeout
-        self.text_grace, self.stream_hz = text_grace, stream_hz
+        self.text_grace, self.stream_hz, self.setpoint_hz, self.timeouts = text_grace, stream_hz, setpoint_hz, timeouts
+        self._setpoint: MavlinkMessage | None = None  #: ArduPilot's, repeated at setpoint_hz by this link
         self.sysid: int | None = None
         self._mavsdk: Mavsdk | None = None
         self._connection: Any = None  #: MAVSDK's handle of our connection
@@ -143,14 +149,15 @@ class MavsdkLink:
             self.autopilot = {MavsdkAutopilot.PX4: Autopilot.PX4, MavsdkAutopilot.ARDUPILOT: Autopilot.ARDUPILOT}.get(
                 system.autopilot_type(), Autopilot.OTHER)
             for kind, handler in (("HEARTBEAT", self._on_heartbeat), ("COMMAND_ACK", self._on_command_ack),
-                                  ("STATUSTEXT", self._on_statustext)):
+                                  ("STATUSTEXT", self._on_statustext), ("SYS_STATUS", self._keep_direct),
+                                  ("EKF_STATUS_REPORT", self._keep_direct)):
                 handle = self._direct.subscribe_message(kind, self._handler(handler))
                 self._subscriptions.append((self._direct.unsubscribe_message, handle))
             for name in TELEMETRY:
                 keep = self._handler(functools.partial(self._keep, name))
                 handle = getattr(self._telemetry, f"subscribe_{name}")(keep)
                 self._subscriptions.append((getattr(self._telemetry, f"unsubscribe_{name}"), handle))
-            self._tasks.append(asyncio.create_task(self._watchdog()))
+            self._tasks += [asyncio.create_task(self._watchdog()), asyncio.create_task(self._stream_setpoint())]
             await self._wait_for(lambda: self.heartbeats > 0, timeout, "a HEARTBEAT from a vehicle")
             await self._ask_for_streams()
         except BaseException:
@@ -162,7 +169,10 @@ class MavsdkLink:
         for name, share in TELEMETRY.items():
             set_rate = getattr(self._telemetry, f"set_rate_{name}_async")
             await self._call(f"set_rate_{name}", functools.partial(set_rate, self.stream_hz * share), TelemetryError)
-        for msg_id, share in ((SYS_STATUS, Share.STATUS), (EXTENDED_SYS_STATE, Share.LANDED)):
+        direct = [(SYS_STATUS, Share.STATUS), (EXTENDED_SYS_STATE, Share.LANDED)]
+        if self.autopilot is Autopilot.ARDUPILOT:
+            direct.append((EKF_STATUS_REPORT, Share.STATUS))
+        for msg_id, share in direct:
             await self.command("SET_MESSAGE_INTERVAL", SET_MESSAGE_INTERVAL, msg_id, 1e6 / (self.stream_hz * share))
 
     async def close(self) -> None:
@@ -198,9 +208,13 @@ class MavsdkLink:
             lambda: self.custom_mode == custom, "stayed in {mode}"))
 
     async def follow_setpoints(self) -> None:
-        """MAVSDK's offboard (GUIDED on ArduPilot), holding the current position as the first setpoint."""
+        """PX4: MAVSDK's offboard, holding the current position as the first setpoint. ArduPilot: GUIDED,
+        and no MAVSDK offboard: its setpoints stream from the first one on, and one cancels a take-off."""
         mode = FOLLOW_MODE.get(self.autopilot or Autopilot.OTHER)
         if mode is not None and self.mode == mode and not self._mode_doubt.in_doubt:
+            return
+        if self.autopilot is Autopilot.ARDUPILOT:
+            await self.set_mode("GUIDED")
             return
         here = self.last_position()
         if here is None:
@@ -227,11 +241,11 @@ class MavsdkLink:
                 raise VehicleError(f"vehicle {self.sysid}: no global position, cannot take off")
             amsl = t.global_position.alt_m - t.height_m + altitude_m
             await self.command("TAKEOFF", NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, amsl)
-        await self.wait_until(lambda t: t.landed in (LandedState.TAKEOFF, LandedState.IN_AIR)
-                              or (t.height_m or 0.0) > 0.3, self.heartbeat_timeout, "the takeoff to start")
+        await self.wait_until(takeoff_started, self.timeouts.takeoff_start_s, "the takeoff to start")
 
     async def land(self) -> None:
-        """Land where it is; confirmed from the next HEARTBEAT's mode."""
+        """Land where it is; confirmed from the next HEARTBEAT's mode (ArduPilot: its setpoint is dropped)."""
+        self._setpoint = None
         mode = LAND_MODE.get(self.autopilot or Autopilot.OTHER)
         await self._mode_doubt.around(self._confirmed(
             "LAND", self._call("LAND", self._action.land_async, ActionError, NAV_LAND),
@@ -311,8 +325,13 @@ class MavsdkLink:
 
     # ------------------------------------------------------------ setpoints
     async def send_position_target(self, target: Ned) -> None:
-        """Fly to ``target`` (local NED, or the workspace frame's with ``frame``); MAVSDK repeats it at 20 Hz."""
+        """Fly to ``target`` (local NED, or the workspace frame's with ``frame``). PX4: MAVSDK's offboard
+        repeats it at 20 Hz. ArduPilot: this link repeats it at ``setpoint_hz``, once the take-off is over."""
         self._check_alive()
+        if self.autopilot is Autopilot.ARDUPILOT:
+            self._setpoint = self._setpoint_message(target)
+            self._send_setpoint()
+            return
         try:  # these only store the setpoint (and send it once): they do not wait for the vehicle
             if self.frame is None:
                 self._offboard.set_position_ned(PositionNedYaw(target.north, target.east, target.down, 0.0))
@@ -322,6 +341,33 @@ class MavsdkLink:
                     PositionGlobalYaw(g.lat, g.lon, g.alt_m, 0.0, PositionGlobalYaw.AltitudeType.AMSL))
         except OffboardError as exc:
             raise VehicleError(f"vehicle {self.sysid}: setpoint not taken ({exc})") from exc
+
+    def _setpoint_message(self, target: Ned) -> MavlinkMessage:
+        ms = round((self.clock() % 4e6) * 1000)
+        fields: dict[str, float | int] = {"time_boot_ms": ms, "target_system": self.sysid or 0, "target_component": 1,
+                                          "type_mask": POSITION_ONLY, **dict.fromkeys(
+                                              ("vx", "vy", "vz", "afx", "afy", "afz", "yaw", "yaw_rate"), 0.0)}
+        if self.frame is None:
+            name = "SET_POSITION_TARGET_LOCAL_NED"
+            fields.update(coordinate_frame=LOCAL_NED, x=target.north, y=target.east, z=target.down)
+        else:
+            name, g = "SET_POSITION_TARGET_GLOBAL_INT", self.frame.ned_to_global(target)
+            fields.update(coordinate_frame=GLOBAL_INT, lat_int=round(g.lat * 1e7), lon_int=round(g.lon * 1e7),
+                          alt=g.alt_m)
+        return MavlinkMessage(message_name=name, target_system_id=self.sysid or 0, target_component_id=1,
+                              fields_json=json.dumps(fields))
+
+    def _send_setpoint(self) -> None:
+        if self._setpoint is not None and self._silent is None and self._dead is None \
+                and may_stream_setpoints(self.telemetry()):
+            try:
+                self._direct.send_message(self._setpoint)
+            except MavlinkDirectError as exc:
+                log.debug("vehicle %s: setpoint not sent: %s", self.sysid, exc)
+
+    async def _stream_setpoint(self) -> None:
+        async for _ in periodic(1 / self.setpoint_hz):
+            self._send_setpoint()
 
     # ------------------------------------------------------------ telemetry
     @property
@@ -342,8 +388,8 @@ class MavsdkLink:
 
     def last_global(self) -> GeoPoint | None:
         p = self._value("position")
-        if p is None or math.isnan(p.latitude_deg):
-            return None
+        if p is None or math.isnan(p.latitude_deg) or p.latitude_deg == p.longitude_deg == 0:
+            return None  # ArduPilot before its first estimate sends stale zeros
         return GeoPoint(p.latitude_deg, p.longitude_deg, p.absolute_altitude_m)
 
     def telemetry(self) -> Telemetry:
@@ -357,7 +403,25 @@ class MavsdkLink:
         return Telemetry(self.autopilot, self.armed, self.mode, self.last_position(), velocity, self.last_global(),
                          height, pct, volts, 0 if gps is None else int(gps.fix_type),
                          0 if gps is None else gps.num_satellites,
-                         LandedState(int(landed)) if landed is not None else LandedState.UNDEFINED, self.heartbeat_at)
+                         LandedState(int(landed)) if landed is not None else LandedState.UNDEFINED, self.heartbeat_at,
+                         self._position_ok(), self._prearm_ok(), self._prearm_text())
+
+    def _position_ok(self) -> bool | None:
+        """ArduPilot's EKF on its position (not reported yet: not ok); None for autopilots that do not say."""
+        if self.autopilot is not Autopilot.ARDUPILOT:
+            return None
+        ekf = self._value("EKF_STATUS_REPORT")
+        return ekf is not None and ekf_has_position(int(ekf["flags"]), self.armed)
+
+    def _prearm_ok(self) -> bool | None:
+        status = self._value("SYS_STATUS")
+        if status is None or not int(status["onboard_control_sensors_present"]) \
+                & int(status["onboard_control_sensors_enabled"]) & PREARM_CHECK:
+            return None
+        return bool(int(status["onboard_control_sensors_health"]) & PREARM_CHECK)
+
+    def _prearm_text(self) -> str:
+        return next((text for _, _, text in reversed(self.texts) if text.startswith("PreArm")), "")
 
     async def wait_until(self, predicate: Callable[[Telemetry], bool], timeout: float, what: str) -> Telemetry:
         await self._wait_for(lambda: predicate(self.telemetry()), timeout, what)
@@ -396,6 +460,10 @@ class MavsdkLink:
         self.heartbeats += 1
         self.heartbeat_at = self.clock()
         self._silent = None
+
+    def _keep_direct(self, msg: MavlinkMessage) -> None:
+        if msg.component_id == 1:
+            self._keep(msg.message_name, json.loads(msg.fields_json))
 
     def _on_command_ack(self, msg: MavlinkMessage) -> None:
         fields = json.loads(msg.fields_json)
@@ -451,6 +519,10 @@ class MavsdkLink:
                         detail: Callable[[], str] = str) -> None:
         if not await self._until(condition, timeout):
             raise VehicleError(f"vehicle {self.sysid}: waited {timeout} s for {what}{detail()}")
+
+    def problem(self) -> str | None:
+        error = self._dead or self._silent
+        return None if error is None else str(error)
 
     def _check_alive(self) -> None:
         if error := self._dead or self._silent:

@@ -32,7 +32,9 @@ from fleet.transport.wire import DroneState, MailOrder, MailStatus, MailStatusRe
 
 DRONA = [sys.executable, "-m", "fleet.cli"]
 SPEEDUP = 6.0  #: the fake vehicles' simulated seconds per second: they track a cell per tau easily
-LEAD_STEPS = 4  #: Delta + 1 + 2 steps to climb (vehicles at SPEEDUP climb in well under a second)
+#: Delta + 1, and 4 steps (2 s) for the take-off: the fake spools up for 3.5 s and climbs 2 m (simulated,
+#: about 1.2 s at SPEEDUP), after the mode change and arming are acknowledged and confirmed.
+LEAD_STEPS = 6
 
 
 def workspace_yaml(drones: int) -> str:

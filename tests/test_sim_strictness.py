@@ -1,0 +1,112 @@
+"""The fake vehicle refuses what the real autopilot refuses: each behaviour measured on ArduCopter SITL
+(V4.7.0-dev) that a ground station must cope with, on the sans-I/O model driven by ``now``.
+
+A ground station that passes against a forgiving fake and then leaves no real vehicle on the ground
+is what these tests are for: each one failed on the fake before it was made this strict.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import pytest
+
+from fleet.sim.config import VehicleConfig
+from fleet.sim.fleet import FleetConfig, SimClock, build_nodes, placements
+from fleet.sim.mav import mavlink2
+from fleet.sim.model import VehicleModel
+from fleet.sim.personality import ARDUPILOT, PX4
+from fleet.sim.telemetry import ekf_status_report, global_position_int, gps_raw_int, local_position_ned
+from fleet.vehicle.policy import ekf_has_position
+from tests.test_sim_vehicle import GCS, POSITION_ONLY, ack_of, deliver, run_for
+
+ML = mavlink2
+GUIDED = 4
+ARM, TAKEOFF, SET_MODE = ML.MAV_CMD_COMPONENT_ARM_DISARM, ML.MAV_CMD_NAV_TAKEOFF, ML.MAV_CMD_DO_SET_MODE
+
+
+def arducopter(**settings: Any) -> VehicleModel:
+    (place,) = placements(None, 1)
+    return VehicleModel(VehicleConfig(personality=ARDUPILOT, **settings), place, 0.0)
+
+
+def armed_and_taking_off(model: VehicleModel, now: float, height: float = 10.0) -> None:
+    assert ack_of(model, now, SET_MODE, 1, GUIDED) == ML.MAV_RESULT_ACCEPTED
+    assert ack_of(model, now, ARM, 1) == ML.MAV_RESULT_ACCEPTED
+    assert ack_of(model, now, TAKEOFF, 0, 0, 0, 0, 0, 0, height) == ML.MAV_RESULT_ACCEPTED
+
+
+def setpoint(model: VehicleModel, now: float, north: float, east: float, down: float) -> None:
+    deliver(model, GCS.set_position_target_local_ned_encode(0, 1, 1, ML.MAV_FRAME_LOCAL_NED, POSITION_ONLY,
+                                                            north, east, down, 0, 0, 0, 0, 0, 0, 0, 0), now)
+
+
+def test_arducopter_takes_45_s_from_boot_to_its_position_estimate_and_says_so() -> None:
+    """A GPS fix after about 12 s (type 6 in SITL), the EKF's absolute position after about 45 s. Before
+    it: no local position, a global position at 0 degrees until the fix, arming refused; disarmed,
+    GUIDED is taken anyway."""
+    model = arducopter()
+    assert (model.config.gps_s, model.config.ready_s) == (12.0, 45.0)
+    early, fixed, ready = 5.0, 20.0, 46.0
+    assert gps_raw_int(model, early).fix_type < 3 and global_position_int(model, early).lat == 0
+    assert local_position_ned(model, early) is None
+    assert gps_raw_int(model, fixed).fix_type == ML.GPS_FIX_TYPE_RTK_FIXED
+    assert global_position_int(model, fixed).lat != 0 and local_position_ned(model, fixed) is None
+    assert not ekf_has_position(ekf_status_report(model, fixed).flags, armed=False)
+    assert ack_of(model, fixed, SET_MODE, 1, GUIDED) == ML.MAV_RESULT_ACCEPTED and model.mode == "GUIDED"
+    assert ack_of(model, fixed, ARM, 1) == ML.MAV_RESULT_FAILED
+    assert ekf_has_position(ekf_status_report(model, ready).flags, armed=False)
+    assert local_position_ned(model, ready) is not None
+    assert ack_of(model, ready, ARM, 1) == ML.MAV_RESULT_ACCEPTED
+
+
+def test_the_boot_to_ready_time_may_be_shortened_but_not_switched_off() -> None:
+    assert arducopter(ready_after_s=0.5).config.ready_s == 0.5
+    with pytest.raises(ValueError, match="ready_after_s must be > 0"):
+        VehicleConfig(personality=ARDUPILOT, ready_after_s=0.0)
+
+
+def test_arducopter_spools_up_for_seconds_then_says_takeoff_until_it_is_up() -> None:
+    """Its landed state: on the ground through the spool-up (3.5 s), taking off while it climbs, in the
+    air once the take-off is over; ground stations wait on that, not on a timer of their own."""
+    model = arducopter(ready_after_s=1.0)
+    armed_and_taking_off(model, 1.0)
+    now = run_for(model, 1.0, 3.0)
+    assert (model.body.height, model.landed_state()) == (0.0, ML.MAV_LANDED_STATE_ON_GROUND)
+    now = run_for(model, now, 1.5)
+    assert model.body.height > 0.0 and model.landed_state() == ML.MAV_LANDED_STATE_TAKEOFF
+    run_for(model, now, 12.0)
+    assert model.body.height == pytest.approx(10.0, abs=0.3)
+    assert model.landed_state() == ML.MAV_LANDED_STATE_IN_AIR
+
+
+@pytest.mark.parametrize("after_s", [0.5, 3.0], ids=["at-once", "during-the-spool-up"])
+def test_a_position_target_cancels_arducopters_takeoff_and_it_disarms_on_the_ground(after_s: float) -> None:
+    """A setpoint in GUIDED switches ArduCopter to position control, which does nothing while landed:
+    the take-off is over before it began. The vehicle stays down and disarms itself (DISARM_DELAY)."""
+    model = arducopter(ready_after_s=1.0)
+    armed_and_taking_off(model, 1.0)
+    now = run_for(model, 1.0, after_s)
+    setpoint(model, now, 0.0, 0.0, -10.0)  # where the take-off was going
+    now = run_for(model, now, 8.0)
+    assert (model.body.height, model.landed_state()) == (0.0, ML.MAV_LANDED_STATE_ON_GROUND)
+    run_for(model, now, model.config.auto_disarm_s)
+    assert not model.armed
+
+
+def test_a_position_target_once_the_takeoff_is_over_is_flown() -> None:
+    model = arducopter(ready_after_s=1.0)
+    armed_and_taking_off(model, 1.0, height=5.0)
+    now = run_for(model, 1.0, 10.0)
+    assert model.landed_state() == ML.MAV_LANDED_STATE_IN_AIR
+    setpoint(model, now, 8.0, 0.0, -5.0)
+    run_for(model, now, 8.0)
+    assert model.body.north == pytest.approx(8.0, abs=0.3)
+
+
+def test_every_arducopter_sitl_is_system_1_and_px4_instances_count_up() -> None:
+    for personality, expected in ((ARDUPILOT, [1, 1, 1]), (PX4, [1, 2, 3])):
+        config = FleetConfig(count=3, vehicle=dataclasses.replace(VehicleConfig(), personality=personality))
+        nodes = build_nodes(config, None, SimClock())
+        assert [node.system_id for node in nodes] == expected
