@@ -357,7 +357,7 @@ async def linked_fleet(count: int, stream_hz: float, frame: GeoFrame | None = No
         base = free_udp_base(count, HOST)
     except OSError as exc:
         raise BenchError(str(exc)) from exc
-    links = [CountingLink(f"udpin://{HOST}:{base + i}", target_system=i + 1, stream_hz=stream_hz, frame=frame,
+    links = [CountingLink(f"udpin://{HOST}:{base + i}", stream_hz=stream_hz, frame=frame,
                           setpoint_hz=setpoint_hz, heartbeat_timeout=5.0, ack_timeout=2.0) for i in range(count)]
     sim = SimProcess(count, base)
     connecting = [asyncio.create_task(link.connect(timeout=CONNECT_TIMEOUT_S)) for link in links]

@@ -46,6 +46,7 @@ except Exception as exc:  # no package, or its native library does not load here
 T = TypeVar("T")
 
 SPEEDUP = 2.0
+READY_AFTER_S = 3.0  #: simulated boot to a position estimate, short: this test is about MAVSDK, not the boot
 TAKEOFF_ALT_M = 3.0
 GOAL = (6.0, 4.0, -4.0)  #: local NED (m) from home, and the yaw below
 GOAL_YAW_DEG = 90.0
@@ -100,7 +101,8 @@ async def fake_vehicle(personality: Personality) -> AsyncIterator[str]:
     """One fake vehicle in this event loop, on its SITL's link; yields MAVSDK's connection URL."""
     tcp = personality is ARDUPILOT
     port = free_port(socket.SOCK_STREAM if tcp else socket.SOCK_DGRAM)
-    config = FleetConfig(vehicle=VehicleConfig(personality=personality), tcp=tcp, base_port=port, speedup=SPEEDUP)
+    vehicle = VehicleConfig(personality=personality, ready_after_s=READY_AFTER_S)
+    config = FleetConfig(vehicle=vehicle, tcp=tcp, base_port=port, speedup=SPEEDUP)
     stop, ready = asyncio.Event(), asyncio.Event()
     fleet = asyncio.create_task(run_fleet(config, None, stop, on_ready=lambda nodes: ready.set()))
     try:

@@ -23,6 +23,7 @@ from tests.integration.harness import DRONA, FleetProcesses, Observer
 pytestmark = pytest.mark.slow
 
 SAFE_THRESHOLD = 20.0
+MIN_CONFORMANCE = 0.95  #: drona audit's default bound
 
 
 def random_orders(count: int, seed: int, fleet: FleetProcesses) -> list[MailOrder]:
@@ -52,6 +53,10 @@ def check_run(fleet: FleetProcesses, obs: Observer, orders: list[MailOrder]) -> 
     assert set(result.trajectories) == set(fleet.drones)
     assert all(t.end_step - t.start_step > 20 for t in result.trajectories.values())  # the run was recorded
     assert result.safe, _unsafe(result, fleet)
+    assert not result.jumps, f"moves of more than a cell per step: {result.jumps[:5]}\n{fleet.logs()}"
+    conformance = result.conformance
+    assert conformance.planned_steps > 20 and conformance.fraction >= MIN_CONFORMANCE, (
+        f"flown in the planned cell: {conformance.fraction:.1%}, worst {conformance.worst}")
     assert obs.priority_violations({o.id: o for o in orders}) == []
     assert min(obs.min_battery.values()) >= SAFE_THRESHOLD
 

@@ -1,0 +1,125 @@
+"""`drona audit`: separation, conformance to the plan and continuity of a flown record.
+
+The workspace is 5 x 5 x 1, free. Records are written as the agents write them.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from drona_gcs.audit import audit
+from drona_gcs.errors import ProblemError
+from drona_gcs.workspace import Workspace
+from fleet.agent.watch import record_line
+from fleet.cli import main
+
+WS = Workspace.build(size=(5, 5, 1), obstacles=frozenset())
+
+
+def flight(drone: str, start: int, flown: list[tuple[int, int]], planned: list[tuple[int, int] | None],
+           delta: int = 1) -> list[dict[str, Any]]:
+    """Records of one drone; a flown cell of (-1, -1) is a step without a record."""
+    lines = []
+    for k, (cell, plan) in enumerate(zip(flown, planned, strict=True)):
+        if cell == (-1, -1):
+            continue
+        line = record_line(start + k, drone, (*cell, 0), None if plan is None else (*plan, 0), delta)
+        lines.append(json.loads(line))
+    return lines
+
+
+def run_cli(tmp_path: Path, records: list[dict[str, Any]], *flags: str,
+            capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
+    (tmp_path / "ws.json").write_text(json.dumps({"size": [5, 5, 1]}))
+    (tmp_path / "run.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    code = main(["audit", "--workspace", str(tmp_path / "ws.json"), str(tmp_path / "run.jsonl"), *flags])
+    return code, capsys.readouterr().out
+
+
+PATH = [(0, 0), (1, 0), (2, 0), (3, 0)]
+
+
+def test_a_flight_on_its_plan_conforms_fully() -> None:
+    result = audit(WS, flight("d0", 10, PATH, PATH))
+    assert result.safe and not result.jumps
+    assert result.conformance.planned_steps == 4 and result.conformance.fraction == 1.0
+    assert result.conformance.worst is None
+
+
+def test_steps_flown_off_the_plan_lower_conformance_and_the_worst_is_named() -> None:
+    # A vehicle that never left its start cell while its plan flew: three steps off, the last by three.
+    result = audit(WS, flight("d0", 10, [(0, 0)] * 4, PATH))
+    assert result.conformance.fraction == pytest.approx(0.25)
+    worst = result.conformance.worst
+    assert worst is not None and (worst.step, worst.cells, worst.planned) == (13, 3, (3, 0, 0))
+
+
+def test_steps_with_no_plan_do_not_count_for_conformance() -> None:
+    result = audit(WS, flight("d0", 0, [(0, 0), (0, 0), (1, 0)], [None, None, (1, 0)]))
+    assert result.conformance.planned_steps == 1 and result.conformance.fraction == 1.0
+
+
+def test_a_move_of_two_cells_in_one_step_is_a_jump_but_not_over_a_gap_of_two_steps() -> None:
+    jumped = audit(WS, flight("d0", 0, [(0, 0), (2, 0)], [None, None]))
+    assert [(j.step, j.steps) for j in jumped.jumps] == [(1, 1)]
+    over_gap = audit(WS, flight("d0", 0, [(0, 0), (-1, -1), (2, 0)], [None, None, None]))
+    assert not over_gap.jumps and over_gap.gaps == {"d0": 1}
+
+
+def test_a_diagonal_move_is_a_jump() -> None:
+    assert len(audit(WS, flight("d0", 0, [(0, 0), (1, 1)], [None, None])).jumps) == 1
+
+
+def test_two_drones_in_one_cell_are_a_separation_violation() -> None:
+    records = flight("a", 0, [(0, 0), (1, 0)], [None, None]) + flight("b", 0, [(2, 0), (1, 0)], [None, None])
+    assert not audit(WS, records).safe
+
+
+def test_records_without_planned_are_still_read() -> None:
+    old = [{"step": 0, "drone": "d0", "cell": [0, 0, 0], "delta": 0}]
+    assert audit(WS, old).conformance.planned_steps == 0
+
+
+@pytest.mark.parametrize(("record", "named"), [
+    ({"step": 0, "drone": "d0", "cell": [0, 0, 0], "planned": [0, 0], "delta": 0}, "planned"),
+    ({"step": 0, "drone": "d0", "cell": None, "planned": None, "delta": 0}, "cell"),
+    ({"step": "0", "drone": "d0", "cell": [0, 0, 0], "delta": 0}, "integer step"),
+])
+def test_a_bad_record_is_named(record: dict[str, Any], named: str) -> None:
+    with pytest.raises(ProblemError, match=named):
+        audit(WS, [record])
+
+
+def test_cli_exits_1_when_conformance_is_under_the_bound(tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    off = flight("d0", 0, [(0, 0), (1, 0), (2, 0), (2, 0)], PATH)  # 75% in the planned cell
+    code, out = run_cli(tmp_path, off, capsys=capsys)
+    assert code == 1 and "conformance 75.0% < 95.0%" in out
+    code, out = run_cli(tmp_path, off, "--min-conformance", "0.75", capsys=capsys)
+    assert code == 0, out
+
+
+def test_cli_exits_1_on_a_jump_unless_allowed(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    jumped = flight("d0", 0, [(0, 0), (2, 0)], [None, None])
+    code, out = run_cli(tmp_path, jumped, capsys=capsys)
+    assert code == 1 and "JUMP d0 moved 2 cells in 1 step(s)" in out
+    assert run_cli(tmp_path, jumped, "--max-jumps", "1", capsys=capsys)[0] == 0
+
+
+def test_cli_json_verdict(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, out = run_cli(tmp_path, flight("d0", 5, [(0, 0)] * 4, PATH), "--json", capsys=capsys)
+    verdict = json.loads(out)
+    assert code == 1 and verdict["ok"] is False
+    assert verdict["conformance"]["planned_steps"] == 4 and verdict["conformance"]["in_planned_cell"] == 1
+    assert verdict["conformance"]["worst_cells"] == 3
+    assert verdict["drones"] == {"d0": {"first_step": 5, "last_step": 8, "gaps": 0}}
+
+
+def test_cli_refuses_a_bound_outside_0_1(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        run_cli(tmp_path, [], "--min-conformance", "1.5", capsys=capsys)
+    assert "not a fraction between 0 and 1" in capsys.readouterr().err
