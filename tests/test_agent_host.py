@@ -1,16 +1,25 @@
-"""How an agent process spreads its drones over Zenoh sessions, and where each session listens."""
+"""How an agent process spreads its drones over Zenoh sessions, where each session listens, and whose
+MAVLink 2 signing key each of its vehicles gets."""
 
 from __future__ import annotations
 
+import signal
+import socket
+import subprocess
+import time
 from pathlib import Path
 
 import pytest
+from pydantic import ValidationError
 
+from drona_gcs.geo import GeoFrame
 from drona_gcs.workspace_files import load_workspace
-from fleet.agent.host import session_groups, zenoh_settings
+from fleet.agent.host import open_link, session_groups, zenoh_settings
 from fleet.agent.settings import AgentSettings
+from fleet.sim.ports import free_port, free_udp_base
 from fleet.transport.node import agent_endpoint
-from tests.integration.harness import workspace_yaml
+from fleet.vehicle.signing import SigningKeyError
+from tests.integration.harness import DRONA, workspace_yaml
 
 
 @pytest.fixture()
@@ -56,3 +65,101 @@ def test_explicit_endpoints_give_the_ith_hosted_drone_the_port_i_up(ws_file: Pat
         assert not set(listen) & set(connect)
     if not shared:
         assert found[1][2] == ("tcp/127.0.0.1:9000",)
+
+
+# ------------------------------------------------------------------ MAVLink 2 signing keys
+KEY, OTHER = bytes(range(32)).hex(), bytes(range(1, 33)).hex()
+
+
+def test_a_key_file_with_one_key_signs_the_one_drone(ws_file: Path, tmp_path: Path) -> None:
+    keys = tmp_path / "key"
+    keys.write_text(f"# d1's radio\n{KEY}\n")
+    settings = AgentSettings(workspace=ws_file, signing_key_file=keys)
+    assert settings.signing_keys(["d1"]) == {"d1": bytes.fromhex(KEY)}
+    with pytest.raises(SigningKeyError, match="one key, for one drone"):
+        settings.signing_keys(["d1", "d2"])
+
+
+def test_a_fleet_key_file_gives_each_hosted_drone_its_own_line(ws_file: Path, tmp_path: Path) -> None:
+    keys = tmp_path / "fleet.keys"
+    keys.write_text(f"d1 {OTHER}\nd2 {KEY}\n\nd3 {OTHER}\n")
+    settings = AgentSettings(workspace=ws_file, drone="d2", count=2, signing_key_file=keys)
+    assert settings.signing_keys(["d2", "d3"]) == {"d2": bytes.fromhex(KEY), "d3": bytes.fromhex(OTHER)}
+    with pytest.raises(SigningKeyError, match="no key for d4"):
+        settings.signing_keys(["d3", "d4"])
+
+
+def test_a_bad_key_is_refused_without_being_quoted(ws_file: Path, tmp_path: Path,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    secret = KEY[:-2]  # a byte short
+    keys = tmp_path / "fleet.keys"
+    keys.write_text(f"d1 {secret}\n")
+    with pytest.raises(SigningKeyError, match="32 bytes") as found:
+        AgentSettings(workspace=ws_file, signing_key_file=keys).signing_keys(["d1"])
+    monkeypatch.setenv("DRONA_SIGNING_KEY", secret)
+    with pytest.raises(ValidationError, match="DRONA_SIGNING_KEY: a signing key is 32 bytes") as invalid:
+        AgentSettings(workspace=ws_file)
+    assert secret not in str(found.value) and secret not in str(invalid.value)
+
+
+def test_the_environments_key_is_one_vehicles(ws_file: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("DRONA_SIGNING_KEY", KEY)
+    assert AgentSettings(workspace=ws_file, drone="d3").signing_keys(["d3"]) == {"d3": bytes.fromhex(KEY)}
+    with pytest.raises(ValidationError, match="with --count > 1 give each drone its own"):
+        AgentSettings(workspace=ws_file, count=2)
+    keys = tmp_path / "key"
+    keys.write_text(KEY)
+    with pytest.raises(ValidationError, match="not both"):
+        AgentSettings(workspace=ws_file, signing_key_file=keys)
+
+
+def test_without_a_key_nothing_is_signed(ws_file: Path) -> None:
+    assert AgentSettings(workspace=ws_file, count=2).signing_keys(["d1", "d2"]) == {}
+
+
+def test_the_mavsdk_backend_refuses_a_signing_key_rather_than_fly_unsigned(ws_file: Path) -> None:
+    settings = AgentSettings(workspace=ws_file, backend="mavsdk")
+    frame = GeoFrame(load_workspace(ws_file))
+    try:
+        import fleet.vehicle.mavsdk_link  # noqa: F401
+    except Exception as exc:  # no package, or its native library does not load here
+        pytest.skip(f"MAVSDK cannot run here: {type(exc).__name__}: {exc}")
+    with pytest.raises(SigningKeyError, match="mavsdk backend cannot sign"):
+        open_link(settings, "udpin://127.0.0.1:14540", frame, bytes.fromhex(KEY))
+
+
+def test_an_agent_with_its_key_file_flies_a_signed_sim_vehicle(ws_file: Path, tmp_path: Path) -> None:
+    """`drona agent --signing-key-file` against `drona sim-vehicle --signing-key`: it connects (its
+    telemetry requests signed and acknowledged), joins and says so, and leaves cleanly."""
+    keys, log = tmp_path / "key", tmp_path / "agent.log"
+    keys.write_text(f"{KEY}\n")
+    base, listen = free_udp_base(1), free_port(socket.SOCK_STREAM)
+    sim = subprocess.Popen([*DRONA, "sim-vehicle", "--workspace", str(ws_file), "--base-port", str(base),
+                            "--speedup", "6", "--ready-after", "0.5", "--signing-key", KEY],
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    with log.open("wb") as out:
+        agent = subprocess.Popen([*DRONA, "agent", "--workspace", str(ws_file), "--drone", "d1",
+                                  "--vehicle", f"udpin://127.0.0.1:{base}", "--signing-key-file", str(keys),
+                                  "--fleet", f"sign-{listen}", "--listen", f"tcp/127.0.0.1:{listen}"],
+                                 stdout=subprocess.DEVNULL, stderr=out)
+    try:
+        deadline = time.monotonic() + 30
+        while b"d1 flying" not in log.read_bytes() and agent.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert b"d1 flying" in log.read_bytes(), log.read_text(errors="replace")
+    finally:
+        for process in (agent, sim):
+            process.send_signal(signal.SIGINT)
+        time.sleep(0.2)
+        agent.send_signal(signal.SIGINT)  # a second one: leave now, no landing to wait for
+        codes = [_wait(process) for process in (agent, sim)]
+    assert codes == [0, 0], log.read_text(errors="replace")
+
+
+def _wait(process: subprocess.Popen[bytes]) -> int | None:
+    try:
+        return process.wait(15)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait(5)
+        return None

@@ -104,14 +104,16 @@ class Fake:
 
 @contextlib.asynccontextmanager
 async def fake_vehicle(personality: str, transport: str, port: int | None = None, speedup: float = SPEEDUP,
-                       **vehicle: Any) -> AsyncIterator[Fake]:
+                       signing_key: bytes | None = None, **vehicle: Any) -> AsyncIterator[Fake]:
     """One fake vehicle in this event loop; ``url`` is how a ground station reaches it. ``serial``: on a
-    pseudo-terminal at :data:`SERIAL_BAUD`, as a flight controller wired to a companion computer."""
+    pseudo-terminal at :data:`SERIAL_BAUD`, as a flight controller wired to a companion computer. With
+    ``signing_key`` it signs what it sends and ignores unsigned commands."""
     tcp, serial = transport == "tcp", transport == "serial"
     port = port or free_port(socket.SOCK_STREAM if tcp else socket.SOCK_DGRAM)
     settings: dict[str, Any] = {"ready_after_s": 1.0, "auto_disarm_s": 60.0, "offboard_timeout_s": 5.0, **vehicle}
     config = FleetConfig(vehicle=VehicleConfig(personality=PERSONALITIES[personality], **settings), tcp=tcp,
-                         base_port=port, speedup=speedup, serial_baud=SERIAL_BAUD if serial else None)
+                         base_port=port, speedup=speedup, serial_baud=SERIAL_BAUD if serial else None,
+                         signing_key=signing_key)
     stop, started = asyncio.Event(), asyncio.Event()
     nodes: list[SimNode] = []
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import logging
 import math
 import signal
@@ -40,7 +41,7 @@ from fleet.clock import cancel_all, periodic
 from fleet.executor import SetpointFleet, SetpointLoop, StepReport
 from fleet.transport.keys import FleetKeys, check_name
 from fleet.transport.node import ZenohNode, ZenohSettings, agent_endpoint
-from fleet.vehicle.link import VehicleLink
+from fleet.vehicle.link import REOPEN_S, VehicleLink
 from fleet.vehicle.mavlink_link import PymavlinkLink
 from fleet.vehicle.policy import Timeouts
 
@@ -48,6 +49,7 @@ log = logging.getLogger(__name__)
 
 CLIMB_RATE_M_S = 1.5  #: a cautious take-off climb rate, for the default lead time
 ARM_AND_MODE_S = 2.0  #: mode change, arming and take-off command acknowledged
+CONNECT_LOG_EVERY = 10  #: a vehicle that does not answer is logged at the first and every tenth attempt
 SPOOL_UP_S = 4.0  #: an accepted take-off to leaving the ground (ArduCopter SITL: about 3.5 s)
 LANDING_BOUND_S = 30.0  #: at shutdown, how long the drones may take to land
 
@@ -135,13 +137,15 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
     lead = settings.lead_steps or default_lead_steps(ws)
     config = StackConfig(ws, planner, battery, lead_steps=lead)
     keys = FleetKeys(settings.fleet)
+    signing = settings.signing_keys(host.names)  # before any network: a missing key stops the process here
     groups = session_groups(settings, host.names)
     sessions = await _all_or_none([ZenohNode.open(zenoh_settings(settings, ws, group, host.names.index(group[0])),
                                                   "+".join(group)) for group in groups], lambda node: node.close())
     nodes = [session.view(name) for session, group in zip(sessions, groups, strict=True) for name in group]
     links: list[VehicleLink] = []
     try:
-        links = await _all_or_none([_connect(host, frame, name) for name in host.names], lambda link: link.close())
+        links = await _all_or_none([_connect(host, frame, name, signing.get(name)) for name in host.names],
+                                   lambda link: link.close())
         for node, link, name in zip(nodes, links, host.names, strict=True):
             stack = DroneStack(name, config, ws.drones)
             agent = DroneAgent(stack, node, keys, link, frame, host.clock, record, timeouts(settings))
@@ -203,26 +207,36 @@ def timeouts(settings: AgentSettings) -> Timeouts:
     return Timeouts(takeoff_start_s=settings.takeoff_timeout_s, command_s=settings.command_timeout_s)
 
 
-def open_link(settings: AgentSettings, url: str, frame: GeoFrame) -> VehicleLink:
-    """The vehicle link of ``--backend``: pymavlink (the default), or MAVSDK (the ``mavsdk`` extra)."""
+def open_link(settings: AgentSettings, url: str, frame: GeoFrame, signing_key: bytes | None = None) -> VehicleLink:
+    """The vehicle link of ``--backend``: pymavlink (the default), or MAVSDK (the ``mavsdk`` extra, which
+    refuses a signing key). With ``signing_key`` the link signs and hears only signed messages."""
     hz, rate, limits = settings.telemetry_hz, settings.rate_hz, timeouts(settings)
     if settings.backend == "mavsdk":
         try:
             from fleet.vehicle.mavsdk_link import MavsdkLink
         except ImportError as exc:
             raise DronaError(f"--backend mavsdk needs MAVSDK (pip install 'drona-gcs[mavsdk]'): {exc}") from exc
-        return MavsdkLink(url, frame=frame, stream_hz=hz, setpoint_hz=rate, timeouts=limits)
-    return PymavlinkLink(url, frame=frame, stream_hz=hz, setpoint_hz=rate, timeouts=limits)
+        return MavsdkLink(url, frame=frame, stream_hz=hz, setpoint_hz=rate, timeouts=limits, signing_key=signing_key)
+    return PymavlinkLink(url, frame=frame, stream_hz=hz, setpoint_hz=rate, timeouts=limits, signing_key=signing_key)
 
 
-async def _connect(host: Host, frame: GeoFrame, name: str) -> VehicleLink:
+async def _connect(host: Host, frame: GeoFrame, name: str, signing_key: bytes | None) -> VehicleLink:
+    """The drone's link, once its vehicle answers: a vehicle not up yet (or rebooting) is waited for."""
     settings, ws = host.settings, host.workspace
-    link = open_link(settings, vehicle_url(settings, ws, name), frame)
-    try:
-        await link.connect()
-    except BaseException:
-        await link.close()
-        raise
+    url = vehicle_url(settings, ws, name)
+    for attempt in itertools.count():
+        link = open_link(settings, url, frame, signing_key)
+        try:
+            await link.connect()
+            break
+        except VehicleError as exc:
+            await link.close()
+            if attempt % CONNECT_LOG_EVERY == 0:
+                log.warning("drone %s: no vehicle yet (%s); trying again every %g s", name, exc, REOPEN_S)
+            await asyncio.sleep(REOPEN_S)  # a connection refused comes back at once: pace the attempts
+        except BaseException:
+            await link.close()
+            raise
     with contextlib.suppress(VehicleError):  # not ready yet: it joins waiting for its position
         await link.wait_ready(settings.ready_timeout_s)
     return link

@@ -2,23 +2,27 @@
 
 Flags win over the environment (``drona agent --fleet x`` over ``DRONA_FLEET``);
 lists come comma-separated (``DRONA_CONNECT=tcp/10.0.0.2:7448,tcp/10.0.0.3:7448``).
+A signing key comes only from the environment or a file, never from a flag (``ps`` shows flags).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from fleet.transport.keys import check_name
+from fleet.vehicle.signing import parse_key, read_key_file
 
 Endpoints = Annotated[list[str], NoDecode]
 
 
 class AgentSettings(BaseSettings):
-    model_config = SettingsConfigDict(env_prefix="DRONA_", extra="forbid")
+    # hide_input_in_errors: a validation error must not print a signing key
+    model_config = SettingsConfigDict(env_prefix="DRONA_", extra="forbid", hide_input_in_errors=True)
 
     workspace: Path
     drone: str | None = None  #: the drone to run; with count > 1, the first of ``count`` consecutive ones
@@ -47,6 +51,9 @@ class AgentSettings(BaseSettings):
     command_timeout_s: Annotated[float, Field(gt=0)] = 30.0  #: a whole take-off or landing
     shared_session: bool = False  #: simulation: the process's drones share one Zenoh session (one each by default)
     adopt_mail: bool = True  #: take over a departed peer's mail (turn off when a service dispatches it)
+    signing_key: SecretStr | None = None  #: DRONA_SIGNING_KEY: the vehicle's MAVLink 2 key, 64 hex digits (one drone)
+    #: MAVLink 2 keys: one key (one drone), or a line "DRONE KEY" per drone (fleet.vehicle.signing)
+    signing_key_file: Path | None = None
     log_level: str = "INFO"
 
     @field_validator("listen", "connect", mode="before")
@@ -54,6 +61,13 @@ class AgentSettings(BaseSettings):
     def _split(cls, value: object) -> object:
         if isinstance(value, str):
             return [part.strip() for part in value.split(",") if part.strip()]
+        return value
+
+    @field_validator("signing_key")
+    @classmethod
+    def _key(cls, value: SecretStr | None) -> SecretStr | None:
+        if value is not None:
+            parse_key(value.get_secret_value(), "DRONA_SIGNING_KEY")
         return value
 
     @field_validator("fleet")
@@ -68,4 +82,20 @@ class AgentSettings(BaseSettings):
                              "udpin://127.0.0.1:(14540 + i)")
         if self.zenoh_config is not None and not self.zenoh_config.is_file():
             raise ValueError(f"zenoh_config: no such file {self.zenoh_config}")
+        if self.signing_key is not None and self.signing_key_file is not None:
+            raise ValueError("give the signing key in DRONA_SIGNING_KEY or in --signing-key-file, not both")
+        if self.count > 1 and self.signing_key is not None:
+            raise ValueError("DRONA_SIGNING_KEY is one vehicle's key: with --count > 1 give each drone its own "
+                             "in --signing-key-file, a line 'DRONE KEY' each")
+        if self.signing_key_file is not None and not self.signing_key_file.is_file():
+            raise ValueError(f"signing_key_file: no such file {self.signing_key_file}")
         return self
+
+    def signing_keys(self, drones: Sequence[str]) -> dict[str, bytes]:
+        """Each of ``drones``' MAVLink 2 signing key; {} when signing is off. SigningKeyError if one is
+        missing or malformed."""
+        if self.signing_key_file is not None:
+            return read_key_file(self.signing_key_file, drones)
+        if self.signing_key is not None:
+            return dict.fromkeys(drones, parse_key(self.signing_key.get_secret_value(), "DRONA_SIGNING_KEY"))
+        return {}

@@ -63,6 +63,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="seconds from an accepted take-off to leaving the ground (default 10; ArduCopter spools up ~3.5 s)")
     add("--command-timeout", dest="command_timeout_s", type=float,
         help="seconds a whole take-off or landing may take (default 30)")
+    add("--signing-key-file", type=Path, metavar="PATH",
+        help="MAVLink 2 signing: a file holding the vehicle's key (64 hex digits), or a line 'DRONE KEY' per "
+             "drone (one file may serve every process of the fleet: each takes its own drones' keys). The link "
+             "then signs what it sends and hears only what is signed with the key. For one drone the key may "
+             "instead come from DRONA_SIGNING_KEY (not a flag: ps shows flags) [DRONA_SIGNING_KEY_FILE]")
     add("--no-adopt-mail", dest="adopt_mail", action="store_const", const=False,
         help="do not take over a departed drone's mail (when `drona serve` dispatches, it reassigns it)")
     add("--log-level", help="DEBUG, INFO (default), WARNING")

@@ -24,6 +24,15 @@ Positions: without ``frame`` they are in the autopilot's local NED frame (origin
 usually home). With a :class:`~drona_gcs.geo.GeoFrame` they are in that workspace's frame: targets go
 out as SET_POSITION_TARGET_GLOBAL_INT and positions come from GLOBAL_POSITION_INT, so vehicles
 with different homes share one frame. No ArduPilot parameter is read or written.
+
+Whom it listens to: the first HEARTBEAT of an autopilot component (MAV_COMP_ID_AUTOPILOT1, not of
+MAV_TYPE_GCS, naming an autopilot) fixes the vehicle's system id (``target_system``, if given, must
+match), and only messages from that system's autopilot component count. Over udpin the link
+answers the address that HEARTBEAT came from and hears no other while the vehicle is alive (see
+:mod:`fleet.vehicle.urls`). With ``signing_key`` (MAVLink 2 signing, :mod:`fleet.vehicle.signing`)
+everything sent is signed and only messages signed with the key are heard. Bytes are framed by
+:class:`~fleet.vehicle.frames.Deframer`: noise and truncated frames cost their own bytes, never
+the real frames behind them, and never raise.
 """
 
 from __future__ import annotations
@@ -42,10 +51,12 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from drona_gcs.geo import GeoFrame, GeoPoint, Ned
 from fleet.clock import cancel_all, periodic
+from fleet.vehicle.frames import Deframer
 from fleet.vehicle.link import REOPEN_S, Autopilot, LandedState, Position, Share, StreamRequests, Telemetry, not_ready
 from fleet.vehicle.modes import CONFIRM_HEARTBEATS, FOLLOW_MODE, LAND_MODE, ModeDoubt, mode_command, mode_name
 from fleet.vehicle.policy import DEFAULT_TIMEOUTS, Timeouts, ekf_has_position, may_stream_setpoints, takeoff_started
-from fleet.vehicle.urls import LinkUrl, Transport, open_transport, parse_link_url
+from fleet.vehicle.signing import accept_signed_only, sign_outgoing, stamp_now
+from fleet.vehicle.urls import LinkUrl, Scheme, Transport, open_transport, parse_link_url
 
 log = logging.getLogger(__name__)
 
@@ -81,15 +92,20 @@ class PymavlinkLink:
     def __init__(self, url: str | LinkUrl, *, target_system: int | None = None, source_system: int = 255,
                  frame: GeoFrame | None = None, heartbeat_timeout: float = 3.0, ack_timeout: float = 1.0,
                  retries: int = 2, text_grace: float = 0.3, stream_hz: float = 10.0, setpoint_hz: float = 20.0,
-                 timeouts: Timeouts = DEFAULT_TIMEOUTS, clock: Callable[[], float] = time.monotonic) -> None:
+                 timeouts: Timeouts = DEFAULT_TIMEOUTS, clock: Callable[[], float] = time.monotonic,
+                 signing_key: bytes | None = None) -> None:
         self.url = parse_link_url(url) if isinstance(url, str) else url
         self.frame, self.clock = frame, clock
         self.heartbeat_timeout, self.ack_timeout, self.retries = heartbeat_timeout, ack_timeout, retries
         self.text_grace, self.stream_hz, self.setpoint_hz = text_grace, stream_hz, setpoint_hz
         self.timeouts = timeouts
         self.sysid, self.compid = target_system, mavlink2.MAV_COMP_ID_AUTOPILOT1
+        self._locked = False  #: sysid is the vehicle's, from its first HEARTBEAT
+        self.signing_key = signing_key
         self._enc = mavlink2.MAVLink(None, srcSystem=source_system, srcComponent=GCS_COMPONENT)
-        self._dec = _decoder()
+        if signing_key is not None:
+            sign_outgoing(self._enc, signing_key)
+        self._frames = self._deframer()
         self._transport: Transport | None = None
         self._tasks: list[asyncio.Task[None]] = []
         self._waiters: dict[asyncio.Future[Message], tuple[str | None, Callable[[Message], bool]]] = {}
@@ -131,7 +147,7 @@ class PymavlinkLink:
     # ------------------------------------------------------------ connection
     async def connect(self, timeout: float = 10.0) -> None:
         """Open the link, wait for an autopilot's HEARTBEAT and ask for the telemetry streams."""
-        self._transport = await open_transport(self.url, self._on_bytes, self._on_lost)
+        self._transport = await self._open()
         self._tasks = [asyncio.create_task(self._housekeeping()), asyncio.create_task(self._stream_setpoint())]
         self._send_heartbeat()
         try:
@@ -365,17 +381,16 @@ class PymavlinkLink:
 
     # ------------------------------------------------------------ inbound
     def _on_bytes(self, data: bytes) -> None:
-        for msg in self._dec.parse_buffer(data) or ():
+        for msg in self._frames.feed(data):
             self._dispatch(msg)
 
     def _dispatch(self, msg: Message) -> None:
-        kind = msg.get_type()
-        if kind == "BAD_DATA":
-            return
-        if self.sysid is None and kind == "HEARTBEAT" and msg.autopilot != mavlink2.MAV_AUTOPILOT_INVALID \
-                and msg.get_srcComponent() == self.compid:
-            self.sysid = msg.get_srcSystem()  # the first autopilot that speaks is ours
-        if msg.get_srcSystem() != self.sysid or msg.get_srcComponent() != self.compid:
+        kind, ids = msg.get_type(), (msg.get_srcSystem(), msg.get_srcComponent())
+        if kind == "HEARTBEAT" and not _autopilot_heartbeat(msg):
+            return  # a ground station's or a camera's: never the vehicle's state
+        if not self._locked and kind == "HEARTBEAT" and ids[1] == self.compid and self.sysid in (None, ids[0]):
+            self.sysid, self._locked = ids[0], True  # the first autopilot that speaks is ours
+        if not self._locked or ids != (self.sysid, self.compid):
             return
         self._snapshot = None  # whatever it says may change the telemetry
         handler = self._handlers.get(kind)
@@ -399,6 +414,8 @@ class PymavlinkLink:
                 future.set_exception(exc)
 
     def _on_heartbeat(self, msg: Message) -> None:
+        if self._transport is not None:
+            self._transport.vouch()  # udpin answers this datagram's sender, and hears only it
         if not self._closed:  # back from a silence: maybe rebooted, its streams forgotten
             self._streams.on_heartbeat(self._silent is not None, self._tasks)
         self.autopilot = {mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA: Autopilot.ARDUPILOT,
@@ -470,13 +487,22 @@ class PymavlinkLink:
             self._lost_at = self.clock()
             log.warning("%s: %s; opening it again every %g s", self.url, why, REOPEN_S)
 
+    async def _open(self) -> Transport:
+        return await open_transport(self.url, self._on_bytes, self._on_lost, self.heartbeat_timeout, self.clock)
+
+    def _deframer(self) -> Deframer:
+        """A new decoder: signed messages only with a key; each datagram on its own over UDP."""
+        decoder = mavlink2.MAVLink(None)
+        if self.signing_key is not None:
+            accept_signed_only(decoder, self.signing_key)
+        return Deframer(decoder, whole=self.url.scheme in (Scheme.UDPIN, Scheme.UDPOUT))
+
     async def _reopen(self) -> None:
         """One attempt to open a lost stream again (the telemetry is asked for at the first HEARTBEAT)."""
         self._tried_at = self.clock()
-        self._dec = _decoder()  # a frame cut by the loss must not swallow the first new one
+        self._frames = self._deframer()  # a frame cut by the loss must not wait for the new stream's bytes
         try:
-            transport = await asyncio.wait_for(open_transport(self.url, self._on_bytes, self._on_lost),
-                                               REOPEN_TIMEOUT_S)
+            transport = await asyncio.wait_for(self._open(), REOPEN_TIMEOUT_S)
         except (VehicleError, TimeoutError) as exc:
             log.debug("%s: not back yet: %s", self.url, exc)
             return
@@ -518,14 +544,15 @@ class PymavlinkLink:
 
     def _send(self, msg: Message) -> None:
         if self._transport is not None and self._dead is None:
+            if self.signing_key is not None:
+                stamp_now(self._enc)
             self._transport.send(msg.pack(self._enc))
             self._enc.seq = (self._enc.seq + 1) % 256
 
 
-def _decoder() -> Any:
-    decoder = mavlink2.MAVLink(None)
-    decoder.robust_parsing = True  # corrupt bytes decode as BAD_DATA instead of raising
-    return decoder
+def _autopilot_heartbeat(msg: Message) -> bool:
+    """A HEARTBEAT an autopilot sends (a ground station's says MAV_TYPE_GCS; a camera's, no autopilot)."""
+    return bool(msg.autopilot != mavlink2.MAV_AUTOPILOT_INVALID and msg.type != mavlink2.MAV_TYPE_GCS)
 
 
 def _velocity(local: Message | None, glob: Message | None, frame: GeoFrame | None) -> Ned | None:

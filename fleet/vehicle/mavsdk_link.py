@@ -27,6 +27,9 @@ pymavlink backend does both.
 
 Positions are local NED, or with a :class:`~drona_gcs.geo.GeoFrame` that workspace's frame (targets
 go out as global setpoints, positions come from the global position), as with the pymavlink backend.
+
+MAVSDK cannot sign MAVLink 2 (it has no signing API: mavlink/MAVSDK#1060), so a signing key is
+refused with a :class:`~fleet.vehicle.signing.SigningKeyError` rather than flown unsigned.
 """
 
 from __future__ import annotations
@@ -56,6 +59,7 @@ from fleet.clock import cancel_all, periodic
 from fleet.vehicle.link import REOPEN_S, Autopilot, LandedState, Position, Share, StreamRequests, Telemetry, not_ready
 from fleet.vehicle.modes import CONFIRM_HEARTBEATS, FOLLOW_MODE, LAND_MODE, ModeDoubt, mode_command, mode_name
 from fleet.vehicle.policy import DEFAULT_TIMEOUTS, Timeouts, ekf_has_position, may_stream_setpoints, takeoff_started
+from fleet.vehicle.signing import SigningKeyError
 from fleet.vehicle.urls import LinkUrl, Scheme, parse_link_url
 
 log = logging.getLogger(__name__)
@@ -94,8 +98,11 @@ class MavsdkLink:
     def __init__(self, url: str | LinkUrl, *, frame: GeoFrame | None = None, heartbeat_timeout: float = 3.0,
                  command_timeout: float = 3.0, text_grace: float = 0.3, stream_hz: float = 10.0,
                  setpoint_hz: float = 20.0, timeouts: Timeouts = DEFAULT_TIMEOUTS,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, signing_key: bytes | None = None) -> None:
         self.url = parse_link_url(url) if isinstance(url, str) else url
+        if signing_key is not None:
+            raise SigningKeyError(f"{self.url}: the mavsdk backend cannot sign MAVLink 2 (MAVSDK has no message "
+                                  "signing); fly a vehicle with a signing key with --backend pymavlink")
         self.frame, self.clock = frame, clock
         self.heartbeat_timeout, self.command_timeout = heartbeat_timeout, command_timeout
         self.text_grace, self.stream_hz, self.setpoint_hz, self.timeouts = text_grace, stream_hz, setpoint_hz, timeouts

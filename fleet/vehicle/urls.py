@@ -1,6 +1,7 @@
 """Connection strings as users know them from PX4, ArduPilot and MAVSDK, and the byte transports they open.
 
-* ``udpin://0.0.0.0:14540``: listen on a UDP port (PX4 SITL sends to 14540) and answer whoever writes;
+* ``udpin://0.0.0.0:14540``: listen on a UDP port (PX4 SITL sends to 14540) and answer the vehicle
+  (the sender of its HEARTBEAT, see :class:`_Datagrams`);
 * ``udpout://10.0.0.2:14550``: send to a UDP address (the vehicle listens there);
 * ``tcp://127.0.0.1:5760``: connect to a TCP server (ArduPilot SITL listens on 5760);
 * ``serial:///dev/ttyUSB0:57600``: a serial device and its baud rate (57600 when left out).
@@ -16,6 +17,8 @@ from __future__ import annotations
 import asyncio
 import enum
 import logging
+import math
+import time
 import urllib.parse
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -107,19 +110,37 @@ def _serial(text: str, rest: str) -> LinkUrl:
 
 # ------------------------------------------------------------------ transports: bytes only
 class _Datagrams(asyncio.DatagramProtocol):
-    """udpin answers whoever wrote last; udpout sends to its fixed peer."""
+    """udpout sends to its fixed peer (its connected socket hears nobody else). udpin answers the
+    sender of the vehicle's HEARTBEAT, as the link vouches for it (:meth:`vouch`), and hears only
+    that address while it is alive (vouched for within ``lost_after`` seconds): whoever else writes
+    draws nothing. After that silence it hears anyone again, and locks on the next HEARTBEAT's sender."""
 
-    def __init__(self, on_data: Callable[[bytes], None], peer: tuple[str, int] | None) -> None:
+    def __init__(self, on_data: Callable[[bytes], None], peer: tuple[str, int] | None,
+                 lost_after: float, clock: Callable[[], float]) -> None:
         self.on_data, self.peer, self.listening = on_data, peer, peer is None
+        self.lost_after, self.clock = lost_after, clock
         self.transport: asyncio.DatagramTransport | None = None
+        self.ignored = 0  #: datagrams dropped from other addresses than the vehicle's
+        self._sender: tuple[str, int] | None = None  #: the address of the datagram being handed over
+        self._vouched_at = -math.inf
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = transport  # type: ignore[assignment]  # 3.11's selector transport is no subclass
 
     def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-        if self.listening:
-            self.peer = addr
-        self.on_data(data)
+        if self.listening and addr != self.peer and self.clock() - self._vouched_at <= self.lost_after:
+            self.ignored += 1
+            return
+        self._sender = addr
+        try:
+            self.on_data(data)
+        finally:
+            self._sender = None
+
+    def vouch(self) -> None:
+        """The datagram being handed over carries the vehicle's HEARTBEAT: answer its sender."""
+        if self.listening and self._sender is not None:
+            self.peer, self._vouched_at = self._sender, self.clock()
 
     def error_received(self, exc: Exception) -> None:
         log.debug("udp %s: %s", self.peer, exc)  # ICMP unreachable: nobody listens there yet
@@ -147,6 +168,9 @@ class _Stream(asyncio.Protocol):
     def data_received(self, data: bytes) -> None:
         self.on_data(data)
 
+    def vouch(self) -> None:
+        """A stream has one peer: nothing to lock."""
+
     def connection_lost(self, exc: Exception | None) -> None:
         self.on_lost(f"connection lost: {exc}" if exc else "connection closed by the vehicle")
 
@@ -159,21 +183,23 @@ class _Stream(asyncio.Protocol):
             self.transport.close()
 
 
-Transport = _Datagrams | _Stream  #: both have ``send(bytes)`` and ``close()``
+Transport = _Datagrams | _Stream  #: both have ``send(bytes)``, ``vouch()`` and ``close()``
 
 
-async def open_transport(url: LinkUrl, on_data: Callable[[bytes], None],
-                         on_lost: Callable[[str], None]) -> Transport:
-    """Open ``url``; OSError and a missing serial package become VehicleError."""
+async def open_transport(url: LinkUrl, on_data: Callable[[bytes], None], on_lost: Callable[[str], None],
+                         lost_after: float = 3.0, clock: Callable[[], float] = time.monotonic) -> Transport:
+    """Open ``url``; OSError and a missing serial package become VehicleError. ``lost_after``: how
+    long udpin's vehicle may be silent before another address may take its place (on ``clock``)."""
     loop = asyncio.get_running_loop()
     try:
         if url.scheme is Scheme.UDPIN:
-            _, udp = await loop.create_datagram_endpoint(lambda: _Datagrams(on_data, None),
+            _, udp = await loop.create_datagram_endpoint(lambda: _Datagrams(on_data, None, lost_after, clock),
                                                          local_addr=(url.host, url.port))
             return udp
         if url.scheme is Scheme.UDPOUT:
-            _, udp = await loop.create_datagram_endpoint(lambda: _Datagrams(on_data, (url.host, url.port)),
-                                                         remote_addr=(url.host, url.port))
+            peer = (url.host, url.port)
+            _, udp = await loop.create_datagram_endpoint(lambda: _Datagrams(on_data, peer, lost_after, clock),
+                                                         remote_addr=peer)
             return udp
         if url.scheme is Scheme.TCP:
             _, stream = await loop.create_connection(lambda: _Stream(on_data, on_lost), url.host, url.port)
