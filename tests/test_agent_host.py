@@ -163,3 +163,35 @@ def _wait(process: subprocess.Popen[bytes]) -> int | None:
         process.kill()
         process.wait(5)
         return None
+
+
+def test_an_agent_started_before_its_vehicle_waits_for_it(ws_file: Path, tmp_path: Path) -> None:
+    """A vehicle not up yet (ArduCopter SITL started after the agent, or resetting the connection while
+    it boots) is waited for: the agent joins once it answers, instead of exiting."""
+    log, port, listen = tmp_path / "agent.log", free_port(socket.SOCK_STREAM), free_port(socket.SOCK_STREAM)
+    with log.open("wb") as out:
+        agent = subprocess.Popen([*DRONA, "agent", "--workspace", str(ws_file), "--drone", "d1",
+                                  "--vehicle", f"tcp://127.0.0.1:{port}", "--fleet", f"late-{listen}",
+                                  "--listen", f"tcp/127.0.0.1:{listen}"], stdout=subprocess.DEVNULL, stderr=out)
+    sim: subprocess.Popen[bytes] | None = None
+    try:
+        assert _log_says(log, agent, b"no vehicle yet", 20), log.read_text(errors="replace")
+        sim = subprocess.Popen([*DRONA, "sim-vehicle", "--workspace", str(ws_file), "--tcp", "--base-port", str(port),
+                                "--speedup", "6", "--ready-after", "0.5"],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        assert _log_says(log, agent, b"d1 flying", 30), log.read_text(errors="replace")
+    finally:
+        processes = [agent] if sim is None else [agent, sim]
+        for process in processes:
+            process.send_signal(signal.SIGINT)
+        time.sleep(0.2)
+        agent.send_signal(signal.SIGINT)
+        codes = [_wait(process) for process in processes]
+    assert codes == [0, 0], log.read_text(errors="replace")
+
+
+def _log_says(log: Path, process: subprocess.Popen[bytes], text: bytes, timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while text not in log.read_bytes() and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.1)
+    return text in log.read_bytes()
