@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import asyncio
+import io
+import json
 
 from drona_gcs.errors import ProblemError
 from drona_gcs.geo import GeoFrame, GeoPoint
@@ -350,3 +352,26 @@ def test_a_vehicle_back_outside_its_held_cells_leaves_its_drone_out_of_service()
         assert agent.mail.refusal is not None and "land it by hand" in agent.mail.refusal
 
     asyncio.run(scenario())
+
+
+def test_the_flight_record_has_only_fresh_sightings_never_a_stale_or_lost_vehicle() -> None:
+    """A cell is recorded at a boundary only from a position reported since the previous one: a vehicle
+    whose position stopped coming, or whose link is lost, leaves a gap (the audit counts it), never the
+    last cell it was seen in (a killed ArduCopter SITL was recorded for 23 steps where it died)."""
+    record, vehicle = io.StringIO(), ScriptedVehicle()
+
+    async def scenario() -> None:
+        stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
+        agent = DroneAgent(stack, RecordingNode(), KEYS, vehicle, FRAME, lambda: 1000.0,  # type: ignore[arg-type]
+                           record)
+        for step in range(8):
+            if step not in (3, 4):  # no new position at steps 3 and 4
+                vehicle.seen_at += 1.0
+            vehicle.lost = "no HEARTBEAT for 3.0 s" if step >= 6 else None
+            actions = agent.tick(step)
+            agent.on_step(StepReport(step + 1, stack.executor.cell, (0, 0, 0), 0.0, False, 0.0), actions)
+            await asyncio.sleep(0)
+
+    asyncio.run(scenario())
+    steps = [json.loads(line)["step"] for line in record.getvalue().splitlines()]
+    assert steps == [0, 1, 2, 5]

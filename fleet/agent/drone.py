@@ -218,7 +218,7 @@ class DroneAgent:
 
     def on_step(self, report: StepReport, actions: Sequence[object]) -> None:
         """After the boundary's setpoints went out: judge the vehicle, record it, publish the state."""
-        self.actual = self.watch.recorded_cell()
+        self.actual = self.watch.seen_cell()
         if self.actual is None:
             log.debug("%s: no cell at step %d: position %s", self.me, report.step, self.link.last_position())
         if self.record is not None and self.actual is not None:
@@ -226,7 +226,8 @@ class DroneAgent:
         if not self.down and not self.watch.lost and self.vehicle.grounded_by_itself():
             self.down = True
             self.mail.refusal = "its vehicle came down by itself"
-            where = f"in {list(self.actual)}" if self.actual is not None else "outside the grid"
+            below = self.watch.recorded_cell()
+            where = f"in {list(below)}" if below is not None else "outside the grid"
             log.warning("%s: the vehicle came down by itself %s: its mail is handed back", self.me, where)
             self._carry_out(self.stack.vehicle_down(f"drone {self.me}'s vehicle came down by itself {where}"))
         self._alarm("lag", self._lag(report))
