@@ -36,6 +36,7 @@ import yaml
 from drona_gcs.geo import check_speed
 from drona_gcs.workspace_files import load_workspace
 from fleet.cli import COMMANDS, build_parser
+from fleet.cli.sim_vehicle import max_speed
 from fleet.sim.ports import free_port
 from fleet.vehicle.urls import parse_link_url
 
@@ -371,7 +372,7 @@ def test_compose_runs_a_router_four_vehicles_and_four_agents() -> None:
     vehicles = build_parser("sim-vehicle").parse_args(services["vehicles"]["command"])
     workspace = load_workspace(CONTAINER_DIR / "workspace.yaml")
     assert len(workspace.drones) >= vehicles.count == 4
-    check_speed(workspace, vehicles.max_speed)  # sim-vehicle would refuse it otherwise
+    check_speed(workspace, max_speed(vehicles))  # sim-vehicle would refuse it otherwise
     containerfile = (CONTAINER_DIR / "Containerfile").read_text()
     assert "FROM docker.io/library/python:3.11-slim" in containerfile
     assert 'ENTRYPOINT ["drona"]' in containerfile

@@ -42,13 +42,13 @@ def setpoint(model: VehicleModel, now: float, north: float, east: float, down: f
                                                             north, east, down, 0, 0, 0, 0, 0, 0, 0, 0), now)
 
 
-def test_arducopter_takes_45_s_from_boot_to_its_position_estimate_and_says_so() -> None:
-    """A GPS fix after about 12 s (type 6 in SITL), the EKF's absolute position after about 45 s. Before
+def test_arducopter_takes_41_s_from_boot_to_its_position_estimate_and_says_so() -> None:
+    """A GPS fix after about 10 s (type 6 in SITL), the EKF's absolute position after about 41.5 s. Before
     it: no local position, a global position at 0 degrees until the fix, arming refused; disarmed,
     GUIDED is taken anyway."""
     model = arducopter()
-    assert (model.config.gps_s, model.config.ready_s) == (12.0, 45.0)
-    early, fixed, ready = 5.0, 20.0, 46.0
+    assert (model.config.gps_s, model.config.ready_s) == (10.0, 41.5)
+    early, fixed, ready = 5.0, 20.0, 42.0
     assert gps_raw_int(model, early).fix_type < 3 and global_position_int(model, early).lat == 0
     assert local_position_ned(model, early) is None
     assert gps_raw_int(model, fixed).fix_type == ML.GPS_FIX_TYPE_RTK_FIXED
@@ -91,7 +91,7 @@ def test_a_position_target_cancels_arducopters_takeoff_and_it_disarms_on_the_gro
     setpoint(model, now, 0.0, 0.0, -10.0)  # where the take-off was going
     now = run_for(model, now, 8.0)
     assert (model.body.height, model.landed_state()) == (0.0, ML.MAV_LANDED_STATE_ON_GROUND)
-    run_for(model, now, model.config.auto_disarm_s)
+    run_for(model, now, model.params.value("DISARM_DELAY"))
     assert not model.armed
 
 

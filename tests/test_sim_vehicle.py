@@ -167,6 +167,9 @@ def test_ardupilot_guided_flight_over_tcp() -> None:
         wait_for(gcs, "LOCAL_POSITION_NED", 5, lambda m: abs(m.z + 10) < 0.25)
         assert command(gcs, ML.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 10) == ML.MAV_RESULT_FAILED  # airborne
 
+        # ArduCopter's 10 m/s (WPNAV_SPEED 1000 cm/s) slowed to 5 m/s by the ground station, in flight.
+        gcs.mav.param_set_send(1, 1, b"WPNAV_SPEED", 500, ML.MAV_PARAM_TYPE_REAL32)
+        assert wait_for(gcs, "PARAM_VALUE", 3, lambda m: m.param_id == "WPNAV_SPEED").param_value == 500
         gcs.mav.set_position_target_local_ned_send(0, 1, 1, ML.MAV_FRAME_LOCAL_NED, POSITION_ONLY,
                                                    20, 0, -10, 0, 0, 0, 0, 0, 0, 0, 0)
         peak, settled_since = 0.0, None
@@ -268,7 +271,7 @@ def test_px4_offboard_needs_a_setpoint_stream() -> None:
         assert [m.custom_mode for m in received if m.get_type() == "HEARTBEAT"][-1] == OFFBOARD
         assert [m.z for m in received if m.get_type() == "LOCAL_POSITION_NED"][-1] < -2.5
 
-        # The stream stops: after 0.5 s without setpoints it falls back to AUTO.LOITER, still flying.
+        # The stream stops: after COM_OF_LOSS_T (1 s) without setpoints it falls back to AUTO.LOITER, still flying.
         hb = wait_for(gcs, "HEARTBEAT", 3, lambda m: m.custom_mode != OFFBOARD)
         assert hb.custom_mode == AUTO_LOITER
         assert hb.base_mode & ML.MAV_MODE_FLAG_SAFETY_ARMED
@@ -534,7 +537,7 @@ def test_model_global_setpoint_battery_rtl_and_charging(write_file: Callable[[st
     assert (model.armed, model.airborne) == (False, False)  # home, landed, disarmed
     assert math.hypot(model.body.north, model.body.east) < 0.6
     drained = model.battery.remaining
-    now = run_for(model, now, 60)
+    now = run_for(model, now, 20)  # (not full yet: a charge of 10 A)
     assert model.battery.remaining > drained  # home is on a charging station
     assert battery_status(model, now).current_battery < 0
 

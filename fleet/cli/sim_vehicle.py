@@ -16,6 +16,7 @@ import argparse
 import asyncio
 import signal
 import sys
+from dataclasses import replace
 
 from drona_gcs.errors import DronaError
 from drona_gcs.geo import check_speed
@@ -25,8 +26,8 @@ from fleet import runtime
 from fleet.sim.codec import parse_key
 from fleet.sim.config import VehicleConfig
 from fleet.sim.fleet import FleetConfig, SimNode, run_fleet
+from fleet.sim.params import starting_limits
 from fleet.sim.personality import PERSONALITIES
-from fleet.sim.physics import Limits
 from fleet.sim.transport import PtyLink
 from fleet.vehicle.urls import DEFAULT_BAUD
 
@@ -47,13 +48,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speedup", type=float, default=1.0, help="simulated seconds per wall-clock second")
     parser.add_argument("--ready-after", type=float,
                         help="simulated seconds from boot to a position estimate, arming refused before (default: "
-                             "as the autopilot's SITL, ArduCopter 45, PX4 15; may be shortened, not switched off)")
+                             "as the autopilot's SITL, ArduCopter 41.5, PX4 15; may be shortened, not switched off)")
     parser.add_argument("--spool-up", type=float,
                         help="simulated seconds from an accepted take-off to leaving the ground (default: ArduCopter "
                              "3.5, PX4 1)")
-    parser.add_argument("--auto-disarm", type=float, default=10.0,
-                        help="seconds armed on the ground without takeoff before disarming itself (default 10)")
-    parser.add_argument("--max-speed", type=float, default=5.0, help="horizontal speed limit, m/s (default 5)")
+    parser.add_argument("--auto-disarm", type=float,
+                        help="seconds armed on the ground without takeoff before disarming itself: the starting "
+                             "DISARM_DELAY or COM_DISARM_PRFLT/COM_DISARM_LAND (default: the autopilot's, 10; PX4 "
+                             "2 after a landing)")
+    parser.add_argument("--max-speed", type=float,
+                        help="horizontal speed limit, m/s: the starting WPNAV_SPEED or MPC_XY_VEL_MAX, which a ground "
+                             "station may change (default: the autopilot's, ArduCopter 10, PX4 12)")
     parser.add_argument("--battery", type=float, default=100.0, help="initial battery charge, percent")
     parser.add_argument("--signing-key", help="MAVLink 2 signing key, 64 hex digits: unsigned commands are ignored")
 
@@ -63,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         config = _config(args)
         workspace: Workspace | None = load_workspace(args.workspace) if args.workspace else None
         if workspace is not None:  # a cell per tau must be within what the vehicles can fly
-            check_speed(workspace, args.max_speed * args.speedup)  # simulated seconds run faster
+            check_speed(workspace, max_speed(args) * args.speedup)  # simulated seconds run faster
     except (ValueError, DronaError) as exc:
         print(f"drona sim-vehicle: {exc}", file=sys.stderr)
         return 2
@@ -75,12 +80,18 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def max_speed(args: argparse.Namespace) -> float:
+    """The horizontal speed limit the vehicles start with: ``--max-speed``, else their autopilot's default."""
+    return starting_limits(_config(args).vehicle).max_speed
+
+
 def _config(args: argparse.Namespace) -> FleetConfig:
     if args.count < 1:
         raise ValueError(f"--count must be >= 1, got {args.count}")
     for name in ("speedup", "max_speed"):
-        if not getattr(args, name) > 0:
-            raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
+        value = getattr(args, name)
+        if value is not None and not value > 0:
+            raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {value}")
     if args.baud is not None and not args.serial:
         raise ValueError("--baud is the rate of a serial line: it needs --serial")
     if args.serial and args.base_port is not None:
@@ -90,9 +101,12 @@ def _config(args: argparse.Namespace) -> FleetConfig:
         raise ValueError(f"--baud must be > 0, got {baud}")
     if not 0 <= args.battery <= 100:
         raise ValueError(f"--battery must be within 0..100, got {args.battery}")
-    vehicle = VehicleConfig(personality=PERSONALITIES[args.autopilot], limits=Limits(max_speed=args.max_speed),
-                            ready_after_s=args.ready_after, spool_up_s=args.spool_up, auto_disarm_s=args.auto_disarm,
-                            battery_pct=args.battery)
+    personality = PERSONALITIES[args.autopilot]
+    limits = None  # the personality's parameter defaults
+    if args.max_speed is not None:
+        limits = replace(starting_limits(VehicleConfig(personality=personality)), max_speed=args.max_speed)
+    vehicle = VehicleConfig(personality=personality, limits=limits, ready_after_s=args.ready_after,
+                            spool_up_s=args.spool_up, auto_disarm_s=args.auto_disarm, battery_pct=args.battery)
     key = parse_key(args.signing_key) if args.signing_key else None
     return FleetConfig(count=args.count, vehicle=vehicle, tcp=args.tcp, host=args.host, base_port=args.base_port,
                        speedup=args.speedup, signing_key=key, serial_baud=baud if args.serial else None)

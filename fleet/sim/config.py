@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from drona_gcs.geo import GeoFrame, Ned
 from fleet.sim.personality import ARDUPILOT, Personality
@@ -11,22 +11,29 @@ from fleet.sim.physics import Limits
 
 @dataclass(frozen=True)
 class VehicleConfig:
+    """A fake vehicle's settings. Those that are autopilot parameters (:mod:`fleet.sim.params`) default to
+    None: the personality's parameter default (ArduCopter WPNAV_SPEED 10 m/s, PX4 MPC_XY_VEL_MAX 12 m/s,
+    ...); a value given is the parameter's starting value, which a ground station may then change."""
+
     system_id: int = 1
     instance: int = 0  #: which vehicle of its simulator (SITL's -I): its telemetry keeps its own time
     personality: Personality = ARDUPILOT
-    limits: Limits = field(default_factory=Limits)
+    #: motion limits (WPNAV_* or MPC_*, LAND_SPEED or MPC_LAND_SPEED): every field of a Limits given starts them
+    limits: Limits | None = None
     #: boot to a position estimate (arming possible); None: the personality's, as measured on its SITL. It
     #: may be shortened, never switched off: a ground station must wait for it as for a real autopilot.
     ready_after_s: float | None = None
     gps_after_s: float | None = None  #: boot to a GPS fix (at most ready_after_s); None: the personality's
     spool_up_s: float | None = None  #: an accepted take-off to leaving the ground; None: the personality's
-    auto_disarm_s: float = 10.0  #: armed on the ground without takeoff: disarms after this
+    #: armed on the ground without a take-off (or after a touchdown) it disarms after this: DISARM_DELAY
+    #: (whole seconds, 0 never), PX4's COM_DISARM_PRFLT and COM_DISARM_LAND
+    auto_disarm_s: float | None = None
     min_arm_battery_pct: int = 20
     battery_pct: float = 100.0
-    offboard_timeout_s: float = 0.5  #: PX4: no setpoint for this long leaves OFFBOARD (a stream under 2 Hz)
-    guided_velocity_timeout_s: float = 3.0  #: ArduCopter: a velocity setpoint older than this stops
-    rtl_alt_m: float = 15.0
-    takeoff_alt_m: float = 2.5  #: PX4's MIS_TAKEOFF_ALT, when the command gives none
+    offboard_timeout_s: float | None = None  #: PX4's COM_OF_LOSS_T: no setpoint for this long leaves OFFBOARD
+    guided_velocity_timeout_s: float | None = None  #: ArduCopter's GUID_TIMEOUT: a velocity setpoint older stops
+    rtl_alt_m: float | None = None  #: RTL_ALT, PX4's RTL_RETURN_ALT
+    takeoff_alt_m: float | None = None  #: PX4's MIS_TAKEOFF_ALT, when the command gives none
     hover_current_a: float = 15.0
     charge_current_a: float = 10.0
 

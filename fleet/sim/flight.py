@@ -1,11 +1,12 @@
 """The flight rules of the fake vehicle, stepped with ``now``: what it flies to, and what time does.
 
-Every step: a vehicle armed on the ground without a takeoff disarms after ``auto_disarm_s``;
+Every step: a vehicle armed on the ground without a takeoff disarms after its auto-disarm delay
+(PX4: one before its first take-off since arming, another after a touchdown; 0 or less: never);
 PX4 leaves OFFBOARD for AUTO.LOITER once the setpoints stop; an ArduCopter GUIDED velocity
-setpoint not renewed for ``guided_velocity_timeout_s`` stops. Then the body moves towards
-the mode's target, touchdown and takeoff completion are noticed (LAND and RTL disarm on
-touchdown), and the battery drains (in the air, armed) or charges (landed, disarmed, on a
-charging station).
+setpoint not renewed for GUID_TIMEOUT stops. Then the body moves towards the mode's target
+within the live motion limits, touchdown and takeoff completion are noticed (LAND and RTL disarm
+on touchdown), and the battery drains (in the air, armed) or charges (landed, disarmed, on a
+charging station). Every delay, limit and height is a parameter's live value (:mod:`fleet.sim.params`).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import math
 from typing import TYPE_CHECKING
 
 from fleet.sim.mav import mavlink2
+from fleet.sim.params import Setting
 from fleet.sim.personality import ARDUPILOT, Behaviour
 from fleet.sim.physics import HOLD_STILL, Target
 
@@ -24,29 +26,30 @@ if TYPE_CHECKING:
 def advance(m: VehicleModel, now: float, dt: float) -> None:
     """Apply the rules at ``now``, then fly and drain (or charge) for ``dt`` seconds."""
     _rules(m, now)
+    m.body.limits = m.params.limits  # a PARAM_SET takes effect from the next step
     m.body.step(_motion_target(m, now), dt)
     _after_motion(m, now)
     m.battery.step(dt, _current(m))
 
 
 def _rules(m: VehicleModel, now: float) -> None:
-    p, cfg = m.personality, m.config
-    if m.armed and not m.airborne and m.takeoff_point is None \
-            and now - m.landed_since > cfg.auto_disarm_s:
+    p = m.personality
+    delay = m.params.setting(Setting.LANDED_DISARM if m.flown else Setting.PREFLIGHT_DISARM)
+    if m.armed and not m.airborne and m.takeoff_point is None and 0 < delay < now - m.landed_since:
         m.text(mavlink2.MAV_SEVERITY_INFO, "Disarming motors" if p is ARDUPILOT else "Auto disarmed")
         m.disarm(now)
     if m.mode == p.follow_mode and p is not ARDUPILOT and not m.streaming(now):
         m.text(mavlink2.MAV_SEVERITY_CRITICAL, "Offboard signal lost: holding")
         m.enter_mode(p.hold_mode, now)
     if (p is ARDUPILOT and m.setpoint is not None and not m.setpoint.has_horizontal_position
-            and m.setpoint_times and now - m.setpoint_times[-1] > cfg.guided_velocity_timeout_s):
+            and m.setpoint_times and now - m.setpoint_times[-1] > m.params.setting(Setting.GUIDED_TIMEOUT)):
         m.setpoint = None  # GUIDED velocity control times out: stop
 
 
 def _motion_target(m: VehicleModel, now: float) -> Target | None:
     if not m.armed:
         return None
-    behaviour, b, lim = m.behaviour, m.body, m.config.limits
+    behaviour, b, lim = m.behaviour, m.body, m.params.limits
     if not m.airborne and m.takeoff_point is None and not (
             behaviour is Behaviour.FOLLOW and m.personality is not ARDUPILOT):
         return None  # armed on the ground, idle
@@ -64,10 +67,10 @@ def _motion_target(m: VehicleModel, now: float) -> Target | None:
 
 
 def _rtl_target(m: VehicleModel) -> Target:
-    """Climb to the return height (``rtl_alt_m``, or higher if already higher), fly home, land."""
-    b, lim = m.body, m.config.limits
+    """Climb to the return height (RTL_ALT, or higher if already higher), fly home, land."""
+    b, lim = m.body, m.params.limits
     far = math.hypot(b.north, b.east) > 0.5
-    height = max(m.config.rtl_alt_m, b.height)
+    height = max(m.params.setting(Setting.RTL_ALT), b.height)
     if far and b.height < height - 0.5:
         return Target(down=-height)  # climb first
     if far:
@@ -78,7 +81,7 @@ def _rtl_target(m: VehicleModel) -> Target:
 def _after_motion(m: VehicleModel, now: float) -> None:
     b = m.body
     if not m.airborne and b.height > 0.2:
-        m.airborne = True
+        m.airborne = m.flown = True
     if m.takeoff_point is not None and m.takeoff_point.down is not None \
             and b.down <= m.takeoff_point.down + 0.3:
         m.takeoff_point = None

@@ -9,7 +9,7 @@ Behaviour copied from the real autopilots (see :mod:`fleet.sim.personality` for 
 measured on their SITLs):
 
 * a GPS fix comes ``gps_after_s`` after boot and the position estimate ``ready_after_s`` after
-  it (ArduCopter SITL: 12 and 45 s); before the estimate there is no LOCAL_POSITION_NED or
+  it (ArduCopter SITL: 10 and 41.5 s); before the estimate there is no LOCAL_POSITION_NED or
   HOME_POSITION, ArduCopter's EKF_STATUS_REPORT has no absolute position and its
   GLOBAL_POSITION_INT says 0 degrees until the fix (PX4 sends none);
 * arming is refused until the vehicle is ready and with a low battery; ArduCopter answers
@@ -20,12 +20,22 @@ measured on their SITLs):
   (IN_AIR). A position setpoint in GUIDED switches it to position control at once, cancelling a
   take-off: one that came before it left the ground leaves it there. It ignores setpoints
   outside GUIDED and holds at the last target;
-* PX4 enters OFFBOARD only while setpoints stream (>= 2 Hz) and leaves it for AUTO.LOITER when
-  they stop for more than ``offboard_timeout_s``;
-* a vehicle armed on the ground without taking off disarms itself after ``auto_disarm_s``;
-  LAND and RTL disarm on touchdown;
+* PX4 enters OFFBOARD only while setpoints stream and leaves it for AUTO.LOITER when they stop
+  for more than COM_OF_LOSS_T;
+* a vehicle armed on the ground disarms itself: ArduCopter after DISARM_DELAY, PX4 after
+  COM_DISARM_PRFLT before a take-off and COM_DISARM_LAND after a touchdown; LAND and RTL disarm on
+  touchdown;
 * SYS_STATUS carries the pre-arm checks (MAV_SYS_STATUS_PREARM_CHECK, healthy when it may arm),
-  which MAVSDK reads as ``health.is_armable``; PX4 answers PING requests.
+  which MAVSDK reads as ``health.is_armable``; ArduPilot's also its geofence (present for
+  FENCE_TYPE's circle, enabled with FENCE_ENABLE only, healthy: never breached), PX4's none;
+  PX4 answers PING requests;
+* parameters (:mod:`fleet.sim.params`): each autopilot's small table, listed (paced), read and set
+  over MAVLink; the values drive the model (motion limits, auto-disarm delays, return and take-off
+  heights, offboard and GUIDED timeouts). PX4 answers parameter and mission requests addressed to
+  its own system id only, ArduPilot broadcast ones (system 0) too;
+* missions (:mod:`fleet.sim.mission`): every list empty but ArduPilot's home, its item 0; uploads
+  refused but empty ones. MAVLink FTP (:mod:`fleet.sim.ftp`) is refused at once, as for a file the
+  autopilot does not have, so a ground station falls back to the message protocols.
 """
 
 from __future__ import annotations
@@ -37,14 +47,19 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from drona_gcs.geo import GeoPoint, Ned
-from fleet.sim import flight, telemetry
+from fleet.sim import flight, ftp, mission, telemetry
+from fleet.sim import params as parameters
 from fleet.sim.config import Placement, VehicleConfig
-from fleet.sim.mav import Message, mavlink2
+from fleet.sim.mav import Message, mavlink2, source
+from fleet.sim.params import ParamStore, Setting
 from fleet.sim.personality import ARDUPILOT, Behaviour
 from fleet.sim.physics import Battery, Body, Target
 from fleet.sim.setpoints import setpoint_from_global, setpoint_from_local
 
 __all__ = ["Command", "Placement", "VehicleConfig", "VehicleModel"]
+
+#: Answers a message addressed to the vehicle: model, message, now -> messages to send.
+Answer = Callable[["VehicleModel", Message, float], list[Message]]
 
 log = logging.getLogger(__name__)
 
@@ -76,12 +91,14 @@ class VehicleModel:
         self.mode = self.personality.boot_mode
         self.armed = False
         self.airborne = False  #: has left the ground since the last touchdown
+        self.flown = False  #: has left the ground since it was armed
         self.takeoff_point: Target | None = None  #: a takeoff is under way to this point
         self.climb_at = now  #: when the take-off's spool-up ends and the climb begins
         self.landed_since = now
         self.setpoint: Target | None = None
         self.setpoint_times: deque[float] = deque(maxlen=8)
-        self.body = Body(config.limits)
+        self.params = ParamStore(config)
+        self.body = Body(self.params.limits)
         self.battery = Battery(remaining=config.battery_pct / 100)
         # Each vehicle out of step with the others (the golden ratio spreads any number evenly).
         self.streams = telemetry.Streams(dict(self.personality.default_streams), now,
@@ -97,15 +114,22 @@ class VehicleModel:
             "TIMESYNC": self._on_timesync,
             "REQUEST_DATA_STREAM": self._on_request_data_stream,
             "PING": self._on_ping,
+            "PARAM_REQUEST_LIST": self._answer(parameters.on_request_list),
+            "PARAM_REQUEST_READ": self._answer(parameters.on_request_read),
+            "PARAM_SET": self._answer(parameters.on_set),
+            "MISSION_REQUEST_LIST": self._answer(mission.on_request_list),
+            "MISSION_REQUEST_INT": self._answer(mission.on_request_item),
+            "MISSION_REQUEST": self._answer(mission.on_request_item),
+            "MISSION_COUNT": self._answer(mission.on_upload),
+            "MISSION_CLEAR_ALL": self._answer(mission.on_upload),
+            "FILE_TRANSFER_PROTOCOL": self._answer(ftp.on_request, own_id=False),
             # Ignored on purpose:
             "HEARTBEAT": _ignore,  # the ground station's; we answer whoever writes
             "BAD_DATA": _ignore,  # corrupt bytes, or unsigned/badly signed while signing is on
             "SYSTEM_TIME": _ignore,
             "RADIO_STATUS": _ignore,
-            "PARAM_REQUEST_LIST": _ignore,
-            "PARAM_REQUEST_READ": _ignore,
-            "MISSION_REQUEST_LIST": _ignore,
             "COMMAND_ACK": _ignore,
+            "MISSION_ACK": _ignore,  # the ground station's word on a transfer; nothing follows it
         }
         self._commands: dict[int, Callable[[Command, float], tuple[int, list[Message]]]] = {
             mavlink2.MAV_CMD_COMPONENT_ARM_DISARM: self._cmd_arm,
@@ -176,15 +200,24 @@ class VehicleModel:
     def _for_me(self, target_system: int, target_component: int = 0) -> bool:
         return target_system in (0, self.config.system_id) and target_component in (0, mavlink2.MAV_COMP_ID_AUTOPILOT1)
 
+    def _answer(self, answer: Answer, own_id: bool = True) -> Callable[[Message, float], None]:
+        """A handler sending what ``answer`` says to a message addressed to this vehicle. ``own_id``: PX4's
+        parameter and mission managers take only their system id, not a broadcast (system 0)."""
+        def handler(msg: Message, now: float) -> None:
+            broadcast_refused = own_id and self.personality is not ARDUPILOT and msg.target_system == 0
+            if self._for_me(msg.target_system, msg.target_component) and not broadcast_refused:
+                self._out.extend(answer(self, msg, now))
+        return handler
+
     def _on_command_long(self, msg: Message, now: float) -> None:
         if self._for_me(msg.target_system, msg.target_component):
             params = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
-            self._run_command(Command(msg.command, params, None, _source(msg)), now)
+            self._run_command(Command(msg.command, params, None, source(msg)), now)
 
     def _on_command_int(self, msg: Message, now: float) -> None:
         if self._for_me(msg.target_system, msg.target_component):
             params = (msg.param1, msg.param2, msg.param3, msg.param4, float(msg.x), float(msg.y), msg.z)
-            self._run_command(Command(msg.command, params, msg.frame, _source(msg)), now)
+            self._run_command(Command(msg.command, params, msg.frame, source(msg)), now)
 
     def _run_command(self, cmd: Command, now: float) -> None:
         run = self._commands.get(cmd.command)
@@ -200,7 +233,7 @@ class VehicleModel:
         # ArduPilot ACKs SET_MODE with the message id as the command; PX4 with DO_SET_MODE.
         command = (mavlink2.MAVLINK_MSG_ID_SET_MODE if self.personality is ARDUPILOT
                    else mavlink2.MAV_CMD_DO_SET_MODE)
-        self._out.append(telemetry.command_ack(command, result, _source(msg)))
+        self._out.append(telemetry.command_ack(command, result, source(msg)))
 
     def _on_setpoint(self, msg: Message, now: float) -> None:
         if not self._for_me(msg.target_system, msg.target_component):
@@ -233,7 +266,7 @@ class VehicleModel:
         system 0 component 0, with the same time_usec and seq addressed to the sender; MAVSDK
         sends one every few seconds to measure latency. The ArduCopter fake leaves it unanswered."""
         if self.personality is not ARDUPILOT and msg.target_system == 0 and msg.target_component == 0:
-            self._out.append(telemetry.ping(msg.time_usec, msg.seq, _source(msg)))
+            self._out.append(telemetry.ping(msg.time_usec, msg.seq, source(msg)))
 
     def _on_request_data_stream(self, msg: Message, now: float) -> None:
         """ArduPilot's legacy stream rates (PX4 ignores the message)."""
@@ -265,6 +298,7 @@ class VehicleModel:
                 self.text(mavlink2.MAV_SEVERITY_CRITICAL, reason)
                 return self.personality.rejected, []
         self.armed = True
+        self.flown = False
         self.landed_since = now
         if self.personality is not ARDUPILOT:  # PX4 climbs to the offboard setpoint once spooled up
             self.climb_at = now + self.config.spool_s
@@ -326,7 +360,7 @@ class VehicleModel:
             self.setpoint = None  # GUIDED starts by holding where it is
         behaviour = self.personality.behaviour(name)
         if behaviour is Behaviour.TAKEOFF and self.takeoff_point is None:
-            self.takeoff_point = Target(self.body.north, self.body.east, -self.config.takeoff_alt_m)
+            self.takeoff_point = Target(self.body.north, self.body.east, -self.params.setting(Setting.TAKEOFF_ALT))
         elif behaviour is not Behaviour.TAKEOFF:
             self.takeoff_point = None
 
@@ -336,10 +370,10 @@ class VehicleModel:
         Like PX4 (COM_OF_LOSS_T), only the age of the last setpoint counts: a client that
         sends one setpoint and then asks for OFFBOARD (MAVSDK's documented sequence, its
         20 Hz stream starting with that setpoint) is let in; a stream slower than
-        1 / offboard_timeout_s leaves OFFBOARD.
+        1 / COM_OF_LOSS_T leaves OFFBOARD.
         """
         times = self.setpoint_times
-        return bool(times) and now - times[-1] <= self.config.offboard_timeout_s
+        return bool(times) and now - times[-1] <= self.params.setting(Setting.OFFBOARD_TIMEOUT)
 
     def _cmd_takeoff(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
         """Refused with no effect at all, or accepted: a take-off after the spool-up."""
@@ -353,7 +387,7 @@ class VehicleModel:
         else:  # PX4: param7 is AMSL, NaN for the default height
             relative = cmd.frame in (mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT, mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
             alt = cmd.params[6]
-            height = (self.config.takeoff_alt_m if math.isnan(alt)
+            height = (self.params.setting(Setting.TAKEOFF_ALT) if math.isnan(alt)
                       else alt if relative else alt - self.home_global.alt_m)
         if not height > 0:
             return p.rejected, []
@@ -403,6 +437,7 @@ class VehicleModel:
         self.last_step = now
         flight.advance(self, now, dt)
         out, self._out = self._out, []
+        out.extend(self.params.stream())  # a parameter list under way, paced
         for msg_id in self.streams.due(now):
             msg = telemetry.REQUESTABLE[msg_id](self, now)
             if msg is not None:  # a position before the estimate: the autopilot sends none
@@ -418,6 +453,3 @@ def _int(value: float) -> int | None:
     """A command parameter as an integer; None for NaN or infinity ("no value")."""
     return round(value) if math.isfinite(value) else None
 
-
-def _source(msg: Message) -> tuple[int, int]:
-    return msg.get_srcSystem(), msg.get_srcComponent()

@@ -54,6 +54,7 @@ class Personality:
     one_system_id: bool = False
     #: GLOBAL_POSITION_INT before the position estimate: sent, at 0 degrees (ArduPilot), or not at all
     stale_position: bool = False
+    banner: tuple[str, ...] = ()  #: STATUSTEXTs answering PARAM_REQUEST_LIST (ArduPilot's send_banner)
 
     def mode_name(self, custom_mode: int) -> str | None:
         return next((name for name, (number, _) in self.modes.items() if number == custom_mode), None)
@@ -93,12 +94,13 @@ ARDUPILOT = Personality(
     text_not_ready="Arm: Need Position Estimate",
     text_low_battery="PreArm: Battery 1 below minimum arming capacity",
     # Measured on ArduCopter SITL V4.7.0-dev.
-    gps_fix_s=12.0,
-    ready_s=45.0,
+    gps_fix_s=10.0,
+    ready_s=41.5,
     gps_fix_type=mavlink2.GPS_FIX_TYPE_RTK_FIXED,
     spool_up_s=3.5,
     one_system_id=True,
     stale_position=True,
+    banner=("ArduCopter V4.5.7", "Frame: QUAD/X"),
 )
 
 PX4 = Personality(

@@ -20,9 +20,11 @@ SUBSTEP_S = 0.02
 
 @dataclass(frozen=True)
 class Limits:
-    """Motion limits; the defaults are ArduCopter's (WPNAV_SPEED 5 m/s, WPNAV_ACCEL 2.5 m/s², ...)."""
+    """Motion limits; the defaults are ArduCopter's (WPNAV_SPEED 10 m/s, WPNAV_ACCEL 2.5 m/s², ...).
 
-    max_speed: float = 5.0  #: horizontal, m/s
+    A vehicle flies its parameters' (:mod:`fleet.sim.params`), which a ground station may change."""
+
+    max_speed: float = 10.0  #: horizontal, m/s
     max_accel: float = 2.5  #: m/s², each of horizontal and vertical
     climb_rate: float = 2.5  #: m/s
     descent_rate: float = 1.5  #: m/s

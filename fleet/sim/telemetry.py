@@ -12,21 +12,23 @@ import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
+from fleet.sim.mav import ENC as _ENC
 from fleet.sim.mav import Message, mavlink2
 
 if TYPE_CHECKING:
     from fleet.sim.model import VehicleModel
 
-#: Encodes message objects only (its ``*_encode`` methods touch no state).
-_ENC = mavlink2.MAVLink(None)
-
 _SENSORS = (mavlink2.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink2.MAV_SYS_STATUS_SENSOR_3D_ACCEL
             | mavlink2.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink2.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
             | mavlink2.MAV_SYS_STATUS_SENSOR_GPS | mavlink2.MAV_SYS_STATUS_SENSOR_BATTERY)
 _CAPABILITIES = (mavlink2.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mavlink2.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-                 | mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_INT | mavlink2.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+                 | mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_INT
                  | mavlink2.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
                  | mavlink2.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT)
+#: How an integer parameter travels in PARAM_VALUE's float (fleet.sim.params): ArduPilot casts it, PX4 copies its bytes.
+_PARAM_ENCODING = {mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA: mavlink2.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST,
+                   mavlink2.MAV_AUTOPILOT_PX4: mavlink2.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE}
+GEOFENCE: int = mavlink2.MAV_SYS_STATUS_GEOFENCE
 _UNUSED_CELL = 0xFFFF
 HEARTBEAT_PERIOD_S = 1.0
 MIN_INTERVAL_S = 0.02  #: 50 Hz at most per message
@@ -43,6 +45,7 @@ def heartbeat(m: VehicleModel, now: float) -> Message:
 
 
 def sys_status(m: VehicleModel, now: float) -> Message:
+    fence_present, fence_enabled, fence_health = geofence(m)
     present = _SENSORS | mavlink2.MAV_SYS_STATUS_PREARM_CHECK
     health = _SENSORS if m.gps_fixed(now) else _SENSORS & ~mavlink2.MAV_SYS_STATUS_SENSOR_GPS
     # Both autopilots report their pre-arm checks here, and MAVSDK's health.is_armable reads this bit:
@@ -51,8 +54,20 @@ def sys_status(m: VehicleModel, now: float) -> Message:
     if m.armed or not m.prearm_problem(now):
         health |= mavlink2.MAV_SYS_STATUS_PREARM_CHECK
     b = m.battery
-    return _ENC.sys_status_encode(present, present, health, 100, round(b.voltage * 1000),
-                                  round(b.current_a * 100), b.percent, 0, 0, 0, 0, 0, 0)
+    return _ENC.sys_status_encode(present | fence_present, present | fence_enabled, health | fence_health, 100,
+                                  round(b.voltage * 1000), round(b.current_a * 100), b.percent, 0, 0, 0, 0, 0, 0)
+
+
+def geofence(m: VehicleModel) -> tuple[int, int, int]:
+    """SYS_STATUS's GEOFENCE bits: (present, enabled, health). ArduPilot (AC_Fence::sys_status_*): present
+    when FENCE_TYPE has a circle or an altitude fence (a polygon one needs points: the fake has none),
+    enabled when FENCE_ENABLE too, healthy unless breached (never, here), so a ground station (MAVProxy's
+    fence module) sees no breach. PX4's SYS_STATUS carries no geofence bits at all."""
+    if "FENCE_TYPE" not in m.params:
+        return 0, 0, 0
+    circle_or_altitude = 1 | 2 | 8  # AC_FENCE_TYPE_ALT_MAX, _CIRCLE, _ALT_MIN
+    present = GEOFENCE if round(m.params.value("FENCE_TYPE")) & circle_or_altitude else 0
+    return present, present if m.params.value("FENCE_ENABLE") else 0, GEOFENCE
 
 
 def battery_status(m: VehicleModel, now: float) -> Message:
@@ -135,7 +150,8 @@ def home_position(m: VehicleModel, now: float) -> Message | None:
 
 
 def autopilot_version(m: VehicleModel, now: float) -> Message:
-    return _ENC.autopilot_version_encode(_CAPABILITIES, m.personality.flight_sw_version, 0, 0, 0,
+    capabilities = _CAPABILITIES | _PARAM_ENCODING.get(m.personality.autopilot, 0)
+    return _ENC.autopilot_version_encode(capabilities, m.personality.flight_sw_version, 0, 0, 0,
                                          [0] * 8, [0] * 8, [0] * 8, 0, 0, m.config.system_id)
 
 
@@ -228,6 +244,10 @@ def command_ack(command: int, result: int, target: tuple[int, int]) -> Message:
 
 def ping(time_usec: int, seq: int, target: tuple[int, int]) -> Message:
     return _ENC.ping_encode(time_usec, seq, target[0], target[1])
+
+
+def mission_ack(result: int, mission_type: int, target: tuple[int, int]) -> Message:
+    return _ENC.mission_ack_encode(target[0], target[1], result, mission_type)
 
 
 def timesync(tc1: int, ts1: int) -> Message:
