@@ -283,12 +283,14 @@ def _drain_bound(host: Host) -> float:
 
 
 async def _land_all(host: Host) -> None:
-    """Each drone lands in its own column (bounded; skipped on a second signal)."""
+    """Each drone lands in its own column (bounded; skipped on a second signal). A lost vehicle is not
+    waited for: it cannot be told to land, and its link keeps trying until the process ends."""
     if host.hurry.is_set():
         return
     for agent in host.agents:
         agent.vehicle.land_for_good()
-    landed = asyncio.gather(*(agent.vehicle.reached.wait() for agent in host.agents))
+    answering = [agent for agent in host.agents if not agent.watch.lost]
+    landed = asyncio.gather(*(agent.vehicle.reached.wait() for agent in answering))
     with contextlib.suppress(TimeoutError):
         await asyncio.wait_for(_first_of(landed, host.hurry.wait()), LANDING_BOUND_S)
 

@@ -57,11 +57,11 @@ class VehicleWatch:
         return readiness(self.link.telemetry(), lost=self.lost)
 
     def flown(self) -> Cell | None:
-        """The grid cell telemetry puts the vehicle in (None: in none, or it does not answer)."""
-        position = self.link.last_position()
-        if self.lost or position is None:
+        """The grid cell telemetry puts the vehicle in; below the grid, the cell above it (a vehicle landing
+        at its goal is there). None: in none, or it does not answer."""
+        if self.lost:
             return None
-        cell = self.frame.locate(position.ned).cell
+        cell = self.recorded_cell()
         if cell is not None:
             self.last_seen = cell
         return cell

@@ -1,6 +1,8 @@
 """``drona sim-vehicle``: fake MAVLink quadrotors that behave like ArduCopter or PX4 SITL.
 
-Vehicle ``i`` (system id ``i + 1``) starts under drone ``i``'s start cell of ``--workspace``.
+Vehicle ``i`` (system id ``i + 1``; ArduPilot: 1, as every SITL instance) starts under drone ``i``'s
+start cell of ``--workspace``; ``--instance N`` starts from vehicle ``N`` (SITL's ``-I``), so that
+each vehicle may run in its own process and die alone.
 Over UDP (the default, as PX4 SITL) it sends to a ground station listening on
 ``--host``:(14540 + i); with ``--tcp`` (as ArduPilot SITL) it listens on (5760 + 10 i).
 ``--base-port`` moves either range. With ``--serial`` each vehicle is on a serial line
@@ -35,6 +37,9 @@ from fleet.vehicle.urls import DEFAULT_BAUD
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workspace", help="workspace file: vehicle i starts at drone i's start cell")
     parser.add_argument("--count", type=int, default=1, help="number of vehicles (default 1)")
+    parser.add_argument("--instance", type=int, default=0,
+                        help="the first vehicle's instance, as SITL's -I: vehicle i of this process is the "
+                             "workspace's drone (instance + i), on that one's port (default 0)")
     parser.add_argument("--autopilot", choices=sorted(PERSONALITIES), default="ardupilot",
                         help="personality: modes, results and streams of ArduCopter or PX4 (default ardupilot)")
     link = parser.add_mutually_exclusive_group()
@@ -88,6 +93,8 @@ def max_speed(args: argparse.Namespace) -> float:
 def _config(args: argparse.Namespace) -> FleetConfig:
     if args.count < 1:
         raise ValueError(f"--count must be >= 1, got {args.count}")
+    if args.instance < 0:
+        raise ValueError(f"--instance must be >= 0, got {args.instance}")
     for name in ("speedup", "max_speed"):
         value = getattr(args, name)
         if value is not None and not value > 0:
@@ -109,7 +116,8 @@ def _config(args: argparse.Namespace) -> FleetConfig:
                             spool_up_s=args.spool_up, auto_disarm_s=args.auto_disarm, battery_pct=args.battery)
     key = parse_key(args.signing_key) if args.signing_key else None
     return FleetConfig(count=args.count, vehicle=vehicle, tcp=args.tcp, host=args.host, base_port=args.base_port,
-                       speedup=args.speedup, signing_key=key, serial_baud=baud if args.serial else None)
+                       speedup=args.speedup, signing_key=key, serial_baud=baud if args.serial else None,
+                       first=args.instance)
 
 
 async def _serve(config: FleetConfig, workspace: Workspace | None) -> None:
@@ -123,7 +131,7 @@ async def _serve(config: FleetConfig, workspace: Workspace | None) -> None:
     def announce(nodes: list[SimNode]) -> None:
         serving.extend(nodes)
         kind = "tcp server" if config.tcp else "udp to"
-        for i, node in enumerate(nodes):
+        for i, node in zip(config.instances, nodes, strict=True):
             if isinstance(node.link, PtyLink):
                 where = f"serial {node.link.device} at {config.serial_baud} baud"
             else:

@@ -63,6 +63,11 @@ class FleetConfig:
     tick_s: float = 0.02  #: wall-clock seconds between physics/telemetry steps
     signing_key: bytes | None = None
     serial_baud: int | None = None  #: set: each vehicle on a pseudo-terminal at this baud rate (no port)
+    first: int = 0  #: the first vehicle's instance (SITL's -I): its drone of the workspace, its port
+
+    @property
+    def instances(self) -> range:
+        return range(self.first, self.first + self.count)
 
     def port(self, index: int) -> int:
         if self.tcp:
@@ -83,20 +88,21 @@ class SimClock:
         return (time.monotonic() - self._start) * self.speedup
 
 
-def placements(workspace: Workspace | None, count: int) -> list[Placement]:
-    """Where each of ``count`` vehicles starts (raises WorkspaceError if the workspace has too few drones)."""
+def placements(workspace: Workspace | None, count: int, first: int = 0) -> list[Placement]:
+    """Where vehicles ``first`` to ``count - 1`` start (raises WorkspaceError if the workspace has too few
+    drones)."""
     if workspace is None:
         ws = Workspace.build(size=(max(1, count), 1, 1), cell_size_m=DEFAULT_SPACING_M, geo=DEFAULT_HOME)
         cells = [(i, 0, 0) for i in range(count)]
     else:
         ws, cells = workspace, list(workspace.drones.values())
         if len(cells) < count:
-            raise WorkspaceError(f"has {len(cells)} drone(s), {count} vehicles asked for",
+            raise WorkspaceError(f"has {len(cells)} drone(s), vehicles up to instance {count - 1} asked for",
                                  field="drones", source=workspace.source)
     frame = GeoFrame(ws)
     chargers = frozenset((x, y) for x, y, _ in ws.charging_stations)
     out = []
-    for cell in cells[:count]:
+    for cell in cells[first:count]:
         centre = frame.cell_to_ned(cell)
         out.append(Placement(frame, Ned(centre.north, centre.east, 0.0), chargers))
     return out
@@ -167,7 +173,7 @@ def pack_datagrams(frames: Iterable[bytes], limit: int = DATAGRAM_BYTES) -> Iter
 def build_nodes(config: FleetConfig, workspace: Workspace | None, clock: SimClock) -> list[SimNode]:
     now = clock.now()
     nodes = []
-    for i, place in enumerate(placements(workspace, config.count)):
+    for i, place in zip(config.instances, placements(workspace, config.instances.stop, config.first), strict=True):
         sysid = 1 if config.vehicle.personality.one_system_id else i + 1
         vehicle = replace(config.vehicle, system_id=sysid, instance=i)
         codec = Codec(sysid, signing_key=config.signing_key)
@@ -181,7 +187,7 @@ async def run_fleet(config: FleetConfig, workspace: Workspace | None, stop: asyn
     clock = SimClock(config.speedup)
     nodes = build_nodes(config, workspace, clock)
     try:
-        for i, node in enumerate(nodes):
+        for i, node in zip(config.instances, nodes, strict=True):
             await node.open(config, i)
         if on_ready is not None:
             on_ready(nodes)

@@ -60,7 +60,8 @@ class FleetProcesses:
     offsets: dict[str, float] = field(default_factory=dict)  #: injected clock offsets, s
     hosted: bool = False  #: every drone in one `drona agent --count N --shared-session` process
     agent_options: tuple[str, ...] = ()  #: more `drona agent` options for every agent
-    sim: subprocess.Popen[bytes] | None = None
+    vehicles_apart: bool = False  #: each vehicle in its own `drona sim-vehicle` process (it may die alone)
+    sims: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)  #: by drone, or "all"
     agents: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
     others: list[subprocess.Popen[bytes]] = field(default_factory=list)
 
@@ -80,9 +81,13 @@ class FleetProcesses:
         return self.tmp / f"record-{drone}.jsonl"
 
     def start(self) -> None:
-        self.sim = self._spawn("sim", [*DRONA, "sim-vehicle", "--workspace", str(self.workspace), "--count",
-                                       str(len(self.drones)), "--base-port", str(self.vehicle_base),
-                                       "--speedup", str(SPEEDUP), "--ready-after", "0.5"])
+        vehicles = [*DRONA, "sim-vehicle", "--workspace", str(self.workspace), "--base-port", str(self.vehicle_base),
+                    "--speedup", str(SPEEDUP), "--ready-after", "0.5"]
+        if self.vehicles_apart:
+            for i, drone in enumerate(self.drones):
+                self.sims[drone] = self._spawn(f"sim-{drone}", [*vehicles, "--count", "1", "--instance", str(i)])
+        else:
+            self.sims["all"] = self._spawn("sim", [*vehicles, "--count", str(len(self.drones))])
         if self.hosted:
             self.agents["+".join(self.drones)] = self._spawn("host", self.host_command())
             return
@@ -136,16 +141,17 @@ class FleetProcesses:
             except subprocess.TimeoutExpired:
                 process.kill()
                 codes[drone] = None
-        if self.sim is not None and self.sim.poll() is None:
-            self.sim.send_signal(signal.SIGINT)
-            try:
-                self.sim.wait(10)
-            except subprocess.TimeoutExpired:
-                self.sim.kill()
+        for sim in self.sims.values():
+            if sim.poll() is None:
+                sim.send_signal(signal.SIGINT)
+                try:
+                    sim.wait(10)
+                except subprocess.TimeoutExpired:
+                    sim.kill()
         return codes
 
     def kill_all(self) -> None:
-        for process in [*self.others, *self.agents.values(), *([self.sim] if self.sim else [])]:
+        for process in [*self.others, *self.agents.values(), *self.sims.values()]:
             if process.poll() is None:
                 process.send_signal(signal.SIGABRT)  # still running at the end: its stacks go to its log
                 try:

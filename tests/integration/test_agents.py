@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from drona_gcs.audit import Audit
-from fleet.transport.wire import MailOrder, MailStatus
+from fleet.transport.wire import DroneState, MailOrder, MailStatus
 from tests.integration.harness import DRONA, FleetProcesses, Observer
 
 pytestmark = pytest.mark.slow
@@ -174,3 +174,50 @@ def test_a_clock_offset_beyond_beta_is_detected_and_stops_planning(tmp_path: Pat
         assert "d3" in " ".join(obs.states["d1"].health.alarms)
     finally:
         fleet.kill_all()
+
+
+def test_a_vehicle_killed_in_flight_is_one_drones_problem(tmp_path: Path) -> None:
+    """d2's vehicle (its own `drona sim-vehicle` process) is killed while d2 flies to a pickup: d2's agent
+    stays up and a member, raises vehicle_lost and hands its mail back; the other drones deliver theirs;
+    every agent leaves cleanly; the flight record audits clean (d2's lost steps are gaps, not cells)."""
+    fleet = FleetProcesses(tmp_path, ["d1", "d2", "d3", "d4"], vehicles_apart=True)
+    # d2 parks at (0, 4): its leg to (3, 3) and the cells held for it while lost stay west of the others'.
+    doomed = MailOrder(id="doomed", pickup=[3, 3, 0], dropoff=[3, 8, 0], priority=5)
+    others = [MailOrder(id=f"m{i}", pickup=[*a, 0], dropoff=[*b, 0], priority=p) for i, (a, b, p) in
+              enumerate([((6, 2), (8, 7), 5), ((7, 8), (6, 1), 3), ((8, 3), (7, 6), 7), ((9, 6), (6, 7), 1)])]
+    fleet.start()
+    try:
+        async def scenario() -> Observer:
+            async with Observer(fleet) as obs:
+                await obs.until(lambda: obs.alive >= set(fleet.drones), 60, "every agent to join")
+                await obs.until(lambda: len(obs.states) == 4 and all(
+                    s.plans >= 1 and s.landed and s.mode == "WaitForTaskRequest" for s in obs.states.values()),
+                    60, "all parked")
+                await obs.give(doomed, "d2")
+                await obs.until(lambda: _in_flight_to_pickup(obs.states.get("d2")), 60, "d2 in flight")
+                fleet.sims["d2"].kill()
+                for i, order in enumerate(others):
+                    await obs.give(order, ["d1", "d3", "d4"][i % 3])
+                await obs.until(lambda: any(a.startswith("vehicle_lost") for a in obs.states["d2"].health.alarms),
+                                10, "d2's vehicle_lost alarm")
+                await obs.until(lambda: MailStatus.REJECTED in obs.statuses("doomed"), 10, "d2 to hand back")
+                await obs.until(lambda: obs.delivered([o.id for o in others]), 150, "the others' mail delivered")
+                assert "d2" in obs.alive and fleet.agents["d2"].poll() is None
+                return obs
+
+        asyncio.run(scenario())
+        codes = fleet.stop()
+        assert all(code == 0 for code in codes.values()), f"agents exited {codes}\n{fleet.logs()}"
+        result = fleet.audit()
+        assert result.safe, _unsafe(result, fleet)
+        assert not result.jumps, f"{result.jumps[:5]}\n{fleet.logs()}"
+        ends = {drone: t.end_step for drone, t in result.trajectories.items()}
+        assert ends["d2"] < min(ends[d] for d in ("d1", "d3", "d4")) - 10, ends  # never recorded once lost
+        assert result.conformance.fraction >= MIN_CONFORMANCE, str(result.conformance.worst)
+    finally:
+        fleet.kill_all()
+
+
+def _in_flight_to_pickup(state: DroneState | None) -> bool:
+    vehicle = None if state is None else state.vehicle
+    return state is not None and state.phase == "to_pickup" and vehicle is not None and vehicle.landed == "in_air"
