@@ -659,3 +659,13 @@ def test_a_ticks_messages_share_datagrams_up_to_the_size_limit() -> None:
     assert b"".join(datagrams) == b"".join(frames)  # nothing lost, nothing reordered
     assert [len(d) for d in datagrams] == [1200, 900, 2000, 10]  # a frame over the limit goes alone
     assert list(pack_datagrams([])) == []
+
+
+def test_cli_instance_starts_from_that_drone_and_is_refused_past_the_last(
+        write_file: Callable[[str, str], Path], capsys: pytest.CaptureFixture[str]) -> None:
+    ws_file = write_file("ws.yaml", "size: [4, 4, 1]\ndrones: {d1: [1, 0, 0], d2: [3, 0, 0]}\n")
+    assert drona_main(["sim-vehicle", "--workspace", str(ws_file), "--instance", "1", "--count", "2"]) == 2
+    assert "has 2 drone(s), 2 vehicles asked for from instance 1" in capsys.readouterr().err
+    ws = load_workspace(ws_file)
+    (place,) = placements(ws, 2, first=1)
+    assert (math.floor(place.home.east / ws.cell_size_m), math.floor(place.home.north / ws.cell_size_m)) == (3, 0)

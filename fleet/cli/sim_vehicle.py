@@ -25,12 +25,12 @@ from drona_gcs.geo import check_speed
 from drona_gcs.workspace import Workspace
 from drona_gcs.workspace_files import load_workspace
 from fleet import runtime
-from fleet.sim.codec import parse_key
 from fleet.sim.config import VehicleConfig
 from fleet.sim.fleet import FleetConfig, SimNode, run_fleet
 from fleet.sim.params import starting_limits
 from fleet.sim.personality import PERSONALITIES
 from fleet.sim.transport import PtyLink
+from fleet.vehicle.signing import parse_key
 from fleet.vehicle.urls import DEFAULT_BAUD
 
 
@@ -114,7 +114,7 @@ def _config(args: argparse.Namespace) -> FleetConfig:
         limits = replace(starting_limits(VehicleConfig(personality=personality)), max_speed=args.max_speed)
     vehicle = VehicleConfig(personality=personality, limits=limits, ready_after_s=args.ready_after,
                             spool_up_s=args.spool_up, auto_disarm_s=args.auto_disarm, battery_pct=args.battery)
-    key = parse_key(args.signing_key) if args.signing_key else None
+    key = parse_key(args.signing_key, "--signing-key") if args.signing_key else None
     return FleetConfig(count=args.count, vehicle=vehicle, tcp=args.tcp, host=args.host, base_port=args.base_port,
                        speedup=args.speedup, signing_key=key, serial_baud=baud if args.serial else None,
                        first=args.instance)

@@ -9,18 +9,11 @@ unsigned or badly signed decodes as ``BAD_DATA``, which the model ignores.
 
 from __future__ import annotations
 
-import time
-
 from fleet.sim.mav import Message, mavlink2
+from fleet.vehicle.signing import signing_timestamp
 
 #: Unsigned messages still accepted when signing is on.
 UNSIGNED_OK = frozenset({mavlink2.MAVLINK_MSG_ID_HEARTBEAT, mavlink2.MAVLINK_MSG_ID_RADIO_STATUS})
-_SIGNING_EPOCH = 1420070400  # 2015-01-01, the MAVLink signing timestamp's origin
-
-
-def signing_timestamp() -> int:
-    """Now, in the signing timestamp's units (10 µs since 2015)."""
-    return int((time.time() - _SIGNING_EPOCH) * 100_000)
 
 
 def _allow_unsigned(mav: mavlink2.MAVLink, msg_id: int) -> bool:
@@ -57,14 +50,3 @@ class Codec:
 
 def decode(decoder: mavlink2.MAVLink, data: bytes) -> list[Message]:
     return list(decoder.parse_buffer(data) or ())
-
-
-def parse_key(text: str) -> bytes:
-    """A signing key written as 64 hex digits (32 bytes); ValueError otherwise."""
-    try:
-        key = bytes.fromhex(text)
-    except ValueError:
-        raise ValueError("a signing key is 64 hex digits (32 bytes)") from None
-    if len(key) != 32:
-        raise ValueError(f"a signing key is 32 bytes (64 hex digits), got {len(key)} bytes")
-    return key

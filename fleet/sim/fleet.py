@@ -97,7 +97,8 @@ def placements(workspace: Workspace | None, count: int, first: int = 0) -> list[
     else:
         ws, cells = workspace, list(workspace.drones.values())
         if len(cells) < count:
-            raise WorkspaceError(f"has {len(cells)} drone(s), vehicles up to instance {count - 1} asked for",
+            asked = f"{count - first} vehicles asked for" + (f" from instance {first}" if first else "")
+            raise WorkspaceError(f"has {len(cells)} drone(s), {asked}",
                                  field="drones", source=workspace.source)
     frame = GeoFrame(ws)
     chargers = frozenset((x, y) for x, y, _ in ws.charging_stations)
