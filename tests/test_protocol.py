@@ -275,6 +275,67 @@ def test_a_lower_priority_request_from_a_departed_drone_is_held_but_is_no_answer
     assert proto.pending == {"c": ID_C_LOW} and "c" not in proto.received
 
 
+# ============================================ late requests of rounds that are over
+ID_B_NEXT = TaskId(9, "b", 2)  # b's next task, after ID_B_HIGH or ID_B_LOW: a drone's ids only grow
+B_PLAN = traj(1, (4, 4), (4, 3), (4, 2))  # what b flew since its first request, and rests at the end of
+
+
+def test_a_late_request_of_a_round_that_is_over_is_not_taken_for_a_higher_priority() -> None:
+    """The deadlock of the issue tracker: b's request from its round that is over (ranking above mine)
+    came after its request for the next one (ranking below). Taken as current, I dropped b's answer and
+    asked it again, while b took my request as my answer: both waited for good."""
+    proto = machine()
+    proto.handle(NewTask(Task(ID_A, GOAL)), 2)
+    assert proto.handle(ReqForCurrentTraj(ID_B_NEXT, "b", B_PLAN), 2) == []  # b waits for my plan
+    assert proto.handle(request(ID_B_HIGH, "b"), 2) == []  # late: neither asked again nor answered
+    assert proto.pending == {"b": ID_B_NEXT} and proto.received == {"b": B_PLAN}
+    actions = proto.handle(CurrentTraj("c", location_of("c", 2), ID_A), 2)
+    action = started(actions)
+    assert action.psi["b"] == B_PLAN
+    assert Send("b", CurrentTraj("a", action.trajectory, ID_B_NEXT)) in actions
+
+
+def test_a_late_request_of_a_round_that_is_over_replaces_neither_the_answer_nor_the_id_to_answer() -> None:
+    """Ranking below mine too, it would put where b was before its last plan in Psi, and have my plan
+    answer a request b no longer waits on (b ignores that answer and waits for good)."""
+    proto = machine()
+    proto.handle(NewTask(Task(ID_A, GOAL)), 2)
+    proto.handle(ReqForCurrentTraj(ID_B_NEXT, "b", B_PLAN), 2)
+    assert proto.handle(request(ID_B_LOW, "b"), 2) == []  # carrying b at B, before it flew B_PLAN
+    assert proto.pending == {"b": ID_B_NEXT} and proto.received == {"b": B_PLAN}
+    actions = proto.handle(CurrentTraj("c", location_of("c", 2), ID_A), 2)
+    action = started(actions)
+    assert action.psi["b"] == B_PLAN
+    assert [a.message for a in actions if isinstance(a, Send) and a.to == "b"] == [
+        CurrentTraj("a", action.trajectory, ID_B_NEXT)]
+
+
+def test_the_newest_request_is_remembered_across_states_and_rounds() -> None:
+    """Idle, I answered b's newest request; its late older one gets no answer (b would ignore it), and
+    coordinating later it is not taken for a higher priority's after b answered me (nor asked again)."""
+    proto = machine()
+    assert len(proto.handle(ReqForCurrentTraj(ID_B_NEXT, "b", B_PLAN), 1)) == 1
+    assert proto.handle(request(ID_B_LOW, "b"), 1) == []
+    mine = TaskId(10, "a", 1)  # my clock saw b's stamp: b's newest task ranks above mine
+    proto.handle(NewTask(Task(mine, GOAL)), 2)
+    assert proto.handle(CurrentTraj("b", B_PLAN, mine), 2) == []
+    assert proto.handle(request(ID_B_HIGH, "b"), 2) == []
+    action = started(proto.handle(CurrentTraj("c", location_of("c", 2), mine), 2))
+    assert action.psi["b"] == B_PLAN
+    assert proto.handle(request(ID_B_LOW, "b"), 3) == []  # executing: still late
+
+
+def test_a_drone_that_rejoins_has_its_ids_count_afresh() -> None:
+    """It may have restarted, and its hybrid clock with it: its requests rank by its new ids."""
+    proto = machine()
+    proto.handle(ReqForCurrentTraj(ID_B_NEXT, "b", B_PLAN), 1)
+    proto.handle(PeerLeft("b"), 2)
+    proto.handle(PeerJoined("b", (4, 2, 0)), 3)
+    restarted = TaskId(4, "b", 1)
+    assert proto.handle(request(restarted, "b"), 4) == [
+        Send("b", CurrentTraj("a", Trajectory.stationary(A, 4), restarted))]
+
+
 # ================================================= stale, duplicate and foreign replies
 def test_a_reply_to_an_older_request_is_ignored() -> None:
     proto = machine({"a": A, "b": B})
@@ -512,6 +573,43 @@ def test_a_later_task_plans_around_a_drone_already_flying() -> None:
     assert b.action.task.id > a.action.task.id
     flown = {**cluster.executed(), "c": cluster.trajectory("c")}  # c stays where it is
     assert check_fleet(CROSSING, flown, cluster.delta) == []
+
+
+def deliver_from(cluster: ProtocolCluster, sender: str, to: str, kind: type, task_id: TaskId | None = None) -> None:
+    """Deliver the oldest message of type ``kind`` in flight from ``sender`` to ``to`` (a request: of ``task_id``)."""
+    index = next(i for i, (s, t, m) in enumerate(cluster.network) if (s, t) == (sender, to) and isinstance(m, kind)
+                 and (task_id is None or (isinstance(m, ReqForCurrentTraj) and m.task_id == task_id)))
+    cluster.deliver(index)
+
+
+def test_a_request_overtaken_by_its_senders_next_one_holds_up_no_one() -> None:
+    """The issue tracker's deadlock end to end: b's request for a round that is over reaches a after its
+    request for the next round, which ranks below a's task. Both still start, against what the other
+    had committed, and safely."""
+    cluster = ProtocolCluster(CROSSING, CLUSTER_STARTS)
+    old = cluster.start_task("b", CLUSTER_GOALS["b"]).id
+    deliver_from(cluster, "b", "c", ReqForCurrentTraj)  # c answers b; b's request to a is held up
+    cluster.now = 2
+    mine = cluster.start_task("a", CLUSTER_GOALS["a"]).id  # ranks below b's first task
+    deliver_from(cluster, "a", "b", ReqForCurrentTraj)  # b holds a; a's request to c is held up
+    deliver_from(cluster, "c", "b", CurrentTraj)  # b plans, and answers a with its plan
+    deliver_from(cluster, "b", "a", CurrentTraj)
+    cluster.now = cluster.trajectory("b").end_step
+    cluster.complete("b")
+    new = cluster.start_task("b", CLUSTER_STARTS["b"]).id  # b saw a's stamp: ranks below a's task
+    assert old < mine < new
+    deliver_from(cluster, "b", "a", ReqForCurrentTraj, new)  # its answer to a, waiting for a's plan
+    deliver_from(cluster, "b", "a", ReqForCurrentTraj, old)  # late
+    cluster.deliver_all()
+    assert {d: p.state for d, p in cluster.protocols.items()} == {  # nothing in flight: nobody waits
+        "a": State.EXECUTING, "b": State.EXECUTING, "c": State.WAIT_FOR_TASK}
+    assert [(s.drone, s.action.task.id) for s in cluster.started] == [("b", old), ("a", mine), ("b", new)]
+    horizon = range(max(t.end_step for t in cluster.executed().values()) + cluster.delta + 2)
+    for s in cluster.started:  # Psi is what each peer had committed (a location's stamp may differ)
+        assert {p: [t.at(i) for i in horizon] for p, t in s.action.psi.items()} == {
+            p: [t.at(i) for i in horizon] for p, t in s.peers_then.items()}
+    assert cluster.started[2].action.psi["a"] == cluster.started[1].action.trajectory
+    assert check_fleet(CROSSING, cluster.executed(), cluster.delta) == []
 
 
 def test_a_rejoined_peer_that_leaves_again_stays_an_obstacle_where_it_announced_itself() -> None:

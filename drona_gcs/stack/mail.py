@@ -314,9 +314,10 @@ class MailPlanner:
         unchecked = "no-battery-check" in self.bugs or not self.chargers  # no chargers: no energy model
         budget = Budget(now, self.battery.steps_affordable(level), unchecked)
         spots = self.parking or self.chargers
-        if self.tried and not self.low and spots and self.cell not in spots:
+        if self.tried and not self.low and not self.carrying and spots and self.cell not in spots:
             # A leg found no plan: maybe our goal is where another drone waits, while we wait
-            # where it wants to go. Clear the way on a parking cell before trying again.
+            # where it wants to go. Clear the way on a parking cell before trying again (never
+            # with mail on board: it goes to its drop-off, or a charger, and nowhere else).
             return self._to_one_of(spots, budget, taken, Phase.TO_PARKING)
         if self.carrying and self.current is not None:
             dropoff, after = self.current.dropoff, self._after(self.current.dropoff)

@@ -29,15 +29,28 @@ settled here, and one message it sends is saved (the second point):
   at once, as the paper has it. Without this, a fleet given tasks at once sent
   an answer for every pair of drones before the first could plan (496 for 32
   drones).
-* **A higher priority's request while coordinating, after it answered me.**
-  The answer may be its location from before its task (ids that are not
-  HLCs allow that), about to be stale since it plans before me: I drop it
+* **A higher priority's request while coordinating, after it answered me**
+  (a current request: see the next point). The answer may be its location
+  from before its task (ids that are not HLCs allow that), about to be
+  stale since it plans before me: I drop it
   from Psi and ask it again; it holds me in ``R_pend``, takes my trajectory
   from that request and sends its new trajectory once planned. (With HLC ids
   the answer is the new plan it sent once planned, its request having come
   late; asked again, it answers with that plan. Without HLC ids this protects
   only answers that came in order: the second request carries the same task
   id, so an old answer still on its way would count as the new one.)
+* **A request older than the newest one seen from its sender is dropped**, in
+  every state. A drone's ids only grow (its HLC) and it starts a task only once
+  its last round is over (planned or failed), so that request's round is over:
+  its sender ignores any answer to it, and the trajectory it carries may be out
+  of date. Sound: dropping adds nothing to Psi; taking it would put that
+  trajectory there or, ranking below mine, have my plan answer (``R_pend``) a
+  request its sender no longer waits on. Complete: a drone waits only on
+  answers to its newest request, which was handled when it came. Taken as
+  current, a late request ranking above mine passed for the point above: I
+  asked its sender again while it, in a later round ranking below mine, took
+  my request as my answer, and both waited for good. A drone that rejoins may
+  have restarted its clock: its ids count afresh.
 * **Psi is rebuilt for every task.** Answers from an earlier round describe
   plans that may have been replaced since; planning with them is the race the
   paper's model checker found (seeded bug ``stale-trajectory``).
@@ -184,6 +197,7 @@ class CoordinationProtocol:
     pending: dict[str, TaskId] = field(default_factory=dict)  #: R_pend, with their task ids
     ghosts: dict[str, Trajectory] = field(default_factory=dict)  #: departed drones, kept as obstacles
     known: dict[str, Trajectory] = field(default_factory=dict)  #: last trajectory heard of each peer
+    newest: dict[str, TaskId] = field(default_factory=dict)  #: the newest request id seen from each drone
     lost: VehicleLost | None = None  #: my vehicle is lost: what I hold besides my trajectory
     peer_holds: dict[str, tuple[Cell, ...]] = field(default_factory=dict)  #: what this round's answers hold
 
@@ -259,6 +273,17 @@ class CoordinationProtocol:
         assert self.task is not None
         return ReqForCurrentTraj(self.task.id, self.me, self.current_trajectory(now), self.holds())
 
+    def _current(self, event: ReqForCurrentTraj) -> bool:
+        """Note ``event`` as its sender's newest request; False if a newer one came first (its round is over)."""
+        newest = self.newest.get(event.sender)
+        if newest is not None and event.task_id < newest:
+            return False
+        self.newest[event.sender] = event.task_id
+        return True
+
+    def _on_request(self, event: ReqForCurrentTraj, now: int) -> list[Action]:
+        return self._answer(event, now) if self._current(event) else []
+
     def _answer(self, event: ReqForCurrentTraj, now: int) -> list[Action]:
         if event.sender == self.me:
             return []
@@ -266,7 +291,7 @@ class CoordinationProtocol:
 
     def _on_request_while_coordinating(self, event: ReqForCurrentTraj, now: int) -> list[Action]:
         assert self.task is not None
-        if event.sender == self.me:
+        if event.sender == self.me or not self._current(event):
             return []
         if "answer-while-coordinating" in self.bugs:
             return self._answer(event, now)
@@ -325,6 +350,7 @@ class CoordinationProtocol:
             return []
         self.members.add(event.drone)
         self.ghosts.pop(event.drone, None)
+        self.newest.pop(event.drone, None)  # it may have restarted, and its clock with it
         # What it announces now is newer than anything we heard before it left.
         self.known[event.drone] = event.announced(now)
         if self.state is State.COORDINATING and self.task is not None:
@@ -383,7 +409,7 @@ _Handler = Callable[..., list[Action]]
 TRANSITIONS: dict[State, dict[type, _Handler]] = {
     State.WAIT_FOR_TASK: {
         NewTask: CoordinationProtocol._on_new_task,  # -> COORDINATING
-        ReqForCurrentTraj: CoordinationProtocol._answer,  # with my location
+        ReqForCurrentTraj: CoordinationProtocol._on_request,  # answered with my location
         CurrentTraj: CoordinationProtocol._ignore,
         PeerLeft: CoordinationProtocol._on_peer_left,
         PeerJoined: CoordinationProtocol._on_peer_joined,
@@ -398,7 +424,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         VehicleLost: CoordinationProtocol._on_vehicle_lost,  # the round ends in no plan
     },
     State.EXECUTING: {
-        ReqForCurrentTraj: CoordinationProtocol._answer,  # with my trajectory
+        ReqForCurrentTraj: CoordinationProtocol._on_request,  # answered with my trajectory
         CurrentTraj: CoordinationProtocol._ignore,
         PlanCompleted: CoordinationProtocol._on_completed,  # -> WAIT_FOR_TASK
         PeerLeft: CoordinationProtocol._on_peer_left,
