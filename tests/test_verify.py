@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
+import os
+import random
 from pathlib import Path
 
 import pytest
 
 from drona_gcs.errors import DronaError, ProblemError
+from drona_gcs.stack.mail import MailRequest
+from drona_gcs.stack.protocol import StartExecuting
 from drona_gcs.verify.explore import SEEDED_BUGS, Explorer, Scenario, Strategy, decode_token, encode_token
+from drona_gcs.verify.monitors import Violation
+from drona_gcs.verify.world import World
 from fleet.cli import main
 
 #: Which monitor each seeded bug should trip: (a) stale Psi, (b) collision, (d) a request never
@@ -30,7 +38,8 @@ def test_every_seeded_bug_has_an_expectation() -> None:
 @pytest.mark.parametrize("bug", sorted(SEEDED_BUGS))
 @pytest.mark.parametrize("strategy", [Strategy.RANDOM, Strategy.PCT])
 def test_each_seeded_bug_is_found(bug: str, strategy: Strategy) -> None:
-    explorer = Explorer(Scenario(drones=4, requests=6, delta=1, seed=0, bugs=(bug,)))
+    # Without the field's faults, whose liveness bugs are still open (see the xfail below).
+    explorer = Explorer(Scenario(drones=4, requests=6, delta=1, seed=0, bugs=(bug,), faults=False))
     outcome = explorer.run(strategy, schedules=300, max_depth=4000, seed=1)
     assert outcome.violation is not None, f"{bug} not found in {outcome.schedules} schedules"
     assert outcome.violation.monitor in EXPECTED[bug], str(outcome.violation)
@@ -51,11 +60,42 @@ def test_replaying_a_token_reproduces_the_same_trace(bug: str) -> None:
 
 @pytest.mark.parametrize(("drones", "delta", "seed"), [(2, 0, 1), (3, 1, 2), (4, 1, 0), (4, 2, 5)])
 def test_clean_stack_passes_random_and_pct_exploration(drones: int, delta: int, seed: int) -> None:
-    explorer = Explorer(Scenario(drones=drones, requests=6, delta=delta, seed=seed))
+    explorer = Explorer(Scenario(drones=drones, requests=6, delta=delta, seed=seed, faults=False))
     for strategy in (Strategy.RANDOM, Strategy.PCT):
         outcome = explorer.run(strategy, schedules=25, max_depth=6000, seed=seed)
         assert outcome.violation is None, "\n".join([str(outcome.violation), *outcome.trace[-30:]])
         assert outcome.schedules == 25
+
+
+@pytest.mark.xfail(reason="open (issues 24, 25): with a vehicle down, a mail whose leg its resting drone blocks "
+                          "keeps the queue behind it waiting for good; the wait-for graph shows it", strict=False)
+@pytest.mark.parametrize(("drones", "delta", "seed"), [(4, 1, 0), (4, 2, 5)])
+def test_clean_stack_stays_live_under_the_fields_faults(drones: int, delta: int, seed: int) -> None:
+    explorer = Explorer(Scenario(drones=drones, requests=6, delta=delta, seed=seed))
+    for strategy in (Strategy.RANDOM, Strategy.PCT):
+        outcome = explorer.run(strategy, schedules=25, max_depth=6000, seed=seed)
+        assert outcome.violation is None, "\n".join([str(outcome.violation), *outcome.trace[-30:]])
+
+
+def test_the_fault_model_duplicates_cancels_and_downs_within_its_bounds() -> None:
+    """Every schedule may duplicate messages, cancel a mail and bring a vehicle down, never beyond the
+    bounds; with faults off, none of it happens."""
+    seen = {"duplicates": 0, "cancel": 0, "down": 0}
+    for seed in range(10):
+        world, rng = Explorer(Scenario(drones=3, requests=4, delta=1, seed=seed)).world(), random.Random(seed)
+        with contextlib.suppress(Violation):
+            for _ in range(3000):
+                if world.finished:
+                    break
+                world.apply(rng.choice(world.enabled()))
+        counts = {"duplicates": sum("net: duplicates" in line for line in world.trace),
+                  "cancel": sum("env: cancel" in line for line in world.trace),
+                  "down": sum("came down by itself" in line for line in world.trace)}
+        assert counts["duplicates"] <= 2 and counts["cancel"] <= 1 and counts["down"] <= 1, counts
+        seen = {k: seen[k] + counts[k] for k in seen}
+    assert all(count > 0 for count in seen.values()), seen
+    quiet = Explorer(Scenario(drones=3, requests=4, delta=1, seed=0, faults=False)).world()
+    assert not any(kind in ("duplicate", "cancel", "down") for kind, _ in quiet.enabled())
 
 
 def test_clean_stack_passes_exhaustive_dfs_to_a_small_depth() -> None:
@@ -105,3 +145,52 @@ def test_clean_stack_on_the_original_drona_workspaces(name: str, shared_dir: Pat
     outcome = explorer.run(Strategy.RANDOM, schedules=10, max_depth=6000, seed=1)
     assert outcome.violation is None, str(outcome.violation)
     assert outcome.schedules == 10
+
+
+def test_a_reversed_mail_rank_is_found_by_the_order_monitor(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Monitor (c) ranks mail in its own code: a mutant that reverses the production rank (least urgent
+    first) is found, where an oracle using that rank would reverse with it."""
+    monkeypatch.setattr(MailRequest, "rank", property(lambda r: (r.priority, -r.seq)))
+    outcome = Explorer(Scenario(drones=2, requests=6, delta=1, seed=0)).run(Strategy.RANDOM, schedules=50,
+                                                                          max_depth=4000, seed=1)
+    assert outcome.violation is not None and outcome.violation.monitor == "c", str(outcome.violation)
+
+
+def test_a_plan_made_without_a_peer_is_found_by_the_consistency_monitor(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Monitor (a) takes each drone's commitment from what it started executing, not from the protocol: a
+    mutant that leaves a peer out of Psi (it plans as if that drone were not there) is found."""
+    real = StartExecuting.__init__
+
+    def forget_a_peer(self: StartExecuting, task: object, trajectory: object, psi: dict[str, object]) -> None:
+        real(self, task, trajectory, dict(list(psi.items())[1:]))  # type: ignore[arg-type]
+
+    monkeypatch.setattr(StartExecuting, "__init__", forget_a_peer)
+    outcome = Explorer(Scenario(drones=3, requests=4, delta=1, seed=0)).run(Strategy.RANDOM, schedules=5,
+                                                                          max_depth=4000, seed=1)
+    assert outcome.violation is not None and outcome.violation.monitor == "a", str(outcome.violation)
+
+
+def test_a_liveness_counterexample_says_who_waits_for_whom() -> None:
+    """(d) ends with each drone's protocol state, whom a coordinating one waits for and the mail it holds."""
+    explorer = Explorer(Scenario(drones=2, requests=2, delta=1, seed=0))
+    world = World(dataclasses.replace(explorer.config, liveness_steps=0), explorer.planner)
+    with pytest.raises(Violation) as found:
+        for _ in range(50):
+            world.apply(world.enabled()[0])
+    assert found.value.monitor == "d"
+    text = str(found.value)
+    assert "Wait-for: d" in text and all(f"{d} " in text.split("Wait-for:")[1] for d in explorer.config.drones)
+    assert "holds ['m" in text and "battery" in text
+
+
+@pytest.mark.xfail(reason="open (issue 24): sweeps still find liveness violations (monitor d) in the clean stack",
+                   strict=False)
+def test_a_short_sweep_over_configurations_nobody_picked_is_clean(capsys: pytest.CaptureFixture[str]) -> None:
+    """CI's short sweep: a new sweep seed each run (DRONA_SWEEP_SEED replays one), so that no
+    configuration is ever tuned for; the long one is a command (README). Without the field's faults
+    until the liveness bugs they find are fixed (see the xfail above)."""
+    seed = int(os.environ.get("DRONA_SWEEP_SEED", random.randrange(1_000_000)))
+    code = main(["verify", "--sweep", "4", "--time-limit", "4", "--seed", str(seed), "--quiet", "--no-faults"])
+    out = capsys.readouterr().out
+    assert code == 0, f"DRONA_SWEEP_SEED={seed}\n{out}"
+    assert f"sweep seed {seed}: 4 of 4 clean" in out

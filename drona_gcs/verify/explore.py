@@ -22,7 +22,7 @@ from dataclasses import asdict, dataclass, field
 from drona_gcs.errors import DronaError, ProblemError, ProtocolViolation
 from drona_gcs.planner import SafePlanner
 from drona_gcs.verify.monitors import Violation
-from drona_gcs.verify.world import World, WorldConfig, make_world_config, tester_workspace
+from drona_gcs.verify.world import Faults, World, WorldConfig, make_world_config, tester_workspace
 from drona_gcs.workspace import Workspace
 from drona_gcs.workspace_files import load_workspace
 
@@ -55,6 +55,7 @@ class Scenario:
     workspace_path: str | None = None
     bugs: tuple[str, ...] = ()
     max_delay: int = 2  #: steps of the sender's clock within which a message arrives
+    faults: bool = True  #: the field's faults (duplicates, a cancel, a vehicle down) and a mixed fleet
 
     def __post_init__(self) -> None:
         unknown = sorted(set(self.bugs) - set(SEEDED_BUGS))
@@ -72,8 +73,9 @@ class Scenario:
         return tester_workspace(w, h, layers, self.obstacles, self.seed, self.drones)
 
     def world_config(self, workspace: Workspace) -> WorldConfig:
+        faults = {} if self.faults else {"faults": Faults.none(), "mixed": False}
         return make_world_config(workspace, self.drones, self.requests, self.delta, self.seed,
-                                 frozenset(self.bugs), max_delay=self.max_delay)
+                                 frozenset(self.bugs), max_delay=self.max_delay, **faults)
 
 
 @dataclass

@@ -23,11 +23,10 @@ from __future__ import annotations
 import copy
 import random
 from collections.abc import Hashable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TypeVar
 
 from drona_gcs.bench.workload import random_workspace
-from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.battery import BatteryLow, BatteryModel, BatteryRecharged
 from drona_gcs.stack.drone import DroneStack, StackConfig
@@ -42,12 +41,25 @@ from drona_gcs.stack.mail import (
     Phase,
 )
 from drona_gcs.stack.messages import CurrentTraj, Message
-from drona_gcs.stack.protocol import Broadcast, Send, StartExecuting, TaskFailed
+from drona_gcs.stack.protocol import Broadcast, Send, StartExecuting, State, TaskFailed
 from drona_gcs.verify.monitors import Monitors
 from drona_gcs.workspace import Cell, Workspace
 
 Transition = tuple[str, int]
 _T = TypeVar("_T")
+
+
+@dataclass(frozen=True)
+class Faults:
+    """How many of each fault of the field a run may see (each at any point the schedule picks)."""
+
+    duplicates: int = 2  #: a message delivered twice
+    cancels: int = 1  #: a mail cancelled by its sender (taken back only while it waits in a queue)
+    downs: int = 1  #: a vehicle that comes down by itself: its mail is handed back (or lost, on board)
+
+    @classmethod
+    def none(cls) -> Faults:
+        return cls(0, 0, 0)
 
 
 @dataclass(frozen=True)
@@ -63,6 +75,9 @@ class WorldConfig:
     initial_battery: tuple[float, ...] = ()  #: per drone; empty: all full
     max_delay: int = 2
     liveness_steps: int = 120  #: every mail delivered within this many steps after the last one arrives
+    faults: Faults = field(default_factory=Faults)
+    mixed: bool = True  #: the last drone runs another configuration, as during a rolling upgrade
+
 
     def __deepcopy__(self, memo: dict[int, object]) -> WorldConfig:
         return self
@@ -160,23 +175,30 @@ class World:
         if planner.delta != planner_delta:
             raise ValueError(f"planner has delta {planner.delta}, the world needs {planner_delta}")
         stack = StackConfig(config.workspace, planner, config.battery, bugs=config.bugs)
+        # A rolling upgrade: the last drone runs another configuration (a longer lead, other marks).
+        upgraded = replace(stack, lead_steps=config.delta + 3, low_mark=35.0, recharged_mark=90.0)
         peers = dict(zip(config.drones, config.starts, strict=True))
-        self.stacks = {d: DroneStack(d, stack, peers) for d in config.drones}
+        self.stacks = {d: DroneStack(d, upgraded if config.mixed and d == config.drones[-1] else stack, peers)
+                       for d in config.drones}
         self.steps = dict.fromkeys(config.drones, -1)
         levels = config.initial_battery or tuple(100.0 for _ in config.drones)
         self.battery = dict(zip(config.drones, levels, strict=True))
         self.inflight: list[InFlight] = []
         self.injected = 0
+        self.redispatch: list[tuple[str, MailRequest]] = []  #: handed-back mail the service gives again
         self.last_injection_step = 0
         self.sent = 0
+        self.used = Faults.none()  #: faults so far
+        self.down: set[str] = set()
         self.monitors = Monitors(config)
         self.trace: list[str] = []
 
     # -------------------------------------------------------- scheduling
     def enabled(self) -> list[Transition]:
         moves: list[Transition] = [("deliver", m.seq) for m in self.inflight]
-        if self.injected < len(self.config.requests):
+        if self.injected < len(self.config.requests) or self.redispatch:
             moves.append(("inject", 0))
+        moves += self._faults()
         deadline = min((m.deadline for m in self.inflight), default=None)
         if self.config.delta == 0:
             # Perfect synchrony: every executor takes the same step at once (one transition).
@@ -200,6 +222,12 @@ class World:
             self._deliver(arg)
         elif kind == "inject":
             self._inject()
+        elif kind == "duplicate":
+            self._duplicate(arg)
+        elif kind == "cancel":
+            self._cancel(arg)
+        elif kind == "down":
+            self._vehicle_down(self.config.drones[arg])
         elif arg < 0:
             for drone in self.config.drones:
                 self._step(drone)
@@ -211,8 +239,12 @@ class World:
         kind, arg = move
         if kind == "deliver":
             return ("net", next(m.to for m in self.inflight if m.seq == arg))
-        if kind == "inject":
+        if kind in ("inject", "cancel"):
             return ("env", "")
+        if kind == "duplicate":
+            return ("net", "dup")
+        if kind == "down":
+            return ("vehicle", self.config.drones[arg])
         return ("clock", self.config.drones[arg] if arg >= 0 else "*")
 
     def state_key(self) -> Hashable:
@@ -222,8 +254,9 @@ class World:
             tuple(_stack_key(stack) for stack in self.stacks.values()),
             tuple(self.steps.values()), tuple(self.battery.values()),
             tuple(sorted((m.sender, m.to, repr(m.message), m.deadline) for m in self.inflight)),
-            self.injected, frozenset(self.monitors.delivered),
-            tuple(tuple(h[-keep:]) for h in self.monitors.history.values()),
+            self.injected, tuple((d, r.id) for d, r in self.redispatch), self.used, frozenset(self.down),
+            frozenset(self.monitors.settled),
+            tuple(tuple(h[-keep:]) for h in self.monitors.history.values()), self.monitors.key(),
         )
 
     def clone(self) -> World:
@@ -232,6 +265,7 @@ class World:
         new = copy.copy(self)
         new.stacks = {d: _clone_stack(s) for d, s in self.stacks.items()}
         new.steps, new.battery, new.inflight = dict(self.steps), dict(self.battery), list(self.inflight)
+        new.redispatch, new.down = list(self.redispatch), set(self.down)
         new.monitors = _shallow(self.monitors)
         new.monitors.history = {d: list(h) for d, h in self.monitors.history.items()}
         new.trace = []
@@ -240,8 +274,8 @@ class World:
     @property
     def finished(self) -> bool:
         """Every request arrived and was delivered, and the network is quiet."""
-        return (self.injected == len(self.config.requests) and not self.inflight
-                and len(self.monitors.delivered) == len(self.config.requests))
+        return (self.injected == len(self.config.requests) and not self.redispatch and not self.inflight
+                and len(self.monitors.settled) == len(self.config.requests))
 
     # ------------------------------------------------------- transitions
     def _deliver(self, seq: int) -> None:
@@ -251,26 +285,90 @@ class World:
         self._carry_out(msg.to, self.stacks[msg.to].receive(msg.message))
 
     def _inject(self) -> None:
-        request = self.config.requests[self.injected]
-        drone = self.config.assignees[self.injected]
-        self.injected += 1
+        if self.redispatch:
+            drone, request = self.redispatch.pop(0)
+        else:
+            request, drone = self.config.requests[self.injected], self.config.assignees[self.injected]
+            self.injected += 1
+        if drone in self.down:  # it refuses mail: the service gives it to another
+            drone = self._next_flying(drone)
         self.last_injection_step = min(self.steps.values())
         self.trace.append(f"env -> {drone}: mail {request.id} p{request.priority} "
                           f"{list(request.pickup)}->{list(request.dropoff)}")
+        self.monitors.given_mail(drone, request)
         self._carry_out(drone, self.stacks[drone].assign(request))
+
+    def _faults(self) -> list[Transition]:
+        """The field's faults still allowed: a duplicate of a message in flight, a cancel of a mail that
+        was given, a vehicle down (never the last one flying)."""
+        limit, used, moves = self.config.faults, self.used, []
+        if used.duplicates < limit.duplicates:
+            moves += [("duplicate", m.seq) for m in self.inflight]
+        if used.cancels < limit.cancels:
+            moves += [("cancel", j) for j in range(self.injected)
+                      if self.config.requests[j].id not in self.monitors.settled]
+        if used.downs < limit.downs and len(self.down) < len(self.config.drones) - 1:
+            moves += [("down", i) for i, d in enumerate(self.config.drones) if d not in self.down]
+        return moves
+
+    def _duplicate(self, seq: int) -> None:
+        original = next(m for m in self.inflight if m.seq == seq)
+        self.used = replace(self.used, duplicates=self.used.duplicates + 1)
+        self.sent += 1
+        self.inflight.append(replace(original, seq=self.sent))
+        self.trace.append(f"net: duplicates {_describe(original.message)} to {original.to}")
+
+    def _cancel(self, j: int) -> None:
+        request = self.config.requests[j]
+        self.used = replace(self.used, cancels=self.used.cancels + 1)
+        holder = self._holder(request.id)
+        taken = holder is not None and self.stacks[holder].cancel(request.id)
+        self.trace.append(f"env: cancel {request.id}" + (f" (taken back from {holder})" if taken else " (too late)"))
+        if taken:
+            self.monitors.cancelled(holder or "", request)
+
+    def _holder(self, mail_id: str) -> str | None:
+        for drone, stack in self.stacks.items():
+            if any(r.id == mail_id for r in stack.mail.queue):
+                return drone
+        return None
+
+    def _vehicle_down(self, drone: str) -> None:
+        self.used = replace(self.used, downs=self.used.downs + 1)
+        self.down.add(drone)
+        self.trace.append(f"{drone}: its vehicle came down by itself")
+        self._carry_out(drone, self.stacks[drone].vehicle_down(f"drone {drone}'s vehicle came down"))
 
     def _step(self, drone: str) -> None:
         stack = self.stacks[drone]
         step = self.steps[drone] + 1
         self.steps[drone] = step
-        self.battery[drone] = self._battery_after_step(stack, self.battery[drone])
+        if drone not in self.down:  # a vehicle down is on the ground: it draws nothing
+            self.battery[drone] = self._battery_after_step(stack, self.battery[drone])
         self.monitors.battery(drone, step, self.battery[drone])
         self.trace.append(f"{drone} steps to {step} (battery {self.battery[drone]:.0f})")
         # The model's vehicles fly their plans exactly: each is where its last step took it.
-        self._carry_out(drone, stack.step(step, self.battery[drone], flown=stack.executor.cell))
+        self._carry_out(drone, stack.step(step, self.battery[drone], flown=stack.executor.cell,
+                                          may_plan=drone not in self.down))
         self.monitors.position(drone, step, stack.executor.cell, self.steps)
         if self.injected == len(self.config.requests):
-            self.monitors.liveness(min(self.steps.values()) - self.last_injection_step)
+            blocked = frozenset(self.monitors.committed[d].cells[-1] for d in self.down)
+            self.monitors.liveness(min(self.steps.values()) - self.last_injection_step, self.wait_for, blocked)
+
+    def wait_for(self) -> str:
+        """Who waits for whom at the end of a run that did not finish: each drone's protocol state, the
+        peers a coordinating one still needs an answer from, and the mail it holds."""
+        lines = []
+        for drone, stack in self.stacks.items():
+            protocol, mail = stack.protocol, stack.mail
+            held = [r.id for r in ([mail.current] if mail.current else []) + list(mail.queue)]
+            line = f"{drone} {protocol.state.value} at {list(stack.executor.cell)}, {mail.phase.value}"
+            if protocol.task is not None:
+                line += f", task {protocol.task.id} to {list(protocol.task.goal)}"
+            if protocol.state is State.COORDINATING:
+                line += f", waits for {sorted(protocol.members - set(protocol.received)) or 'nobody'}"
+            lines.append(line + f", holds {held}, battery {self.battery[drone]:.0f}%")
+        return "; ".join(lines)
 
     def _battery_after_step(self, stack: DroneStack, level: float) -> float:
         model = self.config.battery
@@ -293,7 +391,14 @@ class World:
             note = _note(action)
             if note:
                 self.trace.append(f"{drone}: {note}")
-            self.monitors.action(drone, action, self)
+            self.monitors.action(drone, action)
+            if isinstance(action, MailRejected):  # the service gives it to the next drone that flies
+                self.redispatch.append((self._next_flying(drone), action.request))
+
+    def _next_flying(self, drone: str) -> str:
+        drones = self.config.drones
+        later = [*drones[drones.index(drone) + 1:], *drones[:drones.index(drone) + 1]]
+        return next((d for d in later if d not in self.down), drone)
 
     def _post(self, sender: str, to: str, message: Message) -> None:
         self.sent += 1
@@ -301,12 +406,6 @@ class World:
         # so sending does not depend on how far the other drones' clocks have got.
         deadline = max(self.steps[sender], 0) + self.config.max_delay
         self.inflight.append(InFlight(self.sent, sender, to, message, deadline))
-
-    # ---------------------------------------------------------- queries
-    def commitment(self, drone: str) -> Trajectory:
-        """What ``drone`` is committed to now: its plan while executing, else its location."""
-        return self.stacks[drone].protocol.current_trajectory(max(self.steps[drone], 0))
-
 
 def _describe(message: Message) -> str:
     name = type(message).__name__

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import re
 import time
+from collections.abc import Callable
 
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -20,6 +21,7 @@ from drona_gcs.verify.explore import (
     decode_token,
     encode_token,
 )
+from drona_gcs.verify.sweep import SweepRow, configurations, run_sweep
 
 _GRID = re.compile(r"^(\d+)x(\d+)(?:x(\d+))?$")
 
@@ -47,6 +49,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="seconds spent looking for a shorter trace once a violation is found (default 3)")
     parser.add_argument("--replay", metavar="TOKEN", help="replay the schedule of a token and print its trace")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--no-faults", action="store_true",
+                        help="leave out the field's faults (duplicated messages, a mail cancelled, a vehicle down) "
+                             "and the mixed fleet")
+    parser.add_argument("--sweep", type=int, metavar="N",
+                        help="run N configurations drawn from --seed (2-6 drones, 2-10 requests, Delta 0-2, 8x8 "
+                             "and 16x16, with and without obstacles, random and pct), --time-limit each; prints a "
+                             "row per run and exits 1 if any fails")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -54,6 +63,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         if args.replay:
             return _replay(args.replay)
+        if args.sweep is not None:
+            return _sweep(args)
         scenario = _scenario(args)
         explorer = Explorer(scenario)
     except (DronaError, ValueError) as exc:
@@ -97,7 +108,31 @@ def _scenario(args: argparse.Namespace) -> Scenario:
     max_delay = args.max_delay if args.max_delay is not None else (0 if args.strategy == "dfs" else 2)
     return Scenario(drones=args.drones, requests=args.requests, delta=args.delta, seed=args.seed, grid=grid,
                     obstacles=args.obstacles, workspace_path=args.workspace, bugs=tuple(args.seed_bug),
-                    max_delay=max_delay)
+                    max_delay=max_delay, faults=not args.no_faults)
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    if args.sweep < 1 or args.time_limit <= 0:
+        raise ValueError("--sweep and --time-limit must be positive")
+
+    def stop_after() -> Callable[[], bool]:
+        deadline = time.monotonic() + args.time_limit
+        return lambda: time.monotonic() > deadline
+
+    def on_row(row: SweepRow) -> None:
+        o = row.outcome
+        print(f"{'clean' if row.clean else 'FAIL':<6} {row.configuration} ({o.schedules} schedules, "
+              f"{o.transitions} transitions)", flush=True)
+        if row.token is not None:
+            print(f"       {o.violation}\n       replay: drona verify --replay {row.token}", flush=True)
+
+    rows = run_sweep(configurations(args.seed, args.sweep, faults=not args.no_faults), args.schedules, args.max_depth,
+                     stop_after, on_row)
+    failed = [row for row in rows if not row.clean]
+    by_monitor = sorted({row.outcome.violation.monitor for row in failed if row.outcome.violation is not None})
+    print(f"sweep seed {args.seed}: {len(rows) - len(failed)} of {len(rows)} clean"
+          + (f"; failing monitors: {', '.join(by_monitor)}" if failed else ""))
+    return 1 if failed else 0
 
 
 def _replay(token: str) -> int:

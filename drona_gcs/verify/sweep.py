@@ -1,0 +1,72 @@
+"""A sweep of the tester over configurations nobody picked by hand.
+
+:func:`configurations` draws them from a seed, uniformly over the ranges the
+stack must hold in (fleet size, requests, Delta, grid, obstacles, strategy,
+scenario seed): the same seed gives the same sweep anywhere, and a new seed
+gives configurations nobody has tuned for. :func:`run_sweep` runs each for a
+caller-given time (the clock stays at the edge: ``stop_after(seconds)`` makes
+the stop predicate) and returns one :class:`SweepRow` per run.
+"""
+
+from __future__ import annotations
+
+import random
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+
+from drona_gcs.verify.explore import Explorer, Outcome, Scenario, Strategy, encode_token
+
+DRONES = range(2, 7)
+REQUESTS = range(2, 11)
+DELTAS = range(0, 3)
+GRIDS = ((8, 8, 1), (16, 16, 1))
+OBSTACLES = (0.0, 0.2)
+STRATEGIES = (Strategy.RANDOM, Strategy.PCT)
+
+
+@dataclass(frozen=True)
+class Configuration:
+    scenario: Scenario
+    strategy: Strategy
+
+    def __str__(self) -> str:
+        s = self.scenario
+        w, h, _ = s.grid
+        return (f"{s.drones} drones, {s.requests} requests, delta {s.delta}, {w}x{h} obstacles {s.obstacles:g}, "
+                f"{self.strategy.value}, seed {s.seed}")
+
+
+@dataclass(frozen=True)
+class SweepRow:
+    configuration: Configuration
+    outcome: Outcome
+    token: str | None  #: the replay token of a violation
+
+    @property
+    def clean(self) -> bool:
+        return self.outcome.violation is None
+
+
+def configurations(seed: int, count: int, faults: bool = True) -> Iterator[Configuration]:
+    """``count`` configurations drawn from ``seed``: uniform over every range above."""
+    rng = random.Random(f"sweep-{seed}")
+    for _ in range(count):
+        scenario = Scenario(drones=rng.choice(DRONES), requests=rng.choice(REQUESTS), delta=rng.choice(DELTAS),
+                            seed=rng.randrange(1_000_000), grid=rng.choice(GRIDS), obstacles=rng.choice(OBSTACLES),
+                            faults=faults)
+        yield Configuration(scenario, rng.choice(STRATEGIES))
+
+
+def run_sweep(configs: Iterator[Configuration], schedules: int, max_depth: int,
+              stop_after: Callable[[], Callable[[], bool]],
+              on_row: Callable[[SweepRow], None] = lambda row: None) -> list[SweepRow]:
+    """Each configuration explored until its own ``stop_after()`` says so (or ``schedules`` are run)."""
+    rows = []
+    for config in configs:
+        outcome = Explorer(config.scenario).run(config.strategy, schedules, max_depth, config.scenario.seed,
+                                                stop=stop_after())
+        token = None if outcome.violation is None else encode_token(config.scenario, outcome.choices)
+        row = SweepRow(config, outcome, token)
+        on_row(row)
+        rows.append(row)
+    return rows
