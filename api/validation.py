@@ -19,6 +19,7 @@ from functools import lru_cache
 from drona_gcs.planner.grid import GridIndex
 from drona_gcs.planner.heuristic import UNREACHABLE, DistanceGraph, GoalDistance
 from drona_gcs.stack.battery import BatteryModel
+from drona_gcs.stack.drone import default_lead_steps, leg_overhead
 from drona_gcs.stack.mail import MailPlanner, MailRejected, MailRequest, mail_cell_problem
 from drona_gcs.workspace import Cell, Workspace
 
@@ -36,9 +37,12 @@ class Problem:
 
 
 class MailChecker:
-    def __init__(self, workspace: Workspace, battery: BatteryModel | None = None) -> None:
+    def __init__(self, workspace: Workspace, battery: BatteryModel | None = None,
+                 lead_steps: int | None = None) -> None:
+        """The drones' energy rule, with their defaults unless ``battery`` and ``lead_steps`` are given."""
         self.ws = workspace
-        self.battery = battery or BatteryModel()
+        self.battery = battery or BatteryModel.for_period(workspace.tau_s)
+        self.leg_overhead = leg_overhead(lead_steps if lead_steps is not None else default_lead_steps(workspace))
         # The drones' own distances: one breadth-first search in C per goal (drona_gcs.planner.heuristic).
         self._graph = DistanceGraph(GridIndex.build(workspace))
         self._to = lru_cache(maxsize=4096)(self._distances_to)
@@ -76,7 +80,8 @@ class MailChecker:
         chargers = self.ws.charging_stations
         if not chargers:
             return None  # no chargers: the drones do not budget energy
-        planner = MailPlanner(chargers[0], chargers, self.ws.parking, self.distance, self.battery)
+        planner = MailPlanner(chargers[0], chargers, self.ws.parking, self.distance, self.battery,
+                              leg_overhead=self.leg_overhead)
         planner.assign(MailRequest("check", pickup, dropoff, 0))
         rejected = [a for a in planner.decide(0, planner.recharged_level, ()) if isinstance(a, MailRejected)]
         if not rejected:
@@ -89,4 +94,4 @@ class MailChecker:
         """Whether even charger -> pickup -> charger is beyond a charged battery (then the pickup is to blame)."""
         full = self.battery.steps_affordable(planner.recharged_level)
         ways = sorted(self.distance(pickup, c) for c in self.ws.charging_stations)
-        return ways[0] + ways[min(1, len(ways) - 1)] + self.battery.margin_steps > full
+        return ways[0] + ways[min(1, len(ways) - 1)] + 2 * self.leg_overhead + self.battery.margin_steps > full

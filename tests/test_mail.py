@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import itertools
 import random
+from collections.abc import Callable, Collection
 
 import pytest
 
@@ -232,6 +233,39 @@ def test_a_leg_that_fails_with_its_goal_free_retries_after_retry_steps() -> None
         assert mp.retry_at == now + mp.retry_steps
 
 
+def test_a_failed_leg_away_from_parking_clears_the_way_first_and_puts_the_mail_back() -> None:
+    mp = planner(at=c(4, 4))
+    m = mail("m", c(2, 2), c(6, 6))
+    mp.assign(m)
+    mp.decide(0, 100, ())
+    mp.leg_failed(0)  # no plan to the pickup: maybe our goal is where another drone waits for us to leave
+    assert (mp.current, mp.queue) == (None, [m])
+    assert goto(mp.decide(2, 100, ())) == GoTo(P2, 80 - manhattan(P2, Q1), Phase.TO_PARKING)
+    assert mp.leg_done() == []
+    assert goto(mp.decide(3, 95, ())).goal == c(2, 2)  # then it tries the pickup again
+
+
+def test_parking_cells_it_cannot_reach_do_not_keep_it_from_its_mail() -> None:
+    """After a failed pickup leg it clears the way on a parking cell; when no parking leg finds a plan
+    either (the cells walled in by drones resting around them), it goes back to its mail."""
+    mp = planner(at=c(4, 4))
+    m = mail("m", c(2, 2), c(6, 6))
+    mp.assign(m)
+    legs: list[Phase] = []
+    for now in range(60):
+        for action in mp.decide(now, 100, ()):
+            if isinstance(action, GoTo):
+                legs.append(action.purpose)
+                if action.purpose is Phase.TO_PICKUP and legs.count(Phase.TO_PICKUP) > 1:
+                    assert mp.leg_done() == [MailPickedUp(m)]
+                else:
+                    mp.leg_failed(now)  # the first pickup leg, and every parking leg, find no plan
+        if mp.carrying:
+            break
+    assert mp.carrying, [p.value for p in legs]
+    assert legs[:2] == [Phase.TO_PICKUP, Phase.TO_PARKING]
+
+
 def test_a_failed_leg_with_mail_on_board_tries_its_dropoff_again_and_never_parks() -> None:
     """Carried mail goes to its drop-off (or a charger) and nowhere else: in the demo, a drone with the
     parcel on board was sent to parking when its drop-off had no plan for the moment."""
@@ -243,9 +277,80 @@ def test_a_failed_leg_with_mail_on_board_tries_its_dropoff_again_and_never_parks
     mp.decide(1, 100, ())
     mp.leg_failed(1)  # no plan to the drop-off
     assert (mp.current, mp.carrying, mp.queue) == (m, True, [])
+    assert mp.landed(holding=True)  # it waits on the ground, where waiting is free
     retry = goto(mp.decide(mp.retry_at, 100, ()))
     assert (retry.goal, retry.purpose) == (c(4, 4), Phase.TO_DROPOFF)
     assert mp.leg_done() == [MailDelivered(m)]
+
+
+#: What happens to the legs a drone carrying mail asks for, by the leg's number (1 for the first).
+Setback = Callable[[int, GoTo], str | None]
+
+
+def legs_until_delivered(mp: MailPlanner, m: MailRequest, level: float, start: int,
+                         setback: Setback = lambda n, leg: None,
+                         taken: Callable[[int], Collection[Cell]] = lambda now: ()) -> list[Phase]:
+    """Play the planner from step ``start`` until ``m`` is delivered: legs are flown at once unless
+    ``setback`` says "no-plan" (the round found none) or "not-flown" (the plan ended, the vehicle
+    was not seen at the goal); a drone charges on a charger only. The purposes of the legs asked."""
+    asked: list[Phase] = []
+    for now in range(start, start + 400):
+        if mp.phase is Phase.CHARGING and mp.cell in (Q1, Q2):
+            level = min(100.0, level + MODEL.charge_per_step)
+        for action in mp.decide(now, level, taken(now)):
+            if not isinstance(action, GoTo):
+                continue
+            asked.append(action.purpose)
+            what = setback(len(asked), action)
+            if what == "no-plan":
+                mp.leg_failed(now)
+            elif what == "not-flown":
+                mp.leg_not_flown(now)
+            else:
+                level -= manhattan(mp.cell, action.goal) * MODEL.drain_per_step
+                assert level >= MODEL.safe_threshold
+                if MailDelivered(m) in mp.leg_done():
+                    return asked
+    raise AssertionError(f"{m.id} not delivered; legs asked: {[p.value for p in asked]}, phase {mp.phase.value}")
+
+
+def picked_up(at: Cell, dropoff: Cell, level: float = 100) -> tuple[MailPlanner, MailRequest]:
+    mp = planner()
+    m = mail("m", at, dropoff)
+    mp.assign(m)
+    mp.decide(0, level, ())
+    assert mp.leg_done() == [MailPickedUp(m)]
+    return mp, m
+
+
+@pytest.mark.parametrize(("setback", "taken"), [
+    (lambda n, leg: "no-plan" if n <= 3 else None, lambda now: ()),
+    (lambda n, leg: None, lambda now: {c(4, 4)} if now < 30 else ()),  # a drone rests on the drop-off
+    (lambda n, leg: "no-plan" if n == 1 else "not-flown" if n == 2 else None, lambda now: ()),
+], ids=["no-plan", "drop-off-taken", "not-flown"])
+def test_mail_on_board_goes_to_its_drop_off_and_nowhere_else(setback: Setback,
+                                                           taken: Callable[[int], Collection[Cell]]) -> None:
+    mp, m = picked_up(c(2, 2), c(4, 4))
+    assert set(legs_until_delivered(mp, m, 96, 1, setback, taken)) == {Phase.TO_DROPOFF}
+
+
+def test_mail_on_board_it_must_charge_for_goes_to_a_charger_then_its_drop_off_and_nowhere_else() -> None:
+    # 8 steps on to (9, 9) and 18 more to the second-nearest charger, with a margin of 4: more than
+    # the 25 of 45 %; a parking cell, (5, 9), 4 steps and 14 more, would do
+    mp, m = picked_up(c(5, 5), c(9, 9))
+    legs = legs_until_delivered(mp, m, 45, 1, taken=lambda now: {Q1, Q2} if now < 20 else ())
+    assert set(legs) == {Phase.TO_CHARGER, Phase.TO_DROPOFF} and legs[-1] is Phase.TO_DROPOFF
+
+
+def test_a_vehicle_back_elsewhere_while_charging_with_mail_on_board_charges_again_and_delivers() -> None:
+    """Charging goes on only on a charger: found elsewhere, it would wait there for good."""
+    mp, m = picked_up(c(5, 5), c(9, 9))
+    assert goto(mp.decide(1, 35, ())).purpose is Phase.TO_CHARGER
+    mp.leg_done()
+    assert mp.phase is Phase.CHARGING
+    mp.relocate(c(1, 1), landed=True)
+    legs = legs_until_delivered(mp, m, 35, 2)
+    assert set(legs) == {Phase.TO_CHARGER, Phase.TO_DROPOFF} and legs[-1] is Phase.TO_DROPOFF
 
 
 # ======================================================== charging
@@ -317,6 +422,25 @@ def test_an_idle_drone_goes_to_the_nearest_free_parking_cell() -> None:
     assert goto(planner(at=c(5, 5)).decide(0, 100, {P2})).goal == P1  # P2 is taken
     for spot in (P1, P2):
         assert planner(at=spot).decide(0, 100, ()) == []  # parked already
+
+
+def test_an_idle_drone_whose_parking_cell_is_out_of_reach_parks_on_another_drones() -> None:
+    """Found by the systematic tester (4 drones, 8 mails, Delta 0, seed 3): a drone with mail on board
+    waited on the ground in a corridor for the drone next to its drop-off to leave, while that one,
+    idle, asked for its own parking cell beyond the corridor 115 times, and no plan around it fit its
+    budget. Once its own cell has found no plan, another drone's free parking cell will do."""
+    mp = MailPlanner(c(5, 5), (Q1, Q2), (P1,), manhattan, MODEL, spare_parking=(P2,))
+    asked = []
+    for now in range(20):
+        for action in mp.decide(now, 100, ()):
+            if isinstance(action, GoTo):
+                asked.append(action.goal)
+                if action.goal == P1:
+                    mp.leg_failed(now)  # no plan within its budget
+                else:
+                    mp.leg_done()
+    assert asked == [P1, P2]  # parked on P2, it stays there
+    assert mp.landed(holding=True) and mp.cell == P2
 
 
 def test_parking_it_could_not_come_back_from_sends_it_to_charge() -> None:

@@ -13,6 +13,10 @@ from dataclasses import dataclass
 
 from drona_gcs.errors import ProblemError
 
+#: the planning drain of a second of flight, in percent: about four times a 5 Ah pack hovering at
+#: 15 A (the fake vehicle's), so a plan budgets for a worn pack and headwind
+DRAIN_PERCENT_PER_S = 0.33
+
 
 @dataclass(frozen=True)
 class BatteryModel:
@@ -28,6 +32,14 @@ class BatteryModel:
             raise ProblemError("battery drain and charge rates must be > 0")
         if not 0 <= self.safe_threshold < 100:
             raise ProblemError(f"safe threshold must be within [0, 100), got {self.safe_threshold}")
+
+    @classmethod
+    def for_period(cls, tau_s: float, drain_per_step: float | None = None,
+                   safe_threshold: float = 20.0) -> BatteryModel:
+        """The planning model of a fleet stepping every ``tau_s`` seconds: a battery drains per
+        second of flight, so a step's drain scales with tau unless ``drain_per_step`` is given."""
+        drain = drain_per_step if drain_per_step is not None else DRAIN_PERCENT_PER_S * tau_s
+        return cls(drain_per_step=drain, safe_threshold=safe_threshold)
 
     def steps_affordable(self, level: float) -> int:
         """How many flying steps ``level`` allows before reaching the safe threshold."""

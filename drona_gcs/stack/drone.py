@@ -20,7 +20,8 @@ judged in), or the leg did not happen (:class:`LegNotFlown`) and is tried again.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import math
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -72,6 +73,23 @@ DroneAction = (ProtocolAction | Setpoint | Completed | MailAction | BatteryLow |
                | LegNotFlown)
 
 
+CLIMB_RATE_M_S = 1.5  #: a cautious take-off climb rate, for the default lead time
+ARM_AND_MODE_S = 2.0  #: mode change, arming and take-off command acknowledged
+SPOOL_UP_S = 4.0  #: an accepted take-off to leaving the ground (ArduCopter SITL: about 3.5 s)
+
+
+def default_lead_steps(workspace: Workspace) -> int:
+    """Delta + 1, plus the steps a landed drone needs to take off and climb into the grid."""
+    climb_s = ARM_AND_MODE_S + SPOOL_UP_S + workspace.geo.layer0_alt_m / CLIMB_RATE_M_S
+    return workspace.delta + 1 + math.ceil(climb_s / workspace.tau_s)
+
+
+def leg_overhead(lead_steps: int) -> int:
+    """Steps of flight a leg takes besides its moves: the lead steps before its plan starts
+    (climbing, or hovering) and the plan's first step, held in the start cell."""
+    return lead_steps + 1
+
+
 @dataclass(frozen=True)
 class StackConfig:
     """What every drone of a fleet shares (immutable: copies of a simulated fleet share it)."""
@@ -100,9 +118,12 @@ class DroneStack:
         self.protocol = CoordinationProtocol(me, start, dict(peers), planner.plan, lead, config.bugs)
         self.executor = PlanExecutor(start)
         self.monitor = BatteryMonitor(config.low_mark, config.recharged_mark)
-        self.mail = MailPlanner(start, ws.charging_stations, own_parking(ws.parking, list(peers), me),
-                                _distance_function(planner),
-                                config.battery, recharged_level=config.recharged_mark, bugs=config.bugs)
+        parking = own_parking(ws.parking, list(peers), me)
+        mine = set(parking) if len(ws.parking) >= len(peers) else set()
+        resting = {*ws.charging_stations, *(c for c in ws.parking if c not in mine)}  # others may rest there
+        self.mail = MailPlanner(start, ws.charging_stations, parking, _distance_function(planner, resting),
+                                config.battery, recharged_level=config.recharged_mark, leg_overhead=leg_overhead(lead),
+                                spare_parking=[c for c in ws.parking if c not in parking], bugs=config.bugs)
         self.arrival: Arrival | None = None  #: a plan ended; waiting to see the vehicle at its goal
 
     # ------------------------------------------------------------ inputs
@@ -174,15 +195,24 @@ class DroneStack:
                 self.mail.battery_low()
             else:
                 self.mail.battery_recharged()
+        self._land_if_spent(step)
         if may_plan and self.protocol.state is State.WAIT_FOR_TASK:
             for decided in self.mail.decide(step, battery_level, self.taken_cells()):
                 actions.append(decided)
                 if isinstance(decided, GoTo):
-                    hovering = None if self.landed else step
-                    task = Task(self.clock.next_id(max(physical_time, step)), decided.goal,
-                                decided.flight_steps, hovering)
-                    actions += self._protocol(NewTask(task))
+                    actions += self._protocol(NewTask(self._task(decided, step, physical_time)))
         return actions
+
+    def _task(self, leg: GoTo, step: int, physical_time: int) -> Task:
+        """The motion task of a leg. The leg's flight budget pays for more than the plan's moves:
+        the plan's first step, held in the start cell, and the lead steps before it, which a drone
+        on the ground flies climbing once its plan is made, and a drone in the air hovers, from
+        ``step`` on while it coordinates (the protocol counts those steps when it plans)."""
+        hovering = None if self.landed else step
+        flight = leg.flight_steps
+        if flight is not None:
+            flight -= 1 if hovering is not None else 1 + self.protocol.lead_steps
+        return Task(self.clock.next_id(max(physical_time, step)), leg.goal, flight, hovering)
 
     def _arrive(self, step: int, flown: Cell | None) -> list[DroneAction]:
         """A leg is over when the vehicle is seen at its goal; past the deadline it did not happen."""
@@ -196,6 +226,18 @@ class DroneStack:
             return []
         self.arrival = None
         return [LegNotFlown(arrival.goal, flown), *self.mail.leg_not_flown(step)]
+
+    def _land_if_spent(self, step: int) -> None:
+        """A drone that hovers while it coordinates pays for it from its leg's flight budget (see
+        Task.max_length). Once what is left no longer affords the shortest way to the goal, it
+        lands: the round's plan will be refused and the leg tried again from the ground, so a round
+        that ends late, or never, does not drain the battery below what must remain."""
+        task = self.protocol.task
+        if self.protocol.state is not State.COORDINATING or task is None or self.landed:
+            return
+        left = task.max_length(step + self.protocol.lead_steps)
+        if left is not None and left < self.mail.distance(self.protocol.location, task.goal):
+            self.mail.land()
 
     @property
     def landed(self) -> bool:
@@ -214,6 +256,7 @@ class DroneStack:
             actions.append(action)
             if isinstance(action, StartExecuting):
                 self.executor.start(action.trajectory)
+                self.mail.took_off()
             elif isinstance(action, TaskFailed):
                 self.mail.leg_failed(self.now)
         return actions
@@ -227,16 +270,31 @@ def own_parking(parking: Sequence[Cell], drones: Sequence[str], me: str) -> Sequ
     return parking
 
 
-def _distance_function(planner: SafePlanner) -> Distance:
-    """Static shortest-path steps between cells, one cached BFS per target cell."""
-    ws, graph = planner.workspace, planner.graph
+def _distance_function(planner: SafePlanner, resting: Collection[Cell] = ()) -> Distance:
+    """Steps of the shortest static path between cells, one cached BFS per target cell.
+
+    ``resting``: cells other drones may rest on for good (chargers, their parking cells). The way
+    goes around them, where it can: a budget that counted the way through a parked drone left a
+    drone without the battery for the way around, stranded for good (found by the systematic
+    tester). Either end may be such a cell. Where they wall the goal in, the way is through them.
+    """
+    ws, graph, grid = planner.workspace, planner.graph, planner.grid
+    avoid = frozenset(ws.cell_id(c) for c in resting)
 
     @lru_cache(maxsize=256)
-    def to(goal: Cell) -> GoalDistance:
-        return graph.distances(ws.cell_id(goal), frozenset())
+    def to(goal: Cell, around: bool) -> GoalDistance:
+        return graph.distances(ws.cell_id(goal), avoid if around else frozenset())
+
+    def steps(a: Cell, b: Cell, around: bool) -> float:
+        tree, start = to(b, around), ws.cell_id(a)
+        if around and start in avoid and a != b:  # out of a resting cell: by its first move
+            return min((cost + tree.get(cell) for cell, cost in grid.moves_only[start]), default=UNREACHABLE)
+        return tree.get(start)
 
     def distance(a: Cell, b: Cell) -> int:
-        d = to(b).get(ws.cell_id(a))
+        d = steps(a, b, around=True)
+        if d >= UNREACHABLE:
+            d = steps(a, b, around=False)
         return int(d) if d < UNREACHABLE else 10**6
 
     return distance

@@ -5,23 +5,33 @@ the most urgent), oldest first among equals: each is a leg to the pickup and
 then a leg to the drop-off, each a motion task for the coordination protocol.
 
 Energy. Flying a step (moving or hovering) drains ``drain_per_step``; landed,
-nothing; landed on a charger, the battery charges. The rules, which keep the
-battery above the safe threshold whatever the schedule:
+nothing; landed on a charger, the battery charges. A drone is in the air from
+the moment its leg's plan is made (it climbs during the lead steps) until it
+lands again. The rules, which keep the battery above the safe threshold
+whatever the schedule:
 
 * **Every leg has a flight budget**: what the battery affords now, less what
   must remain on arrival (the way from the goal to a charger, and for a pickup
   the way on to the drop-off too). The protocol turns it into the plan's
-  maximum length when it plans, less the steps spent hovering while it
-  coordinated, so a plan that would wait too long is refused by the planner
-  itself.
+  maximum length when it plans, less what the leg flies besides its moves (the
+  lead steps, hovered or climbed, and the plan's first step, held in the start
+  cell: ``leg_overhead``) and the steps spent hovering while it coordinated, so
+  a plan that would wait too long is refused by the planner itself.
 * **A leg is started only when its deadline can be met** by the shortest
-  path; otherwise the drone goes to charge first.
+  path; otherwise the drone goes to charge first. Every leg counted, the one to
+  the charger included, costs its overhead besides its way.
 * **What must remain is the way to the second-nearest charger**: the nearest
   may be taken by a drone charging there.
 * **A drone never waits in the air when energy is tight.** When a leg finds
   no plan, it lands where it is (or stays on the parking cell, charger or
   start it is on) and tries again from the ground, where waiting is free; and
-  before coordinating a leg to a charger it lands too.
+  before coordinating a leg to a charger it lands too. A drone that hovers
+  while it coordinates lands once its budget no longer affords the way to the
+  goal (a round may take long, or never end): the plan is then refused, and
+  the leg tried again from the ground.
+* **Mail on board goes to its drop-off**, or to a charger first when the
+  battery does not afford the way; nowhere else. When its leg finds no plan,
+  the drone waits on the ground where it is and tries again.
 
 A workspace without charging stations has no energy model: batteries are
 not budgeted (the runtime then does not drain them either).
@@ -31,8 +41,10 @@ hovering where they block corridors: a parked drone is an obstacle for every
 plan (the paper notes MRMP is incomplete because parked robots can wall others
 in). Chargers are for charging: a charged drone leaves for a parking cell.
 A failed leg is retried after ``retry_steps``, towards the next candidate when
-the goal was a charger or parking cell. Mail is never dropped: a drone whose
-vehicle came down by itself hands all of it back (:meth:`MailPlanner.abandon`).
+the goal was a charger or parking cell (another drone's free parking cell,
+once ours finds no plan); a drone with no mail on board clears the way on a
+parking cell first. Mail is never dropped: a drone whose vehicle came down
+by itself hands all of it back (:meth:`MailPlanner.abandon`).
 
 A leg to a cell another drone is known to rest on would cost a whole
 coordination round with every peer and end in no plan, so it counts as failed
@@ -161,6 +173,10 @@ class MailPlanner:
     retry_steps: int = 2
     max_retry_steps: int = 8  #: the longest back-off of a leg to a cell another drone rests on
     recharged_level: float = 95.0  #: charging ends here
+    #: steps of flight a leg takes besides its moves; DroneStack's legs take the lead steps before
+    #: their plans start (climbing, or hovering) and the plans' first steps, held in the start cell
+    leg_overhead: int = 0
+    spare_parking: Sequence[Cell] = ()  #: other drones' parking cells, for when ours is out of reach
     bugs: frozenset[str] = frozenset()
     phase: Phase = Phase.IDLE
     queue: list[MailRequest] = field(default_factory=list)
@@ -226,7 +242,7 @@ class MailPlanner:
         self.cell, self.goal, self.misses = self.goal, None, 0
         self.tried.clear()
         self.blocked, self.backoff = None, 0
-        self.landed_here = self.cell in self.parking or self.cell in self.chargers
+        self.landed_here = self._parked() or self.cell in self.chargers
         done, actions = self.phase, list[MailAction]()
         if done is Phase.TO_PICKUP and self.current is not None:
             actions.append(MailPickedUp(self.current))
@@ -264,8 +280,8 @@ class MailPlanner:
         if self.current is not None and not self.carrying:
             self.queue.append(self.current)
             self.current = None
-        if self.phase is not Phase.CHARGING:
-            self.phase = Phase.IDLE
+        if self.phase is not Phase.CHARGING or cell not in self.chargers or not landed:
+            self.phase = Phase.IDLE  # charging goes on only on the charger: elsewhere it would wait for good
         self.tried.clear()
 
     def leg_failed(self, now: int) -> None:
@@ -293,9 +309,19 @@ class MailPlanner:
         self.backoff = min(2 * self.backoff, self.max_retry_steps) if self.backoff else self.retry_steps
         return self.backoff
 
+    def land(self) -> None:
+        """Land where we are (the leg being coordinated can no longer be afforded from the air)."""
+        self.landed_here = True
+
+    def took_off(self) -> None:
+        """A leg's plan is made: the drone is in the air from now (climbing during the lead steps)
+        until it lands again, at a parking cell or charger or by a decision to."""
+        self.landed_here = False
+
     def landed(self, holding: bool) -> bool:
         """Whether the drone is on the ground: holding still (not flying a plan), landed here.
-        It stays landed while it coordinates its next leg, so waiting costs no energy."""
+        It stays landed while it coordinates its next leg, so waiting costs no energy, and takes
+        off once the leg's plan is made (:meth:`took_off`)."""
         return holding and self.landed_here
 
     @property
@@ -313,24 +339,38 @@ class MailPlanner:
             return []  # waiting to retry, unless the drone that blocked the goal has left it
         unchecked = "no-battery-check" in self.bugs or not self.chargers  # no chargers: no energy model
         budget = Budget(now, self.battery.steps_affordable(level), unchecked)
-        spots = self.parking or self.chargers
-        if self.tried and not self.low and not self.carrying and spots and self.cell not in spots:
-            # A leg found no plan: maybe our goal is where another drone waits, while we wait
-            # where it wants to go. Clear the way on a parking cell before trying again (never
-            # with mail on board: it goes to its drop-off, or a charger, and nowhere else).
-            return self._to_one_of(spots, budget, taken, Phase.TO_PARKING)
         if self.carrying and self.current is not None:
+            # Mail on board goes to its drop-off, or to a charger on the way, and nowhere else:
+            # after a failed leg it waits on the ground where it is (see leg_failed).
             dropoff, after = self.current.dropoff, self._after(self.current.dropoff)
-            if budget.allows(self.distance(self.cell, dropoff) + after + self.battery.margin_steps // 2):
+            if budget.allows(self._leg(self.cell, dropoff) + after + self.battery.margin_steps // 2):
                 return self._go(dropoff, budget, after, Phase.TO_DROPOFF, taken)
             return self._to_charger(budget, taken)  # charge with the mail on board, then deliver
+        spots = self._parking_spots()
+        if not self.low and spots and not self._parked() and any(g not in spots for g in self.tried):
+            # A leg found no plan: maybe our goal is where another drone waits, while we wait
+            # where it wants to go. Clear the way on a parking cell before trying again (once:
+            # should no parking cell be reached either, the mail is not kept waiting for one).
+            return self._to_one_of(spots, budget, taken, Phase.TO_PARKING)
         if self.low:
             return self._to_charger(budget, taken)
         if self.queue:
             return self._start_next_mail(budget, taken)
-        if spots and self.cell not in spots:
+        if spots and not self._parked():
             return self._to_one_of(spots, budget, taken, Phase.TO_PARKING)
         return []
+
+    def _parking_spots(self) -> Sequence[Cell]:
+        """Where to park: our own parking cells (chargers when there are none); once each has found
+        no plan since the last leg, any other drone's parking cell too (walled in by drones
+        resting around it, ours may be out of reach for long; its owner then parks on ours)."""
+        spots = self.parking or self.chargers
+        if self.spare_parking and all(c in self.tried for c in spots):
+            return [*spots, *self.spare_parking]
+        return spots
+
+    def _parked(self) -> bool:
+        return self.cell in (self.parking or self.chargers) or self.cell in self.spare_parking
 
     def _start_next_mail(self, budget: Budget, taken: Collection[Cell]) -> list[MailAction]:
         self.queue.sort(key=lambda r: r.rank)
@@ -349,10 +389,10 @@ class MailPlanner:
             return [MailRejected(best, f"needs {self._need(self.cell, best)} steps of flight; a full battery "
                                        f"gives {full}"), *self.decide_again(budget, taken)]
         self.low = True
+        self.landed_here = True  # on the ground while it coordinates the way to the charger, or charges
         if self.cell in staging:
             self.phase = Phase.CHARGING
             return []
-        self.landed_here = True
         return self._to_one_of(staging, budget, taken, Phase.TO_CHARGER)
 
     def decide_again(self, budget: Budget, taken: Collection[Cell]) -> list[MailAction]:
@@ -360,16 +400,16 @@ class MailPlanner:
 
     def _need(self, start: Cell, request: MailRequest) -> int:
         """Steps of flight a mail takes from ``start``: pickup, drop-off, a charger, and the margin."""
-        return (self.distance(start, request.pickup) + self.distance(request.pickup, request.dropoff)
+        return (self._leg(start, request.pickup) + self._leg(request.pickup, request.dropoff)
                 + self._after(request.dropoff) + self.battery.margin_steps)
 
     def _to_charger(self, budget: Budget, taken: Collection[Cell]) -> list[MailAction]:
+        # Low on energy: land before coordinating, so the wait for the peers' answers is free
+        # and the whole budget is left for the way to the charger (or land to charge here).
+        self.landed_here = True
         if self.cell in self.chargers:
             self.phase = Phase.CHARGING
             return []
-        # Low on energy: land before coordinating, so the wait for the peers' answers is free
-        # and the whole budget is left for the way to the charger.
-        self.landed_here = True
         return self._to_one_of(self.chargers, budget, taken, Phase.TO_CHARGER)
 
     def _to_one_of(self, candidates: Sequence[Cell], budget: Budget, taken: Collection[Cell],
@@ -383,7 +423,7 @@ class MailPlanner:
         def reserve(cell: Cell) -> int:
             return 0 if purpose is Phase.TO_CHARGER else self._after(cell)
 
-        ranked = sorted((c for c in candidates if budget.allows(self.distance(self.cell, c) + reserve(c))),
+        ranked = sorted((c for c in candidates if budget.allows(self._leg(self.cell, c) + reserve(c))),
                         key=lambda c: (c in taken, self.distance(self.cell, c), c))
         if not ranked:
             if purpose is Phase.TO_PARKING and self.chargers:
@@ -407,13 +447,18 @@ class MailPlanner:
             return []
         return [GoTo(goal, budget.flight(reserve), purpose)]
 
+    def _leg(self, start: Cell, goal: Cell) -> int:
+        """The fewest steps of flight a leg from ``start`` to ``goal`` takes: the shortest way,
+        and ``leg_overhead``."""
+        return self.leg_overhead + self.distance(start, goal)
+
     def _after(self, cell: Cell) -> int:
-        """Steps from ``cell`` to a charger: what must stay in the battery on arrival.
+        """Steps of flight from ``cell`` to a charger: what must stay in the battery on arrival.
 
         The nearest charger may be taken by a drone charging there, so this is the
-        way to the second nearest when there are two or more.
+        leg to the second nearest when there are two or more.
         """
-        ways = sorted(self.distance(cell, c) for c in self.chargers)
+        ways = sorted(self._leg(cell, c) for c in self.chargers)
         return ways[min(1, len(ways) - 1)] if ways else 0
 
 

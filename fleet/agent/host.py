@@ -32,7 +32,7 @@ from drona_gcs.errors import DronaError, VehicleError
 from drona_gcs.geo import GeoFrame
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.battery import BatteryModel
-from drona_gcs.stack.drone import DroneStack, StackConfig
+from drona_gcs.stack.drone import DroneStack, StackConfig, default_lead_steps
 from drona_gcs.workspace import Workspace
 from fleet import runtime
 from fleet.agent.drone import BROADCAST, DroneAgent
@@ -47,10 +47,7 @@ from fleet.vehicle.policy import Timeouts
 
 log = logging.getLogger(__name__)
 
-CLIMB_RATE_M_S = 1.5  #: a cautious take-off climb rate, for the default lead time
-ARM_AND_MODE_S = 2.0  #: mode change, arming and take-off command acknowledged
 CONNECT_LOG_EVERY = 10  #: a vehicle that does not answer is logged at the first and every tenth attempt
-SPOOL_UP_S = 4.0  #: an accepted take-off to leaving the ground (ArduCopter SITL: about 3.5 s)
 LANDING_BOUND_S = 30.0  #: at shutdown, how long the drones may take to land
 
 
@@ -87,12 +84,6 @@ def select_drones(settings: AgentSettings, workspace: Workspace) -> list[str]:
         raise ValueError(f"--count {settings.count} from {drones[first]!r}: the workspace has only "
                          f"{len(names)} drones from there ({', '.join(drones)})")
     return names
-
-
-def default_lead_steps(workspace: Workspace) -> int:
-    """Delta + 1, plus the steps a landed drone needs to take off and climb into the grid."""
-    climb_s = ARM_AND_MODE_S + SPOOL_UP_S + workspace.geo.layer0_alt_m / CLIMB_RATE_M_S
-    return workspace.delta + 1 + math.ceil(climb_s / workspace.tau_s)
 
 
 def session_groups(settings: AgentSettings, names: Sequence[str]) -> list[list[str]]:
@@ -133,7 +124,7 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
     settings, ws = host.settings, host.workspace
     frame = GeoFrame(ws)
     planner = SafePlanner(ws, delta=ws.delta)
-    battery = BatteryModel(drain_per_step=settings.drain_per_step, safe_threshold=settings.safe_threshold)
+    battery = BatteryModel.for_period(ws.tau_s, settings.drain_per_step, settings.safe_threshold)
     lead = settings.lead_steps or default_lead_steps(ws)
     config = StackConfig(ws, planner, battery, lead_steps=lead)
     keys = FleetKeys(settings.fleet)

@@ -41,7 +41,8 @@ class AgentSettings(BaseSettings):
     #: the rate the link repeats the last setpoint at (PX4 leaves OFFBOARD at 2 Hz or less)
     rate_hz: Annotated[float, Field(gt=2)] = 10.0
     telemetry_hz: Annotated[float, Field(gt=0)] = 10.0  #: the rate asked of the vehicle's position streams
-    drain_per_step: Annotated[float, Field(gt=0)] = 1.0  #: battery points a step of flight costs (planning model)
+    #: battery points a step of flight costs (planning model); default 0.33 a second of flight
+    drain_per_step: Annotated[float, Field(gt=0)] | None = None
     safe_threshold: Annotated[float, Field(ge=0, lt=100)] = 20.0
     clock_check_s: Annotated[float, Field(gt=0)] = 5.0  #: how often to measure the peers' clock offsets
     #: at start-up, how long a vehicle may take to be ready before its drone joins anyway, waiting for it

@@ -53,7 +53,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                            "half of it, battery and status at a quarter (default 10)")
     add("--rate-hz", type=float, help="the link repeats the last setpoint at this rate, over 2 (PX4 leaves OFFBOARD "
                                       "at 2 Hz or less) (default 10) [DRONA_RATE_HZ]")
-    add("--drain-per-step", type=float, help="battery points one step of flight costs, for planning (default 1)")
+    add("--drain-per-step", type=float,
+        help="battery points one step of flight costs, for planning (default 0.33 a second of flight, times tau)")
     add("--backend", choices=["pymavlink", "mavsdk"],
         help="the vehicle link's MAVLink library (default pymavlink; mavsdk needs the mavsdk extra) [DRONA_BACKEND]")
     add("--ready-timeout", dest="ready_timeout_s", type=float,

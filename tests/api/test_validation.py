@@ -16,6 +16,11 @@ def corridor(chargers: tuple[tuple[int, int, int], ...] = ((0, 0, 0),)) -> Works
     return Workspace.build(size=(60, 1, 1), charging_stations=chargers)
 
 
+def small_battery_checker(ws: Workspace) -> MailChecker:
+    """A battery of 75 steps, so the corridor's far ends are out of reach."""
+    return MailChecker(ws, BatteryModel(drain_per_step=1.0), lead_steps=2)
+
+
 def test_cells_are_checked_in_turn(workspace: Workspace) -> None:
     checker = MailChecker(workspace)
     assert checker.check((1, 1, 0), (7, 6, 0)) == []
@@ -36,21 +41,21 @@ def test_chargers_and_parking_cells_are_refused_as_the_drones_refuse_them() -> N
 def test_the_energy_rule_is_the_drones_own() -> None:
     """Accepted exactly when a drone's mail planner, charged at a station, does not reject it."""
     ws = corridor()
-    checker = MailChecker(ws)
-    battery = BatteryModel()
+    checker = small_battery_checker(ws)
     for pickup_x in range(1, 60, 3):
         for dropoff_x in range(1, 60, 7):
             if pickup_x == dropoff_x:
                 continue
             pickup, dropoff = (pickup_x, 0, 0), (dropoff_x, 0, 0)
-            planner = MailPlanner((0, 0, 0), ws.charging_stations, (), checker.distance, battery)
+            planner = MailPlanner((0, 0, 0), ws.charging_stations, (), checker.distance, checker.battery,
+                                  leg_overhead=checker.leg_overhead)
             planner.assign(MailRequest("x", pickup, dropoff, 5))
             rejected = any(isinstance(a, MailRejected) for a in planner.decide(0, planner.recharged_level, ()))
             assert bool(checker.check(pickup, dropoff)) == rejected, (pickup, dropoff)
 
 
 def test_the_energy_problem_blames_the_pickup_or_the_dropoff() -> None:
-    checker = MailChecker(corridor())
+    checker = small_battery_checker(corridor())
     [far_pickup] = checker.check((50, 0, 0), (49, 0, 0))
     assert (far_pickup.field, far_pickup.kind) == ("pickup", "energy")
     assert "a full battery gives" in far_pickup.message
@@ -59,7 +64,7 @@ def test_the_energy_problem_blames_the_pickup_or_the_dropoff() -> None:
 
 
 def test_without_chargers_there_is_no_energy_rule() -> None:
-    assert MailChecker(corridor(chargers=())).check((50, 0, 0), (59, 0, 0)) == []
+    assert small_battery_checker(corridor(chargers=())).check((50, 0, 0), (59, 0, 0)) == []
 
 
 def test_distances_and_paths_go_around_obstacles(workspace: Workspace) -> None:
