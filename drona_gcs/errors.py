@@ -41,6 +41,10 @@ class NoPlanFound(DronaError):
     """No safe plan reaches the goal within the maximum plan length."""
 
 
+class GoalCutOff(NoPlanFound):
+    """No path at all joins start and goal: obstacles, and drones resting for good, wall one off."""
+
+
 class UnsafeTrajectory(DronaError):
     """The safety checker found violations; ``violations`` lists them."""
 

@@ -499,3 +499,112 @@ def test_simulated_schedules_keep_the_battery_above_the_floor_and_lose_no_mail(d
             break
     assert lowest >= model.safe_threshold
     assert delivered == sorted(mails, key=lambda r: r.rank)  # all of them, most urgent first
+
+
+def test_a_pickup_no_round_reaches_is_handed_back_and_the_queue_behind_it_goes_on() -> None:
+    """Found by the systematic tester: a vehicle down rested on a pickup for good; the drone tried
+    that mail first forever and the mail queued behind it was never delivered."""
+    mp = planner()
+    blocked, other = mail("blocked", c(2, 2), c(4, 4), priority=9), mail("other", c(6, 6), c(7, 7))
+    mp.assign(blocked)
+    mp.assign(other)
+    handed: list[MailAction] = []
+    for now in range(0, 200, 2):
+        actions = mp.decide(now, 100, ())
+        if any(isinstance(a, GoTo) for a in actions) and mp.current == other:
+            break
+        if any(isinstance(a, GoTo) for a in actions):
+            assert mp.current == blocked
+            handed += mp.leg_failed(now)  # every round finds the pickup taken for good
+    assert [(type(a), a.request.id) for a in handed if isinstance(a, MailRejected)] == [(MailRejected, "blocked")]
+    assert mp.current == other and mp.queue == []
+
+
+def test_a_drone_walled_in_hands_back_every_mail_not_on_board() -> None:
+    """Found by the systematic tester: a drone walled in by a vehicle down, obstacles and a parked
+    drone held its mail for good while the others could have flown it."""
+    mp = planner()
+    mp.assign(mail("a", c(2, 2), c(4, 4)))
+    mp.assign(mail("b", c(3, 3), c(5, 5)))
+    mp.battery_low()  # its legs go to the chargers, and find no way there
+    handed: list[MailAction] = []
+    for now in range(0, 200, 2):
+        if any(isinstance(a, GoTo) for a in mp.decide(now, 45, ())):
+            assert mp.phase is Phase.TO_CHARGER
+            handed += mp.leg_failed(now, cut_off=True)
+        if handed:
+            break
+    assert sorted(a.request.id for a in handed if isinstance(a, MailRejected)) == ["a", "b"]
+    assert mp.queue == [] and mp.current is None
+
+
+def test_mail_whose_pickup_is_cut_off_from_here_waits_behind_the_rest() -> None:
+    """Found by the systematic tester: the most urgent mail's pickup was walled off from the only drone
+    in service; handed back, it came back to it and was tried first again and again, and the rest waited
+    for good."""
+    mp = planner()
+    urgent, other = mail("urgent", c(2, 2), c(4, 4), priority=9), mail("other", c(6, 6), c(7, 7))
+    mp.assign(urgent)
+    mp.assign(other)
+    mp.decide(0, 100, ())
+    assert mp.current == urgent
+    assert mp.leg_failed(0, cut_off=True) == []
+    actions = mp.decide(mp.retry_at, 100, ())
+    assert MailStarted(other, (urgent,)) in actions and goto(actions).goal == c(6, 6)
+    mp.leg_done()  # picked up, somewhere else: the urgent mail is tried first again
+    mp.decide(mp.retry_at + 1, 100, ())
+    mp.leg_done()
+    assert mp.decide(mp.retry_at + 2, 100, ())[0] == MailStarted(urgent, ())
+
+
+def test_a_mail_whose_only_staging_charger_is_taken_is_handed_back() -> None:
+    """Found by the systematic tester: the only charger from which a full battery affords the mail was
+    taken for good; the drone flew between its parking cell and the other charger forever."""
+    far = mail("far", c(9, 8), c(9, 2))  # a full battery (37 steps) affords it from Q2, not from Q1
+
+    def at_q1() -> MailPlanner:
+        mp = MailPlanner(Q1, (Q1, Q2), (P1, P2), manhattan, BatteryModel(drain_per_step=2))
+        mp.assign(far)
+        return mp
+
+    mp = at_q1()
+    assert goto(mp.decide(0, 100, ())).goal == Q2 and mp.phase is Phase.TO_CHARGER  # to charge there first
+    [rejected] = at_q1().decide(0, 100, {Q2})
+    assert isinstance(rejected, MailRejected) and "taken" in rejected.reason
+
+
+def test_mail_queued_behind_a_drop_off_no_round_reaches_is_handed_back() -> None:
+    """Found by the systematic tester: a vehicle down rested on the drop-off of the mail on board;
+    the drone kept it (it cannot be handed over in the air) and the mail queued behind it waited for good."""
+    mp = planner()
+    on_board, behind = mail("on-board", c(2, 2), c(4, 4)), mail("behind", c(6, 6), c(7, 7))
+    mp.assign(on_board)
+    mp.assign(behind)
+    mp.decide(0, 100, ())
+    assert mp.leg_done() == [MailPickedUp(on_board)]
+    handed: list[MailAction] = []
+    for now in range(1, 200, 2):
+        if any(isinstance(a, GoTo) for a in mp.decide(now, 100, ())):
+            assert mp.phase is Phase.TO_DROPOFF
+            handed += mp.leg_failed(now)  # every round finds the drop-off taken for good
+        if handed:
+            break
+    assert [(type(a), a.request) for a in handed if isinstance(a, MailRejected)] == [(MailRejected, behind)]
+    assert mp.carrying and mp.current == on_board and mp.queue == []
+
+
+def test_a_drone_no_round_takes_to_a_charger_hands_back_the_mail_it_waits_with() -> None:
+    """Found by the systematic tester: a vehicle down on the only charger a low drone could reach; the
+    drone tried it for good, holding mail that other drones could have flown."""
+    mp = planner()
+    waiting = mail("waiting", c(2, 2), c(4, 4))
+    mp.assign(waiting)
+    mp.battery_low()
+    handed: list[MailAction] = []
+    for now in range(0, 300, 2):
+        if any(isinstance(a, GoTo) for a in mp.decide(now, 45, ())):
+            assert mp.phase is Phase.TO_CHARGER
+            handed += mp.leg_failed(now)  # every round finds the charger another drone's for good
+        if handed:
+            break
+    assert [(type(a), a.request) for a in handed] == [(MailRejected, waiting)]

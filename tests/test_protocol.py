@@ -235,21 +235,23 @@ def test_a_higher_priority_that_has_not_answered_is_neither_answered_nor_asked_a
     assert action.psi["b"] == b_plan
 
 
-def test_a_higher_priority_my_request_did_not_reach_is_answered_at_once() -> None:
-    """c was gone when my request went out: it came back and asked before its return reached me.
-    It never got my request, so it gets my answer. Once back, it is asked, and answered no more.
-    A drone that leaves after my request went out may not have had it either: answered."""
+def test_a_requester_that_is_no_member_is_alive_and_a_member_again() -> None:
+    """c was gone when my request went out and came back (or was seen gone while it lived on): its
+    request proves it alive. It is a member again and gets my request, not an answer: answered at
+    once, it planned with my location while I planned without it (found by the tester's crash and
+    restart of an agent)."""
     proto = machine()
     proto.handle(PeerLeft("c"), 0)
     proto.handle(NewTask(Task(ID_A, GOAL)), 0)
     first, second = TaskId(2, "c", 1), TaskId(3, "c", 2)
-    assert proto.handle(request(first, "c"), 1) == [Send("c", CurrentTraj("a", Trajectory.stationary(A, 1), first))]
-    assert proto.handle(PeerJoined("c", C), 1) == [Send("c", request(ID_A, "a", 1))]
+    assert proto.handle(request(first, "c"), 1) == [Send("c", request(ID_A, "a", 1))]
+    assert "c" in proto.members and "c" not in proto.ghosts
+    assert proto.handle(PeerJoined("c", C), 1) == []  # its return, noticed late: nothing new
     assert proto.handle(request(second, "c"), 1) == []
     assert proto.state is State.COORDINATING  # waiting for b, and for c's plan
-    proto.handle(PeerLeft("b"), 1)  # gone silent after my request went out: it may never have had it
-    answer = CurrentTraj("a", Trajectory.stationary(A, 1), ID_B_HIGH)
-    assert proto.handle(request(ID_B_HIGH, "b"), 1) == [Send("b", answer)]
+    proto.handle(PeerLeft("b"), 1)
+    assert proto.handle(request(ID_B_HIGH, "b"), 1) == [Send("b", request(ID_A, "a", 1))]
+    assert proto.state is State.COORDINATING and proto.members == {"b", "c"}
 
 
 def test_a_lower_priority_request_is_its_answer_and_waits_for_my_new_trajectory() -> None:
@@ -267,12 +269,14 @@ def test_a_lower_priority_request_is_its_answer_and_waits_for_my_new_trajectory(
     assert proto.pending == {}
 
 
-def test_a_lower_priority_request_from_a_departed_drone_is_held_but_is_no_answer() -> None:
+def test_a_lower_priority_request_from_a_departed_drone_makes_it_a_member_and_is_its_answer() -> None:
+    """Its request proves it alive: a member again, asked, and its request is its answer."""
     proto = machine()
     proto.handle(NewTask(Task(ID_A, GOAL)), 0)
     proto.handle(PeerLeft("c"), 0)
-    assert proto.handle(request(ID_C_LOW, "c"), 0) == []
-    assert proto.pending == {"c": ID_C_LOW} and "c" not in proto.received
+    assert proto.handle(request(ID_C_LOW, "c"), 0) == [Send("c", request(ID_A, "a", 0))]
+    assert proto.pending == {"c": ID_C_LOW} and "c" in proto.members
+    assert proto.received["c"] == request(ID_C_LOW, "c").trajectory
 
 
 # ============================================ late requests of rounds that are over

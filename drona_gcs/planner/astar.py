@@ -34,7 +34,7 @@ import heapq
 import math
 from collections.abc import Callable
 
-from drona_gcs.errors import NoPlanFound
+from drona_gcs.errors import GoalCutOff, NoPlanFound
 from drona_gcs.planner.grid import GridIndex
 from drona_gcs.planner.heuristic import UNREACHABLE, GoalDistance
 from drona_gcs.planner.layers import TimeLayers
@@ -71,10 +71,10 @@ def search(grid: GridIndex, table: ReservationTable, heuristic: GoalDistance,
     if table.conflicts(start, n):
         raise NoPlanFound("the start cell is taken by another drone at the start step")
     if heuristic.get(start) >= UNREACHABLE:
-        raise NoPlanFound("the goal cannot be reached from the start")
+        raise GoalCutOff("the goal cannot be reached from the start")
     hopeless = seal.hopeless if seal is not None else None
     if hopeless is not None and hopeless(start, n):
-        raise NoPlanFound("drones parking for good seal the goal off before it can be reached")
+        raise GoalCutOff("drones parking for good seal the goal off before it can be reached")
     uniform = grid.uniform_cost
     if not table.keeps_vertex:
         if uniform is None:

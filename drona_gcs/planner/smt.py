@@ -48,7 +48,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from drona_gcs.errors import DronaError, NoPlanFound, ProblemError
+from drona_gcs.errors import DronaError, GoalCutOff, NoPlanFound, ProblemError
 from drona_gcs.motion import MotionModel, Primitive, Trajectory
 from drona_gcs.planner import Plan, check_endpoints
 from drona_gcs.safety import assert_safe
@@ -93,7 +93,7 @@ def plan_smt(workspace: Workspace, start: Cell, goal: Cell, start_step: int,
         raise NoPlanFound("the goal is another drone's resting cell for good")
     to_goal = workspace.distances_from(goal)
     if start not in to_goal:
-        raise NoPlanFound("the goal cannot be reached from the start")
+        raise GoalCutOff("the goal cannot be reached from the start")
     prim_costs = [model.cost(p) for p in model.primitives]
     min_cost, uniform = min(prim_costs), len(set(prim_costs)) == 1
     min_move = min(model.cost(p) for p in model.primitives if p is not Primitive.HOLD)

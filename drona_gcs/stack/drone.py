@@ -100,7 +100,6 @@ class StackConfig:
     low_mark: float = 40.0
     recharged_mark: float = 95.0
     lead_steps: int | None = None  #: steps between planning and a plan's start; default Delta + 1
-    bugs: frozenset[str] = frozenset()
 
     def __deepcopy__(self, memo: dict[int, object]) -> StackConfig:
         return self
@@ -115,7 +114,7 @@ class DroneStack:
         self.clock = HybridClock(me)
         planner = config.planner
         lead = config.lead_steps if config.lead_steps is not None else config.planner.delta + 1
-        self.protocol = CoordinationProtocol(me, start, dict(peers), planner.plan, lead, config.bugs)
+        self.protocol = CoordinationProtocol(me, start, dict(peers), planner.plan, lead)
         self.executor = PlanExecutor(start)
         self.monitor = BatteryMonitor(config.low_mark, config.recharged_mark)
         parking = own_parking(ws.parking, list(peers), me)
@@ -123,7 +122,7 @@ class DroneStack:
         resting = {*ws.charging_stations, *(c for c in ws.parking if c not in mine)}  # others may rest there
         self.mail = MailPlanner(start, ws.charging_stations, parking, _distance_function(planner, resting),
                                 config.battery, recharged_level=config.recharged_mark, leg_overhead=leg_overhead(lead),
-                                spare_parking=[c for c in ws.parking if c not in parking], bugs=config.bugs)
+                                spare_parking=[c for c in ws.parking if c not in parking])
         self.arrival: Arrival | None = None  #: a plan ended; waiting to see the vehicle at its goal
 
     # ------------------------------------------------------------ inputs
@@ -258,7 +257,7 @@ class DroneStack:
                 self.executor.start(action.trajectory)
                 self.mail.took_off()
             elif isinstance(action, TaskFailed):
-                self.mail.leg_failed(self.now)
+                actions += self.mail.leg_failed(self.now, cut_off=action.cut_off)
         return actions
 
 

@@ -67,6 +67,7 @@ from drona_gcs.workspace import Cell, Workspace
 #: distance(a, b): steps of the shortest static path from a to b (large if none).
 Distance = Callable[[Cell, Cell], int]
 MAX_MISSES = 3  #: plans to a pickup that end with the vehicle not there, before the mail is handed back
+MAX_FAILURES = 4  #: rounds in a row that find no plan, before mail not on board is handed back (see leg_failed)
 
 
 def mail_cell_problem(workspace: Workspace, cell: Cell) -> tuple[str, str] | None:
@@ -177,7 +178,6 @@ class MailPlanner:
     #: their plans start (climbing, or hovering) and the plans' first steps, held in the start cell
     leg_overhead: int = 0
     spare_parking: Sequence[Cell] = ()  #: other drones' parking cells, for when ours is out of reach
-    bugs: frozenset[str] = frozenset()
     phase: Phase = Phase.IDLE
     queue: list[MailRequest] = field(default_factory=list)
     current: MailRequest | None = None
@@ -191,6 +191,11 @@ class MailPlanner:
     blocked: Cell | None = None  #: the goal of the failed leg, while it is believed taken
     backoff: int = 0  #: the back-off of retries towards cells believed taken, steps (0: none)
     misses: int = 0  #: legs in a row whose plan ended with the vehicle not seen at the goal
+    failures: int = 0  #: coordination rounds in a row that found no plan to a pickup, drop-off or charger
+    occupied: frozenset[Cell] = frozenset()  #: chargers other drones rested on at the last decision
+    cut_offs: int = 0  #: legs in a row whose goal no path at all joined
+    #: mail whose leg no path joined from here: tried after the rest, until the drone has moved
+    cut_off_mail: frozenset[str] = frozenset()
 
     # ---------------------------------------------------------- inputs
     def assign(self, request: MailRequest) -> None:
@@ -239,7 +244,8 @@ class MailPlanner:
         """The protocol completed the current leg: we are at ``goal``."""
         if self.goal is None:
             raise ProtocolViolation(f"leg done while {self.phase.value}, with no leg under way")
-        self.cell, self.goal, self.misses = self.goal, None, 0
+        self.cell, self.goal, self.misses, self.failures, self.cut_offs = self.goal, None, 0, 0, 0
+        self.cut_off_mail = frozenset()
         self.tried.clear()
         self.blocked, self.backoff = None, 0
         self.landed_here = self._parked() or self.cell in self.chargers
@@ -284,11 +290,20 @@ class MailPlanner:
             self.phase = Phase.IDLE  # charging goes on only on the charger: elsewhere it would wait for good
         self.tried.clear()
 
-    def leg_failed(self, now: int) -> None:
-        """No plan was found: land here and try again a little later, from the ground."""
+    def leg_failed(self, now: int, asked: bool = True, cut_off: bool = False) -> list[MailAction]:
+        """No plan was found (``asked``: by a coordination round; else the goal was known taken;
+        ``cut_off``: no path at all joins start and goal): land here and try again a little later,
+        from the ground. Mail not on board is handed back for another drone to fly once
+        :data:`MAX_FAILURES` rounds in a row found no plan to its pickup (a vehicle down may rest
+        on it for good), or to the drop-off of the mail on board, or to a charger it needs (the
+        queue behind them), and all of it once as many legs in a row were cut off (drones resting
+        for good wall this one in)."""
         self.retry_at = now + self._retry_delay()
         if self.goal is not None:
             self.tried.add(self.goal)
+        to_pickup = self.phase is Phase.TO_PICKUP and self.current is not None and not self.carrying
+        to_dropoff = self.phase is Phase.TO_DROPOFF and self.carrying
+        to_charger = self.phase is Phase.TO_CHARGER
         self.goal = None
         self.landed_here = True
         if self.current is not None and not self.carrying:
@@ -296,6 +311,26 @@ class MailPlanner:
             self.queue.append(self.current)
             self.current = None
         self.phase = Phase.IDLE
+        self.failures += asked and (to_pickup or to_dropoff or to_charger)
+        self.cut_offs = self.cut_offs + 1 if cut_off else 0 if asked else self.cut_offs
+        reason = f"no plan in {MAX_FAILURES} rounds in a row"
+        if cut_off and to_pickup:  # that mail only: the others may have a way
+            self.cut_off_mail |= {self.queue[-1].id}
+            if self.cut_offs >= MAX_FAILURES:
+                self.cut_offs = self.failures = 0
+                request = self.queue.pop()
+                return [MailRejected(request, f"{reason}: its pickup {list(request.pickup)} is cut off from here")]
+            return []
+        if self.cut_offs >= MAX_FAILURES:
+            self.cut_offs = self.failures = 0
+            return self.release(f"{reason}: walled in")
+        if self.failures < MAX_FAILURES or not (to_pickup or to_dropoff or to_charger):
+            return []
+        self.failures = 0
+        if to_pickup:
+            request = self.queue.pop()
+            return [MailRejected(request, f"{reason} to its pickup {list(request.pickup)}")]
+        return self.release(f"{reason} to " + ("the drop-off of the mail on board" if to_dropoff else "a charger"))
 
     def _retry_delay(self) -> int:
         """``retry_steps``; doubled on each failure in a row towards a cell believed taken (capped).
@@ -331,14 +366,14 @@ class MailPlanner:
     # ---------------------------------------------------------- decide
     def decide(self, now: int, level: float, taken: Collection[Cell]) -> list[MailAction]:
         """At step boundary ``now`` with battery ``level``; ``taken``: cells other drones rest on."""
+        self.occupied = frozenset(c for c in self.chargers if c in taken)
         if self.phase is Phase.CHARGING and level >= self.recharged_level:
             self.battery_recharged()  # also ends charging for a mail it could not afford
         if self.busy or self.phase is Phase.CHARGING:
             return []
         if now < self.retry_at and (self.blocked is None or self.blocked in taken):
             return []  # waiting to retry, unless the drone that blocked the goal has left it
-        unchecked = "no-battery-check" in self.bugs or not self.chargers  # no chargers: no energy model
-        budget = Budget(now, self.battery.steps_affordable(level), unchecked)
+        budget = self._budget(now, level)
         if self.carrying and self.current is not None:
             # Mail on board goes to its drop-off, or to a charger on the way, and nowhere else:
             # after a failed leg it waits on the ground where it is (see leg_failed).
@@ -372,28 +407,36 @@ class MailPlanner:
     def _parked(self) -> bool:
         return self.cell in (self.parking or self.chargers) or self.cell in self.spare_parking
 
+    def _budget(self, now: int, level: float) -> Budget:
+        """What ``level`` affords; unchecked with no chargers (no energy model)."""
+        return Budget(now, self.battery.steps_affordable(level), unchecked=not self.chargers)
+
     def _start_next_mail(self, budget: Budget, taken: Collection[Cell]) -> list[MailAction]:
-        self.queue.sort(key=lambda r: r.rank)
+        self.queue.sort(key=lambda r: (r.id in self.cut_off_mail, r.rank))
         best = self.queue[0]
         if budget.allows(self._need(self.cell, best)):
             self.queue.pop(0)
             self.current = best
             rest = self._need(best.pickup, best) - self.battery.margin_steps
             leg = self._go(best.pickup, budget, rest, Phase.TO_PICKUP, taken)
-            return [MailStarted(best, tuple(self.queue)), *leg] if leg else []  # not started: back in the queue
+            if not any(isinstance(a, GoTo) for a in leg):
+                return leg  # not started: back in the queue, or handed back
+            return [MailStarted(best, tuple(self.queue)), *leg]
         # Not enough for this mail: charge first, at a charger from which a full battery will do.
         full = self.battery.steps_affordable(self.recharged_level)
         staging = [c for c in self.chargers if self._need(c, best) <= full]
-        if not staging:
-            self.queue.pop(0)  # beyond any full battery: hand it back rather than block the queue
-            return [MailRejected(best, f"needs {self._need(self.cell, best)} steps of flight; a full battery "
-                                       f"gives {full}"), *self.decide_again(budget, taken)]
+        free = [c for c in staging if c not in taken or c == self.cell]
+        if not free:  # hand it back rather than block the queue: another drone may be better placed
+            self.queue.pop(0)
+            why = (f"needs {self._need(self.cell, best)} steps of flight; a full battery gives {full}" if not staging
+                   else f"the chargers it must charge at first ({', '.join(map(str, map(list, staging)))}) are taken")
+            return [MailRejected(best, why), *self.decide_again(budget, taken)]
         self.low = True
         self.landed_here = True  # on the ground while it coordinates the way to the charger, or charges
-        if self.cell in staging:
+        if self.cell in free:
             self.phase = Phase.CHARGING
             return []
-        return self._to_one_of(staging, budget, taken, Phase.TO_CHARGER)
+        return self._to_one_of(free, budget, taken, Phase.TO_CHARGER)
 
     def decide_again(self, budget: Budget, taken: Collection[Cell]) -> list[MailAction]:
         return self._start_next_mail(budget, taken) if self.queue else []
@@ -443,8 +486,7 @@ class MailPlanner:
         real round is due."""
         self.goal, self.phase, self.goal_taken = goal, purpose, goal in taken
         if self.goal_taken and self.backoff < self.max_retry_steps:
-            self.leg_failed(budget.now)
-            return []
+            return self.leg_failed(budget.now, asked=False)
         return [GoTo(goal, budget.flight(reserve), purpose)]
 
     def _leg(self, start: Cell, goal: Cell) -> int:
@@ -455,10 +497,12 @@ class MailPlanner:
     def _after(self, cell: Cell) -> int:
         """Steps of flight from ``cell`` to a charger: what must stay in the battery on arrival.
 
-        The nearest charger may be taken by a drone charging there, so this is the
-        leg to the second nearest when there are two or more.
+        The nearest charger may be taken by a drone charging there by then, so this is
+        the leg to the second nearest when there are two or more. Chargers other drones
+        rest on now do not count, while one is free: one may be a vehicle down for good.
         """
-        ways = sorted(self._leg(cell, c) for c in self.chargers)
+        free = [c for c in self.chargers if c not in self.occupied] or self.chargers
+        ways = sorted(self._leg(cell, c) for c in free)
         return ways[min(1, len(ways) - 1)] if ways else 0
 
 
@@ -468,7 +512,7 @@ class Budget:
 
     now: int
     steps: int
-    unchecked: bool = False  #: the seeded bug no-battery-check
+    unchecked: bool = False  #: no energy model (no chargers): every leg is allowed
 
     def allows(self, steps: int) -> bool:
         return self.unchecked or steps <= self.steps

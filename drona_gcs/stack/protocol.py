@@ -24,9 +24,13 @@ settled here, and one message it sends is saved (the second point):
   while it coordinates, because task ids come from hybrid logical clocks that
   observe every stamp received (``DroneStack`` does): had my request reached
   it before its task began, its task would rank below mine. (With ids that are
-  not HLCs a drone could wait for good.) A requester that is no member (gone
-  when my request went out, or since: it may never have had it) gets my answer
-  at once, as the paper has it. Without this, a fleet given tasks at once sent
+  not HLCs a drone could wait for good.) A requester that is no member is alive
+  all the same (it restarted, or I saw it leave while it lived on): it is a
+  member again, and I send it my request if I coordinate. Answering it at once
+  and planning without it, as before, let it plan with my old location while I
+  planned without it (found by the tester's crash and restart; a request is sent
+  by a live agent, and the lease that makes a drone leave outlasts any message
+  it sent before). Without the second point, a fleet given tasks at once sent
   an answer for every pair of drones before the first could plan (496 for 32
   drones).
 * **A higher priority's request while coordinating, after it answered me**
@@ -53,7 +57,7 @@ settled here, and one message it sends is saved (the second point):
   have restarted its clock: its ids count afresh.
 * **Psi is rebuilt for every task.** Answers from an earlier round describe
   plans that may have been replaced since; planning with them is the race the
-  paper's model checker found (seeded bug ``stale-trajectory``).
+  paper's model checker found (the tester seeds this bug).
 * **A plan starts ``lead_steps`` after now**, because planning, messaging and
   the executor's hand-over take time; the executor refuses a trajectory whose
   start it has already passed. Other drones' executors may be up to Delta
@@ -87,7 +91,7 @@ import enum
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
-from drona_gcs.errors import NoPlanFound, ProtocolViolation
+from drona_gcs.errors import GoalCutOff, NoPlanFound, ProtocolViolation
 from drona_gcs.motion import Trajectory
 from drona_gcs.planner import Plan
 from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj, Task, TaskId
@@ -174,6 +178,7 @@ class StartExecuting:
 class TaskFailed:
     task: Task
     reason: str
+    cut_off: bool = False  #: no path at all joins start and goal (see GoalCutOff)
 
 
 Action = Send | Broadcast | StartExecuting | TaskFailed
@@ -188,7 +193,6 @@ class CoordinationProtocol:
     peers: Mapping[str, Cell]
     plan: PlanFunction
     lead_steps: int = 1
-    bugs: frozenset[str] = frozenset()  #: seeded bugs, for the systematic tester only
     state: State = State.WAIT_FOR_TASK
     task: Task | None = None
     trajectory: Trajectory | None = None
@@ -263,11 +267,14 @@ class CoordinationProtocol:
     # ----------------------------------------------------------- handlers
     def _on_new_task(self, event: NewTask, now: int) -> list[Action]:
         self.task, self.state = event.task, State.COORDINATING
-        if "stale-trajectory" not in self.bugs:  # the seeded bug keeps last round's answers
-            self.received, self.peer_holds = {}, {}
+        self._forget_answers()
         self.pending = {}
         actions: list[Action] = [Broadcast(self._request(now))]
         return actions + self._plan_if_ready(now)
+
+    def _forget_answers(self) -> None:
+        """A new round starts from no answers: last round's trajectories may have changed since."""
+        self.received, self.peer_holds = {}, {}
 
     def _request(self, now: int) -> ReqForCurrentTraj:
         assert self.task is not None
@@ -282,7 +289,18 @@ class CoordinationProtocol:
         return True
 
     def _on_request(self, event: ReqForCurrentTraj, now: int) -> list[Action]:
-        return self._answer(event, now) if self._current(event) else []
+        if event.sender == self.me or not self._current(event):
+            return []
+        return [*self._admit(event, now), *self._answer(event, now)]
+
+    def _admit(self, event: ReqForCurrentTraj, now: int) -> list[Action]:
+        """A request from a drone that is no member: it is alive (it restarted, or its leave was
+        noticed while it lived on), so it is a member again, where its request puts it."""
+        if event.sender in self.members:
+            return []
+        actions = self._on_peer_joined(PeerJoined(event.sender, event.trajectory.last, event.trajectory), now)
+        self.newest[event.sender] = event.task_id  # joining forgot it: this request is its newest
+        return actions
 
     def _answer(self, event: ReqForCurrentTraj, now: int) -> list[Action]:
         if event.sender == self.me:
@@ -293,11 +311,10 @@ class CoordinationProtocol:
         assert self.task is not None
         if event.sender == self.me or not self._current(event):
             return []
-        if "answer-while-coordinating" in self.bugs:
-            return self._answer(event, now)
+        admitted = self._admit(event, now)  # my request goes to it now
         if self._outranks(event.task_id, self.task.id):
-            if event.sender not in self.members:
-                return self._answer(event, now)  # my request may not have reached it
+            if admitted:
+                return admitted  # it may not have had my request: it gets it now, and answers once planned
             # It plans before me, and takes my request (which went to every member) as my answer.
             self.peer_holds.pop(event.sender, None)
             if self.received.pop(event.sender, None) is not None:
@@ -305,15 +322,13 @@ class CoordinationProtocol:
                 return [Send(event.sender, self._request(now))]
             return []
         self.pending[event.sender] = event.task_id
-        if event.sender not in self.members:
-            return []
         # It waits for my plan, so the trajectory its request carries is its answer.
         self.received[event.sender] = self.known[event.sender] = event.trajectory
         self.peer_holds[event.sender] = event.holds
-        return self._plan_if_ready(now)
+        return [*admitted, *self._plan_if_ready(now)]
 
     def _outranks(self, theirs: TaskId, mine: TaskId) -> bool:
-        return theirs > mine if "tie-break-reversed" in self.bugs else theirs < mine
+        return theirs < mine
 
     def _on_reply(self, event: CurrentTraj, now: int) -> list[Action]:
         assert self.task is not None
@@ -373,7 +388,7 @@ class CoordinationProtocol:
         assert self.task is not None
         task = self.task
         psi = {**self.ghost_obstacles(sparing=self.location), **self._held_by_peers(now),
-               **{p: self.received[p] for p in self.members}}
+               **{p: self.received[p] for p in sorted(self.members)}}
         start_step = now + self.lead_steps
         max_length = task.max_length(start_step)
         try:
@@ -386,7 +401,8 @@ class CoordinationProtocol:
             self.state, self.task = State.WAIT_FOR_TASK, None
             # I stay: my last plan (or my location) is still the truth, including the recent
             # steps a peer up to Delta behind me still needs.
-            return [*self._release_pending(self.current_trajectory(now)), TaskFailed(task, str(exc))]
+            failed = TaskFailed(task, str(exc), isinstance(exc, GoalCutOff))
+            return [*self._release_pending(self.current_trajectory(now)), failed]
         self.trajectory, self.state = plan.trajectory, State.EXECUTING
         return [StartExecuting(task, plan.trajectory, psi), *self._release_pending(plan.trajectory)]
 

@@ -1,4 +1,4 @@
-"""Exploring schedules of a simulated fleet: random walks, PCT, and bounded DFS with state caching.
+"""Exploring schedules of a simulated fleet: random walks, PCT, and exhaustive search (see :mod:`.dfs`).
 
 A schedule is the list of choices made at each transition: the index of the
 transition taken among :meth:`World.enabled`, which lists them in a fixed
@@ -17,23 +17,16 @@ import json
 import random
 import zlib
 from collections.abc import Callable, Hashable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 from drona_gcs.errors import DronaError, ProblemError, ProtocolViolation
 from drona_gcs.planner import SafePlanner
+from drona_gcs.verify.dfs import ALL, DEEPEN, Reductions, search
 from drona_gcs.verify.monitors import Violation
+from drona_gcs.verify.mutants import SEEDED_BUGS, planner_delta
 from drona_gcs.verify.world import Faults, World, WorldConfig, make_world_config, tester_workspace
 from drona_gcs.workspace import Workspace
 from drona_gcs.workspace_files import load_workspace
-
-#: Bugs that ``--seed-bug`` can plant, and what each does.
-SEEDED_BUGS = {
-    "stale-trajectory": "a drone keeps its peers' answers from its previous task and plans with them",
-    "tie-break-reversed": "a request ranks above mine when its task id is higher, not lower",
-    "answer-while-coordinating": "a coordinating drone answers every request with its location",
-    "no-battery-check": "the task planner starts legs without checking the battery",
-    "skip-delta": "the planner ignores the clock-skew window (plans with Delta 0)",
-}
 
 
 class Strategy(enum.Enum):
@@ -56,13 +49,14 @@ class Scenario:
     bugs: tuple[str, ...] = ()
     max_delay: int = 2  #: steps of the sender's clock within which a message arrives
     faults: bool = True  #: the field's faults (duplicates, a cancel, a vehicle down) and a mixed fleet
+    crashes: int = 0  #: agents that crash, and may restart (see Faults.crashes)
 
     def __post_init__(self) -> None:
         unknown = sorted(set(self.bugs) - set(SEEDED_BUGS))
         if unknown:
             raise ProblemError(f"unknown seeded bug(s) {unknown}; known: {sorted(SEEDED_BUGS)}")
-        if self.drones < 1 or self.requests < 0 or self.delta < 0 or self.max_delay < 0:
-            raise ProblemError("drones must be >= 1, and requests, delta and max_delay >= 0")
+        if self.drones < 1 or self.requests < 0 or self.delta < 0 or self.max_delay < 0 or self.crashes < 0:
+            raise ProblemError("drones must be >= 1, and requests, delta, max_delay and crashes >= 0")
         if any(n < 1 for n in self.grid) or not 0 <= self.obstacles < 0.9:
             raise ProblemError("grid sizes must be >= 1 and obstacles within [0, 0.9)")
 
@@ -73,7 +67,9 @@ class Scenario:
         return tester_workspace(w, h, layers, self.obstacles, self.seed, self.drones)
 
     def world_config(self, workspace: Workspace) -> WorldConfig:
-        faults = {} if self.faults else {"faults": Faults.none(), "mixed": False}
+        field_faults = replace(Faults() if self.faults else Faults.none(), crashes=self.crashes)
+        faults: dict[str, object] = {"faults": field_faults} if self.faults else {"faults": field_faults,
+                                                                                    "mixed": False}
         return make_world_config(workspace, self.drones, self.requests, self.delta, self.seed,
                                  frozenset(self.bugs), max_delay=self.max_delay, **faults)
 
@@ -89,6 +85,8 @@ class Outcome:
     choices: list[int] = field(default_factory=list)
     trace: list[str] = field(default_factory=list)
     exhausted: bool = False  #: DFS: every schedule to the depth bound was covered
+    complete_depth: int = 0  #: DFS: every schedule to this depth was explored (the paper's Table 3 figure)
+    complete_states: int = 0  #: DFS: distinct states within ``complete_depth``
 
 
 class Explorer:
@@ -98,8 +96,7 @@ class Explorer:
         self.scenario = scenario
         self.workspace = scenario.workspace()
         self.config = scenario.world_config(self.workspace)
-        delta = 0 if "skip-delta" in scenario.bugs else scenario.delta
-        self.planner = SafePlanner(self.workspace, delta=delta)
+        self.planner = SafePlanner(self.workspace, delta=planner_delta(scenario.delta, scenario.bugs))
 
     def world(self) -> World:
         return World(self.config, self.planner)
@@ -162,40 +159,15 @@ class Explorer:
             outcome.choices, outcome.trace = choices, world.trace
 
     def _dfs(self, max_depth: int, stop: Callable[[], bool], progress: Callable[[Outcome], None]) -> Outcome:
-        """Every schedule up to ``max_depth`` transitions; a state met again at no smaller depth is cut."""
-        outcome = Outcome()
-        seen: dict[Hashable, int] = {}
-        stack: list[tuple[World, list[int]]] = [(self.world(), [])]
-        while stack:
-            if stop():
-                return outcome
-            world, choices = stack.pop()
-            depth = len(choices)
-            key = world.state_key()
-            if seen.get(key, max_depth + 1) <= depth:
-                continue
-            seen[key] = depth
-            outcome.states = len(seen)
-            if depth == max_depth or world.finished:
-                outcome.schedules += 1
-                if outcome.schedules % 256 == 0:
-                    progress(outcome)
-                continue
-            moves = world.enabled()
-            for pick in reversed(range(len(moves))):
-                child = world.clone() if pick else world
-                try:
-                    child.apply(moves[pick])
-                except (Violation, ProtocolViolation) as exc:
-                    outcome.violation = exc if isinstance(exc, Violation) else Violation("crash", str(exc))
-                    outcome.choices = [*choices, pick]
-                    outcome.trace = self.replay(outcome.choices).trace
-                    return outcome
-                outcome.transitions += 1
-                stack.append((child, [*choices, pick]))
-        outcome.exhausted = True
-        progress(outcome)
-        return outcome
+        return self.exhaustive(max_depth, stop, progress)
+
+    def exhaustive(self, max_depth: int, stop: Callable[[], bool] = lambda: False,
+                   progress: Callable[[Outcome], None] = lambda o: None, deepen: int = DEEPEN,
+                   reductions: Reductions = ALL) -> Outcome:
+        """Every schedule to ``max_depth``, by iterative deepening (see :mod:`.dfs`): the outcome's
+        ``complete_depth`` is the greatest depth whose every schedule was explored."""
+        return search(self.world, lambda choices: self.replay(choices).trace, max_depth, Outcome(), stop,
+                      progress, deepen, reductions)
 
 
 def _uniform(rng: random.Random) -> Callable[[list[Hashable], int], int]:

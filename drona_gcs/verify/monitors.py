@@ -9,19 +9,26 @@ shares nothing with the code it judges: no production ranking, no protocol query
     (beyond its end, its last cell), or its start cell before any;
 (b) the cells the executors actually occupy pass the safety checker under Delta;
 (c) each drone starts its mail in priority order: never one while a more urgent
-    one (higher priority, or equal and sent by the environment earlier) waits, unstarted;
+    one (higher priority, or equal and sent by the environment earlier) waits, unstarted,
+    with a path open to it (around obstacles, vehicles down and drones resting);
 (d) every request is delivered within a bound once the environment stops sending (but one
-    cancelled, lost on board a vehicle that came down, or whose pickup or drop-off such a
-    vehicle now rests on for good);
+    cancelled, lost on board a vehicle that came down, or cut off from its drop-off by
+    obstacles and the vehicles down: no path from the drone carrying it, or from any drone in
+    service through its pickup);
 (e) no battery drops below the safe threshold;
-(f) a drone carrying mail flies only to its drop-off, or to a charger.
+(f) a drone carrying mail flies only to its drop-off, or to a charger;
+(g) each executor flies its plan: at every step, the cell the plan it last started puts it
+    in (its last cell once the plan is over), one cell a period.
 
 A violation raises :class:`Violation`, which ends the schedule.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Hashable
+import collections
+import itertools
+import math
+from collections.abc import Callable, Hashable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -34,6 +41,17 @@ from drona_gcs.workspace import Cell
 
 if TYPE_CHECKING:
     from drona_gcs.verify.world import WorldConfig
+
+
+@dataclass(frozen=True)
+class Flier:
+    """A drone in service, for (d): where it is, its battery, the level it charges to, and the steps
+    each leg flies besides its moves (its lead steps and a plan's first step, as the README says)."""
+
+    cell: Cell
+    level: float
+    charged: float
+    overhead: int = 0
 
 
 class Violation(DronaError):
@@ -56,6 +74,8 @@ class Monitors:
     committed: dict[str, Trajectory] = field(default_factory=dict)  #: (a) each drone's last started plan
     waiting: dict[str, tuple[tuple[int, MailRequest], ...]] = field(default_factory=dict)  #: (c) given, unstarted
     carrying: dict[str, MailRequest] = field(default_factory=dict)  #: (f) mail on board, per drone
+    departed: dict[str, frozenset[str]] = field(default_factory=dict)  #: (a) peers each drone saw leave
+    down: frozenset[str] = frozenset()  #: (c) drones whose vehicle came down
 
     def __post_init__(self) -> None:
         for drone, start in zip(self.config.drones, self.config.starts, strict=True):
@@ -65,7 +85,8 @@ class Monitors:
         """What of the monitors' own state decides future verdicts (for the DFS's state cache)."""
         return (tuple(sorted((d, t.start_step, t.cells) for d, t in self.committed.items())),
                 tuple(sorted((d, tuple(r.id for _, r in w)) for d, w in self.waiting.items())),
-                tuple(sorted((d, r.id) for d, r in self.carrying.items())))
+                tuple(sorted((d, r.id) for d, r in self.carrying.items())),
+                tuple(sorted((d, tuple(sorted(p))) for d, p in self.departed.items())))
 
     def given_mail(self, drone: str, request: MailRequest) -> None:
         """The environment gave ``request`` to ``drone`` (again, if another handed it back)."""
@@ -102,18 +123,44 @@ class Monitors:
         for peer in self.config.drones:
             if peer == drone:
                 continue
+            if peer in self.departed.get(drone, ()):
+                self._clear_of(drone, action, peer, since)
+                continue
             used = action.psi.get(peer)
             if used is None:
                 raise Violation("a", f"{drone} planned task {action.task.id} without {peer}")
             if not same_future(used, self.committed[peer], since):
                 raise Violation("a", f"{drone} planned task {action.task.id} with a stale trajectory of "
-                                     f"{peer}: used {_cells(used)}, but {peer} is committed to "
-                                     f"{_cells(self.committed[peer])}")
+                                     f"{peer}: used {cells_text(used)}, but {peer} is committed to "
+                                     f"{cells_text(self.committed[peer])}")
+
+    def _clear_of(self, drone: str, action: StartExecuting, peer: str, since: int) -> None:
+        """A peer seen to leave may have stopped anywhere on what it was committed to: a plan made
+        since stays out of every such cell (but the one it starts in)."""
+        committed = self.committed[peer]
+        held = {_at(committed, t) for t in range(since, max(since, committed.end_step) + 1)}
+        crossed = held & set(action.trajectory.cells[1:])
+        if crossed:
+            raise Violation("a", f"{drone} planned task {action.task.id} through {sorted(crossed)}, where {peer}, "
+                                 f"gone, may have stopped: it was committed to {cells_text(committed)}")
+
+    def left(self, observer: str, peer: str) -> None:
+        """``observer`` saw ``peer`` leave (its agent's liveliness went)."""
+        self.departed[observer] = self.departed.get(observer, frozenset()) | {peer}
+
+    def heard_from(self, observer: str, peer: str) -> None:
+        """``observer`` heard from ``peer`` (it joined, or a message of it came): alive."""
+        self.departed[observer] = self.departed.get(observer, frozenset()) - {peer}
 
     # (b)
-    def position(self, drone: str, step: int, cell: Cell, steps: dict[str, int]) -> None:
-        """Record where ``drone`` is at ``step``; judge every step whose whole window has been flown."""
+    def position(self, drone: str, step: int, cell: Cell, steps: dict[str, int], flies: bool = True) -> None:
+        """Record where ``drone`` is at ``step``; judge every step whose whole window has been flown.
+        ``flies``: its agent and vehicle are in service, so it must be where its plan says (g)."""
         self.history.setdefault(drone, []).append(cell)
+        planned = _at(self.committed[drone], step)
+        if flies and cell != planned:
+            raise Violation("g", f"{drone} is in {cell_text(cell)} at step {step}, but its plan "
+                                 f"({cells_text(self.committed[drone])}) puts it in {cell_text(planned)}")
         delta = self.config.delta
         while self.judged < min(steps.values()) - delta - 1:
             self.judged += 1
@@ -133,12 +180,29 @@ class Monitors:
         mine = next((order for order, r in queue if r.id == started.id), None)
         if mine is None:
             return  # started before: a leg flown again is no new start
-        before = [r for order, r in queue if r.priority > started.priority
-                  or (r.priority == started.priority and order < mine)]
+        before = [r for order, r in queue if (r.priority > started.priority
+                  or (r.priority == started.priority and order < mine)) and self._open_to(drone, r)]
         if before:
             raise Violation("c", f"{drone} started mail {started.id} (priority {started.priority}) before "
                                  f"{before[0].id} (priority {before[0].priority})")
         self._forget(drone, started)
+
+    def _open_to(self, drone: str, request: MailRequest) -> bool:
+        """Whether a path joins ``drone`` to the mail's pickup and on to its drop-off, around obstacles,
+        vehicles down and drones resting (their last plans over): a mail walled off may wait."""
+        history = self.history.get(drone) or [self.config.starts[self.config.drones.index(drone)]]
+        here, now = history[-1], len(history) - 1
+        walls = frozenset(t.cells[-1] for p, t in self.committed.items()
+                          if p != drone and (t.end_step <= now or p in self.down)) - {here}
+        return (here in self._distances(request.pickup, walls)
+                and request.pickup in self._distances(request.dropoff, walls))
+
+    def restarted(self, drone: str, cell: Cell, step: int) -> None:
+        """``drone``'s agent started again, its vehicle holding ``cell``: its plan is to stay (a, g)."""
+        self.committed[drone] = Trajectory.stationary(cell, step)
+
+    def vehicle_down(self, drone: str) -> None:
+        self.down = self.down | {drone}
 
     def _forget(self, drone: str, request: MailRequest) -> None:
         self.waiting[drone] = tuple((o, r) for o, r in self.waiting.get(drone, ()) if r.id != request.id)
@@ -147,17 +211,68 @@ class Monitors:
 
     # (d)
     def liveness(self, steps_since_last_request: int, wait_for: Callable[[], str] = lambda: "",
-                 blocked: frozenset[Cell] = frozenset()) -> None:
+                 blocked: frozenset[Cell] = frozenset(), fleet: Mapping[str, Flier] | None = None) -> None:
         """``wait_for`` describes who waits for whom, for the counterexample; ``blocked``: the cells
-        vehicles that came down rest on for good."""
+        vehicles that came down rest on for good; ``fleet``: the drones still in service."""
         if steps_since_last_request <= self.config.liveness_steps:
             return
-        carried = {r.id for r in self.carrying.values()}
-        missing = sorted(r.id for r in self.config.requests if r.id not in self.settled
-                         and r.dropoff not in blocked and (r.id in carried or r.pickup not in blocked))
+        missing = sorted(r.id for r in self.config.requests
+                         if r.id not in self.settled and self._deliverable(r, blocked, fleet))
         if missing:
             raise Violation("d", f"mail {missing} not delivered {self.config.liveness_steps} steps after the "
                                  f"last request arrived. Wait-for: {wait_for()}")
+
+    def _deliverable(self, request: MailRequest, blocked: frozenset[Cell], fleet: Mapping[str, Flier] | None) -> bool:
+        """Whether a drone in service can still bring the mail to its drop-off and then reach a charger
+        no vehicle down rests on, by the shortest ways around obstacles and the vehicles down, on
+        what its battery holds now or once charged at such a charger, by the README's energy rule:
+        each leg's overhead, and the battery's margin, kept."""
+        if fleet is None:
+            return request.dropoff not in blocked and request.pickup not in blocked
+        carrier = next((d for d, r in self.carrying.items() if r.id == request.id), None)
+        if carrier is not None:
+            flier = fleet.get(carrier)
+            return flier is not None and self._affords(flier, None, request.dropoff, blocked)
+        if request.pickup in blocked or request.dropoff in blocked:
+            return False
+        return any(self._affords(flier, request.pickup, request.dropoff, blocked) for flier in fleet.values())
+
+    def _affords(self, flier: Flier, pickup: Cell | None, dropoff: Cell, blocked: frozenset[Cell]) -> bool:
+        ws, battery, steps = self.config.workspace, self.config.battery, self._steps(blocked)
+        stops = [cell for cell in (pickup, dropoff) if cell is not None]
+
+        def way(start: Cell) -> float:
+            return sum(steps(a, b) + flier.overhead for a, b in itertools.pairwise([start, *stops]))
+
+        if not ws.charging_stations:  # no chargers: no energy model
+            return way(flier.cell) < math.inf
+        chargers = [c for c in ws.charging_stations if c not in blocked]
+        home = min((steps(dropoff, c) for c in chargers), default=math.inf) + flier.overhead + battery.margin_steps
+
+        def affordable(level: float) -> float:
+            return (level - battery.safe_threshold) / battery.drain_per_step
+
+        if way(flier.cell) + home <= affordable(flier.level):
+            return True
+        return any(steps(flier.cell, c) + flier.overhead <= affordable(flier.level)
+                   and way(c) + home <= affordable(flier.charged) for c in chargers)
+
+    def _steps(self, blocked: frozenset[Cell]) -> Callable[[Cell, Cell], float]:
+        def steps(a: Cell, b: Cell) -> float:
+            return self._distances(b, blocked).get(a, math.inf)
+        return steps
+
+    def _distances(self, goal: Cell, walls: frozenset[Cell]) -> dict[Cell, int]:
+        """Moves from every cell to ``goal`` (6 neighbours), around obstacles and ``walls``."""
+        ws, far, frontier = self.config.workspace, {goal: 0}, collections.deque([goal])
+        while frontier:
+            here = frontier.popleft()
+            x, y, z = here
+            for cell in ((x + 1, y, z), (x - 1, y, z), (x, y + 1, z), (x, y - 1, z), (x, y, z + 1), (x, y, z - 1)):
+                if cell not in far and cell not in walls and ws.is_free(cell):
+                    far[cell] = far[here] + 1
+                    frontier.append(cell)
+        return far
 
     # (e)
     def battery(self, drone: str, step: int, level: float) -> None:
@@ -170,8 +285,8 @@ class Monitors:
         mail = self.carrying.get(drone)
         goal = action.trajectory.cells[-1]
         if mail is not None and goal != mail.dropoff and goal not in self.config.workspace.charging_stations:
-            raise Violation("f", f"{drone} carries mail {mail.id} (drop-off {list(mail.dropoff)}) but flies to "
-                                 f"{list(goal)}, neither its drop-off nor a charger")
+            raise Violation("f", f"{drone} carries mail {mail.id} (drop-off {cell_text(mail.dropoff)}) but flies to "
+                                 f"{cell_text(goal)}, neither its drop-off nor a charger")
 
 
 def same_future(a: Trajectory, b: Trajectory, since: int) -> bool:
@@ -186,6 +301,12 @@ def _at(traj: Trajectory, step: int) -> Cell:
     return traj.cells[k]
 
 
-def _cells(traj: Trajectory) -> str:
-    cells = " ".join(f"[{c[0]},{c[1]},{c[2]}]" for c in traj.cells[:10])
-    return f"step {traj.start_step}: {cells}{' ...' if len(traj.cells) > 10 else ''}"
+def cell_text(cell: Cell) -> str:
+    """A cell as traces and violations print it."""
+    return f"[{cell[0]},{cell[1]},{cell[2]}]"
+
+
+def cells_text(traj: Trajectory, most: int = 10) -> str:
+    """A trajectory as traces and violations print it: its start step and its first cells."""
+    cells = " ".join(cell_text(c) for c in traj.cells[:most])
+    return f"step {traj.start_step}: {cells}{' ...' if len(traj.cells) > most else ''}"

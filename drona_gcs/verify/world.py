@@ -21,20 +21,24 @@ periodic ones. Monitors judge every transition; see :mod:`.monitors`.
 from __future__ import annotations
 
 import copy
+import functools
 import random
-from collections.abc import Hashable, Sequence
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TypeVar
 
 from drona_gcs.bench.workload import random_workspace
+from drona_gcs.errors import ProblemError
+from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.battery import BatteryLow, BatteryModel, BatteryRecharged
-from drona_gcs.stack.drone import DroneStack, StackConfig
+from drona_gcs.stack.drone import DroneStack, StackConfig, leg_overhead
 from drona_gcs.stack.mail import (
     GoTo,
     MailDelivered,
     MailLost,
     MailPickedUp,
+    MailPlanner,
     MailRejected,
     MailRequest,
     MailStarted,
@@ -42,7 +46,8 @@ from drona_gcs.stack.mail import (
 )
 from drona_gcs.stack.messages import CurrentTraj, Message
 from drona_gcs.stack.protocol import Broadcast, Send, StartExecuting, State, TaskFailed
-from drona_gcs.verify.monitors import Monitors
+from drona_gcs.verify.monitors import Flier, Monitors, cell_text, cells_text
+from drona_gcs.verify.mutants import planner_delta, plant
 from drona_gcs.workspace import Cell, Workspace
 
 Transition = tuple[str, int]
@@ -56,10 +61,29 @@ class Faults:
     duplicates: int = 2  #: a message delivered twice
     cancels: int = 1  #: a mail cancelled by its sender (taken back only while it waits in a queue)
     downs: int = 1  #: a vehicle that comes down by itself: its mail is handed back (or lost, on board)
+    #: agents that crash (the vehicle holds its cell in the air; messages to it are lost; its peers
+    #: see it leave) and may restart there later (its peers see it join); none unless asked for:
+    #: the stack does not yet survive them (issue 25)
+    crashes: int = 0
+    announce: bool = True  #: every new plan also reaches every peer (the fleet's answers, or plan/<me>)
 
     @classmethod
     def none(cls) -> Faults:
-        return cls(0, 0, 0)
+        """The paper's model: none of the field's faults, and plans known only through rounds."""
+        return cls(0, 0, 0, 0, announce=False)
+
+
+@dataclass(frozen=True)
+class Upgrade:
+    """The configuration of the mixed fleet's last drone, as during a rolling upgrade."""
+
+    extra_lead: int = 3  #: lead steps Delta + this (the others: Delta + 1)
+    low_mark: float = 35.0
+    recharged_mark: float = 90.0
+
+
+UPGRADE = Upgrade()
+MAX_DRAWS = 1000  #: random draws of a mail the service accepts, before giving up
 
 
 @dataclass(frozen=True)
@@ -101,15 +125,23 @@ def make_world_config(workspace: Workspace, drones: int, requests: int, delta: i
     spots = set(workspace.parking) | set(workspace.charging_stations)
     pickups = [c for c in list(workspace.pickups) or region if c not in spots]
     dropoffs = [c for c in list(workspace.dropoffs) or region if c not in spots]
+    model = options.get("battery") or _battery_for(workspace)
+    assert isinstance(model, BatteryModel)
+    options = {**options, "battery": model}
+    accepts = _service_check(workspace, model, delta)
     mail = []
     for i in range(requests):
-        pickup = rng.choice(pickups)
-        dropoff = rng.choice([c for c in dropoffs if c != pickup])
-        mail.append(MailRequest(f"m{i}", pickup, dropoff, rng.randint(0, 9), seq=i))
+        for _ in range(MAX_DRAWS):
+            pickup = rng.choice(pickups)
+            request = MailRequest(f"m{i}", pickup, rng.choice([c for c in dropoffs if c != pickup]),
+                                  rng.randint(0, 9), seq=i)
+            if accepts(request):
+                break
+        else:
+            raise ProblemError(f"no mail a charged drone can fly in {MAX_DRAWS} draws: grid too large for the battery")
+        mail.append(request)
     assignees = tuple(ids[i % len(ids)] for i in range(requests))
     # Batteries start part-charged, so charging and the energy checks are exercised.
-    model = options.get("battery", BatteryModel())
-    assert isinstance(model, BatteryModel)
     levels = tuple(_initial_level(workspace, start, model, rng) if workspace.charging_stations else 100.0
                    for start in starts)
     # Generous enough for a drone's share of the mail, a charge and the detours of a busy grid.
@@ -119,6 +151,38 @@ def make_world_config(workspace: Workspace, drones: int, requests: int, delta: i
     defaults: dict[str, object] = {"initial_battery": levels, "liveness_steps": liveness}
     return WorldConfig(workspace, tuple(ids), tuple(starts), tuple(mail), assignees, delta, bugs,
                        **{**defaults, **options})  # type: ignore[arg-type]
+
+
+def _battery_for(workspace: Workspace) -> BatteryModel:
+    """A battery that flies across the workspace and back, with its margin: the default one where it
+    does (8x8, 16x16), a slower drain on larger grids (32x32), where no mail would be affordable."""
+    default = BatteryModel()
+    need = 2 * (workspace.nx + workspace.ny + workspace.nz - 3) + default.margin_steps
+    affordable = default.steps_affordable(95.0)
+    if need <= affordable:
+        return default
+    return BatteryModel(drain_per_step=default.drain_per_step * affordable / need)
+
+
+def _service_check(workspace: Workspace, model: BatteryModel, delta: int) -> Callable[[MailRequest], bool]:
+    """The service's energy check: it takes only mail that a drone charged at a station can fly,
+    whichever configuration it runs (see :data:`UPGRADE`)."""
+    chargers = workspace.charging_stations
+    to = functools.lru_cache(maxsize=None)(workspace.distances_from)
+
+    def distance(a: Cell, b: Cell) -> int:
+        return to(b).get(a, 10**6)
+
+    def accepts(request: MailRequest) -> bool:
+        for recharged, lead in ((95.0, delta + 1), (UPGRADE.recharged_mark, delta + UPGRADE.extra_lead)):
+            planner = MailPlanner(chargers[0], chargers, workspace.parking, distance, model,
+                                  recharged_level=recharged, leg_overhead=leg_overhead(lead))
+            planner.assign(request)
+            if any(isinstance(a, MailRejected) for a in planner.decide(0, recharged, ())):
+                return False
+        return True
+
+    return accepts if chargers else lambda request: True
 
 
 def _initial_level(workspace: Workspace, start: Cell, model: BatteryModel, rng: random.Random) -> float:
@@ -160,46 +224,73 @@ def tester_workspace(width: int, height: int, layers: int, obstacle_ratio: float
 
 
 @dataclass(frozen=True)
+class Announce:
+    """The sender's new plan, as every drone reads it (the answers on ``answers``, or ``plan/<me>``)."""
+
+    trajectory: Trajectory
+
+
+@dataclass(frozen=True)
+class Left:
+    """Liveliness: the sender's agent is gone, silent since its step ``since``."""
+
+    since: int
+
+
+@dataclass(frozen=True)
+class Joined:
+    """Liveliness: the sender's agent is back."""
+
+
+Notice = Message | Announce | Left | Joined
+
+
+@dataclass(frozen=True)
 class InFlight:
     seq: int
     sender: str
     to: str
-    message: Message
+    message: Notice
     deadline: int
 
 
 class World:
     def __init__(self, config: WorldConfig, planner: SafePlanner) -> None:
         self.config = config
-        planner_delta = 0 if "skip-delta" in config.bugs else config.delta
-        if planner.delta != planner_delta:
-            raise ValueError(f"planner has delta {planner.delta}, the world needs {planner_delta}")
-        stack = StackConfig(config.workspace, planner, config.battery, bugs=config.bugs)
+        needed = planner_delta(config.delta, config.bugs)
+        if planner.delta != needed:
+            raise ValueError(f"planner has delta {planner.delta}, the world needs {needed}")
+        stack = StackConfig(config.workspace, planner, config.battery)
         # A rolling upgrade: the last drone runs another configuration (a longer lead, other marks).
-        upgraded = replace(stack, lead_steps=config.delta + 3, low_mark=35.0, recharged_mark=90.0)
+        upgraded = replace(stack, lead_steps=config.delta + UPGRADE.extra_lead, low_mark=UPGRADE.low_mark,
+                           recharged_mark=UPGRADE.recharged_mark)
         peers = dict(zip(config.drones, config.starts, strict=True))
         self.stacks = {d: DroneStack(d, upgraded if config.mixed and d == config.drones[-1] else stack, peers)
                        for d in config.drones}
+        for planted in self.stacks.values():
+            plant(planted, config.bugs)
         self.steps = dict.fromkeys(config.drones, -1)
         levels = config.initial_battery or tuple(100.0 for _ in config.drones)
         self.battery = dict(zip(config.drones, levels, strict=True))
         self.inflight: list[InFlight] = []
         self.injected = 0
-        self.redispatch: list[tuple[str, MailRequest]] = []  #: handed-back mail the service gives again
+        #: handed-back mail the service gives again: to which drone, and by which step of the sender's clock
+        self.redispatch: list[tuple[str, MailRequest, int]] = []
         self.last_injection_step = 0
         self.sent = 0
         self.used = Faults.none()  #: faults so far
         self.down: set[str] = set()
+        self.crashed: set[str] = set()  #: drones whose agent crashed (not restarted yet)
         self.monitors = Monitors(config)
         self.trace: list[str] = []
 
     # -------------------------------------------------------- scheduling
     def enabled(self) -> list[Transition]:
-        moves: list[Transition] = [("deliver", m.seq) for m in self.inflight]
+        moves: list[Transition] = [("deliver", m.seq) for m in self.inflight if self._in_order(m)]
         if self.injected < len(self.config.requests) or self.redispatch:
             moves.append(("inject", 0))
         moves += self._faults()
-        deadline = min((m.deadline for m in self.inflight), default=None)
+        deadline = min([*(m.deadline for m in self.inflight), *(d for _, _, d in self.redispatch)], default=None)
         if self.config.delta == 0:
             # Perfect synchrony: every executor takes the same step at once (one transition).
             nxt = min(self.steps.values()) + 1
@@ -228,6 +319,10 @@ class World:
             self._cancel(arg)
         elif kind == "down":
             self._vehicle_down(self.config.drones[arg])
+        elif kind == "crash":
+            self._crash(self.config.drones[arg])
+        elif kind == "restart":
+            self._restart(self.config.drones[arg])
         elif arg < 0:
             for drone in self.config.drones:
                 self._step(drone)
@@ -245,6 +340,8 @@ class World:
             return ("net", "dup")
         if kind == "down":
             return ("vehicle", self.config.drones[arg])
+        if kind in ("crash", "restart"):
+            return ("agent", self.config.drones[arg])
         return ("clock", self.config.drones[arg] if arg >= 0 else "*")
 
     def state_key(self) -> Hashable:
@@ -254,8 +351,8 @@ class World:
             tuple(_stack_key(stack) for stack in self.stacks.values()),
             tuple(self.steps.values()), tuple(self.battery.values()),
             tuple(sorted((m.sender, m.to, repr(m.message), m.deadline) for m in self.inflight)),
-            self.injected, tuple((d, r.id) for d, r in self.redispatch), self.used, frozenset(self.down),
-            frozenset(self.monitors.settled),
+            self.injected, tuple((d, r.id, t) for d, r, t in self.redispatch), self.used, frozenset(self.down),
+            frozenset(self.crashed), frozenset(self.monitors.settled),
             tuple(tuple(h[-keep:]) for h in self.monitors.history.values()), self.monitors.key(),
         )
 
@@ -265,7 +362,7 @@ class World:
         new = copy.copy(self)
         new.stacks = {d: _clone_stack(s) for d, s in self.stacks.items()}
         new.steps, new.battery, new.inflight = dict(self.steps), dict(self.battery), list(self.inflight)
-        new.redispatch, new.down = list(self.redispatch), set(self.down)
+        new.redispatch, new.down, new.crashed = list(self.redispatch), set(self.down), set(self.crashed)
         new.monitors = _shallow(self.monitors)
         new.monitors.history = {d: list(h) for d, h in self.monitors.history.items()}
         new.trace = []
@@ -282,19 +379,33 @@ class World:
         index = next(i for i, m in enumerate(self.inflight) if m.seq == seq)
         msg = self.inflight.pop(index)
         self.trace.append(f"{msg.to} <- {msg.sender}: {_describe(msg.message)}")
-        self._carry_out(msg.to, self.stacks[msg.to].receive(msg.message))
+        stack, notice = self.stacks[msg.to], msg.message
+        if not isinstance(notice, Left):
+            self.monitors.heard_from(msg.to, msg.sender)
+        if isinstance(notice, Announce):
+            stack.heard(msg.sender, notice.trajectory)
+        elif isinstance(notice, Left):
+            self.monitors.left(msg.to, msg.sender)
+            self._carry_out(msg.to, stack.peer_left(msg.sender, notice.since))
+        elif isinstance(notice, Joined):
+            # As the agent does: where it was last heard of (its start, if never).
+            last = stack.protocol.known.get(msg.sender)
+            cell = last.last if last is not None else stack.protocol.peers[msg.sender]
+            self._carry_out(msg.to, stack.peer_joined(msg.sender, cell, last))
+        else:
+            self._carry_out(msg.to, stack.receive(notice))
 
     def _inject(self) -> None:
         if self.redispatch:
-            drone, request = self.redispatch.pop(0)
+            drone, request, _ = self.redispatch.pop(0)
         else:
             request, drone = self.config.requests[self.injected], self.config.assignees[self.injected]
             self.injected += 1
-        if drone in self.down:  # it refuses mail: the service gives it to another
+        if drone in self.down or drone in self.crashed:  # it refuses mail: the service gives it to another
             drone = self._next_flying(drone)
         self.last_injection_step = min(self.steps.values())
         self.trace.append(f"env -> {drone}: mail {request.id} p{request.priority} "
-                          f"{list(request.pickup)}->{list(request.dropoff)}")
+                          f"{cell_text(request.pickup)}->{cell_text(request.dropoff)}")
         self.monitors.given_mail(drone, request)
         self._carry_out(drone, self.stacks[drone].assign(request))
 
@@ -302,14 +413,28 @@ class World:
         """The field's faults still allowed: a duplicate of a message in flight, a cancel of a mail that
         was given, a vehicle down (never the last one flying)."""
         limit, used, moves = self.config.faults, self.used, []
-        if used.duplicates < limit.duplicates:
-            moves += [("duplicate", m.seq) for m in self.inflight]
+        if used.duplicates < limit.duplicates:  # liveliness changes come once each
+            moves += [("duplicate", m.seq) for m in self.inflight if not isinstance(m.message, (Left, Joined))]
         if used.cancels < limit.cancels:
             moves += [("cancel", j) for j in range(self.injected)
                       if self.config.requests[j].id not in self.monitors.settled]
-        if used.downs < limit.downs and len(self.down) < len(self.config.drones) - 1:
-            moves += [("down", i) for i, d in enumerate(self.config.drones) if d not in self.down]
+        in_service = [i for i, d in enumerate(self.config.drones) if d not in self.down and d not in self.crashed]
+        if used.downs < limit.downs and len(in_service) > 1:
+            moves += [("down", i) for i in in_service]
+        if used.crashes < limit.crashes and len(in_service) > 1:
+            moves += [("crash", i) for i in in_service]
+        # A process that dies closes its links at once: its peers see it leave before it can restart.
+        leaving = {m.sender for m in self.inflight if isinstance(m.message, Left)}
+        moves += [("restart", i) for i, d in enumerate(self.config.drones) if d in self.crashed and d not in leaving]
         return moves
+
+    def _in_order(self, message: InFlight) -> bool:
+        """Liveliness changes come in order, and a leave only once the lease outlasted every message
+        its agent sent before: after all that went earlier from the same sender to the same drone."""
+        if not isinstance(message.message, (Left, Joined)):
+            return True
+        return not any(m.seq < message.seq and m.sender == message.sender and m.to == message.to
+                       for m in self.inflight)
 
     def _duplicate(self, seq: int) -> None:
         original = next(m for m in self.inflight if m.seq == seq)
@@ -333,9 +458,40 @@ class World:
                 return drone
         return None
 
+    def _crash(self, drone: str) -> None:
+        """Its agent dies: the vehicle holds the cell it is in, in the air; its mail is handed back
+        (lost, if on board: nobody reports it any more); its peers see it leave."""
+        self.used = replace(self.used, crashes=self.used.crashes + 1)
+        self.crashed.add(drone)
+        stack, step = self.stacks[drone], self.steps[drone]
+        self.trace.append(f"{drone}: its agent crashed; its vehicle holds {cell_text(stack.executor.cell)}")
+        # What was on its way to it is lost with its session (a new one never sees it).
+        lost = [m for m in self.inflight if m.to == drone]
+        self.inflight = [m for m in self.inflight if m.to != drone]
+        if lost:
+            self.trace.append(f"net: {len(lost)} message(s) to {drone} lost")
+        self._carry_out(drone, stack.mail.abandon(f"drone {drone}'s agent crashed"))
+        for peer in self.config.drones:
+            if peer != drone:
+                self._post(drone, peer, Left(step))
+
+    def _restart(self, drone: str) -> None:
+        """Its agent starts again where its vehicle holds, knowing nothing of its peers; they see it join."""
+        self.crashed.discard(drone)
+        old = self.stacks[drone]
+        peers = {**dict(zip(self.config.drones, self.config.starts, strict=True)), drone: old.executor.cell}
+        self.stacks[drone] = DroneStack(drone, old.config, peers)
+        plant(self.stacks[drone], self.config.bugs)
+        self.trace.append(f"{drone}: its agent restarts at {cell_text(old.executor.cell)}")
+        self.monitors.restarted(drone, old.executor.cell, self.steps[drone])
+        for peer in self.config.drones:
+            if peer != drone:
+                self._post(drone, peer, Joined())
+
     def _vehicle_down(self, drone: str) -> None:
         self.used = replace(self.used, downs=self.used.downs + 1)
         self.down.add(drone)
+        self.monitors.vehicle_down(drone)
         self.trace.append(f"{drone}: its vehicle came down by itself")
         self._carry_out(drone, self.stacks[drone].vehicle_down(f"drone {drone}'s vehicle came down"))
 
@@ -343,6 +499,9 @@ class World:
         stack = self.stacks[drone]
         step = self.steps[drone] + 1
         self.steps[drone] = step
+        if drone in self.crashed:  # its clock runs on; its vehicle holds, with nobody to judge its battery
+            self.monitors.position(drone, step, stack.executor.cell, self.steps, flies=False)
+            return
         if drone not in self.down:  # a vehicle down is on the ground: it draws nothing
             self.battery[drone] = self._battery_after_step(stack, self.battery[drone])
         self.monitors.battery(drone, step, self.battery[drone])
@@ -350,10 +509,14 @@ class World:
         # The model's vehicles fly their plans exactly: each is where its last step took it.
         self._carry_out(drone, stack.step(step, self.battery[drone], flown=stack.executor.cell,
                                           may_plan=drone not in self.down))
-        self.monitors.position(drone, step, stack.executor.cell, self.steps)
+        self.monitors.position(drone, step, stack.executor.cell, self.steps, flies=drone not in self.down)
         if self.injected == len(self.config.requests):
-            blocked = frozenset(self.monitors.committed[d].cells[-1] for d in self.down)
-            self.monitors.liveness(min(self.steps.values()) - self.last_injection_step, self.wait_for, blocked)
+            out = self.down | self.crashed
+            blocked = frozenset(self.monitors.committed[d].cells[-1] for d in out)
+            fleet = {d: Flier(s.executor.cell, self.battery[d], s.config.recharged_mark, s.protocol.lead_steps + 1)
+                     for d, s in self.stacks.items() if d not in out}
+            self.monitors.liveness(min(self.steps.values()) - self.last_injection_step, self.wait_for, blocked,
+                                   fleet)
 
     def wait_for(self) -> str:
         """Who waits for whom at the end of a run that did not finish: each drone's protocol state, the
@@ -362,9 +525,9 @@ class World:
         for drone, stack in self.stacks.items():
             protocol, mail = stack.protocol, stack.mail
             held = [r.id for r in ([mail.current] if mail.current else []) + list(mail.queue)]
-            line = f"{drone} {protocol.state.value} at {list(stack.executor.cell)}, {mail.phase.value}"
+            line = f"{drone} {protocol.state.value} at {cell_text(stack.executor.cell)}, {mail.phase.value}"
             if protocol.task is not None:
-                line += f", task {protocol.task.id} to {list(protocol.task.goal)}"
+                line += f", task {protocol.task.id} to {cell_text(protocol.task.goal)}"
             if protocol.state is State.COORDINATING:
                 line += f", waits for {sorted(protocol.members - set(protocol.received)) or 'nobody'}"
             lines.append(line + f", holds {held}, battery {self.battery[drone]:.0f}%")
@@ -392,28 +555,87 @@ class World:
             if note:
                 self.trace.append(f"{drone}: {note}")
             self.monitors.action(drone, action)
+            if isinstance(action, StartExecuting) and self.config.faults.announce:
+                for peer in self.config.drones:
+                    if peer != drone:
+                        self._post(drone, peer, Announce(action.trajectory))
             if isinstance(action, MailRejected):  # the service gives it to the next drone that flies
-                self.redispatch.append((self._next_flying(drone), action.request))
+                # As promptly as a message: a liveness bound needs the service to be fair.
+                deadline = max(self.steps[drone], 0) + self.config.max_delay
+                self.redispatch.append((self._next_flying(drone), action.request, deadline))
 
     def _next_flying(self, drone: str) -> str:
         drones = self.config.drones
         later = [*drones[drones.index(drone) + 1:], *drones[:drones.index(drone) + 1]]
-        return next((d for d in later if d not in self.down), drone)
+        return next((d for d in later if d not in self.down and d not in self.crashed), drone)
 
-    def _post(self, sender: str, to: str, message: Message) -> None:
+    def _post(self, sender: str, to: str, message: Notice) -> None:
+        if to in self.crashed:
+            self.trace.append(f"net: {_describe(message)} to {to} is lost (its agent crashed)")
+            return
         self.sent += 1
         # Within max_delay steps of the sender's clock: the bound is local to the sender,
         # so sending does not depend on how far the other drones' clocks have got.
         deadline = max(self.steps[sender], 0) + self.config.max_delay
         self.inflight.append(InFlight(self.sent, sender, to, message, deadline))
 
-def _describe(message: Message) -> str:
+    # --------------------------------------------- for the exhaustive search (see .dfs)
+    def touched_by(self, move: Transition) -> frozenset[str]:
+        """The drones whose stacks ``apply(move)`` may change: the receiver of a message, the drone
+        that steps; none for a duplicate; every drone for the other moves."""
+        kind, arg = move
+        drones = self.config.drones
+        if kind == "deliver":
+            return frozenset(m.to for m in self.inflight if m.seq == arg)
+        if kind == "step" and arg >= 0:
+            return frozenset((drones[arg],))
+        if kind == "duplicate":
+            return frozenset()
+        return frozenset(drones)
+
+    def clone_for(self, move: Transition) -> World:
+        """Like :meth:`clone`, but the stacks ``move`` leaves alone are shared, not copied: the
+        search applies ``move`` to the copy and never changes a world it has copied from."""
+        touched, stacks = self.touched_by(move), self.stacks
+        # clone() copies what it copies; it is given only the stacks the move may change.
+        self.stacks = {d: s for d, s in stacks.items() if d in touched}
+        try:
+            new = self.clone()
+        finally:
+            self.stacks = stacks
+        new.stacks = {d: new.stacks.get(d, s) for d, s in stacks.items()}
+        return new
+
+    def stack_key(self, drone: str) -> Hashable:
+        """One drone's stack as :meth:`state_key` sees it."""
+        return _stack_key(self.stacks[drone])
+
+    def state_key_with(self, stack_keys: tuple[Hashable, ...]) -> Hashable:
+        """:meth:`state_key`, given every stack's :meth:`stack_key` (in drone order), so that a search
+        that changed one stack need not work out the others' again; and the flown cells in drone
+        order, so that the order in which the drones first stepped does not tell states apart."""
+        keep, history = self.config.delta + 2, self.monitors.history
+        return (
+            stack_keys,
+            tuple(self.steps.values()), tuple(self.battery.values()),
+            tuple(sorted((m.sender, m.to, repr(m.message), m.deadline) for m in self.inflight)),
+            self.injected, tuple((d, r.id, t) for d, r, t in self.redispatch), self.used, frozenset(self.down),
+            frozenset(self.crashed), frozenset(self.monitors.settled),
+            # In drone order, not in the order the drones first stepped, which is no part of the state.
+            tuple(tuple(history[d][-keep:]) for d in self.config.drones if d in history),
+            self.monitors.key(),
+        )
+
+def _describe(message: Notice) -> str:
     name = type(message).__name__
     if isinstance(message, CurrentTraj):
-        traj = message.trajectory
-        return (f"{name}(from {message.sender}, re {message.in_reply_to}, step {traj.start_step}: "
-                f"{' '.join(''.join(map(str, c[:2])) for c in traj.cells[:12])}"
-                f"{' ...' if len(traj.cells) > 12 else ''})")
+        return f"{name}(from {message.sender}, re {message.in_reply_to}, {cells_text(message.trajectory)})"
+    if isinstance(message, Announce):
+        return f"{name}({cells_text(message.trajectory)})"
+    if isinstance(message, Left):
+        return f"{name}(silent since step {message.since})"
+    if isinstance(message, Joined):
+        return name
     return f"{name}(task {message.task_id} of {message.sender})"
 
 
@@ -421,12 +643,12 @@ def _note(action: object) -> str:
     """A line of the trace for the actions worth reading; empty for the rest."""
     if isinstance(action, StartExecuting):
         t = action.trajectory
-        return f"plans task {action.task.id}: from step {t.start_step} {' '.join(f'{c[0]}{c[1]}' for c in t.cells)}"
+        return f"plans task {action.task.id}: {cells_text(t, len(t.cells))}"
     if isinstance(action, TaskFailed):
-        return f"no plan for task {action.task.id} to {list(action.task.goal)}: {action.reason}"
+        return f"no plan for task {action.task.id} to {cell_text(action.task.goal)}: {action.reason}"
     if isinstance(action, GoTo):
         by = f" within {action.flight_steps} steps of flight" if action.flight_steps is not None else ""
-        return f"task planner: go to {list(action.goal)} for {action.purpose.value}{by}"
+        return f"task planner: go to {cell_text(action.goal)} for {action.purpose.value}{by}"
     if isinstance(action, (MailStarted, MailPickedUp, MailDelivered)):
         return f"{type(action).__name__} {action.request.id}"
     if isinstance(action, (MailRejected, MailLost)):

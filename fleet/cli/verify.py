@@ -12,8 +12,9 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from drona_gcs.errors import DronaError
+from drona_gcs.verify import table3
+from drona_gcs.verify.dfs import DEEPEN
 from drona_gcs.verify.explore import (
-    SEEDED_BUGS,
     Explorer,
     Outcome,
     Scenario,
@@ -21,6 +22,7 @@ from drona_gcs.verify.explore import (
     decode_token,
     encode_token,
 )
+from drona_gcs.verify.mutants import SEEDED_BUGS
 from drona_gcs.verify.sweep import SweepRow, configurations, run_sweep
 
 _GRID = re.compile(r"^(\d+)x(\d+)(?:x(\d+))?$")
@@ -36,7 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--delta", type=int, default=1, help="clock-skew window in steps")
     parser.add_argument("--strategy", choices=[s.value for s in Strategy], default="random")
     parser.add_argument("--schedules", type=int, default=1000, help="schedules to run (random, pct)")
-    parser.add_argument("--max-depth", type=int, default=5000, help="transitions per schedule")
+    parser.add_argument("--max-depth", type=int, default=None,
+                        help="transitions per schedule (default 5000; 100 with --table3)")
     parser.add_argument("--seed", type=int, default=0, help="seeds the scenario and the strategy")
     parser.add_argument("--time-limit", type=float, default=60.0, help="seconds (default 60)")
     parser.add_argument("--seed-bug", action="append", default=[], choices=sorted(SEEDED_BUGS),
@@ -52,10 +55,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-faults", action="store_true",
                         help="leave out the field's faults (duplicated messages, a mail cancelled, a vehicle down) "
                              "and the mixed fleet")
+    parser.add_argument("--crashes", type=int, default=0, metavar="N",
+                        help="also let N agents crash (their vehicles hold in the air) and restart (default 0: "
+                             "the stack does not survive them yet)")
     parser.add_argument("--sweep", type=int, metavar="N",
                         help="run N configurations drawn from --seed (2-6 drones, 2-10 requests, Delta 0-2, 8x8 "
                              "and 16x16, with and without obstacles, random and pct), --time-limit each; prints a "
                              "row per run and exits 1 if any fails")
+    parser.add_argument("--table3", action="store_true",
+                        help="the paper's Table 3: exhaustive search of 2, 4 and 8 drones (one request each) on 8x8, "
+                             "16x16 and 32x32 grids, --time-limit seconds per cell; prints how deep each got")
+    parser.add_argument("--deepen", type=int, default=DEEPEN,
+                        help=f"dfs: iterative deepening raises the depth bound by this much (default {DEEPEN})")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -63,8 +74,12 @@ def run(args: argparse.Namespace) -> int:
     try:
         if args.replay:
             return _replay(args.replay)
+        if args.max_depth is None:
+            args.max_depth = 100 if args.table3 else 5000
         if args.sweep is not None:
             return _sweep(args)
+        if args.table3:
+            return _table3(args)
         scenario = _scenario(args)
         explorer = Explorer(scenario)
     except (DronaError, ValueError) as exc:
@@ -82,8 +97,15 @@ def run(args: argparse.Namespace) -> int:
             bar.update(task, completed=outcome.schedules,
                        rate=f"{outcome.schedules / elapsed:,.0f} schedules/s, {outcome.states / elapsed:,.0f} states/s")
 
-        outcome = explorer.run(strategy, args.schedules, args.max_depth, args.seed,
-                               stop=lambda: time.monotonic() - started > args.time_limit, progress=progress)
+        limit: float = args.time_limit
+
+        def stop() -> bool:
+            return time.monotonic() - started > limit
+
+        if strategy is Strategy.DFS:
+            outcome = explorer.exhaustive(args.max_depth, stop, progress, deepen=args.deepen)
+        else:
+            outcome = explorer.run(strategy, args.schedules, args.max_depth, args.seed, stop=stop, progress=progress)
     elapsed = time.monotonic() - started
     if outcome.violation is not None and args.shrink > 0:
         shrink_until = time.monotonic() + args.shrink
@@ -108,7 +130,7 @@ def _scenario(args: argparse.Namespace) -> Scenario:
     max_delay = args.max_delay if args.max_delay is not None else (0 if args.strategy == "dfs" else 2)
     return Scenario(drones=args.drones, requests=args.requests, delta=args.delta, seed=args.seed, grid=grid,
                     obstacles=args.obstacles, workspace_path=args.workspace, bugs=tuple(args.seed_bug),
-                    max_delay=max_delay, faults=not args.no_faults)
+                    max_delay=max_delay, faults=not args.no_faults, crashes=args.crashes)
 
 
 def _sweep(args: argparse.Namespace) -> int:
@@ -135,6 +157,36 @@ def _sweep(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
+def _table3(args: argparse.Namespace) -> int:
+    if args.max_depth < 1 or args.time_limit <= 0 or args.deepen < 1:
+        raise ValueError("--max-depth, --time-limit and --deepen must be positive")
+    started = [0.0]
+
+    def stop_after() -> Callable[[], bool]:
+        started[0] = time.monotonic()
+        deadline = started[0] + args.time_limit
+        return lambda: time.monotonic() > deadline
+
+    print(f"{'drones':>6} {'grid':>6} {'complete to depth':>17} {'states':>10} {'transitions':>12} {'seconds':>8}")
+
+    def on_row(row: table3.Row) -> None:
+        o, seconds = row.outcome, time.monotonic() - started[0]
+        if row.refused is not None:
+            print(f"{row.scenario.drones:>6} {row.grid:>6}  scenario refused: {row.refused}", flush=True)
+            return
+        depth = f"{o.complete_depth}"
+        if o.violation is not None:
+            depth += f" VIOLATION {o.violation.monitor}"
+        print(f"{row.scenario.drones:>6} {row.grid:>6} {depth:>17} {o.complete_states:>10} {o.transitions:>12} "
+              f"{seconds:>8.1f}", flush=True)
+        if o.violation is not None:
+            print(f"       {o.violation}\n       replay: drona verify --replay {encode_token(row.scenario, o.choices)}")
+
+    rows = table3.run_table(table3.scenarios(args.seed, faults=not args.no_faults), args.max_depth, stop_after,
+                            on_row, deepen=args.deepen)
+    return 1 if any(row.outcome.violation is not None for row in rows) else 0
+
+
 def _replay(token: str) -> int:
     scenario, choices = decode_token(token)
     outcome = Explorer(scenario).replay(choices)
@@ -149,6 +201,8 @@ def _summary(outcome: Outcome, strategy: Strategy, elapsed: float) -> None:
     rate = outcome.schedules / elapsed if elapsed else 0.0
     states = outcome.states / elapsed if elapsed else 0.0
     done = " (every schedule to the depth bound)" if outcome.exhausted else ""
+    if strategy is Strategy.DFS:
+        done = f", complete to depth {outcome.complete_depth}{done}"
     print(f"{strategy.value}: {outcome.schedules} schedules{done}, {outcome.transitions} transitions, "
           f"{outcome.states} states in {elapsed:.1f} s ({rate:,.1f} schedules/s, {states:,.0f} states/s)")
 

@@ -1,0 +1,81 @@
+"""Seeded bugs: small subclasses of the production machines, planted by the tester.
+
+The code that flies carries no test hooks. :func:`plant` swaps the class of a
+drone's protocol or mail planner for one of these, which differ from the real
+one in a single rule; each must be caught by a monitor. (Swapping ``__class__``
+keeps the machine's fields: none of the subclasses adds any.)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection
+
+from drona_gcs.stack.drone import DroneStack
+from drona_gcs.stack.executor import ExecutorAction, ExecutorState, PlanExecutor
+from drona_gcs.stack.mail import Budget, MailPlanner
+from drona_gcs.stack.messages import ReqForCurrentTraj, TaskId
+from drona_gcs.stack.protocol import Action, CoordinationProtocol, Event, State
+
+#: Bugs that ``--seed-bug`` can plant, and what each does.
+SEEDED_BUGS = {
+    "stale-trajectory": "a drone keeps its peers' answers from its previous task and plans with them",
+    "tie-break-reversed": "a request ranks above mine when its task id is higher, not lower",
+    "answer-while-coordinating": "a coordinating drone answers every request with its location",
+    "no-battery-check": "the task planner starts legs without checking the battery",
+    "skip-delta": "the planner ignores the clock-skew window (plans with Delta 0)",
+    "executor-early": "the executor flies each cell of its plan one step early",
+}
+
+
+class StaleTrajectory(CoordinationProtocol):
+    def _forget_answers(self) -> None:
+        pass  # last round's answers stay in Psi
+
+
+class TieBreakReversed(CoordinationProtocol):
+    def _outranks(self, theirs: TaskId, mine: TaskId) -> bool:
+        return theirs > mine
+
+
+class AnswerWhileCoordinating(CoordinationProtocol):
+    def handle(self, event: Event, now: int) -> list[Action]:
+        if self.state is State.COORDINATING and isinstance(event, ReqForCurrentTraj):
+            return self._answer(event, now) if self._current(event) else []
+        return super().handle(event, now)
+
+
+class ExecutorEarly(PlanExecutor):
+    def tick(self, step: int) -> list[ExecutorAction]:
+        actions = super().tick(step)
+        if self.state is ExecutorState.EXECUTING and self.trajectory is not None:
+            self.cell = self.trajectory.at(step + 1)
+        return actions
+
+
+class NoBatteryCheck(MailPlanner):
+    def _budget(self, now: int, level: float) -> Budget:
+        return Budget(now, self.battery.steps_affordable(level), unchecked=True)
+
+
+_PROTOCOLS: dict[str, type[CoordinationProtocol]] = {
+    "stale-trajectory": StaleTrajectory, "tie-break-reversed": TieBreakReversed,
+    "answer-while-coordinating": AnswerWhileCoordinating,
+}
+_MAIL_PLANNERS: dict[str, type[MailPlanner]] = {"no-battery-check": NoBatteryCheck}
+_EXECUTORS: dict[str, type[PlanExecutor]] = {"executor-early": ExecutorEarly}
+
+
+def plant(stack: DroneStack, bugs: Collection[str]) -> None:
+    """Give ``stack`` the seeded ``bugs`` (at most one per machine; skip-delta is the planner's)."""
+    for bug in bugs:
+        if bug in _PROTOCOLS:
+            stack.protocol.__class__ = _PROTOCOLS[bug]
+        elif bug in _MAIL_PLANNERS:
+            stack.mail.__class__ = _MAIL_PLANNERS[bug]
+        elif bug in _EXECUTORS:
+            stack.executor.__class__ = _EXECUTORS[bug]
+
+
+def planner_delta(delta: int, bugs: Collection[str]) -> int:
+    """The planner's Delta: 0 with skip-delta."""
+    return 0 if "skip-delta" in bugs else delta
