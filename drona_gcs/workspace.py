@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Iterable, Mapping
+from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from fractions import Fraction
 from functools import cached_property
@@ -229,14 +229,15 @@ class Workspace:
                 best = component
         return frozenset(best)
 
-    def distances_from(self, start: Cell) -> dict[Cell, int]:
-        """Steps of the shortest obstacle-free path from ``start`` to every reachable cell."""
+    def distances_from(self, start: Cell, walls: Collection[Cell] = frozenset()) -> dict[Cell, int]:
+        """Steps of the shortest obstacle-free path from ``start`` to every reachable cell, around
+        ``walls`` too."""
         found = {start: 0}
         queue = deque([start])
         while queue:
             cell = queue.popleft()
             for nxt in self.neighbours(cell):
-                if nxt not in found:
+                if nxt not in found and nxt not in walls:
                     found[nxt] = found[cell] + 1
                     queue.append(nxt)
         return found

@@ -25,7 +25,6 @@ A violation raises :class:`Violation`, which ends the schedule.
 
 from __future__ import annotations
 
-import collections
 import itertools
 import math
 from collections.abc import Callable, Hashable, Mapping
@@ -263,16 +262,8 @@ class Monitors:
         return steps
 
     def _distances(self, goal: Cell, walls: frozenset[Cell]) -> dict[Cell, int]:
-        """Moves from every cell to ``goal`` (6 neighbours), around obstacles and ``walls``."""
-        ws, far, frontier = self.config.workspace, {goal: 0}, collections.deque([goal])
-        while frontier:
-            here = frontier.popleft()
-            x, y, z = here
-            for cell in ((x + 1, y, z), (x - 1, y, z), (x, y + 1, z), (x, y - 1, z), (x, y, z + 1), (x, y, z - 1)):
-                if cell not in far and cell not in walls and ws.is_free(cell):
-                    far[cell] = far[here] + 1
-                    frontier.append(cell)
-        return far
+        """Moves from every cell to ``goal``, around obstacles and ``walls``."""
+        return self.config.workspace.distances_from(goal, walls)
 
     # (e)
     def battery(self, drone: str, step: int, level: float) -> None:
