@@ -242,6 +242,18 @@ class Workspace:
                     queue.append(nxt)
         return found
 
+    def shortest_way(self, start: Cell, goal: Cell, walls: Collection[Cell] = frozenset()) -> tuple[Cell, ...]:
+        """The cells of a shortest path from ``start`` (left out) to ``goal`` around obstacles and
+        ``walls``; empty if there is none."""
+        back = self.distances_from(goal, walls)
+        if start not in back:
+            return ()
+        way, cell = [], start
+        while cell != goal:
+            cell = min(c for c in self.neighbours(cell) if back.get(c) == back[cell] - 1)
+            way.append(cell)
+        return tuple(way)
+
     def reachable_from(self, start: Cell) -> set[Cell]:
         return set(self.distances_from(start))
 

@@ -142,7 +142,7 @@ def test_a_departed_peer_last_heard_after_its_plan_holds_only_where_it_rested() 
                 announce = PlanAnnounce(trajectory=WireTrajectory.of(flown))
                 agent._on_plan(KEYS.plan("d2"), encode("d2", 1000.0, announce))
         if heard_after_the_plan:  # d2 starts a round for a new task, then is killed
-            request = ReqForCurrentTraj(TaskId(40, "d2", 2), "d2", flown)  # idle where its plan ended
+            request = ReqForCurrentTraj(TaskId(40, "d2", 2), "d2", flown, ("d1",))  # idle where its plan ended
             agent._on_protocol(KEYS.proto("all"), encode("d2", 1000.0, from_core(request)))
         agent._on_liveliness(KEYS.alive("d2"), False)
         return stack.protocol.ghost_obstacles()
@@ -170,7 +170,8 @@ def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_ever
         mine = next(b.task_id.core() for k, p in node.puts if isinstance(b := decode(p).body, ReqTraj))
         for peer in waiting:  # lower priorities (later stamps): they wait for my plan
             where = Trajectory.stationary(ws.drones[peer], 0)  # its answer too (see drona_gcs.stack.protocol)
-            request = ReqForCurrentTraj(TaskId(mine.stamp + 5, peer, 1), peer, where)
+            asked = tuple(sorted(set(ws.drones) - {peer}))
+            request = ReqForCurrentTraj(TaskId(mine.stamp + 5, peer, 1), peer, where, asked)
             agent._on_protocol(KEYS.proto("all"), encode(peer, 1000.0, from_core(request)))
         node.puts.clear()
         for peer in sorted({"d2", "d3", "d4"} - set(waiting)):
@@ -312,7 +313,7 @@ def test_a_lost_vehicle_is_its_drones_problem_and_back_in_a_held_cell_the_drone_
         assert agent.alarms["vehicle_lost"].startswith("vehicle_lost: vehicle 1 on udpin")
         assert node.statuses("m")[-1] == (MailStatus.REJECTED, "drone d1's vehicle is lost")
         assert set(stack.protocol.holds()) >= set(plan.suffix_from(step + 2).cells) | {seen}
-        asked = ReqForCurrentTraj(TaskId(10**9, "d2", 9), "d2", Trajectory.stationary((7, 7, 0), step))
+        asked = ReqForCurrentTraj(TaskId(10**9, "d2", 9), "d2", Trajectory.stationary((7, 7, 0), step), ("d1",))
         node.puts.clear()
         agent._on_protocol(KEYS.proto("all"), encode("d2", 1000.0, from_core(asked)))
         answer = to_core(decode(node.puts[-1][1]), "d2")

@@ -12,10 +12,12 @@ from __future__ import annotations
 import random
 from collections.abc import Callable
 
+import pytest
+
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.battery import BatteryModel
 from drona_gcs.stack.drone import CONFIRM_STEPS, DroneAction, DroneStack, LegNotFlown, StackConfig
-from drona_gcs.stack.mail import MAX_MISSES, MailDelivered, MailPickedUp, MailRejected, MailRequest, Phase
+from drona_gcs.stack.mail import MAX_MISSES, GoTo, MailDelivered, MailPickedUp, MailRejected, MailRequest, Phase
 from drona_gcs.stack.messages import Message
 from drona_gcs.stack.protocol import Broadcast, Send, State
 from drona_gcs.workspace import Cell, Workspace
@@ -230,3 +232,56 @@ def test_a_drone_in_the_air_from_its_plan_on_keeps_its_battery_above_the_floor()
             actions = stack.step(step, level, stack.executor.cell)
             delivered += [a.request for a in actions if isinstance(a, MailDelivered)]
         assert sorted(m.id for m in delivered) == sorted(m.id for m in mails), f"seed {seed}"
+
+
+# ------------------------------------------------------------ making way
+#: A ring around a wall: from the pickup (2, 0) to the drop-off (3, 2), the way is by (0, 1) or
+#: by (6, 1). A vehicle down rests on one, a drone parks on the other: together they wall it off.
+RING_MAIL = MailRequest("m1", pickup=(2, 0, 0), dropoff=(3, 2, 0), priority=5)
+
+
+def ring(parked_at: Cell) -> Workspace:
+    return Workspace.build(size=(7, 3, 1), obstacles=frozenset((x, 1, 0) for x in range(1, 6)),
+                           drones={"d1": (2, 0, 0), "d2": (0, 1, 0), "d3": (6, 1, 0)},
+                           parking=(parked_at,))
+
+
+def fleet_on_the_ring(ws: Workspace, down: str, steps: int) -> dict[str, list[DroneAction]]:
+    """d1 carries RING_MAIL; ``down``'s vehicle came down where it started; every message arrives at once."""
+    config = StackConfig(ws, SafePlanner(ws))
+    stacks = {d: DroneStack(d, config, dict(ws.drones)) for d in ws.drones}
+    stacks[down].vehicle_down("a failsafe")
+    stacks["d1"].assign(RING_MAIL)
+    done: dict[str, list[DroneAction]] = {d: [] for d in stacks}
+    inbox: list[tuple[str, Message]] = []
+
+    def post(sender: str, actions: list[DroneAction]) -> None:
+        done[sender] += actions
+        for action in actions:
+            if isinstance(action, Send):
+                inbox.append((action.to, action.message))
+            elif isinstance(action, Broadcast):
+                inbox.extend((d, action.message) for d in stacks if d != sender)
+
+    for step in range(steps):
+        for drone, stack in stacks.items():
+            post(drone, stack.step(step, 100.0, stack.executor.cell, may_plan=drone != down))
+        while inbox:
+            to, message = inbox.pop(0)
+            post(to, stacks[to].receive(message))
+    return done
+
+
+@pytest.mark.parametrize("down", ["d2", "d3"])
+def test_a_drone_parked_on_the_only_way_makes_way_for_mail_on_board(down: str) -> None:
+    """The paper leaves MRMP incomplete: drones resting for good can wall a goal off. Found by the
+    systematic tester: a vehicle down and a parked drone walled a drop-off off, and the mail on
+    board waited for good. The drone whose leg found no plan asks those resting on a way to leave it
+    (first the shortest; then around cells that stayed taken, as a vehicle down does)."""
+    parked = "d3" if down == "d2" else "d2"
+    ws = ring(parked_at=(6, 1, 0) if parked == "d3" else (0, 1, 0))
+    done = fleet_on_the_ring(ws, down, 120)
+    assert of(MailDelivered, done["d1"]) == [MailDelivered(RING_MAIL)]
+    moves = [a for a in done[parked] if isinstance(a, GoTo)]
+    assert moves[0].purpose is Phase.MAKING_WAY and moves[0].goal != ws.drones[parked]
+    assert moves[-1].purpose is Phase.TO_PARKING  # and home again afterwards

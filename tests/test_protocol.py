@@ -75,9 +75,14 @@ def location_of(drone: str, now: int = 0) -> Trajectory:
     return Trajectory.stationary(STARTS[drone], now)
 
 
+def others(sender: str) -> tuple[str, ...]:
+    """Whom ``sender``'s round waits for: every other drone of STARTS."""
+    return tuple(d for d in sorted(STARTS) if d != sender)
+
+
 def request(task_id: TaskId, sender: str, now: int = 0) -> ReqForCurrentTraj:
     """``sender``'s request, carrying where it rests (its location since ``now``)."""
-    return ReqForCurrentTraj(task_id, sender, location_of(sender, now))
+    return ReqForCurrentTraj(task_id, sender, location_of(sender, now), others(sender))
 
 
 # =========================================================== the state table
@@ -175,7 +180,7 @@ def test_new_task_broadcasts_a_request_with_its_id_and_where_it_is() -> None:
     proto.handle(PlanCompleted(), plan.end_step)
     # idle after a plan, where it is is that plan (see current_trajectory)
     later = TaskId(20, "a", 2)
-    assert proto.handle(NewTask(Task(later, A)), 30) == [Broadcast(ReqForCurrentTraj(later, "a", plan))]
+    assert proto.handle(NewTask(Task(later, A)), 30) == [Broadcast(ReqForCurrentTraj(later, "a", plan, others("a")))]
 
 
 @pytest.mark.parametrize(("now", "lead"), [(0, 1), (5, 2), (7, 3)])
@@ -183,7 +188,7 @@ def test_with_no_peers_it_plans_at_once_lead_steps_ahead(now: int, lead: int) ->
     proto = machine({"a": A}, lead_steps=lead)
     task = Task(ID_A, GOAL)
     actions = proto.handle(NewTask(task), now)
-    assert actions[0] == Broadcast(request(ID_A, "a", now))
+    assert actions[0] == Broadcast(ReqForCurrentTraj(ID_A, "a", location_of("a", now), ()))
     action = started(actions)
     plan = action.trajectory
     assert action.task == task and action.psi == {}
@@ -260,7 +265,7 @@ def test_a_lower_priority_request_is_its_answer_and_waits_for_my_new_trajectory(
     c_way = traj(0, (0, 4), (1, 4))  # c's last plan, which it flew and rests at the end of
     assert proto.handle(request(ID_B_LOW, "b"), 0) == []
     assert proto.pending == {"b": ID_B_LOW} and proto.received == {"b": location_of("b")}
-    actions = proto.handle(ReqForCurrentTraj(ID_C_LOW, "c", c_way), 1)
+    actions = proto.handle(ReqForCurrentTraj(ID_C_LOW, "c", c_way, others("c")), 1)
     plan = started(actions).trajectory
     assert started(actions).psi == {"b": location_of("b"), "c": c_way}
     assert actions[0] == started(actions)  # it starts executing, then unblocks the waiting peers
@@ -290,7 +295,7 @@ def test_a_late_request_of_a_round_that_is_over_is_not_taken_for_a_higher_priori
     asked it again, while b took my request as my answer: both waited for good."""
     proto = machine()
     proto.handle(NewTask(Task(ID_A, GOAL)), 2)
-    assert proto.handle(ReqForCurrentTraj(ID_B_NEXT, "b", B_PLAN), 2) == []  # b waits for my plan
+    assert proto.handle(ReqForCurrentTraj(ID_B_NEXT, "b", B_PLAN, others("b")), 2) == []  # b waits for my plan
     assert proto.handle(request(ID_B_HIGH, "b"), 2) == []  # late: neither asked again nor answered
     assert proto.pending == {"b": ID_B_NEXT} and proto.received == {"b": B_PLAN}
     actions = proto.handle(CurrentTraj("c", location_of("c", 2), ID_A), 2)
@@ -304,7 +309,7 @@ def test_a_late_request_of_a_round_that_is_over_replaces_neither_the_answer_nor_
     answer a request b no longer waits on (b ignores that answer and waits for good)."""
     proto = machine()
     proto.handle(NewTask(Task(ID_A, GOAL)), 2)
-    proto.handle(ReqForCurrentTraj(ID_B_NEXT, "b", B_PLAN), 2)
+    proto.handle(ReqForCurrentTraj(ID_B_NEXT, "b", B_PLAN, others("b")), 2)
     assert proto.handle(request(ID_B_LOW, "b"), 2) == []  # carrying b at B, before it flew B_PLAN
     assert proto.pending == {"b": ID_B_NEXT} and proto.received == {"b": B_PLAN}
     actions = proto.handle(CurrentTraj("c", location_of("c", 2), ID_A), 2)
@@ -318,7 +323,7 @@ def test_the_newest_request_is_remembered_across_states_and_rounds() -> None:
     """Idle, I answered b's newest request; its late older one gets no answer (b would ignore it), and
     coordinating later it is not taken for a higher priority's after b answered me (nor asked again)."""
     proto = machine()
-    assert len(proto.handle(ReqForCurrentTraj(ID_B_NEXT, "b", B_PLAN), 1)) == 1
+    assert len(proto.handle(ReqForCurrentTraj(ID_B_NEXT, "b", B_PLAN, others("b")), 1)) == 1
     assert proto.handle(request(ID_B_LOW, "b"), 1) == []
     mine = TaskId(10, "a", 1)  # my clock saw b's stamp: b's newest task ranks above mine
     proto.handle(NewTask(Task(mine, GOAL)), 2)
@@ -332,12 +337,40 @@ def test_the_newest_request_is_remembered_across_states_and_rounds() -> None:
 def test_a_drone_that_rejoins_has_its_ids_count_afresh() -> None:
     """It may have restarted, and its hybrid clock with it: its requests rank by its new ids."""
     proto = machine()
-    proto.handle(ReqForCurrentTraj(ID_B_NEXT, "b", B_PLAN), 1)
+    proto.handle(ReqForCurrentTraj(ID_B_NEXT, "b", B_PLAN, others("b")), 1)
     proto.handle(PeerLeft("b"), 2)
     proto.handle(PeerJoined("b", (4, 2, 0)), 3)
     restarted = TaskId(4, "b", 1)
     assert proto.handle(request(restarted, "b"), 4) == [
         Send("b", CurrentTraj("a", Trajectory.stationary(A, 4), restarted))]
+
+
+def test_a_restarted_drones_request_is_current_before_its_join_is_seen() -> None:
+    """Found by the systematic tester with a crash: the new agent's first request came before its
+    join, with a lower stamp than its old agent's last one (its clock counts afresh). Dropped as late,
+    the new agent waited for my answer for good. Its epoch says it is newer."""
+    proto = machine()
+    proto.handle(ReqForCurrentTraj(ID_B_NEXT, "b", B_PLAN, others("b")), 1)
+    proto.handle(PeerLeft("b"), 2)
+    restarted = TaskId(4, "b", 1, epoch=1)
+    actions = proto.handle(request(restarted, "b"), 4)
+    assert Send("b", CurrentTraj("a", Trajectory.stationary(A, 4), restarted)) in actions
+    assert proto.handle(request(ID_B_LOW, "b"), 5) == []  # its old agent's: late
+
+
+def test_a_request_that_does_not_wait_for_me_is_not_my_answer() -> None:
+    """Found by the systematic tester with a crash and restart: b saw me leave and plans without me,
+    so what its request carries may change before I plan. Taken as its answer, I planned with b's
+    old location while b flew a new plan. I ask b instead (it admits me and answers)."""
+    proto = machine()
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    without_me = ReqForCurrentTraj(ID_B_LOW, "b", location_of("b"), ("c",))
+    assert proto.handle(without_me, 0) == [Send("b", request(ID_A, "a", 0))]
+    assert "b" not in proto.received and proto.pending == {}
+    proto.handle(CurrentTraj("c", location_of("c"), ID_A), 0)
+    assert proto.state is State.COORDINATING  # still waits for b's own answer
+    b_plan = traj(1, (4, 4), (4, 3))
+    assert started(proto.handle(CurrentTraj("b", b_plan, ID_A), 1)).psi["b"] == b_plan
 
 
 # ================================================= stale, duplicate and foreign replies
@@ -458,7 +491,7 @@ def test_a_peer_joining_while_idle_is_asked_at_the_next_task() -> None:
     proto = machine({"a": A})
     assert proto.handle(PeerJoined("b", B), 0) == []
     actions = proto.handle(NewTask(Task(ID_A, GOAL)), 0)
-    assert actions == [Broadcast(request(ID_A, "a"))]  # it waits for b now
+    assert actions == [Broadcast(ReqForCurrentTraj(ID_A, "a", location_of("a"), ("b",)))]  # it waits for b now
     assert started(proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0)).psi == {"b": location_of("b")}
 
 
@@ -471,7 +504,7 @@ def test_no_plan_fails_the_task_and_answers_the_pending_peers() -> None:
     proto = machine(peers, workspace=CORRIDOR)
     task = Task(ID_A, (4, 0, 0))  # behind b, which stays parked
     proto.handle(NewTask(task), 3)
-    proto.handle(ReqForCurrentTraj(ID_C_LOW, "c", Trajectory.stationary((5, 0, 0), 3)), 3)
+    proto.handle(ReqForCurrentTraj(ID_C_LOW, "c", Trajectory.stationary((5, 0, 0), 3), others("c")), 3)
     actions = proto.handle(CurrentTraj("b", Trajectory.stationary((2, 0, 0), 3), ID_A), 4)
     assert actions[0] == Send("c", CurrentTraj("a", Trajectory.stationary((0, 0, 0), 4), ID_C_LOW))
     [failed] = actions[1:]
@@ -479,7 +512,7 @@ def test_no_plan_fails_the_task_and_answers_the_pending_peers() -> None:
     assert (proto.state, proto.task, proto.pending, proto.location) == (State.WAIT_FOR_TASK, None, {}, (0, 0, 0))
     # back in WaitForTaskRequest: it takes the next task
     assert proto.handle(NewTask(Task(TaskId(9, "a", 2), (1, 0, 0))), 5) == [Broadcast(ReqForCurrentTraj(
-        TaskId(9, "a", 2), "a", Trajectory.stationary((0, 0, 0), 5)))]
+        TaskId(9, "a", 2), "a", Trajectory.stationary((0, 0, 0), 5), others("a")))]
 
 
 @pytest.mark.parametrize(("flight_steps", "hovering_since", "plans"), [
@@ -717,7 +750,7 @@ def test_a_drone_whose_vehicle_is_lost_holds_the_rest_of_its_plan_and_plans_noth
 
     proto.handle(PlanCompleted(), plan.end_step)
     actions = proto.handle(NewTask(Task(TaskId(20, "a", 2), (0, 3, 0))), 10)
-    assert actions[0] == Broadcast(ReqForCurrentTraj(TaskId(20, "a", 2), "a", plan, proto.holds()))
+    assert actions[0] == Broadcast(ReqForCurrentTraj(TaskId(20, "a", 2), "a", plan, ("b",), proto.holds()))
     failed = proto.handle(CurrentTraj("b", location_of("b", 10), TaskId(20, "a", 2)), 10)
     assert [type(a) for a in failed] == [TaskFailed] and "vehicle is lost" in failed[0].reason  # type: ignore[union-attr]
 

@@ -31,7 +31,7 @@ TASK = TaskId(12, "d1", 3)
 
 
 @pytest.mark.parametrize("message", [
-    ReqForCurrentTraj(TASK, "d1", Trajectory(40, ((1, 2, 0), (2, 2, 0)))),
+    ReqForCurrentTraj(TASK, "d1", Trajectory(40, ((1, 2, 0), (2, 2, 0))), ("d2", "d3")),
     CurrentTraj("d1", Trajectory(40, ((1, 2, 0), (2, 2, 0))), TASK),
 ])
 def test_protocol_messages_round_trip(message: object) -> None:
@@ -50,12 +50,12 @@ def test_one_answer_to_several_drones_is_each_ones_answer_and_nothing_to_the_oth
 
 
 def envelope(body: dict[str, object], **over: object) -> bytes:
-    return json.dumps({"v": 5, "sender": "d2", "sent_at": 1.0, "body": body, **over}).encode()
+    return json.dumps({"v": 6, "sender": "d2", "sent_at": 1.0, "body": body, **over}).encode()
 
 
 @pytest.mark.parametrize("payload, problem", [
     (b"not json", "JSON is malformed"),
-    (b'{"v": 5, "sender": "d\xff", "sent_at": 1.0, "body": {"kind": "clock_ping"}}', "not UTF-8"),
+    (b'{"v": 6, "sender": "d\xff", "sent_at": 1.0, "body": {"kind": "clock_ping"}}', "not UTF-8"),
     (envelope({"kind": "clock_ping"}, v=3), "Invalid enum value 3 - at `$.v`"),
     (envelope({"kind": "teleport"}), "Invalid value 'teleport' - at `$.body.kind`"),
     (envelope({"kind": "req_traj", "task_id": {"stamp": "12", "drone": "d1", "seq": 1}}),
@@ -97,18 +97,21 @@ def test_a_payload_handed_to_every_drone_of_a_process_is_validated_once() -> Non
 
 def test_the_wire_format_is_the_documented_json() -> None:
     """Other tools read these bytes: the envelope's fields in order, the body tagged by its kind."""
-    payload = encode("d1", 5.5, from_core(ReqForCurrentTraj(TASK, "d1", Trajectory(40, ((1, 2, 0), (2, 2, 0))))))
-    assert payload == (b'{"v":5,"sender":"d1","sent_at":5.5,"body":{"kind":"req_traj",'
-                       b'"task_id":{"stamp":%d,"drone":"%s","seq":%d},'
-                       b'"trajectory":{"start_step":40,"cells":[[1,2,0],[2,2,0]]},"holds":[]}}'
+    request = ReqForCurrentTraj(TASK, "d1", Trajectory(40, ((1, 2, 0), (2, 2, 0))), ("d2",))
+    payload = encode("d1", 5.5, from_core(request))
+    assert payload == (b'{"v":6,"sender":"d1","sent_at":5.5,"body":{"kind":"req_traj",'
+                       b'"task_id":{"stamp":%d,"drone":"%s","seq":%d,"epoch":0},'
+                       b'"trajectory":{"start_step":40,"cells":[[1,2,0],[2,2,0]]},"asked":["d2"],"holds":[],"clear":[]}}'
                        % (TASK.stamp, TASK.drone.encode(), TASK.seq))
 
 
 def test_the_cells_a_lost_vehicle_holds_travel_with_requests_and_answers() -> None:
     """A drone whose vehicle is lost names the cells it may be in; a peer's stack must get them as sent."""
     held = ((1, 2, 0), (2, 2, 0), (3, 2, 0))
-    request = ReqForCurrentTraj(TASK, "d1", Trajectory(40, ((1, 2, 0), (2, 2, 0))), held)
+    request = ReqForCurrentTraj(TASK, "d1", Trajectory(40, ((1, 2, 0), (2, 2, 0))), ("d2",), held)
     assert to_core(decode(encode("d1", 5.5, from_core(request))), "d2") == request
+    asking = ReqForCurrentTraj(TASK, "d1", Trajectory(40, ((1, 2, 0),)), ("d2",), clear=((2, 2, 0), (3, 2, 0)))
+    assert to_core(decode(encode("d1", 5.5, from_core(asking))), "d2") == asking
     answer = CurrentTraj("d1", Trajectory(40, ((1, 2, 0),)), TASK, held)
     assert to_core(decode(encode("d1", 5.5, from_core(answer))), "d2") == answer
     joined = answers(answer.trajectory, {"d2": TASK, "d3": TASK}, held)

@@ -16,12 +16,18 @@ telemetry puts the vehicle in the leg's goal cell, not when its plan ends. The
 plan's last step ends at the boundary after it; by :data:`CONFIRM_STEPS` more,
 the vehicle must have been seen there (in the cell: cells are what separation is
 judged in), or the leg did not happen (:class:`LegNotFlown`) and is tried again.
+
+Making way. A leg to a pickup, drop-off or charger whose goal is taken, or whose last try
+found no plan, names a shortest way to its goal in its request (``clear``). A drone
+resting on that way, with nothing under way, leaves for the nearest free cell off it
+(:func:`yield_spot`). A vehicle down cannot: cells asked once that stay taken are
+gone around at the next try, and when no way is left every way is asked again.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Collection, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -30,7 +36,7 @@ from drona_gcs.planner import SafePlanner
 from drona_gcs.planner.heuristic import UNREACHABLE, GoalDistance
 from drona_gcs.stack.battery import BatteryLow, BatteryModel, BatteryMonitor, BatteryRecharged
 from drona_gcs.stack.executor import Completed, PlanExecutor, Setpoint
-from drona_gcs.stack.mail import Distance, GoTo, MailAction, MailPlanner, MailRequest
+from drona_gcs.stack.mail import Distance, GoTo, MailAction, MailPlanner, MailRequest, Phase
 from drona_gcs.stack.messages import HybridClock, Message, ReqForCurrentTraj, Task
 from drona_gcs.stack.protocol import Action as ProtocolAction
 from drona_gcs.stack.protocol import (
@@ -106,12 +112,13 @@ class StackConfig:
 
 
 class DroneStack:
-    def __init__(self, me: str, config: StackConfig, peers: Mapping[str, Cell]) -> None:
+    def __init__(self, me: str, config: StackConfig, peers: Mapping[str, Cell], epoch: int = 0) -> None:
+        """``epoch``: this agent's incarnation, larger at each restart (the runtime's boot time)."""
         ws = config.workspace
         self.me = me
         self.config = config
         start = peers[me]
-        self.clock = HybridClock(me)
+        self.clock = HybridClock(me, epoch)
         planner = config.planner
         lead = config.lead_steps if config.lead_steps is not None else config.planner.delta + 1
         self.protocol = CoordinationProtocol(me, start, dict(peers), planner.plan, lead)
@@ -120,10 +127,15 @@ class DroneStack:
         parking = own_parking(ws.parking, list(peers), me)
         mine = set(parking) if len(ws.parking) >= len(peers) else set()
         resting = {*ws.charging_stations, *(c for c in ws.parking if c not in mine)}  # others may rest there
-        self.mail = MailPlanner(start, ws.charging_stations, parking, _distance_function(planner, resting),
+        self.resting_now: frozenset[Cell] = frozenset()  #: cells other drones rest on, at the last decision
+        distance = _distance_function(planner, resting, lambda: self.resting_now)
+        self.mail = MailPlanner(start, ws.charging_stations, parking, distance,
                                 config.battery, recharged_level=config.recharged_mark, leg_overhead=leg_overhead(lead),
                                 spare_parking=[c for c in ws.parking if c not in parking])
         self.arrival: Arrival | None = None  #: a plan ended; waiting to see the vehicle at its goal
+        self.unreached: Cell | None = None  #: the goal of the last leg that found no plan
+        self.asked_clear: frozenset[Cell] = frozenset()  #: resting cells the last leg asked to leave
+        self.stuck: set[Cell] = set()  #: of those, cells still taken at the next failure
 
     # ------------------------------------------------------------ inputs
     @property
@@ -133,7 +145,19 @@ class DroneStack:
     def receive(self, message: Message) -> list[DroneAction]:
         stamp = message.task_id if isinstance(message, ReqForCurrentTraj) else message.in_reply_to
         self.clock.observe(stamp.stamp)
+        if isinstance(message, ReqForCurrentTraj) and message.clear:
+            self._make_way(message.clear)
         return self._protocol(message)
+
+    def _make_way(self, way: tuple[Cell, ...]) -> None:
+        """A peer's leg found no plan and asks drones resting on ``way`` to leave it: if we rest
+        there, leave for the nearest cell off it (see MailPlanner.make_way)."""
+        here = self.protocol.location
+        if self.protocol.state is not State.WAIT_FOR_TASK or here not in way:
+            return
+        spot = yield_spot(self.config.workspace, here, frozenset(way), self.taken_cells())
+        if spot is not None:
+            self.mail.make_way(spot)
 
     def assign(self, request: MailRequest) -> list[DroneAction]:
         self.mail.assign(request)
@@ -196,7 +220,9 @@ class DroneStack:
                 self.mail.battery_recharged()
         self._land_if_spent(step)
         if may_plan and self.protocol.state is State.WAIT_FOR_TASK:
-            for decided in self.mail.decide(step, battery_level, self.taken_cells()):
+            taken = self.taken_cells()
+            self.resting_now = frozenset(taken)
+            for decided in self.mail.decide(step, battery_level, taken):
                 actions.append(decided)
                 if isinstance(decided, GoTo):
                     actions += self._protocol(NewTask(self._task(decided, step, physical_time)))
@@ -211,7 +237,23 @@ class DroneStack:
         flight = leg.flight_steps
         if flight is not None:
             flight -= 1 if hovering is not None else 1 + self.protocol.lead_steps
-        return Task(self.clock.next_id(max(physical_time, step)), leg.goal, flight, hovering)
+        return Task(self.clock.next_id(max(physical_time, step)), leg.goal, flight, hovering, self._way_to_clear(leg))
+
+    def _way_to_clear(self, leg: GoTo) -> tuple[Cell, ...]:
+        """The way a mail or charging leg asks resting drones to leave: when its goal is taken, or
+        its last try found no plan (the paper leaves MRMP incomplete: resting drones wall goals in).
+        A shortest way, around cells it asked before that stayed taken (a vehicle down cannot move)."""
+        taken = self.taken_cells()
+        if leg.purpose not in ASKING or (leg.goal not in taken and leg.goal != self.unreached):
+            return ()
+        self.stuck |= self.asked_clear & taken
+        here, ws = self.protocol.location, self.config.workspace
+        way = ws.shortest_way(here, leg.goal, self.stuck - {leg.goal})
+        if not way:  # every way was asked once: ask them all again, in turn
+            self.stuck = set(self.asked_clear & taken)
+            way = ws.shortest_way(here, leg.goal, self.stuck - {leg.goal}) or ws.shortest_way(here, leg.goal)
+        self.asked_clear = frozenset(way) & taken
+        return way
 
     def _arrive(self, step: int, flown: Cell | None) -> list[DroneAction]:
         """A leg is over when the vehicle is seen at its goal; past the deadline it did not happen."""
@@ -256,9 +298,25 @@ class DroneStack:
             if isinstance(action, StartExecuting):
                 self.executor.start(action.trajectory)
                 self.mail.took_off()
+                self.unreached, self.asked_clear, self.stuck = None, frozenset(), set()
             elif isinstance(action, TaskFailed):
+                self.unreached = action.task.goal
                 actions += self.mail.leg_failed(self.now, cut_off=action.cut_off)
         return actions
+
+
+#: Legs that ask drones resting on their way to leave it; a drone going to park waits instead.
+ASKING = frozenset({Phase.TO_PICKUP, Phase.TO_DROPOFF, Phase.TO_CHARGER})
+
+
+def yield_spot(workspace: Workspace, here: Cell, way: frozenset[Cell], taken: Collection[Cell]) -> Cell | None:
+    """The nearest cell off ``way`` a drone resting in ``here`` can make way to: free, reachable
+    around other resting drones, and no charger or parking cell (where drones come to rest)."""
+    rest_spots = {*workspace.charging_stations, *workspace.parking}
+    reach = workspace.distances_from(here, frozenset(taken) - {here})
+    spots = [(steps, cell) for cell, steps in reach.items()
+             if cell not in way and cell not in taken and cell not in rest_spots]
+    return min(spots)[1] if spots else None
 
 
 def own_parking(parking: Sequence[Cell], drones: Sequence[str], me: str) -> Sequence[Cell]:
@@ -269,23 +327,30 @@ def own_parking(parking: Sequence[Cell], drones: Sequence[str], me: str) -> Sequ
     return parking
 
 
-def _distance_function(planner: SafePlanner, resting: Collection[Cell] = ()) -> Distance:
+def _distance_function(planner: SafePlanner, resting: Collection[Cell] = (),
+                       resting_now: Callable[[], Collection[Cell]] = frozenset) -> Distance:
     """Steps of the shortest static path between cells, one cached BFS per target cell.
 
-    ``resting``: cells other drones may rest on for good (chargers, their parking cells). The way
+    ``resting``: cells other drones may rest on for good (chargers, their parking cells), and
+    ``resting_now()`` those they rest on now (a vehicle down may rest there for good). The way
     goes around them, where it can: a budget that counted the way through a parked drone left a
     drone without the battery for the way around, stranded for good (found by the systematic
     tester). Either end may be such a cell. Where they wall the goal in, the way is through them.
     """
     ws, graph, grid = planner.workspace, planner.graph, planner.grid
-    avoid = frozenset(ws.cell_id(c) for c in resting)
+    always = frozenset(ws.cell_id(c) for c in resting)
 
     @lru_cache(maxsize=256)
-    def to(goal: Cell, around: bool) -> GoalDistance:
-        return graph.distances(ws.cell_id(goal), avoid if around else frozenset())
+    def to(goal: Cell, avoid: frozenset[int]) -> GoalDistance:
+        return graph.distances(ws.cell_id(goal), avoid)
+
+    @lru_cache(maxsize=8)
+    def around_cells(now: frozenset[Cell]) -> frozenset[int]:
+        return always | frozenset(ws.cell_id(c) for c in now)
 
     def steps(a: Cell, b: Cell, around: bool) -> float:
-        tree, start = to(b, around), ws.cell_id(a)
+        avoid = around_cells(frozenset(resting_now())) if around else frozenset()
+        tree, start = to(b, avoid), ws.cell_id(a)
         if around and start in avoid and a != b:  # out of a resting cell: by its first move
             return min((cost + tree.get(cell) for cell, cost in grid.moves_only[start]), default=UNREACHABLE)
         return tree.get(start)

@@ -46,6 +46,13 @@ once ours finds no plan); a drone with no mail on board clears the way on a
 parking cell first. Mail is never dropped: a drone whose vehicle came down
 by itself hands all of it back (:meth:`MailPlanner.abandon`).
 
+Making way. The paper leaves MRMP incomplete: drones resting for good can wall
+a goal off. A drone whose leg found no plan asks the drones resting on a way to
+its goal to leave it (see :mod:`drona_gcs.stack.drone`); one asked, with no mail
+on board and not charging, flies to the spot it is given, lands there, and
+goes home only after ``hold_steps``. Mail whose pickup found no plan in
+:data:`MAX_STRIKES` legs, other legs between them or not, is handed back.
+
 A leg to a cell another drone is known to rest on would cost a whole
 coordination round with every peer and end in no plan, so it counts as failed
 without asking, and the retries back off (2, 4, 8 steps). It is tried again
@@ -68,6 +75,7 @@ from drona_gcs.workspace import Cell, Workspace
 Distance = Callable[[Cell, Cell], int]
 MAX_MISSES = 3  #: plans to a pickup that end with the vehicle not there, before the mail is handed back
 MAX_FAILURES = 4  #: rounds in a row that find no plan, before mail not on board is handed back (see leg_failed)
+MAX_STRIKES = 8  #: legs to a mail's pickup that found no plan, in a row or not, before it is handed back
 
 
 def mail_cell_problem(workspace: Workspace, cell: Cell) -> tuple[str, str] | None:
@@ -115,6 +123,7 @@ class Phase(enum.Enum):
     TO_CHARGER = "to_charger"  #: flying to a charging station
     CHARGING = "charging"  #: landed on a station until recharged
     TO_PARKING = "to_parking"  #: flying to a parking cell
+    MAKING_WAY = "making_way"  #: leaving a cell another drone's way crosses
 
 
 # --------------------------------------------------------------- actions
@@ -196,6 +205,9 @@ class MailPlanner:
     cut_offs: int = 0  #: legs in a row whose goal no path at all joined
     #: mail whose leg no path joined from here: tried after the rest, until the drone has moved
     cut_off_mail: frozenset[str] = frozenset()
+    strikes: dict[str, int] = field(default_factory=dict)  #: legs to each mail's pickup that found no plan
+    make_way_to: Cell | None = None  #: a peer's way crosses our cell: leave for this one
+    hold_steps: int = 16  #: how long a drone that made way stays out of it before going home
 
     # ---------------------------------------------------------- inputs
     def assign(self, request: MailRequest) -> None:
@@ -232,6 +244,12 @@ class MailPlanner:
             self.current = None
         return handed
 
+    def make_way(self, spot: Cell) -> None:
+        """A peer found no plan, for a way that crosses the cell we rest on: leave for ``spot`` at
+        the next decision, unless a leg is under way or mail is on board (it goes nowhere else)."""
+        if not self.busy and not self.carrying and self.phase is not Phase.CHARGING:
+            self.make_way_to = spot
+
     def battery_low(self) -> None:
         self.low = True
 
@@ -248,9 +266,10 @@ class MailPlanner:
         self.cut_off_mail = frozenset()
         self.tried.clear()
         self.blocked, self.backoff = None, 0
-        self.landed_here = self._parked() or self.cell in self.chargers
         done, actions = self.phase, list[MailAction]()
+        self.landed_here = self._parked() or self.cell in self.chargers or done is Phase.MAKING_WAY
         if done is Phase.TO_PICKUP and self.current is not None:
+            self.strikes.pop(self.current.id, None)
             actions.append(MailPickedUp(self.current))
             self.carrying, self.phase = True, Phase.IDLE  # the drop-off leg starts at the next decision
         elif done is Phase.TO_DROPOFF and self.current is not None:
@@ -313,6 +332,9 @@ class MailPlanner:
         self.phase = Phase.IDLE
         self.failures += asked and (to_pickup or to_dropoff or to_charger)
         self.cut_offs = self.cut_offs + 1 if cut_off else 0 if asked else self.cut_offs
+        if to_pickup and self._struck(self.queue[-1]):
+            request = self.queue.pop()
+            return [MailRejected(request, f"no plan to its pickup {list(request.pickup)} in {MAX_STRIKES} legs")]
         reason = f"no plan in {MAX_FAILURES} rounds in a row"
         if cut_off and to_pickup:  # that mail only: the others may have a way
             self.cut_off_mail |= {self.queue[-1].id}
@@ -331,6 +353,16 @@ class MailPlanner:
             request = self.queue.pop()
             return [MailRejected(request, f"{reason} to its pickup {list(request.pickup)}")]
         return self.release(f"{reason} to " + ("the drop-off of the mail on board" if to_dropoff else "a charger"))
+
+    def _struck(self, request: MailRequest) -> bool:
+        """Count a leg to ``request``'s pickup that found no plan; True at :data:`MAX_STRIKES`. Other
+        legs in between (to park, to charge) do not reset the count: a vehicle down on the pickup
+        would otherwise keep the mail, and the drone flying between them, for good."""
+        self.strikes[request.id] = self.strikes.get(request.id, 0) + 1
+        if self.strikes[request.id] < MAX_STRIKES:
+            return False
+        del self.strikes[request.id]
+        return True
 
     def _retry_delay(self) -> int:
         """``retry_steps``; doubled on each failure in a row towards a cell believed taken (capped).
@@ -371,9 +403,11 @@ class MailPlanner:
             self.battery_recharged()  # also ends charging for a mail it could not afford
         if self.busy or self.phase is Phase.CHARGING:
             return []
+        budget = self._budget(now, level)
+        if self.make_way_to is not None:
+            return self._make_way(budget, taken)
         if now < self.retry_at and (self.blocked is None or self.blocked in taken):
             return []  # waiting to retry, unless the drone that blocked the goal has left it
-        budget = self._budget(now, level)
         if self.carrying and self.current is not None:
             # Mail on board goes to its drop-off, or to a charger on the way, and nowhere else:
             # after a failed leg it waits on the ground where it is (see leg_failed).
@@ -394,6 +428,20 @@ class MailPlanner:
         if spots and not self._parked():
             return self._to_one_of(spots, budget, taken, Phase.TO_PARKING)
         return []
+
+    def _make_way(self, budget: Budget, taken: Collection[Cell]) -> list[MailAction]:
+        """Leave for the spot a peer's way asked for, and stay there a while: going home at once
+        would close the way again before the peer's next try."""
+        spot, self.make_way_to = self.make_way_to, None
+        if spot is None or self.carrying:
+            return []
+        if not budget.allows(self._leg(self.cell, spot) + self._after(spot)):
+            if not self.chargers or self.cell in self.chargers:
+                return []
+            self.low = True  # the way off would leave too little: off to charge instead
+            return self._to_charger(budget, taken)
+        self.retry_at = budget.now + self._leg(self.cell, spot) + self.hold_steps
+        return self._go(spot, budget, self._after(spot), Phase.MAKING_WAY, taken)
 
     def _parking_spots(self) -> Sequence[Cell]:
         """Where to park: our own parking cells (chargers when there are none); once each has found

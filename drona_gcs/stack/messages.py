@@ -22,6 +22,13 @@ class TaskId:
     stamp: int
     drone: str
     seq: int
+    #: the incarnation of the drone's agent that made it (a restart counts afresh): see :meth:`newer_than`
+    epoch: int = 0
+
+    def newer_than(self, other: TaskId) -> bool:
+        """Made after ``other`` by the same drone: by a later incarnation, or later in the same one. Stamps
+        alone cannot tell: a restarted agent's clock may be behind the stamps its old one had seen."""
+        return (self.epoch, self.stamp, self.seq) > (other.epoch, other.stamp, other.seq)
 
     def __str__(self) -> str:
         return f"{self.stamp}.{self.drone}.{self.seq}"
@@ -31,8 +38,9 @@ class HybridClock:
     """A hybrid logical clock: stamps follow physical time but never go backwards,
     and jump past every stamp seen from a peer, so ids stay causally ordered."""
 
-    def __init__(self, drone: str) -> None:
+    def __init__(self, drone: str, epoch: int = 0) -> None:
         self.drone = drone
+        self.epoch = epoch  #: this agent's incarnation: larger at each restart
         self.last = 0
         self.seq = 0
 
@@ -42,7 +50,7 @@ class HybridClock:
     def next_id(self, physical: int) -> TaskId:
         self.last = max(self.last + 1, physical)
         self.seq += 1
-        return TaskId(self.last, self.drone, self.seq)
+        return TaskId(self.last, self.drone, self.seq, self.epoch)
 
 
 @dataclass(frozen=True)
@@ -59,6 +67,8 @@ class Task:
     goal: Cell
     flight_steps: int | None = None
     hovering_since: int | None = None
+    #: a way to the goal whose resting drones are asked to make way (an earlier try found no plan)
+    clear: tuple[Cell, ...] = ()
 
     def max_length(self, start_step: int) -> int | None:
         if self.flight_steps is None:
@@ -72,14 +82,19 @@ class ReqForCurrentTraj:
     """Protocol 1: ``sender`` coordinates task ``task_id`` and asks for everyone's trajectory.
 
     ``trajectory`` is our addition: the sender's current trajectory, which a drone before it in
-    line takes as its answer (see :mod:`drona_gcs.stack.protocol`); so is ``holds``.
+    line takes as its answer (see :mod:`drona_gcs.stack.protocol`); so are ``asked``, ``holds`` and
+    ``clear``: the cells of a way to the sender's goal, which drones resting on them are asked to
+    leave (see :mod:`drona_gcs.stack.drone`).
     """
 
     task_id: TaskId
     sender: str
     trajectory: Trajectory
+    #: the peers this round waits for (its members): a drone not named takes nothing from it as an answer
+    asked: tuple[str, ...]
     #: cells the sender's vehicle may be in for good, its trajectory aside (its vehicle is lost)
     holds: tuple[Cell, ...] = ()
+    clear: tuple[Cell, ...] = ()  #: the way the sender asks resting drones to leave
 
 
 @dataclass(frozen=True)

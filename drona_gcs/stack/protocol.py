@@ -53,8 +53,16 @@ settled here, and one message it sends is saved (the second point):
   answers to its newest request, which was handled when it came. Taken as
   current, a late request ranking above mine passed for the point above: I
   asked its sender again while it, in a later round ranking below mine, took
-  my request as my answer, and both waited for good. A drone that rejoins may
-  have restarted its clock: its ids count afresh.
+  my request as my answer, and both waited for good. "Older" compares the
+  sender's epoch (its agent's incarnation) first: a restarted agent's clock may
+  be behind the stamps its old one had seen, and its first request may come
+  before its join does.
+* **A request names the peers its round waits for** (``asked``). One that does not
+  name me is not my answer, even from a drone behind me in line: it plans without
+  me (it saw me leave, and has not seen me back), so its trajectory may change
+  before I plan. I send it my request, which makes me a member again there (see
+  above), and wait for its answer. Taken as its answer, I planned with its old
+  location while it flew a new plan (found by the tester's crash and restart).
 * **Psi is rebuilt for every task.** Answers from an earlier round describe
   plans that may have been replaced since; planning with them is the race the
   paper's model checker found (the tester seeds this bug).
@@ -278,12 +286,13 @@ class CoordinationProtocol:
 
     def _request(self, now: int) -> ReqForCurrentTraj:
         assert self.task is not None
-        return ReqForCurrentTraj(self.task.id, self.me, self.current_trajectory(now), self.holds())
+        return ReqForCurrentTraj(self.task.id, self.me, self.current_trajectory(now), tuple(sorted(self.members)),
+                                 self.holds(), self.task.clear)
 
     def _current(self, event: ReqForCurrentTraj) -> bool:
         """Note ``event`` as its sender's newest request; False if a newer one came first (its round is over)."""
         newest = self.newest.get(event.sender)
-        if newest is not None and event.task_id < newest:
+        if newest is not None and newest.newer_than(event.task_id):
             return False
         self.newest[event.sender] = event.task_id
         return True
@@ -321,6 +330,10 @@ class CoordinationProtocol:
                 # What it told me is about to change. Ask again.
                 return [Send(event.sender, self._request(now))]
             return []
+        if self.me not in event.asked:
+            # It plans without me (it saw me leave, or never saw me join): what its request carries
+            # may change before I plan. It gets my request, admits me, and answers it.
+            return admitted or [Send(event.sender, self._request(now))]
         self.pending[event.sender] = event.task_id
         # It waits for my plan, so the trajectory its request carries is its answer.
         self.received[event.sender] = self.known[event.sender] = event.trajectory

@@ -32,8 +32,9 @@ class Configuration:
     def __str__(self) -> str:
         s = self.scenario
         w, h, _ = s.grid
+        crashes = f", {s.crashes} crash(es)" if s.crashes else ""
         return (f"{s.drones} drones, {s.requests} requests, delta {s.delta}, {w}x{h} obstacles {s.obstacles:g}, "
-                f"{self.strategy.value}, seed {s.seed}")
+                f"{self.strategy.value}, seed {s.seed}{crashes}")
 
 
 @dataclass(frozen=True)
@@ -47,13 +48,14 @@ class SweepRow:
         return self.outcome.violation is None
 
 
-def configurations(seed: int, count: int, faults: bool = True) -> Iterator[Configuration]:
-    """``count`` configurations drawn from ``seed``: uniform over every range above."""
+def configurations(seed: int, count: int, faults: bool = True, crashes: int = 0) -> Iterator[Configuration]:
+    """``count`` configurations drawn from ``seed``: uniform over every range above; ``crashes``
+    agents may crash and restart in each."""
     rng = random.Random(f"sweep-{seed}")
     for _ in range(count):
         scenario = Scenario(drones=rng.choice(DRONES), requests=rng.choice(REQUESTS), delta=rng.choice(DELTAS),
                             seed=rng.randrange(1_000_000), grid=rng.choice(GRIDS), obstacles=rng.choice(OBSTACLES),
-                            faults=faults)
+                            faults=faults, crashes=crashes)
         yield Configuration(scenario, rng.choice(STRATEGIES))
 
 

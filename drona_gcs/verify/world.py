@@ -252,6 +252,11 @@ class InFlight:
     to: str
     message: Notice
     deadline: int
+    sent: int = -1  #: the seq it was sent as (a duplicate keeps its original's); -1: ``seq``
+
+    @property
+    def sent_as(self) -> int:
+        return self.seq if self.sent < 0 else self.sent
 
 
 class World:
@@ -433,14 +438,15 @@ class World:
         its agent sent before: after all that went earlier from the same sender to the same drone."""
         if not isinstance(message.message, (Left, Joined)):
             return True
-        return not any(m.seq < message.seq and m.sender == message.sender and m.to == message.to
+        return not any(m.sent_as < message.seq and m.sender == message.sender and m.to == message.to
                        for m in self.inflight)
 
     def _duplicate(self, seq: int) -> None:
         original = next(m for m in self.inflight if m.seq == seq)
         self.used = replace(self.used, duplicates=self.used.duplicates + 1)
         self.sent += 1
-        self.inflight.append(replace(original, seq=self.sent))
+        # A copy of what was sent before a leave still comes before it (one session, in order).
+        self.inflight.append(replace(original, seq=self.sent, sent=original.sent_as))
         self.trace.append(f"net: duplicates {_describe(original.message)} to {original.to}")
 
     def _cancel(self, j: int) -> None:
@@ -480,7 +486,7 @@ class World:
         self.crashed.discard(drone)
         old = self.stacks[drone]
         peers = {**dict(zip(self.config.drones, self.config.starts, strict=True)), drone: old.executor.cell}
-        self.stacks[drone] = DroneStack(drone, old.config, peers)
+        self.stacks[drone] = DroneStack(drone, old.config, peers, epoch=old.clock.epoch + 1)
         plant(self.stacks[drone], self.config.bugs)
         self.trace.append(f"{drone}: its agent restarts at {cell_text(old.executor.cell)}")
         self.monitors.restarted(drone, old.executor.cell, self.steps[drone])

@@ -138,7 +138,7 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
         links = await _all_or_none([_connect(host, frame, name, signing.get(name)) for name in host.names],
                                    lambda link: link.close())
         for node, link, name in zip(nodes, links, host.names, strict=True):
-            stack = DroneStack(name, config, ws.drones)
+            stack = DroneStack(name, config, ws.drones, epoch=time.time_ns() // 1_000_000)
             agent = DroneAgent(stack, node, keys, link, frame, host.clock, record, timeouts(settings))
             agent.mail.adopt = settings.adopt_mail
             agent.lease_steps = math.ceil(settings.lease_s / ws.tau_s)

@@ -148,8 +148,8 @@ def _sweep(args: argparse.Namespace) -> int:
         if row.token is not None:
             print(f"       {o.violation}\n       replay: drona verify --replay {row.token}", flush=True)
 
-    rows = run_sweep(configurations(args.seed, args.sweep, faults=not args.no_faults), args.schedules, args.max_depth,
-                     stop_after, on_row)
+    configs = configurations(args.seed, args.sweep, faults=not args.no_faults, crashes=args.crashes)
+    rows = run_sweep(configs, args.schedules, args.max_depth, stop_after, on_row)
     failed = [row for row in rows if not row.clean]
     by_monitor = sorted({row.outcome.violation.monitor for row in failed if row.outcome.violation is not None})
     print(f"sweep seed {args.seed}: {len(rows) - len(failed)} of {len(rows)} clean"

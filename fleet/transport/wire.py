@@ -47,8 +47,10 @@ from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj, Ta
 #: 2: a Zenoh message may carry several envelopes, one per line (fleet.transport.node);
 #: 3: ``cur_traj_to``, one answer to several drones;
 #: 4: ``req_traj`` carries the requester's trajectory (its answer to the drones before it in line);
-#: 5: protocol messages carry ``holds``, the cells a drone whose vehicle is lost holds besides its trajectory.
-VERSION: Final = 5
+#: 5: protocol messages carry ``holds``, the cells a drone whose vehicle is lost holds besides its trajectory;
+#: 6: ``req_traj`` carries ``asked``, the peers its round waits for, and ``clear``, a way the requester
+#: asks resting drones to leave; task ids carry the ``epoch`` (incarnation) of the agent that made them.
+VERSION: Final = 6
 
 CellList = Annotated[list[int], msgspec.Meta(min_length=3, max_length=3)]
 #: A mail id is a Zenoh key chunk (mail/status/<id>); \Z, not $: "$" would let a final newline through.
@@ -80,13 +82,14 @@ class WireTaskId(_Strict, frozen=True, kw_only=True):
     stamp: int
     drone: str
     seq: int
+    epoch: int = 0  #: the incarnation of the agent that made it
 
     @classmethod
     def of(cls, task_id: TaskId) -> WireTaskId:
-        return cls(stamp=task_id.stamp, drone=task_id.drone, seq=task_id.seq)
+        return cls(stamp=task_id.stamp, drone=task_id.drone, seq=task_id.seq, epoch=task_id.epoch)
 
     def core(self) -> TaskId:
-        return TaskId(self.stamp, self.drone, self.seq)
+        return TaskId(self.stamp, self.drone, self.seq, self.epoch)
 
 
 class WireTrajectory(_Strict, frozen=True, kw_only=True):
@@ -105,7 +108,9 @@ class WireTrajectory(_Strict, frozen=True, kw_only=True):
 class ReqTraj(_Body, frozen=True, kw_only=True, tag="req_traj"):
     task_id: WireTaskId
     trajectory: WireTrajectory  #: the requester's, which a drone before it in line takes as its answer
+    asked: tuple[str, ...]  #: the peers its round waits for
     holds: Holds = ()  #: cells its lost vehicle may be in, besides the trajectory
+    clear: Holds = ()  #: a way to its goal that drones resting on it are asked to leave
 
 
 class CurTraj(_Body, frozen=True, kw_only=True, tag="cur_traj"):
@@ -245,7 +250,7 @@ Body = (ReqTraj | CurTraj | CurTrajTo | PlanAnnounce | DroneState | HeldMail | M
 
 
 class Envelope(_Strict, frozen=True, kw_only=True):
-    v: Literal[5] = VERSION
+    v: Literal[6] = VERSION
     sender: Annotated[str, msgspec.Meta(min_length=1)]
     sent_at: float
     body: Body
@@ -299,7 +304,7 @@ def to_json(message: _Strict) -> dict[str, Any]:
 def from_core(message: Message) -> ReqTraj | CurTraj:
     if isinstance(message, ReqForCurrentTraj):
         return ReqTraj(task_id=WireTaskId.of(message.task_id), trajectory=WireTrajectory.of(message.trajectory),
-                       holds=message.holds)
+                       asked=message.asked, holds=message.holds, clear=message.clear)
     return CurTraj(in_reply_to=WireTaskId.of(message.in_reply_to), trajectory=WireTrajectory.of(message.trajectory),
                    holds=message.holds)
 
@@ -316,7 +321,8 @@ def to_core(envelope: Envelope, me: str) -> Message | None:
     for a ``cur_traj_to`` that answers others only."""
     body = envelope.body
     if isinstance(body, ReqTraj):
-        return ReqForCurrentTraj(body.task_id.core(), envelope.sender, body.trajectory.core(), body.holds)
+        return ReqForCurrentTraj(body.task_id.core(), envelope.sender, body.trajectory.core(), body.asked,
+                                 body.holds, body.clear)
     if isinstance(body, CurTraj):
         request = body.in_reply_to
     elif isinstance(body, CurTrajTo):
