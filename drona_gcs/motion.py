@@ -141,6 +141,16 @@ class Trajectory:
     def primitives(self) -> tuple[Primitive, ...]:
         return tuple(primitive_between(a, b) for a, b in zip(self.cells, self.cells[1:], strict=False))
 
+    def spliced(self, later: Trajectory) -> Trajectory:
+        """This trajectory until ``later`` starts (holding its last cell if it ends before), then ``later``."""
+        if later.first != self.at(later.start_step):
+            raise ProblemError(f"a trajectory from {list(later.first)} at step {later.start_step} cannot follow "
+                               f"one at {list(self.at(later.start_step))} then")
+        if later.start_step <= self.start_step:
+            return later
+        return Trajectory(self.start_step, (*(self.at(s) for s in range(self.start_step, later.start_step)),
+                                            *later.cells))
+
     def suffix_from(self, step: int) -> Trajectory:
         """The part from ``step`` on (the drone's position at ``step`` first)."""
         if step <= self.start_step:

@@ -106,3 +106,23 @@ def test_it_refuses_out_of_order_ticks(steps: tuple[int, ...]) -> None:
         ex.tick(steps[-1])
     assert ex.step == last  # a refused tick changes nothing
     ex.tick(last + 1)
+
+
+def test_a_new_rest_of_the_trajectory_flown_is_taken_mid_flight() -> None:
+    """A rerouted plan is the one flown until its new rest starts (Trajectory.spliced): taken as is;
+    one that differs from what was flown is refused."""
+    flown = Trajectory(1, ((0, 0, 0), (1, 0, 0), (2, 0, 0), (3, 0, 0)))
+    executor = PlanExecutor((0, 0, 0))
+    executor.start(flown)
+    for step in range(3):
+        executor.tick(step)
+    rest = flown.spliced(Trajectory(3, ((2, 0, 0), (2, 1, 0), (3, 1, 0))))
+    assert rest.cells[:3] == flown.cells[:3]
+    executor.start(rest)
+    assert [executor.tick(s)[0].cell for s in range(3, 6)] == [(2, 0, 0), (2, 1, 0), (3, 1, 0)]
+    other = PlanExecutor((0, 0, 0))
+    other.start(flown)
+    for step in range(3):
+        other.tick(step)
+    with pytest.raises(ProtocolViolation):
+        other.start(Trajectory(1, ((0, 0, 0), (0, 1, 0), (1, 1, 0), (2, 1, 0))))

@@ -32,10 +32,13 @@ from drona_gcs.stack.protocol import (
     PeerLeft,
     PlanCompleted,
     Relocated,
+    Reroute,
+    RerouteFailed,
     Send,
     StartExecuting,
     State,
     TaskFailed,
+    Threatened,
     VehicleLost,
 )
 from drona_gcs.workspace import Cell, Workspace
@@ -87,12 +90,14 @@ def request(task_id: TaskId, sender: str, now: int = 0) -> ReqForCurrentTraj:
 
 # =========================================================== the state table
 EVENT_TYPES: tuple[type, ...] = (NewTask, PlanCompleted, PeerLeft, PeerJoined, ReqForCurrentTraj, CurrentTraj,
-                                 VehicleLost, Relocated)
+                                 VehicleLost, Relocated, Reroute)
 #: What Protocol 1 takes in each state (paper section 3.1); the rest is a protocol violation. A vehicle
-#: found again is not placed while a round is under way (its request carried where it was).
-REJECTED = {(State.COORDINATING, NewTask), (State.EXECUTING, NewTask),
+#: found again is not placed while a round is under way (its request carried where it was). Only a
+#: drone flying a plan plans its rest anew (Reroute), and that round ends when the plan does.
+REJECTED = {(State.COORDINATING, NewTask), (State.EXECUTING, NewTask), (State.REROUTING, NewTask),
             (State.WAIT_FOR_TASK, PlanCompleted), (State.COORDINATING, PlanCompleted),
-            (State.COORDINATING, Relocated)}
+            (State.COORDINATING, Relocated), (State.REROUTING, Relocated),
+            (State.WAIT_FOR_TASK, Reroute), (State.COORDINATING, Reroute), (State.REROUTING, Reroute)}
 
 
 def in_state(state: State) -> CoordinationProtocol:
@@ -100,8 +105,10 @@ def in_state(state: State) -> CoordinationProtocol:
     proto = machine({"a": A, "b": B})
     if state is not State.WAIT_FOR_TASK:
         proto.handle(NewTask(Task(ID_A, GOAL)), 0)
-    if state is State.EXECUTING:
+    if state in (State.EXECUTING, State.REROUTING):
         started(proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0))
+    if state is State.REROUTING:
+        proto.handle(Reroute(Task(TaskId(6, "a", 2), GOAL)), 0)
     assert proto.state is state
     return proto
 
@@ -116,6 +123,7 @@ def sample(event_type: type) -> Event:
         CurrentTraj: CurrentTraj("b", location_of("b"), ID_A),
         VehicleLost: VehicleLost(1, A),
         Relocated: Relocated((1, 0, 0)),
+        Reroute: Reroute(Task(TaskId(9, "a", 2), GOAL)),
     }
     return samples[event_type]
 
@@ -768,3 +776,47 @@ def test_a_plan_avoids_every_cell_a_lost_peer_holds_for_good() -> None:
     assert not set(plan.trajectory.cells) & set(held)
     assert check_trajectory(OPEN, plan.trajectory, {"hold": Trajectory.stationary((2, 0, 0), 0)}, 0) == []
     assert manhattan(A, GOAL) < len(plan.trajectory.cells) - 1  # the detour
+
+
+# ========================================== a peer leaves across the plan I fly
+B_AWAY = traj(0, (3, 0), (3, 1))  # b's plan: it leaves (3, 0) long before a flies through it
+
+
+def flying_past_b() -> tuple[CoordinationProtocol, Trajectory]:
+    """a (peers b and c) flies row 0 to GOAL, through (3, 0) at step 5, having planned around B_AWAY."""
+    proto = machine()
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    proto.handle(CurrentTraj("b", B_AWAY, ID_A), 0)
+    plan = started(proto.handle(CurrentTraj("c", location_of("c"), ID_A), 0)).trajectory
+    assert plan.at(5) == (3, 0, 0)
+    return proto, plan
+
+
+def test_a_peer_that_leaves_across_the_rest_of_my_plan_has_me_plan_that_rest_anew() -> None:
+    """Found by the systematic tester with a crash: b's agent died before it flew its plan, its vehicle
+    holding where it was; a drone that had planned around b's plan flew into it. Plans made before a
+    leave is noticed avoided only the plan: the rest of mine is planned anew, flown on meanwhile."""
+    proto, plan = flying_past_b()
+    assert proto.handle(PeerLeft("b"), 2) == [Threatened("b", ((3, 0, 0),))]
+    proto.handle(Reroute(Task(TaskId(6, "a", 2), GOAL)), 2)
+    assert proto.state is State.REROUTING and proto.trajectory == plan  # what it answers meanwhile
+    actions = proto.handle(CurrentTraj("c", location_of("c"), TaskId(6, "a", 2)), 2)
+    new = started(actions).trajectory
+    assert all(new.at(s) == plan.at(s) for s in range(0, 5))  # the same until the new rest starts
+    assert not {(3, 0, 0), (3, 1, 0)} & set(new.suffix_from(4).cells) and new.last == GOAL
+    assert proto.state is State.EXECUTING and proto.trajectory == new
+
+
+def test_a_leave_behind_my_plan_changes_nothing() -> None:
+    proto, _ = flying_past_b()
+    assert proto.handle(PeerLeft("c"), 2) == []
+
+
+def test_a_reroute_round_ends_when_the_plan_does() -> None:
+    """The plan ended before the round: the drone rests at its end, and the round is moot."""
+    proto, plan = flying_past_b()
+    proto.handle(PeerLeft("b"), 2)
+    proto.handle(Reroute(Task(TaskId(6, "a", 2), GOAL)), 2)
+    actions = proto.handle(PlanCompleted(), 6)
+    assert [type(a) for a in actions] == [RerouteFailed]
+    assert proto.state is State.WAIT_FOR_TASK and proto.location == plan.last

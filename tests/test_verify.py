@@ -149,9 +149,15 @@ def test_a_copy_of_what_a_crashed_agent_sent_still_comes_before_its_leave() -> N
     assert ("deliver", left.seq) in world.enabled()
 
 
-def test_clean_stack_stays_safe_when_agents_crash_and_restart() -> None:
-    explorer = Explorer(Scenario(drones=3, requests=4, delta=1, seed=3, crashes=1))
-    outcome = explorer.run(Strategy.RANDOM, schedules=200, max_depth=4000, seed=3)
+@pytest.mark.parametrize("drones, requests, delta, seed, strategy", [
+    (3, 4, 1, 3, Strategy.RANDOM),  # a restarted agent's first request was dropped as late; asymmetric membership
+    (4, 4, 0, 649216, Strategy.PCT),  # planned around a plan whose agent died: flew into its vehicle
+])
+def test_clean_stack_stays_safe_when_agents_crash_and_restart(drones: int, requests: int, delta: int, seed: int,
+                                                              strategy: Strategy) -> None:
+    """Found by crash sweeps (see each case); the stack must survive them all."""
+    explorer = Explorer(Scenario(drones=drones, requests=requests, delta=delta, seed=seed, crashes=1))
+    outcome = explorer.run(strategy, schedules=400, max_depth=5000, seed=seed)
     assert outcome.violation is None, str(outcome.violation)
 
 

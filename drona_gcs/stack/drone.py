@@ -47,9 +47,11 @@ from drona_gcs.stack.protocol import (
     PeerLeft,
     PlanCompleted,
     Relocated,
+    Reroute,
     StartExecuting,
     State,
     TaskFailed,
+    Threatened,
     VehicleLost,
 )
 from drona_gcs.workspace import Cell, Workspace
@@ -128,6 +130,7 @@ class DroneStack:
         mine = set(parking) if len(ws.parking) >= len(peers) else set()
         resting = {*ws.charging_stations, *(c for c in ws.parking if c not in mine)}  # others may rest there
         self.resting_now: frozenset[Cell] = frozenset()  #: cells other drones rest on, at the last decision
+        self.level = 100.0  #: the battery level at the last step boundary
         distance = _distance_function(planner, resting, lambda: self.resting_now)
         self.mail = MailPlanner(start, ws.charging_stations, parking, distance,
                                 config.battery, recharged_level=config.recharged_mark, leg_overhead=leg_overhead(lead),
@@ -218,6 +221,7 @@ class DroneStack:
                 self.mail.battery_low()
             else:
                 self.mail.battery_recharged()
+        self.level = battery_level
         self._land_if_spent(step)
         if may_plan and self.protocol.state is State.WAIT_FOR_TASK:
             taken = self.taken_cells()
@@ -238,6 +242,14 @@ class DroneStack:
         if flight is not None:
             flight -= 1 if hovering is not None else 1 + self.protocol.lead_steps
         return Task(self.clock.next_id(max(physical_time, step)), leg.goal, flight, hovering, self._way_to_clear(leg))
+
+    def _reroute_task(self) -> Task:
+        """A new plan for the rest of the leg flown: same goal, with what the battery affords now
+        less what must remain there; it is flown from now on (hovering, as far as budgets go)."""
+        trajectory, now = self.protocol.trajectory, self.now
+        assert trajectory is not None
+        flight = self.mail.flight_to(trajectory.last, self.level)
+        return Task(self.clock.next_id(now), trajectory.last, flight, hovering_since=now)
 
     def _way_to_clear(self, leg: GoTo) -> tuple[Cell, ...]:
         """The way a mail or charging leg asks resting drones to leave: when its goal is taken, or
@@ -302,6 +314,8 @@ class DroneStack:
             elif isinstance(action, TaskFailed):
                 self.unreached = action.task.goal
                 actions += self.mail.leg_failed(self.now, cut_off=action.cut_off)
+            elif isinstance(action, Threatened):
+                actions += self._protocol(Reroute(self._reroute_task()))
         return actions
 
 

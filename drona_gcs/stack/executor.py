@@ -53,7 +53,11 @@ class PlanExecutor:
         return self.trajectory is not None and self.step >= self.trajectory.start_step
 
     def start(self, trajectory: Trajectory) -> None:
-        """Follow ``trajectory`` from its start step; it must start after the last boundary taken."""
+        """Follow ``trajectory`` from its start step; it must start after the last boundary taken,
+        or be the one followed now until then (a new rest of it, see :meth:`Trajectory.spliced`)."""
+        if self._continues(trajectory):
+            self.trajectory = trajectory
+            return
         if trajectory.start_step <= self.step:
             raise ProtocolViolation(
                 f"trajectory starts at step {trajectory.start_step} but the executor is already at step "
@@ -62,6 +66,11 @@ class PlanExecutor:
             raise ProtocolViolation(f"trajectory starts at {list(trajectory.first)} but the drone holds "
                                     f"{list(self.cell)}")
         self.trajectory, self.state = trajectory, ExecutorState.EXECUTING
+
+    def _continues(self, trajectory: Trajectory) -> bool:
+        flown = self.trajectory
+        return (flown is not None and trajectory.start_step <= self.step < trajectory.end_step
+                and all(trajectory.at(s) == flown.at(s) for s in range(trajectory.start_step, self.step + 1)))
 
     def relocate(self, cell: Cell) -> None:
         """The vehicle is in ``cell`` (found there after it was lost): hold it, with no trajectory."""

@@ -443,6 +443,12 @@ class MailPlanner:
         self.retry_at = budget.now + self._leg(self.cell, spot) + self.hold_steps
         return self._go(spot, budget, self._after(spot), Phase.MAKING_WAY, taken)
 
+    def flight_to(self, goal: Cell, level: float) -> int | None:
+        """Steps of flight ``level`` affords on the way to ``goal``, what must remain there kept
+        (None: no energy model)."""
+        reserve = 0 if goal in self.chargers else self._after(goal)
+        return self._budget(0, level).flight(reserve)
+
     def _parking_spots(self) -> Sequence[Cell]:
         """Where to park: our own parking cells (chargers when there are none); once each has found
         no plan since the last leg, any other drone's parking cell too (walled in by drones

@@ -75,6 +75,17 @@ settled here, and one message it sends is saved (the second point):
   safety first. Since it may have stopped anywhere along the rest of its
   last known trajectory, every cell of that rest is held for good. ``PeerJoined``
   (again) makes it a peer; if I am coordinating, I ask it too.
+* **A peer that leaves across the plan I fly.** Plans made before its leave was
+  noticed avoided only its plan, and its vehicle may hold anywhere on the rest of
+  it. If the rest of mine, from when a new one could start (``lead_steps`` on),
+  crosses one of those cells, I report ``Threatened``; the task planner asks for a
+  new plan to the same goal (``Reroute``) and I coordinate it as any task
+  (``REROUTING``), answering with the plan I fly on meanwhile. The new plan starts
+  where that one is at its start step, and the two joined are what I then answer
+  with. No plan (or the old one ended first): I fly on what I have. Sound as any
+  round: my new rest avoids every answer, and a drone ahead of me in line plans
+  against the plan I fly, which I do not change before it has planned. A cell
+  crossed within ``lead_steps`` cannot be helped this way (found by the tester).
 * **My vehicle can be lost** (its link closed or silent). It may then be anywhere on
   my trajectory from when it was last seen, or where it was seen: I keep answering with
   my trajectory and also name those cells (``holds``), which every peer holds for good
@@ -113,6 +124,7 @@ class State(enum.Enum):
     WAIT_FOR_TASK = "WaitForTaskRequest"  #: idle at its location, answering with it
     COORDINATING = "CoordinateAndGeneratePlan"  #: collecting every peer's trajectory
     EXECUTING = "WaitForPlanCompletion"  #: flying its plan, answering with it
+    REROUTING = "RerouteWhileExecuting"  #: flying its plan, collecting trajectories to plan its rest anew
 
 
 # ------------------------------------------------------------------ events
@@ -159,8 +171,15 @@ class Relocated:
     cell: Cell
 
 
+@dataclass(frozen=True)
+class Reroute:
+    """A new plan to the goal of the one I fly, asked for after :class:`Threatened`."""
+
+    task: Task
+
+
 Event = (NewTask | PlanCompleted | PeerLeft | PeerJoined | ReqForCurrentTraj | CurrentTraj | VehicleLost
-         | Relocated)
+         | Relocated | Reroute)
 
 
 # ----------------------------------------------------------------- actions
@@ -189,7 +208,24 @@ class TaskFailed:
     cut_off: bool = False  #: no path at all joins start and goal (see GoalCutOff)
 
 
-Action = Send | Broadcast | StartExecuting | TaskFailed
+@dataclass(frozen=True)
+class Threatened:
+    """The rest of the plan I fly crosses cells a departed drone may hold for good: the task
+    planner should ask for a new plan to the same goal (:class:`Reroute`)."""
+
+    departed: str
+    cells: tuple[Cell, ...]  #: the cells of my plan it may hold
+
+
+@dataclass(frozen=True)
+class RerouteFailed:
+    """No new plan avoids the departed drone: I fly the plan I have (what else is there)."""
+
+    task: Task
+    reason: str
+
+
+Action = Send | Broadcast | StartExecuting | TaskFailed | Threatened | RerouteFailed
 
 
 @dataclass
@@ -243,6 +279,11 @@ class CoordinationProtocol:
         if self.trajectory is not None:
             return self.trajectory
         return Trajectory.stationary(self.location, now)
+
+    @property
+    def coordinating(self) -> bool:
+        """A round is under way: collecting every peer's trajectory, to plan."""
+        return self.state in (State.COORDINATING, State.REROUTING)
 
     def holds(self) -> tuple[Cell, ...]:
         """Cells my lost vehicle may be in, besides my trajectory: the rest of my plan from when it
@@ -360,6 +401,29 @@ class CoordinationProtocol:
         self.location, self.state, self.task = self.trajectory.last, State.WAIT_FOR_TASK, None
         return []
 
+    def _on_completed_while_rerouting(self, event: PlanCompleted, now: int) -> list[Action]:
+        """The plan ended before its new rest was planned: the round is moot, and I rest at its end."""
+        assert self.task is not None and self.trajectory is not None
+        failed = RerouteFailed(self.task, "the plan ended first")
+        self.location, self.state, self.task = self.trajectory.last, State.WAIT_FOR_TASK, None
+        return [*self._release_pending(self.trajectory), failed]
+
+    def _on_reroute(self, event: Reroute, now: int) -> list[Action]:
+        actions = self._on_new_task(NewTask(event.task), now)
+        if self.state is State.COORDINATING:  # the round goes on: it plans the rest of the plan flown
+            self.state = State.REROUTING
+        return actions
+
+    def _threat(self, drone: str, now: int) -> list[Action]:
+        """Whether the rest of my plan, from when a new one could start, crosses cells ``drone``
+        (departed) may hold for good: plans made before its leave was noticed avoided only its plan."""
+        if self.state is not State.EXECUTING or self.trajectory is None:
+            return []
+        here = self.trajectory.at(now)
+        held = set(self.ghosts[drone].cells) - {here}
+        crossed = [c for c in self.trajectory.suffix_from(now + self.lead_steps).cells if c in held]
+        return [Threatened(drone, tuple(dict.fromkeys(crossed)))] if crossed else []
+
     def _on_peer_left(self, event: PeerLeft, now: int) -> list[Action]:
         if event.drone not in self.members:
             return []
@@ -371,7 +435,7 @@ class CoordinationProtocol:
         self.ghosts[event.drone] = last.suffix_from(silent - self.lead_steps)
         self.pending.pop(event.drone, None)
         self.peer_holds.pop(event.drone, None)
-        return self._plan_if_ready(now) if self.state is State.COORDINATING else []
+        return self._plan_if_ready(now) if self.coordinating else self._threat(event.drone, now)
 
     def _on_peer_joined(self, event: PeerJoined, now: int) -> list[Action]:
         if event.drone == self.me or event.drone in self.members:
@@ -381,7 +445,7 @@ class CoordinationProtocol:
         self.newest.pop(event.drone, None)  # it may have restarted, and its clock with it
         # What it announces now is newer than anything we heard before it left.
         self.known[event.drone] = event.announced(now)
-        if self.state is State.COORDINATING and self.task is not None:
+        if self.coordinating and self.task is not None:
             return [Send(event.drone, self._request(now))]
         return []
 
@@ -400,24 +464,31 @@ class CoordinationProtocol:
             return []
         assert self.task is not None
         task = self.task
-        psi = {**self.ghost_obstacles(sparing=self.location), **self._held_by_peers(now),
-               **{p: self.received[p] for p in sorted(self.members)}}
         start_step = now + self.lead_steps
+        flying = self.trajectory if self.state is State.REROUTING else None
+        here = flying.at(now) if flying is not None else self.location
+        start = flying.at(start_step) if flying is not None else self.location
+        psi = {**self.ghost_obstacles(sparing=here), **self._held_by_peers(now),
+               **{p: self.received[p] for p in sorted(self.members)}}
         max_length = task.max_length(start_step)
         try:
             if self.lost is not None:
                 raise NoPlanFound("my vehicle is lost")
             if max_length is not None and max_length < 0:
                 raise NoPlanFound("the battery no longer affords the task")
-            plan = self.plan(self.location, task.goal, start_step, psi, max_length)
+            plan = self.plan(start, task.goal, start_step, psi, max_length)
         except NoPlanFound as exc:
-            self.state, self.task = State.WAIT_FOR_TASK, None
             # I stay: my last plan (or my location) is still the truth, including the recent
             # steps a peer up to Delta behind me still needs.
+            if flying is not None:
+                self.state = State.EXECUTING
+                return [*self._release_pending(flying), RerouteFailed(task, str(exc))]
+            self.state, self.task = State.WAIT_FOR_TASK, None
             failed = TaskFailed(task, str(exc), isinstance(exc, GoalCutOff))
             return [*self._release_pending(self.current_trajectory(now)), failed]
-        self.trajectory, self.state = plan.trajectory, State.EXECUTING
-        return [StartExecuting(task, plan.trajectory, psi), *self._release_pending(plan.trajectory)]
+        trajectory = flying.spliced(plan.trajectory) if flying is not None else plan.trajectory
+        self.trajectory, self.state = trajectory, State.EXECUTING
+        return [StartExecuting(task, trajectory, psi), *self._release_pending(trajectory)]
 
     def _held_by_peers(self, now: int) -> dict[str, Trajectory]:
         """The cells this round's answers hold besides their trajectories, as obstacles for good."""
@@ -456,9 +527,18 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         ReqForCurrentTraj: CoordinationProtocol._on_request,  # answered with my trajectory
         CurrentTraj: CoordinationProtocol._ignore,
         PlanCompleted: CoordinationProtocol._on_completed,  # -> WAIT_FOR_TASK
-        PeerLeft: CoordinationProtocol._on_peer_left,
+        Reroute: CoordinationProtocol._on_reroute,  # -> REROUTING
+        PeerLeft: CoordinationProtocol._on_peer_left,  # may report Threatened
         PeerJoined: CoordinationProtocol._on_peer_joined,
         VehicleLost: CoordinationProtocol._on_vehicle_lost,
         Relocated: CoordinationProtocol._on_relocated,  # -> WAIT_FOR_TASK
+    },
+    State.REROUTING: {  # a round as COORDINATING's, while the plan is flown on
+        ReqForCurrentTraj: CoordinationProtocol._on_request_while_coordinating,
+        CurrentTraj: CoordinationProtocol._on_reply,  # -> EXECUTING, with the new rest or the old one
+        PlanCompleted: CoordinationProtocol._on_completed_while_rerouting,  # -> WAIT_FOR_TASK
+        PeerLeft: CoordinationProtocol._on_peer_left,
+        PeerJoined: CoordinationProtocol._on_peer_joined,
+        VehicleLost: CoordinationProtocol._on_vehicle_lost,  # the round ends with the plan flown
     },
 }

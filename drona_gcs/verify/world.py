@@ -45,7 +45,7 @@ from drona_gcs.stack.mail import (
     Phase,
 )
 from drona_gcs.stack.messages import CurrentTraj, Message
-from drona_gcs.stack.protocol import Broadcast, Send, StartExecuting, State, TaskFailed
+from drona_gcs.stack.protocol import Broadcast, RerouteFailed, Send, StartExecuting, TaskFailed, Threatened
 from drona_gcs.verify.monitors import Flier, Monitors, cell_text, cells_text
 from drona_gcs.verify.mutants import planner_delta, plant
 from drona_gcs.workspace import Cell, Workspace
@@ -534,7 +534,7 @@ class World:
             line = f"{drone} {protocol.state.value} at {cell_text(stack.executor.cell)}, {mail.phase.value}"
             if protocol.task is not None:
                 line += f", task {protocol.task.id} to {cell_text(protocol.task.goal)}"
-            if protocol.state is State.COORDINATING:
+            if protocol.coordinating:
                 line += f", waits for {sorted(protocol.members - set(protocol.received)) or 'nobody'}"
             lines.append(line + f", holds {held}, battery {self.battery[drone]:.0f}%")
         return "; ".join(lines)
@@ -652,6 +652,10 @@ def _note(action: object) -> str:
         return f"plans task {action.task.id}: {cells_text(t, len(t.cells))}"
     if isinstance(action, TaskFailed):
         return f"no plan for task {action.task.id} to {cell_text(action.task.goal)}: {action.reason}"
+    if isinstance(action, Threatened):
+        return f"{action.departed} left and may hold {cell_text(action.cells[0])} of my plan: plans its rest anew"
+    if isinstance(action, RerouteFailed):
+        return f"no new plan for the rest of mine (task {action.task.id}): {action.reason}"
     if isinstance(action, GoTo):
         by = f" within {action.flight_steps} steps of flight" if action.flight_steps is not None else ""
         return f"task planner: go to {cell_text(action.goal)} for {action.purpose.value}{by}"

@@ -36,7 +36,7 @@ from drona_gcs.stack.battery import BatteryLow, BatteryRecharged
 from drona_gcs.stack.drone import DroneAction, DroneStack, LegNotFlown
 from drona_gcs.stack.mail import GoTo, MailDelivered, MailLost, MailPickedUp, MailRejected, MailStarted
 from drona_gcs.stack.messages import CurrentTraj
-from drona_gcs.stack.protocol import Broadcast, Send, StartExecuting, State, TaskFailed
+from drona_gcs.stack.protocol import Broadcast, RerouteFailed, Send, StartExecuting, State, TaskFailed, Threatened
 from drona_gcs.workspace import Cell, Workspace
 from fleet.agent.clocksync import ClockCheck, OffsetSample
 from fleet.agent.maildesk import MailDesk
@@ -177,7 +177,7 @@ class DroneAgent:
     def _watch_vehicle(self, step: int) -> None:
         """Lost, back, placed: what the vehicle did since the last boundary, and what the drone does about it."""
         protocol = self.stack.protocol
-        verdict = self.watch.boundary(step, protocol.holds(), placeable=protocol.state is not State.COORDINATING)
+        verdict = self.watch.boundary(step, protocol.holds(), placeable=not protocol.coordinating)
         if verdict.seen is Seen.LOST:
             self._lost(step, verdict)
         elif verdict.seen is Seen.BACK:
@@ -284,6 +284,12 @@ class DroneAgent:
                 self._started(action, announce=not told_everyone)
             elif isinstance(action, TaskFailed):
                 log.warning("%s: no plan for task %s: %s", self.me, action.task.id, action.reason)
+            elif isinstance(action, Threatened):
+                log.warning("%s: %s left and may hold %s of my plan: planning its rest anew", self.me,
+                            action.departed, [list(c) for c in action.cells])
+            elif isinstance(action, RerouteFailed):
+                log.warning("%s: no new plan for the rest of mine (task %s): %s", self.me, action.task.id,
+                            action.reason)
             elif isinstance(action, LegNotFlown):
                 seen = "in no cell" if action.seen is None else f"in {list(action.seen)}"
                 text = f"leg_not_flown: the plan ended at {list(action.goal)}, telemetry put the vehicle {seen}"
