@@ -117,7 +117,10 @@ def test_a_vehicle_down_by_itself_hands_its_mail_back_and_the_drone_starts_no_ta
     assert "came down" in agent.alarms["down"]
     kinds = {type(a).__name__ for a in later if not isinstance(a, Exception)}
     assert not kinds & {"GoTo", "MailStarted", "MailPickedUp", "MailDelivered"}, kinds
-    assert "Completed" in kinds  # the leg under way was flown to its end, with no mail
+    assert "Completed" not in kinds  # the plan under way is not flown on: the vehicle is on the ground
+    assert agent.stack.executor.cell == (0, 0, 0) and agent.stack.executor.trajectory is None
+    told = [decode(p).body for k, p in node.puts if k == KEYS.plan("d1")]
+    assert any(isinstance(b, PlanAnnounce) and b.grounded and b.trajectory.cells == ((0, 0, 0),) for b in told)
     refusal = [str(a) for a in later if isinstance(a, Exception)]
     assert refusal == ["drone d1 takes no mail: its vehicle came down by itself"]
 
@@ -376,3 +379,18 @@ def test_the_flight_record_has_only_fresh_sightings_never_a_stale_or_lost_vehicl
     asyncio.run(scenario())
     steps = [json.loads(line)["step"] for line in record.getvalue().splitlines()]
     assert steps == [0, 1, 2, 5]
+
+
+def test_a_peer_that_says_its_vehicle_came_down_is_an_obstacle_for_good() -> None:
+    """``plan`` with ``grounded``: the peer stays at its trajectory's end, whatever it flew before."""
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0, drones={"d1": (0, 0, 0), "d2": (7, 0, 0)})
+
+    async def scenario() -> DroneStack:
+        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+        agent = DroneAgent(stack, RecordingNode(), KEYS, ScriptedVehicle(), GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
+        down = PlanAnnounce(trajectory=WireTrajectory.of(Trajectory.stationary((4, 4, 0), 3)), grounded=True)
+        agent._on_plan(KEYS.plan("d2"), encode("d2", 1000.0, down))
+        return stack
+
+    stack = asyncio.run(scenario())
+    assert stack.protocol.peers_down == {"d2": (4, 4, 0)}

@@ -250,10 +250,13 @@ def fleet_on_the_ring(ws: Workspace, down: str, steps: int) -> dict[str, list[Dr
     """d1 carries RING_MAIL; ``down``'s vehicle came down where it started; every message arrives at once."""
     config = StackConfig(ws, SafePlanner(ws))
     stacks = {d: DroneStack(d, config, dict(ws.drones)) for d in ws.drones}
-    stacks[down].vehicle_down("a failsafe")
+    early = stacks[down].vehicle_down("a failsafe", ws.drones[down])
     stacks["d1"].assign(RING_MAIL)
     done: dict[str, list[DroneAction]] = {d: [] for d in stacks}
     inbox: list[tuple[str, Message]] = []
+    for peer in set(stacks) - {down}:  # its announcement that it stays there for good
+        done[peer] += stacks[peer].peer_down(down, ws.drones[down])
+    done[down] += early
 
     def post(sender: str, actions: list[DroneAction]) -> None:
         done[sender] += actions

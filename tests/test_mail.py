@@ -625,15 +625,21 @@ def test_a_parked_drone_asked_to_make_way_leaves_lands_and_stays_out_a_while() -
     assert (home.goal, home.purpose) == (P1, Phase.TO_PARKING)
 
 
-def test_a_drone_with_mail_on_board_or_charging_does_not_make_way() -> None:
-    """Mail on board goes to its drop-off and nowhere else; a charging drone leaves when charged."""
+def test_a_drone_with_mail_on_board_makes_way_then_goes_on_to_its_drop_off() -> None:
+    """Found by the systematic tester: a vehicle down on one drone's drop-off, that drone waiting with
+    its mail on another's drop-off, which waited for good in turn. Charging drones stay."""
     m = mail("m", c(2, 2), c(4, 4))
     carrying = planner()
     carrying.assign(m)
     goto(carrying.decide(0, 100, set()))
     carrying.leg_done()
-    carrying.make_way(c(1, 8))
-    assert goto(carrying.decide(1, 100, set())).goal == c(4, 4)
+    carrying.make_way(c(1, 2))
+    leg = goto(carrying.decide(1, 100, set()))
+    assert (leg.goal, leg.purpose) == (c(1, 2), Phase.MAKING_WAY)
+    assert carrying.leg_done() == [] and carrying.carrying
+    later = carrying.retry_at
+    assert carrying.decide(later - 1, 100, set()) == []
+    assert goto(carrying.decide(later, 100, set())).goal == c(4, 4)
     charging = planner(at=Q1)
     charging.battery_low()
     assert charging.decide(0, 50, set()) == [] and charging.phase is Phase.CHARGING

@@ -27,7 +27,9 @@ from drona_gcs.stack.protocol import (
     Broadcast,
     CoordinationProtocol,
     Event,
+    Grounded,
     NewTask,
+    PeerDown,
     PeerJoined,
     PeerLeft,
     PlanCompleted,
@@ -39,6 +41,7 @@ from drona_gcs.stack.protocol import (
     State,
     TaskFailed,
     Threatened,
+    VehicleDown,
     VehicleLost,
 )
 from drona_gcs.workspace import Cell, Workspace
@@ -90,7 +93,7 @@ def request(task_id: TaskId, sender: str, now: int = 0) -> ReqForCurrentTraj:
 
 # =========================================================== the state table
 EVENT_TYPES: tuple[type, ...] = (NewTask, PlanCompleted, PeerLeft, PeerJoined, ReqForCurrentTraj, CurrentTraj,
-                                 VehicleLost, Relocated, Reroute)
+                                 VehicleLost, Relocated, Reroute, VehicleDown, PeerDown)
 #: What Protocol 1 takes in each state (paper section 3.1); the rest is a protocol violation. A vehicle
 #: found again is not placed while a round is under way (its request carried where it was). Only a
 #: drone flying a plan plans its rest anew (Reroute), and that round ends when the plan does.
@@ -124,6 +127,8 @@ def sample(event_type: type) -> Event:
         VehicleLost: VehicleLost(1, A),
         Relocated: Relocated((1, 0, 0)),
         Reroute: Reroute(Task(TaskId(9, "a", 2), GOAL)),
+        VehicleDown: VehicleDown((1, 0, 0)),
+        PeerDown: PeerDown("b", (3, 3, 0)),
     }
     return samples[event_type]
 
@@ -820,3 +825,52 @@ def test_a_reroute_round_ends_when_the_plan_does() -> None:
     actions = proto.handle(PlanCompleted(), 6)
     assert [type(a) for a in actions] == [RerouteFailed]
     assert proto.state is State.WAIT_FOR_TASK and proto.location == plan.last
+
+
+def test_a_peer_that_leaves_is_held_along_its_newest_plan_not_an_old_answer() -> None:
+    """Found by a crash sweep: b answered my round at rest, then announced a plan and died; I kept
+    the old answer as its last trajectory, held only where it had rested, and planned into its plan."""
+    proto = machine({"a": A, "b": B})
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    started(proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0))
+    b_plan = traj(3, (4, 4), (3, 4), (3, 3), (3, 2))
+    proto.heard("b", b_plan)
+    proto.handle(PeerLeft("b"), 4)
+    assert {(3, 3, 0), (3, 2, 0)} <= set(proto.ghosts["b"].cells) and proto.ghosts["b"].last == (3, 2, 0)
+
+
+# ================================================ a vehicle that comes down by itself
+def test_a_drone_whose_vehicle_came_down_stays_there_and_tells_every_peer() -> None:
+    """Found once the tester kept a vehicle down where it came down (its model flew the plan on):
+    peers planned, and flew, into it. It rests there for good, says so, and plans nothing more."""
+    proto, plan = flying_past_b()
+    actions = proto.handle(VehicleDown(plan.at(3)), 3)
+    assert actions[0] == Grounded(Trajectory.stationary(plan.at(3), 3))
+    assert proto.state is State.WAIT_FOR_TASK and proto.current_trajectory(9) == Trajectory.stationary(plan.at(3), 3)
+    failed = proto.handle(NewTask(Task(TaskId(9, "a", 2), GOAL)), 4)
+    failed += proto.handle(CurrentTraj("b", location_of("b"), TaskId(9, "a", 2)), 4)
+    failed += proto.handle(CurrentTraj("c", location_of("c"), TaskId(9, "a", 2)), 4)
+    assert [a.reason for a in failed if isinstance(a, TaskFailed)] == ["my vehicle is down"]
+
+
+def test_a_peer_down_on_the_rest_of_my_plan_has_me_plan_it_anew_and_stays_an_obstacle() -> None:
+    proto, plan = flying_past_b()
+    assert proto.handle(PeerDown("c", plan.at(5)), 2) == [Threatened("c", (plan.at(5),))]
+    assert proto.handle(PeerDown("b", (2, 4, 0)), 2) == []  # off my plan
+    proto.handle(Reroute(Task(TaskId(6, "a", 2), GOAL)), 2)
+    late_answer = CurrentTraj("c", traj(0, (0, 4), (1, 4)), TaskId(6, "a", 2))  # sent before it came down
+    new = started(proto.handle(CurrentTraj("b", location_of("b"), TaskId(6, "a", 2)), 2)
+                  + proto.handle(late_answer, 2)).trajectory
+    assert plan.at(5) not in new.suffix_from(4).cells
+    assert proto.received["c"] == Trajectory.stationary(plan.at(5), 0)
+
+
+def test_a_reroute_with_no_peer_left_to_ask_plans_from_the_plan_flown() -> None:
+    """Found by a crash sweep: with nobody to wait for, the round planned at once, before it was
+    marked a reroute, from where the drone had rested before its plan."""
+    proto = machine({"a": A, "b": B})
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    plan = started(proto.handle(CurrentTraj("b", B_AWAY, ID_A), 0)).trajectory
+    assert proto.handle(PeerLeft("b"), 2) == [Threatened("b", ((3, 0, 0),))]
+    new = started(proto.handle(Reroute(Task(TaskId(6, "a", 2), GOAL)), 2)).trajectory
+    assert all(new.at(s) == plan.at(s) for s in range(0, 5)) and (3, 0, 0) not in new.suffix_from(4).cells

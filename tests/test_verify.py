@@ -15,7 +15,9 @@ import pytest
 import drona_gcs.planner
 import drona_gcs.stack
 from drona_gcs.errors import DronaError, ProblemError
+from drona_gcs.motion import Trajectory
 from drona_gcs.stack.mail import MailPickedUp, MailPlanner, MailRequest, MailStarted
+from drona_gcs.stack.messages import Task, TaskId
 from drona_gcs.stack.protocol import CoordinationProtocol, StartExecuting
 from drona_gcs.verify.explore import SEEDED_BUGS, Explorer, Scenario, Strategy, decode_token, encode_token
 from drona_gcs.verify.monitors import Flier, Monitors, Violation
@@ -330,3 +332,46 @@ def test_the_order_monitor_lets_urgent_mail_wait_while_a_drone_rests_on_its_pick
     else:
         with pytest.raises(Violation, match=r"\(c\) d0 started mail l"):
             monitors.action("d0", start)
+
+
+def test_a_vehicle_down_stays_where_it_came_down_in_the_model() -> None:
+    """The model flew a vehicle down along its plan, so no plan was ever seen to meet it: the
+    separation monitor judged where the vehicle was not."""
+    world = Explorer(Scenario(drones=3, requests=3, delta=1, seed=1)).world()
+    for _ in range(400):
+        flying = [i for i, d in enumerate(world.config.drones) if world.stacks[d].executor.trajectory is not None
+                  and world.steps[d] < world.stacks[d].executor.trajectory.end_step - 2]
+        if flying:
+            break
+        world.apply(next(m for m in world.enabled() if m[0] in ("step", "inject", "deliver")))
+    drone = world.config.drones[flying[0]]
+    where, seen = world.stacks[drone].executor.cell, len(world.monitors.history.get(drone, []))
+    world.apply(("down", flying[0]))
+    for _ in range(200):
+        moves = world.enabled()
+        ours = ([m for m in moves if m == ("step", flying[0])]
+                or [m for m in moves if m[0] in ("step", "deliver", "inject")])
+        if not ours:
+            break
+        world.apply(ours[0])
+    assert len(world.monitors.history[drone]) > seen + 2 and set(world.monitors.history[drone][seen:]) == {where}
+
+
+@pytest.mark.parametrize("asked", [True, False])
+def test_mail_on_board_flies_off_a_way_only_when_asked_to(asked: bool) -> None:
+    """(f): besides its drop-off and a charger, mail on board flies only off a way a peer asked the
+    drone to leave, to a cell off that way."""
+    ws = Workspace.build(size=(5, 3, 1))
+    request = MailRequest("m", (0, 0, 0), (4, 2, 0), 5)
+    config = WorldConfig(ws, ("d0", "d1"), ((0, 0, 0), (4, 0, 0)), (request,), ("d0",), delta=0)
+    monitors = Monitors(config)
+    monitors.action("d0", MailPickedUp(request))
+    if asked:
+        monitors.asked_to_leave("d0", ((1, 0, 0), (0, 0, 0), (0, 1, 0)))
+    off = Trajectory(3, ((0, 0, 0), (1, 0, 0), (1, 1, 0)))
+    leave = StartExecuting(Task(TaskId(3, "d0", 2), (1, 1, 0)), off, {"d1": Trajectory(0, ((4, 0, 0),))})
+    if asked:
+        monitors.action("d0", leave)
+    else:
+        with pytest.raises(Violation, match=r"\(f\) d0 carries mail m"):
+            monitors.action("d0", leave)

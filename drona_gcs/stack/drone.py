@@ -43,6 +43,7 @@ from drona_gcs.stack.protocol import (
     CoordinationProtocol,
     Event,
     NewTask,
+    PeerDown,
     PeerJoined,
     PeerLeft,
     PlanCompleted,
@@ -52,6 +53,7 @@ from drona_gcs.stack.protocol import (
     State,
     TaskFailed,
     Threatened,
+    VehicleDown,
     VehicleLost,
 )
 from drona_gcs.workspace import Cell, Workspace
@@ -138,7 +140,7 @@ class DroneStack:
         self.arrival: Arrival | None = None  #: a plan ended; waiting to see the vehicle at its goal
         self.unreached: Cell | None = None  #: the goal of the last leg that found no plan
         self.asked_clear: frozenset[Cell] = frozenset()  #: resting cells the last leg asked to leave
-        self.stuck: set[Cell] = set()  #: of those, cells still taken at the next failure
+        self.stuck: frozenset[Cell] = frozenset()  #: of those, cells still taken at the next failure
 
     # ------------------------------------------------------------ inputs
     @property
@@ -170,10 +172,19 @@ class DroneStack:
         """Drop a mail that waits in the queue (False if it is under way or unknown)."""
         return self.mail.cancel(mail_id)
 
-    def vehicle_down(self, reason: str) -> list[DroneAction]:
-        """The vehicle came down by itself: hand every mail back (see MailPlanner.abandon). The
-        runtime starts no new task meanwhile (``may_plan`` False at :meth:`step`)."""
-        return list(self.mail.abandon(reason))
+    def vehicle_down(self, reason: str, cell: Cell) -> list[DroneAction]:
+        """The vehicle came down by itself in ``cell``: hand every mail back (see MailPlanner.abandon),
+        hold there, and tell every peer it stays there for good (``Grounded``). The runtime starts no
+        new task meanwhile (``may_plan`` False at :meth:`step`)."""
+        actions: list[DroneAction] = list(self.mail.abandon(reason))
+        self.executor.relocate(cell)
+        self.arrival = None
+        return [*actions, *self._protocol(VehicleDown(cell))]
+
+    def peer_down(self, drone: str, cell: Cell) -> list[DroneAction]:
+        """``drone`` announced its vehicle came down in ``cell``: an obstacle for good, and a new plan
+        for the rest of ours if that crosses it."""
+        return self._protocol(PeerDown(drone, cell))
 
     def vehicle_lost(self, since: int, seen: Cell, reason: str) -> list[DroneAction]:
         """The vehicle stopped answering at step ``since``, last seen in ``seen``: the protocol holds
@@ -258,11 +269,11 @@ class DroneStack:
         taken = self.taken_cells()
         if leg.purpose not in ASKING or (leg.goal not in taken and leg.goal != self.unreached):
             return ()
-        self.stuck |= self.asked_clear & taken
+        self.stuck = self.stuck | (self.asked_clear & taken)
         here, ws = self.protocol.location, self.config.workspace
         way = ws.shortest_way(here, leg.goal, self.stuck - {leg.goal})
         if not way:  # every way was asked once: ask them all again, in turn
-            self.stuck = set(self.asked_clear & taken)
+            self.stuck = self.asked_clear & taken
             way = ws.shortest_way(here, leg.goal, self.stuck - {leg.goal}) or ws.shortest_way(here, leg.goal)
         self.asked_clear = frozenset(way) & taken
         return way
@@ -310,7 +321,7 @@ class DroneStack:
             if isinstance(action, StartExecuting):
                 self.executor.start(action.trajectory)
                 self.mail.took_off()
-                self.unreached, self.asked_clear, self.stuck = None, frozenset(), set()
+                self.unreached, self.asked_clear, self.stuck = None, frozenset(), frozenset()
             elif isinstance(action, TaskFailed):
                 self.unreached = action.task.goal
                 actions += self.mail.leg_failed(self.now, cut_off=action.cut_off)

@@ -48,9 +48,10 @@ by itself hands all of it back (:meth:`MailPlanner.abandon`).
 
 Making way. The paper leaves MRMP incomplete: drones resting for good can wall
 a goal off. A drone whose leg found no plan asks the drones resting on a way to
-its goal to leave it (see :mod:`drona_gcs.stack.drone`); one asked, with no mail
-on board and not charging, flies to the spot it is given, lands there, and
-goes home only after ``hold_steps``. Mail whose pickup found no plan in
+its goal to leave it (see :mod:`drona_gcs.stack.drone`); one asked, not charging,
+flies to the spot it is given (with its mail on board, if any: the one flight
+such mail makes besides its drop-off and a charger), lands there, and goes on
+only after ``hold_steps``. Mail whose pickup found no plan in
 :data:`MAX_STRIKES` legs, other legs between them or not, is handed back.
 
 A leg to a cell another drone is known to rest on would cost a whole
@@ -246,8 +247,9 @@ class MailPlanner:
 
     def make_way(self, spot: Cell) -> None:
         """A peer found no plan, for a way that crosses the cell we rest on: leave for ``spot`` at
-        the next decision, unless a leg is under way or mail is on board (it goes nowhere else)."""
-        if not self.busy and not self.carrying and self.phase is not Phase.CHARGING:
+        the next decision, unless a leg is under way or the drone charges. Mail on board goes along:
+        a drone waiting with it for a drop-off walled off for good would wall others off in turn."""
+        if not self.busy and self.phase is not Phase.CHARGING:
             self.make_way_to = spot
 
     def battery_low(self) -> None:
@@ -433,10 +435,10 @@ class MailPlanner:
         """Leave for the spot a peer's way asked for, and stay there a while: going home at once
         would close the way again before the peer's next try."""
         spot, self.make_way_to = self.make_way_to, None
-        if spot is None or self.carrying:
+        if spot is None:
             return []
         if not budget.allows(self._leg(self.cell, spot) + self._after(spot)):
-            if not self.chargers or self.cell in self.chargers:
+            if not self.chargers or self.cell in self.chargers or self.carrying:
                 return []
             self.low = True  # the way off would leave too little: off to charge instead
             return self._to_charger(budget, taken)

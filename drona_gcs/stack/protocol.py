@@ -172,6 +172,21 @@ class Relocated:
 
 
 @dataclass(frozen=True)
+class VehicleDown:
+    """My vehicle came down by itself in ``cell`` (a failsafe, a pilot): it stays there for good."""
+
+    cell: Cell
+
+
+@dataclass(frozen=True)
+class PeerDown:
+    """``drone`` announced its vehicle came down in ``cell``: it stays there for good."""
+
+    drone: str
+    cell: Cell
+
+
+@dataclass(frozen=True)
 class Reroute:
     """A new plan to the goal of the one I fly, asked for after :class:`Threatened`."""
 
@@ -179,7 +194,7 @@ class Reroute:
 
 
 Event = (NewTask | PlanCompleted | PeerLeft | PeerJoined | ReqForCurrentTraj | CurrentTraj | VehicleLost
-         | Relocated | Reroute)
+         | Relocated | Reroute | VehicleDown | PeerDown)
 
 
 # ----------------------------------------------------------------- actions
@@ -225,7 +240,14 @@ class RerouteFailed:
     reason: str
 
 
-Action = Send | Broadcast | StartExecuting | TaskFailed | Threatened | RerouteFailed
+@dataclass(frozen=True)
+class Grounded:
+    """Tell every peer my vehicle came down: it stays in ``trajectory.last`` for good."""
+
+    trajectory: Trajectory
+
+
+Action = Send | Broadcast | StartExecuting | TaskFailed | Threatened | RerouteFailed | Grounded
 
 
 @dataclass
@@ -248,6 +270,8 @@ class CoordinationProtocol:
     newest: dict[str, TaskId] = field(default_factory=dict)  #: the newest request id seen from each drone
     lost: VehicleLost | None = None  #: my vehicle is lost: what I hold besides my trajectory
     peer_holds: dict[str, tuple[Cell, ...]] = field(default_factory=dict)  #: what this round's answers hold
+    down: Cell | None = None  #: my vehicle came down here by itself: I plan nothing more
+    peers_down: dict[str, Cell] = field(default_factory=dict)  #: peers whose vehicle came down, and where
 
     def __post_init__(self) -> None:
         self.members = set(self.peers) - {self.me}
@@ -267,7 +291,7 @@ class CoordinationProtocol:
         it rests and, should it leave, where it may have stopped. Never planned with: Psi is
         only what the peers answer."""
         if drone in self.members and trajectory.start_step >= self.known[drone].start_step:
-            self.known[drone] = trajectory
+            self.known[drone] = self._news(drone, trajectory)
 
     def current_trajectory(self, now: int) -> Trajectory:
         """What I answer with: my plan while executing; idle, my location.
@@ -315,7 +339,10 @@ class CoordinationProtocol:
 
     # ----------------------------------------------------------- handlers
     def _on_new_task(self, event: NewTask, now: int) -> list[Action]:
-        self.task, self.state = event.task, State.COORDINATING
+        return self._begin_round(event.task, State.COORDINATING, now)
+
+    def _begin_round(self, task: Task, state: State, now: int) -> list[Action]:
+        self.task, self.state = task, state
         self._forget_answers()
         self.pending = {}
         actions: list[Action] = [Broadcast(self._request(now))]
@@ -377,7 +404,7 @@ class CoordinationProtocol:
             return admitted or [Send(event.sender, self._request(now))]
         self.pending[event.sender] = event.task_id
         # It waits for my plan, so the trajectory its request carries is its answer.
-        self.received[event.sender] = self.known[event.sender] = event.trajectory
+        self.received[event.sender] = self.known[event.sender] = self._news(event.sender, event.trajectory)
         self.peer_holds[event.sender] = event.holds
         return [*admitted, *self._plan_if_ready(now)]
 
@@ -388,10 +415,15 @@ class CoordinationProtocol:
         assert self.task is not None
         if event.in_reply_to != self.task.id or event.sender not in self.members:
             return []  # an answer to an older request, or from a drone that left
-        self.received[event.sender] = event.trajectory
-        self.known[event.sender] = event.trajectory
+        self.received[event.sender] = self.known[event.sender] = self._news(event.sender, event.trajectory)
         self.peer_holds[event.sender] = event.holds
         return self._plan_if_ready(now)
+
+    def _news(self, drone: str, trajectory: Trajectory) -> Trajectory:
+        """What ``drone`` sent, unless its vehicle came down since: then it stays where it came down
+        (its answer may have been overtaken by that news)."""
+        down = self.peers_down.get(drone)
+        return trajectory if down is None else Trajectory.stationary(down, trajectory.start_step)
 
     def _ignore(self, event: Event, now: int) -> list[Action]:
         return []  # a late reply to a round that is over
@@ -408,11 +440,38 @@ class CoordinationProtocol:
         self.location, self.state, self.task = self.trajectory.last, State.WAIT_FOR_TASK, None
         return [*self._release_pending(self.trajectory), failed]
 
-    def _on_reroute(self, event: Reroute, now: int) -> list[Action]:
-        actions = self._on_new_task(NewTask(event.task), now)
-        if self.state is State.COORDINATING:  # the round goes on: it plans the rest of the plan flown
-            self.state = State.REROUTING
+    def _on_vehicle_down(self, event: VehicleDown, now: int) -> list[Action]:
+        """My vehicle is on the ground in ``event.cell`` for good: that is my trajectory from now, every
+        peer is told, and a round under way ends with no plan."""
+        task = self.task if self.coordinating else None
+        rerouting = self.state is State.REROUTING
+        self.down, self.location = event.cell, event.cell
+        self.trajectory = Trajectory.stationary(event.cell, now)
+        self.state, self.task = State.WAIT_FOR_TASK, None
+        actions: list[Action] = [Grounded(self.trajectory), *self._release_pending(self.trajectory)]
+        if task is not None and rerouting:
+            actions.append(RerouteFailed(task, "my vehicle is down"))
+        elif task is not None:
+            actions.append(TaskFailed(task, "my vehicle is down"))
         return actions
+
+    def _on_peer_down(self, event: PeerDown, now: int) -> list[Action]:
+        """A peer's vehicle is on the ground for good: an obstacle for every plan from now, and for
+        the plan I fly (which avoided its plan, not this) if that crosses it."""
+        if event.drone == self.me or event.drone not in self.peers:
+            return []
+        self.peers_down[event.drone] = event.cell
+        stays = Trajectory.stationary(event.cell, now)
+        self.known[event.drone] = stays
+        if event.drone in self.received:
+            self.received[event.drone] = stays
+        if self.state is not State.EXECUTING or self.trajectory is None:
+            return []
+        crossed = event.cell in self.trajectory.suffix_from(now + self.lead_steps).cells
+        return [Threatened(event.drone, (event.cell,))] if crossed else []
+
+    def _on_reroute(self, event: Reroute, now: int) -> list[Action]:
+        return self._begin_round(event.task, State.REROUTING, now)
 
     def _threat(self, drone: str, now: int) -> list[Action]:
         """Whether the rest of my plan, from when a new one could start, crosses cells ``drone``
@@ -428,7 +487,9 @@ class CoordinationProtocol:
         if event.drone not in self.members:
             return []
         self.members.discard(event.drone)
-        last = self.received.pop(event.drone, self.known[event.drone])
+        # The newest of what it answered and what it announced (an answer of a round over is old).
+        answered, known = self.received.pop(event.drone, None), self.known[event.drone]
+        last = answered if answered is not None and answered.start_step > known.start_step else known
         # What it had flown before it went silent (less the lead, which covers any skew) is
         # behind it: only the rest of its plan is where it may have stopped.
         silent = now if event.silent_since is None else min(now, event.silent_since)
@@ -442,6 +503,7 @@ class CoordinationProtocol:
             return []
         self.members.add(event.drone)
         self.ghosts.pop(event.drone, None)
+        self.peers_down.pop(event.drone, None)  # its agent restarted: its vehicle is back in service
         self.newest.pop(event.drone, None)  # it may have restarted, and its clock with it
         # What it announces now is newer than anything we heard before it left.
         self.known[event.drone] = event.announced(now)
@@ -469,11 +531,14 @@ class CoordinationProtocol:
         here = flying.at(now) if flying is not None else self.location
         start = flying.at(start_step) if flying is not None else self.location
         psi = {**self.ghost_obstacles(sparing=here), **self._held_by_peers(now),
-               **{p: self.received[p] for p in sorted(self.members)}}
+               **{p: self.received[p] for p in sorted(self.members)},
+               **{f"{p}!": Trajectory.stationary(c, now) for p, c in sorted(self.peers_down.items())}}
         max_length = task.max_length(start_step)
         try:
             if self.lost is not None:
                 raise NoPlanFound("my vehicle is lost")
+            if self.down is not None:
+                raise NoPlanFound("my vehicle is down")
             if max_length is not None and max_length < 0:
                 raise NoPlanFound("the battery no longer affords the task")
             plan = self.plan(start, task.goal, start_step, psi, max_length)
@@ -515,6 +580,8 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PeerJoined: CoordinationProtocol._on_peer_joined,
         VehicleLost: CoordinationProtocol._on_vehicle_lost,
         Relocated: CoordinationProtocol._on_relocated,
+        VehicleDown: CoordinationProtocol._on_vehicle_down,  # -> WAIT_FOR_TASK
+        PeerDown: CoordinationProtocol._on_peer_down,
     },
     State.COORDINATING: {
         ReqForCurrentTraj: CoordinationProtocol._on_request_while_coordinating,
@@ -522,6 +589,8 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PeerLeft: CoordinationProtocol._on_peer_left,
         PeerJoined: CoordinationProtocol._on_peer_joined,
         VehicleLost: CoordinationProtocol._on_vehicle_lost,  # the round ends in no plan
+        VehicleDown: CoordinationProtocol._on_vehicle_down,  # -> WAIT_FOR_TASK
+        PeerDown: CoordinationProtocol._on_peer_down,
     },
     State.EXECUTING: {
         ReqForCurrentTraj: CoordinationProtocol._on_request,  # answered with my trajectory
@@ -532,6 +601,8 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PeerJoined: CoordinationProtocol._on_peer_joined,
         VehicleLost: CoordinationProtocol._on_vehicle_lost,
         Relocated: CoordinationProtocol._on_relocated,  # -> WAIT_FOR_TASK
+        VehicleDown: CoordinationProtocol._on_vehicle_down,  # -> WAIT_FOR_TASK
+        PeerDown: CoordinationProtocol._on_peer_down,
     },
     State.REROUTING: {  # a round as COORDINATING's, while the plan is flown on
         ReqForCurrentTraj: CoordinationProtocol._on_request_while_coordinating,
@@ -540,5 +611,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PeerLeft: CoordinationProtocol._on_peer_left,
         PeerJoined: CoordinationProtocol._on_peer_joined,
         VehicleLost: CoordinationProtocol._on_vehicle_lost,  # the round ends with the plan flown
+        VehicleDown: CoordinationProtocol._on_vehicle_down,  # -> WAIT_FOR_TASK
+        PeerDown: CoordinationProtocol._on_peer_down,
     },
 }

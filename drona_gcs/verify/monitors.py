@@ -16,7 +16,8 @@ shares nothing with the code it judges: no production ranking, no protocol query
     obstacles and the vehicles down: no path from the drone carrying it, or from any drone in
     service through its pickup);
 (e) no battery drops below the safe threshold;
-(f) a drone carrying mail flies only to its drop-off, or to a charger;
+(f) a drone carrying mail flies only to its drop-off, or to a charger, or off a way a peer asked
+    it to leave (its request named the cell the drone rested on);
 (g) each executor flies its plan: at every step, the cell the plan it last started puts it
     in (its last cell once the plan is over), one cell a period.
 
@@ -36,7 +37,7 @@ from drona_gcs.motion import Trajectory
 from drona_gcs.safety import check_pair
 from drona_gcs.stack.mail import MailDelivered, MailLost, MailPickedUp, MailRejected, MailRequest, MailStarted
 from drona_gcs.stack.protocol import StartExecuting
-from drona_gcs.workspace import Cell
+from drona_gcs.workspace import Cell, Workspace
 
 if TYPE_CHECKING:
     from drona_gcs.verify.world import WorldConfig
@@ -61,6 +62,24 @@ class Violation(DronaError):
         super().__init__(f"({monitor}) {message}")
 
 
+class Reach:
+    """Breadth-first distances in one workspace, cached: the liveness monitor asks the same at
+    every step."""
+
+    def __init__(self, workspace: Workspace, most: int = 4096) -> None:
+        self.workspace, self.most = workspace, most
+        self.cache: dict[tuple[Cell, frozenset[Cell]], dict[Cell, int]] = {}
+
+    def distances(self, goal: Cell, walls: frozenset[Cell]) -> dict[Cell, int]:
+        key = (goal, walls)
+        found = self.cache.get(key)
+        if found is None:
+            if len(self.cache) >= self.most:
+                self.cache.clear()
+            found = self.cache[key] = self.workspace.distances_from(goal, walls)
+        return found
+
+
 @dataclass
 class Monitors:
     """Every container holds immutable values only, so that a one-level copy is a clone."""
@@ -74,18 +93,26 @@ class Monitors:
     waiting: dict[str, tuple[tuple[int, MailRequest], ...]] = field(default_factory=dict)  #: (c) given, unstarted
     carrying: dict[str, MailRequest] = field(default_factory=dict)  #: (f) mail on board, per drone
     departed: dict[str, frozenset[str]] = field(default_factory=dict)  #: (a) peers each drone saw leave
-    down: frozenset[str] = frozenset()  #: (c) drones whose vehicle came down
+    down: tuple[tuple[str, Cell], ...] = ()  #: (c) drones whose vehicle came down, and where
+    #: (a) what each drone down was committed to before, and who has heard it came down
+    before_down: dict[str, Trajectory] = field(default_factory=dict)
+    told_down: frozenset[tuple[str, str]] = frozenset()
+    #: (f) cells of ways each drone was asked to leave since its last plan
+    asked_to_clear: tuple[tuple[str, frozenset[Cell]], ...] = ()
 
     def __post_init__(self) -> None:
         for drone, start in zip(self.config.drones, self.config.starts, strict=True):
             self.committed[drone] = Trajectory(0, (start,))
+        self.reach = Reach(self.config.workspace)  # shared by clones: it only caches
 
     def key(self) -> Hashable:
         """What of the monitors' own state decides future verdicts (for the DFS's state cache)."""
         return (tuple(sorted((d, t.start_step, t.cells) for d, t in self.committed.items())),
                 tuple(sorted((d, tuple(r.id for _, r in w)) for d, w in self.waiting.items())),
                 tuple(sorted((d, r.id) for d, r in self.carrying.items())),
-                tuple(sorted((d, tuple(sorted(p))) for d, p in self.departed.items())))
+                tuple(sorted((d, tuple(sorted(p))) for d, p in self.departed.items())),
+                tuple(sorted((d, t.start_step, t.cells) for d, t in self.before_down.items())),
+                tuple(sorted(self.told_down)), tuple(sorted((d, tuple(sorted(w))) for d, w in self.asked_to_clear)))
 
     def given_mail(self, drone: str, request: MailRequest) -> None:
         """The environment gave ``request`` to ``drone`` (again, if another handed it back)."""
@@ -128,17 +155,28 @@ class Monitors:
             used = action.psi.get(peer)
             if used is None:
                 raise Violation("a", f"{drone} planned task {action.task.id} without {peer}")
-            if not same_future(used, self.committed[peer], since):
+            if not same_future(used, self.committed[peer], since) and not self._not_told_yet(drone, peer, used, since):
                 raise Violation("a", f"{drone} planned task {action.task.id} with a stale trajectory of "
                                      f"{peer}: used {cells_text(used)}, but {peer} is committed to "
                                      f"{cells_text(self.committed[peer])}")
+
+    def _not_told_yet(self, drone: str, peer: str, used: Trajectory, since: int) -> bool:
+        """``peer``'s vehicle came down, and ``drone`` used what it was committed to before: fine
+        until the news reached it (the plan it flies is then planned anew if it must be)."""
+        earlier = self.before_down.get(peer)
+        return (earlier is not None and (drone, peer) not in self.told_down
+                and same_future(used, earlier, since))
+
+    def heard_down(self, observer: str, peer: str) -> None:
+        """``observer`` heard that ``peer``'s vehicle came down."""
+        self.told_down = self.told_down | {(observer, peer)}
 
     def _clear_of(self, drone: str, action: StartExecuting, peer: str, since: int) -> None:
         """A peer seen to leave may have stopped anywhere on what it was committed to: a plan made
         since stays out of every such cell (but the one it starts in)."""
         committed = self.committed[peer]
         held = {_at(committed, t) for t in range(since, max(since, committed.end_step) + 1)}
-        crossed = held & set(action.trajectory.cells[1:])
+        crossed = held & _added(self.committed[drone], action.trajectory)
         if crossed:
             raise Violation("a", f"{drone} planned task {action.task.id} through {sorted(crossed)}, where {peer}, "
                                  f"gone, may have stopped: it was committed to {cells_text(committed)}")
@@ -191,8 +229,9 @@ class Monitors:
         vehicles down and drones resting (their last plans over): a mail walled off may wait."""
         history = self.history.get(drone) or [self.config.starts[self.config.drones.index(drone)]]
         here, now = history[-1], len(history) - 1
-        walls = frozenset(t.cells[-1] for p, t in self.committed.items()
-                          if p != drone and (t.end_step <= now or p in self.down)) - {here}
+        down = dict(self.down)
+        walls = frozenset(down.get(p, t.cells[-1]) for p, t in self.committed.items()
+                          if p != drone and (t.end_step <= now or p in down)) - {here}
         return (here in self._distances(request.pickup, walls)
                 and request.pickup in self._distances(request.dropoff, walls))
 
@@ -200,8 +239,12 @@ class Monitors:
         """``drone``'s agent started again, its vehicle holding ``cell``: its plan is to stay (a, g)."""
         self.committed[drone] = Trajectory.stationary(cell, step)
 
-    def vehicle_down(self, drone: str) -> None:
-        self.down = self.down | {drone}
+    def vehicle_down(self, drone: str, cell: Cell, step: int) -> None:
+        """``drone``'s vehicle came down in ``cell`` at ``step``: it stays there, whatever its plan
+        said, and plans must avoid it there (a)."""
+        self.down = (*self.down, (drone, cell))
+        self.before_down[drone] = self.committed[drone]
+        self.committed[drone] = Trajectory.stationary(cell, step)
 
     def _forget(self, drone: str, request: MailRequest) -> None:
         self.waiting[drone] = tuple((o, r) for o, r in self.waiting.get(drone, ()) if r.id != request.id)
@@ -263,7 +306,7 @@ class Monitors:
 
     def _distances(self, goal: Cell, walls: frozenset[Cell]) -> dict[Cell, int]:
         """Moves from every cell to ``goal``, around obstacles and ``walls``."""
-        return self.config.workspace.distances_from(goal, walls)
+        return self.reach.distances(goal, walls)
 
     # (e)
     def battery(self, drone: str, step: int, level: float) -> None:
@@ -273,11 +316,23 @@ class Monitors:
 
     # (f)
     def _carried_to_its_dropoff(self, drone: str, action: StartExecuting) -> None:
+        """(f), and the one exception: a peer asked it to leave a way it rested on, for a cell off it."""
         mail = self.carrying.get(drone)
-        goal = action.trajectory.cells[-1]
-        if mail is not None and goal != mail.dropoff and goal not in self.config.workspace.charging_stations:
-            raise Violation("f", f"{drone} carries mail {mail.id} (drop-off {cell_text(mail.dropoff)}) but flies to "
-                                 f"{cell_text(goal)}, neither its drop-off nor a charger")
+        goal, way = action.trajectory.cells[-1], dict(self.asked_to_clear).get(drone, frozenset())
+        self.asked_to_clear = tuple((d, w) for d, w in self.asked_to_clear if d != drone)
+        if mail is None or goal == mail.dropoff or goal in self.config.workspace.charging_stations:
+            return
+        if action.trajectory.cells[0] in way and goal not in way:
+            return
+        raise Violation("f", f"{drone} carries mail {mail.id} (drop-off {cell_text(mail.dropoff)}) but flies to "
+                             f"{cell_text(goal)}, neither its drop-off nor a charger, nor off a way it was asked to "
+                             f"clear")
+
+    def asked_to_leave(self, drone: str, way: tuple[Cell, ...]) -> None:
+        """A peer's request asked the drones resting on ``way`` to leave it, ``drone`` among them."""
+        ways = dict(self.asked_to_clear)
+        self.asked_to_clear = (*((d, w) for d, w in self.asked_to_clear if d != drone),
+                               (drone, ways.get(drone, frozenset()) | frozenset(way)))
 
 
 def same_future(a: Trajectory, b: Trajectory, since: int) -> bool:
@@ -301,3 +356,12 @@ def cells_text(traj: Trajectory, most: int = 10) -> str:
     """A trajectory as traces and violations print it: its start step and its first cells."""
     cells = " ".join(cell_text(c) for c in traj.cells[:most])
     return f"step {traj.start_step}: {cells}{' ...' if len(traj.cells) > most else ''}"
+
+
+def _added(before: Trajectory, after: Trajectory) -> set[Cell]:
+    """The cells a new plan adds to what its drone was committed to: from the step the two part on
+    (a plan made at rest parts with its first move; a new rest of a plan flown, where it turns off)."""
+    step = after.start_step
+    while step <= after.end_step and _at(after, step) == _at(before, step):
+        step += 1
+    return {_at(after, t) for t in range(step, after.end_step + 1)}

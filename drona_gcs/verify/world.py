@@ -44,8 +44,8 @@ from drona_gcs.stack.mail import (
     MailStarted,
     Phase,
 )
-from drona_gcs.stack.messages import CurrentTraj, Message
-from drona_gcs.stack.protocol import Broadcast, RerouteFailed, Send, StartExecuting, TaskFailed, Threatened
+from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj
+from drona_gcs.stack.protocol import Broadcast, Grounded, RerouteFailed, Send, StartExecuting, TaskFailed, Threatened
 from drona_gcs.verify.monitors import Flier, Monitors, cell_text, cells_text
 from drona_gcs.verify.mutants import planner_delta, plant
 from drona_gcs.workspace import Cell, Workspace
@@ -228,6 +228,7 @@ class Announce:
     """The sender's new plan, as every drone reads it (the answers on ``answers``, or ``plan/<me>``)."""
 
     trajectory: Trajectory
+    grounded: bool = False  #: the sender's vehicle came down: it stays at the trajectory's end for good
 
 
 @dataclass(frozen=True)
@@ -284,7 +285,7 @@ class World:
         self.last_injection_step = 0
         self.sent = 0
         self.used = Faults.none()  #: faults so far
-        self.down: set[str] = set()
+        self.down: dict[str, Cell] = {}  #: vehicles that came down by themselves, and where
         self.crashed: set[str] = set()  #: drones whose agent crashed (not restarted yet)
         self.monitors = Monitors(config)
         self.trace: list[str] = []
@@ -356,7 +357,7 @@ class World:
             tuple(_stack_key(stack) for stack in self.stacks.values()),
             tuple(self.steps.values()), tuple(self.battery.values()),
             tuple(sorted((m.sender, m.to, repr(m.message), m.deadline) for m in self.inflight)),
-            self.injected, tuple((d, r.id, t) for d, r, t in self.redispatch), self.used, frozenset(self.down),
+            self.injected, tuple((d, r.id, t) for d, r, t in self.redispatch), self.used, frozenset(self.down.items()),
             frozenset(self.crashed), frozenset(self.monitors.settled),
             tuple(tuple(h[-keep:]) for h in self.monitors.history.values()), self.monitors.key(),
         )
@@ -367,7 +368,7 @@ class World:
         new = copy.copy(self)
         new.stacks = {d: _clone_stack(s) for d, s in self.stacks.items()}
         new.steps, new.battery, new.inflight = dict(self.steps), dict(self.battery), list(self.inflight)
-        new.redispatch, new.down, new.crashed = list(self.redispatch), set(self.down), set(self.crashed)
+        new.redispatch, new.down, new.crashed = list(self.redispatch), dict(self.down), set(self.crashed)
         new.monitors = _shallow(self.monitors)
         new.monitors.history = {d: list(h) for d, h in self.monitors.history.items()}
         new.trace = []
@@ -387,7 +388,10 @@ class World:
         stack, notice = self.stacks[msg.to], msg.message
         if not isinstance(notice, Left):
             self.monitors.heard_from(msg.to, msg.sender)
-        if isinstance(notice, Announce):
+        if isinstance(notice, Announce) and notice.grounded:
+            self.monitors.heard_down(msg.to, msg.sender)
+            self._carry_out(msg.to, stack.peer_down(msg.sender, notice.trajectory.last))
+        elif isinstance(notice, Announce):
             stack.heard(msg.sender, notice.trajectory)
         elif isinstance(notice, Left):
             self.monitors.left(msg.to, msg.sender)
@@ -398,6 +402,8 @@ class World:
             cell = last.last if last is not None else stack.protocol.peers[msg.sender]
             self._carry_out(msg.to, stack.peer_joined(msg.sender, cell, last))
         else:
+            if isinstance(notice, ReqForCurrentTraj) and self._where(msg.to) in notice.clear:
+                self.monitors.asked_to_leave(msg.to, notice.clear)
             self._carry_out(msg.to, stack.receive(notice))
 
     def _inject(self) -> None:
@@ -496,10 +502,11 @@ class World:
 
     def _vehicle_down(self, drone: str) -> None:
         self.used = replace(self.used, downs=self.used.downs + 1)
-        self.down.add(drone)
-        self.monitors.vehicle_down(drone)
+        self.down[drone] = self.stacks[drone].executor.cell  # on the ground below where it flew
+        self.monitors.vehicle_down(drone, self.down[drone], max(self.steps[drone], 0))
         self.trace.append(f"{drone}: its vehicle came down by itself")
-        self._carry_out(drone, self.stacks[drone].vehicle_down(f"drone {drone}'s vehicle came down"))
+        self._carry_out(drone, self.stacks[drone].vehicle_down(f"drone {drone}'s vehicle came down",
+                                                               self.down[drone]))
 
     def _step(self, drone: str) -> None:
         stack = self.stacks[drone]
@@ -513,16 +520,22 @@ class World:
         self.monitors.battery(drone, step, self.battery[drone])
         self.trace.append(f"{drone} steps to {step} (battery {self.battery[drone]:.0f})")
         # The model's vehicles fly their plans exactly: each is where its last step took it.
-        self._carry_out(drone, stack.step(step, self.battery[drone], flown=stack.executor.cell,
+        self._carry_out(drone, stack.step(step, self.battery[drone], flown=self._where(drone),
                                           may_plan=drone not in self.down))
-        self.monitors.position(drone, step, stack.executor.cell, self.steps, flies=drone not in self.down)
+        # A vehicle down stays where it came down, whatever its stack's plan says.
+        self.monitors.position(drone, step, self._where(drone), self.steps, flies=drone not in self.down)
         if self.injected == len(self.config.requests):
-            out = self.down | self.crashed
-            blocked = frozenset(self.monitors.committed[d].cells[-1] for d in out)
+            out = set(self.down) | self.crashed
+            blocked = frozenset(self._where(d) for d in out)
             fleet = {d: Flier(s.executor.cell, self.battery[d], s.config.recharged_mark, s.protocol.lead_steps + 1)
                      for d, s in self.stacks.items() if d not in out}
             self.monitors.liveness(min(self.steps.values()) - self.last_injection_step, self.wait_for, blocked,
                                    fleet)
+
+    def _where(self, drone: str) -> Cell:
+        """Where the vehicle is: where it came down, or where its executor put it (a crashed agent's
+        executor steps no more: its vehicle holds there)."""
+        return self.down.get(drone, self.stacks[drone].executor.cell)
 
     def wait_for(self) -> str:
         """Who waits for whom at the end of a run that did not finish: each drone's protocol state, the
@@ -565,6 +578,10 @@ class World:
                 for peer in self.config.drones:
                     if peer != drone:
                         self._post(drone, peer, Announce(action.trajectory))
+            if isinstance(action, Grounded):  # as the agent does, announce or not
+                for peer in self.config.drones:
+                    if peer != drone:
+                        self._post(drone, peer, Announce(action.trajectory, grounded=True))
             if isinstance(action, MailRejected):  # the service gives it to the next drone that flies
                 # As promptly as a message: a liveness bound needs the service to be fair.
                 deadline = max(self.steps[drone], 0) + self.config.max_delay
@@ -625,7 +642,7 @@ class World:
             stack_keys,
             tuple(self.steps.values()), tuple(self.battery.values()),
             tuple(sorted((m.sender, m.to, repr(m.message), m.deadline) for m in self.inflight)),
-            self.injected, tuple((d, r.id, t) for d, r, t in self.redispatch), self.used, frozenset(self.down),
+            self.injected, tuple((d, r.id, t) for d, r, t in self.redispatch), self.used, frozenset(self.down.items()),
             frozenset(self.crashed), frozenset(self.monitors.settled),
             # In drone order, not in the order the drones first stepped, which is no part of the state.
             tuple(tuple(history[d][-keep:]) for d in self.config.drones if d in history),
@@ -636,6 +653,8 @@ def _describe(message: Notice) -> str:
     name = type(message).__name__
     if isinstance(message, CurrentTraj):
         return f"{name}(from {message.sender}, re {message.in_reply_to}, {cells_text(message.trajectory)})"
+    if isinstance(message, Announce) and message.grounded:
+        return f"{name}(vehicle down in {cell_text(message.trajectory.last)})"
     if isinstance(message, Announce):
         return f"{name}({cells_text(message.trajectory)})"
     if isinstance(message, Left):
@@ -690,7 +709,8 @@ def _clone_stack(stack: DroneStack) -> DroneStack:
 
 
 def _stack_key(stack: DroneStack) -> Hashable:
-    return tuple(_machine_key(getattr(stack, name)) for name in _MACHINES)
+    own = (stack.arrival, stack.unreached, stack.asked_clear, stack.stuck)  # what the stack keeps besides
+    return (*(_machine_key(getattr(stack, name)) for name in _MACHINES), own)
 
 
 def _machine_key(machine: object) -> Hashable:

@@ -36,7 +36,16 @@ from drona_gcs.stack.battery import BatteryLow, BatteryRecharged
 from drona_gcs.stack.drone import DroneAction, DroneStack, LegNotFlown
 from drona_gcs.stack.mail import GoTo, MailDelivered, MailLost, MailPickedUp, MailRejected, MailStarted
 from drona_gcs.stack.messages import CurrentTraj
-from drona_gcs.stack.protocol import Broadcast, RerouteFailed, Send, StartExecuting, State, TaskFailed, Threatened
+from drona_gcs.stack.protocol import (
+    Broadcast,
+    Grounded,
+    RerouteFailed,
+    Send,
+    StartExecuting,
+    State,
+    TaskFailed,
+    Threatened,
+)
 from drona_gcs.workspace import Cell, Workspace
 from fleet.agent.clocksync import ClockCheck, OffsetSample
 from fleet.agent.maildesk import MailDesk
@@ -229,7 +238,8 @@ class DroneAgent:
             below = self.watch.recorded_cell()
             where = f"in {list(below)}" if below is not None else "outside the grid"
             log.warning("%s: the vehicle came down by itself %s: its mail is handed back", self.me, where)
-            self._carry_out(self.stack.vehicle_down(f"drone {self.me}'s vehicle came down by itself {where}"))
+            cell = below if below is not None else self.stack.executor.cell
+            self._carry_out(self.stack.vehicle_down(f"drone {self.me}'s vehicle came down by itself {where}", cell))
         self._alarm("lag", self._lag(report))
         self._alarm("down", "vehicle: came down while its plan flew (a failsafe or a pilot?); its mail was handed "
                     "back and it starts no task; restart its agent once it is back in service" if self.down else None)
@@ -287,6 +297,9 @@ class DroneAgent:
             elif isinstance(action, Threatened):
                 log.warning("%s: %s left and may hold %s of my plan: planning its rest anew", self.me,
                             action.departed, [list(c) for c in action.cells])
+            elif isinstance(action, Grounded):
+                grounded = PlanAnnounce(trajectory=WireTrajectory.of(action.trajectory), grounded=True)
+                self.node.put(self.keys.plan(self.me), encode(self.me, self.clock(), grounded))
             elif isinstance(action, RerouteFailed):
                 log.warning("%s: no new plan for the rest of mine (task %s): %s", self.me, action.task.id,
                             action.reason)
@@ -360,7 +373,10 @@ class DroneAgent:
         body, sender = envelope.body, envelope.sender
         if isinstance(body, PlanAnnounce) and sender != self.me and sender in self.stack.protocol.peers:
             self.heard_at[sender] = self.stack.now
-            self.stack.heard(sender, body.trajectory.core())
+            if body.grounded:
+                self._carry_out(self.stack.peer_down(sender, body.trajectory.core().last))
+            else:
+                self.stack.heard(sender, body.trajectory.core())
 
     def _on_liveliness(self, key: str, alive: bool) -> None:
         peer = self.keys.last_chunk(key)

@@ -56,8 +56,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="leave out the field's faults (duplicated messages, a mail cancelled, a vehicle down) "
                              "and the mixed fleet")
     parser.add_argument("--crashes", type=int, default=0, metavar="N",
-                        help="also let N agents crash (their vehicles hold in the air) and restart (default 0: "
-                             "the stack does not survive them yet)")
+                        help="also let N agents crash (their vehicles hold in the air) and restart, in each run "
+                             "(default 0)")
     parser.add_argument("--sweep", type=int, metavar="N",
                         help="run N configurations drawn from --seed (2-6 drones, 2-10 requests, Delta 0-2, 8x8 "
                              "and 16x16, with and without obstacles, random and pct), --time-limit each; prints a "

@@ -49,7 +49,8 @@ from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj, Ta
 #: 4: ``req_traj`` carries the requester's trajectory (its answer to the drones before it in line);
 #: 5: protocol messages carry ``holds``, the cells a drone whose vehicle is lost holds besides its trajectory;
 #: 6: ``req_traj`` carries ``asked``, the peers its round waits for, and ``clear``, a way the requester
-#: asks resting drones to leave; task ids carry the ``epoch`` (incarnation) of the agent that made them.
+#: asks resting drones to leave; task ids carry the ``epoch`` (incarnation) of the agent that made them;
+#: ``plan`` says ``grounded`` when a vehicle came down by itself.
 VERSION: Final = 6
 
 CellList = Annotated[list[int], msgspec.Meta(min_length=3, max_length=3)]
@@ -128,9 +129,11 @@ class CurTrajTo(_Body, frozen=True, kw_only=True, tag="cur_traj_to"):
 
 
 class PlanAnnounce(_Body, frozen=True, kw_only=True, tag="plan"):
-    """A drone's new plan, to everyone, once made (peers outside the round learn where it goes)."""
+    """A drone's new plan, to everyone, once made (peers outside the round learn where it goes);
+    ``grounded``: its vehicle came down by itself, and stays at the trajectory's end for good."""
 
     trajectory: WireTrajectory
+    grounded: bool = False
 
 
 # ---------------------------------------------------------------- state
