@@ -248,8 +248,6 @@ def test_a_liveness_counterexample_says_who_waits_for_whom() -> None:
     assert "holds ['m" in text and "battery" in text
 
 
-@pytest.mark.xfail(reason="open (issues 24, 25): about 1 run in 20 a drone that landed where its leg failed rests on "
-                          "another's drop-off for good, and nothing asks it to make way (monitor d)", strict=False)
 def test_a_short_sweep_over_configurations_nobody_picked_is_clean(capsys: pytest.CaptureFixture[str]) -> None:
     """CI's short sweep, with the field's faults: a new sweep seed each run (DRONA_SWEEP_SEED replays
     one), so that no configuration is ever tuned for; the long one is a command (README)."""

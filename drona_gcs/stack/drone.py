@@ -49,6 +49,7 @@ from drona_gcs.stack.protocol import (
     PlanCompleted,
     Relocated,
     Reroute,
+    RerouteFailed,
     StartExecuting,
     State,
     TaskFailed,
@@ -141,6 +142,7 @@ class DroneStack:
         self.unreached: Cell | None = None  #: the goal of the last leg that found no plan
         self.asked_clear: frozenset[Cell] = frozenset()  #: resting cells the last leg asked to leave
         self.stuck: frozenset[Cell] = frozenset()  #: of those, cells still taken at the next failure
+        self.stop_short: Cell | None = None  #: where a rerouted leg ends instead of its goal, held for good
 
     # ------------------------------------------------------------ inputs
     @property
@@ -254,13 +256,20 @@ class DroneStack:
             flight -= 1 if hovering is not None else 1 + self.protocol.lead_steps
         return Task(self.clock.next_id(max(physical_time, step)), leg.goal, flight, hovering, self._way_to_clear(leg))
 
-    def _reroute_task(self) -> Task:
+    def _reroute_task(self, threat: Threatened) -> Task:
         """A new plan for the rest of the leg flown: same goal, with what the battery affords now
-        less what must remain there; it is flown from now on (hovering, as far as budgets go)."""
+        less what must remain there; it is flown from now on (hovering, as far as budgets go). When
+        the goal itself may be held for good, the leg stops short, at the nearest cell off the held
+        ones, and is decided anew from there (see :meth:`_arrive`)."""
         trajectory, now = self.protocol.trajectory, self.now
         assert trajectory is not None
-        flight = self.mail.flight_to(trajectory.last, self.level)
-        return Task(self.clock.next_id(now), trajectory.last, flight, hovering_since=now)
+        goal, self.stop_short = trajectory.last, None
+        if goal in threat.cells:
+            start = trajectory.at(now + self.protocol.lead_steps)
+            self.stop_short = yield_spot(self.config.workspace, start, frozenset(threat.cells), self.taken_cells())
+            goal = self.stop_short or goal
+        flight = self.mail.flight_to(goal, self.level)
+        return Task(self.clock.next_id(now), goal, flight, hovering_since=now)
 
     def _way_to_clear(self, leg: GoTo) -> tuple[Cell, ...]:
         """The way a mail or charging leg asks resting drones to leave: when its goal is taken, or
@@ -285,6 +294,10 @@ class DroneStack:
             return []
         if flown == arrival.goal:
             self.arrival = None
+            if arrival.goal == self.stop_short:  # the leg stopped short: not done, decided anew from here
+                self.stop_short = None
+                self.mail.relocate(arrival.goal, landed=True)
+                return []
             return list(self.mail.leg_done())
         if step < arrival.deadline:
             return []
@@ -326,7 +339,9 @@ class DroneStack:
                 self.unreached = action.task.goal
                 actions += self.mail.leg_failed(self.now, cut_off=action.cut_off)
             elif isinstance(action, Threatened):
-                actions += self._protocol(Reroute(self._reroute_task()))
+                actions += self._protocol(Reroute(self._reroute_task(action)))
+            elif isinstance(action, RerouteFailed):
+                self.stop_short = None
         return actions
 
 

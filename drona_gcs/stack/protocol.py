@@ -228,7 +228,7 @@ class Threatened:
     """The rest of the plan I fly crosses cells a departed drone may hold for good: the task
     planner should ask for a new plan to the same goal (:class:`Reroute`)."""
 
-    departed: str
+    departed: str  #: the peer that left, or whose vehicle came down
     cells: tuple[Cell, ...]  #: the cells of my plan it may hold
 
 

@@ -672,7 +672,7 @@ def _note(action: object) -> str:
     if isinstance(action, TaskFailed):
         return f"no plan for task {action.task.id} to {cell_text(action.task.goal)}: {action.reason}"
     if isinstance(action, Threatened):
-        return f"{action.departed} left and may hold {cell_text(action.cells[0])} of my plan: plans its rest anew"
+        return f"{action.departed} may hold {cell_text(action.cells[0])} of my plan for good: plans its rest anew"
     if isinstance(action, RerouteFailed):
         return f"no new plan for the rest of mine (task {action.task.id}): {action.reason}"
     if isinstance(action, GoTo):
@@ -709,7 +709,7 @@ def _clone_stack(stack: DroneStack) -> DroneStack:
 
 
 def _stack_key(stack: DroneStack) -> Hashable:
-    own = (stack.arrival, stack.unreached, stack.asked_clear, stack.stuck)  # what the stack keeps besides
+    own = (stack.arrival, stack.unreached, stack.asked_clear, stack.stuck, stack.stop_short)  # what it keeps besides
     return (*(_machine_key(getattr(stack, name)) for name in _MACHINES), own)
 
 

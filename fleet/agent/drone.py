@@ -295,7 +295,7 @@ class DroneAgent:
             elif isinstance(action, TaskFailed):
                 log.warning("%s: no plan for task %s: %s", self.me, action.task.id, action.reason)
             elif isinstance(action, Threatened):
-                log.warning("%s: %s left and may hold %s of my plan: planning its rest anew", self.me,
+                log.warning("%s: %s may hold %s of my plan for good: planning its rest anew", self.me,
                             action.departed, [list(c) for c in action.cells])
             elif isinstance(action, Grounded):
                 grounded = PlanAnnounce(trajectory=WireTrajectory.of(action.trajectory), grounded=True)
