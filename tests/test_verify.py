@@ -151,14 +151,16 @@ def test_a_copy_of_what_a_crashed_agent_sent_still_comes_before_its_leave() -> N
     assert ("deliver", left.seq) in world.enabled()
 
 
-@pytest.mark.parametrize("drones, requests, delta, seed, strategy", [
-    (3, 4, 1, 3, Strategy.RANDOM),  # a restarted agent's first request was dropped as late; asymmetric membership
-    (4, 4, 0, 649216, Strategy.PCT),  # planned around a plan whose agent died: flew into its vehicle
+@pytest.mark.parametrize("drones, requests, delta, seed, strategy, obstacles", [
+    (3, 4, 1, 3, Strategy.RANDOM, 0.2),  # a restarted agent's first request was dropped as late
+    (4, 4, 0, 649216, Strategy.PCT, 0.2),  # planned around a plan whose agent died: flew into its vehicle
+    (5, 4, 0, 150073, Strategy.PCT, 0.0),  # a vehicle down on the goal of a plan flown: flew into it
 ])
 def test_clean_stack_stays_safe_when_agents_crash_and_restart(drones: int, requests: int, delta: int, seed: int,
-                                                              strategy: Strategy) -> None:
+                                                              strategy: Strategy, obstacles: float) -> None:
     """Found by crash sweeps (see each case); the stack must survive them all."""
-    explorer = Explorer(Scenario(drones=drones, requests=requests, delta=delta, seed=seed, crashes=1))
+    explorer = Explorer(Scenario(drones=drones, requests=requests, delta=delta, seed=seed, crashes=1,
+                                 obstacles=obstacles))
     outcome = explorer.run(strategy, schedules=400, max_depth=5000, seed=seed)
     assert outcome.violation is None, str(outcome.violation)
 

@@ -143,6 +143,7 @@ class DroneStack:
         self.asked_clear: frozenset[Cell] = frozenset()  #: resting cells the last leg asked to leave
         self.stuck: frozenset[Cell] = frozenset()  #: of those, cells still taken at the next failure
         self.stop_short: Cell | None = None  #: where a rerouted leg ends instead of its goal, held for good
+        self.threat: Threatened | None = None  #: what the reroute under way goes around
 
     # ------------------------------------------------------------ inputs
     @property
@@ -263,13 +264,31 @@ class DroneStack:
         ones, and is decided anew from there (see :meth:`_arrive`)."""
         trajectory, now = self.protocol.trajectory, self.now
         assert trajectory is not None
-        goal, self.stop_short = trajectory.last, None
+        goal, self.stop_short, self.threat = trajectory.last, None, threat
         if goal in threat.cells:
-            start = trajectory.at(now + self.protocol.lead_steps)
-            self.stop_short = yield_spot(self.config.workspace, start, frozenset(threat.cells), self.taken_cells())
-            goal = self.stop_short or goal
-        flight = self.mail.flight_to(goal, self.level)
-        return Task(self.clock.next_id(now), goal, flight, hovering_since=now)
+            goal = self._short_of(threat) or goal
+        return Task(self.clock.next_id(now), goal, self.mail.flight_to(goal, self.level), hovering_since=now)
+
+    def _short_of(self, threat: Threatened) -> Cell | None:
+        """Where the leg flown stops short of the cells ``threat`` holds: the nearest cell off them from
+        where a new plan would start (that cell itself, if it can be held); None if there is none."""
+        trajectory = self.protocol.trajectory
+        assert trajectory is not None
+        start = trajectory.at(self.now + self.protocol.lead_steps)
+        self.stop_short = yield_spot(self.config.workspace, start, frozenset(threat.cells), self.taken_cells())
+        return self.stop_short
+
+    def _stop_short_instead(self) -> list[DroneAction]:
+        """The rerouted leg found no plan to its goal: stop short of the held cells instead (once)."""
+        threat, self.threat = self.threat, None
+        if threat is None or self.stop_short is not None or self.protocol.state is not State.EXECUTING:
+            self.stop_short = None
+            return []
+        stop = self._short_of(threat)
+        if stop is None:
+            return []
+        task = Task(self.clock.next_id(self.now), stop, self.mail.flight_to(stop, self.level), hovering_since=self.now)
+        return self._protocol(Reroute(task))
 
     def _way_to_clear(self, leg: GoTo) -> tuple[Cell, ...]:
         """The way a mail or charging leg asks resting drones to leave: when its goal is taken, or
@@ -341,7 +360,7 @@ class DroneStack:
             elif isinstance(action, Threatened):
                 actions += self._protocol(Reroute(self._reroute_task(action)))
             elif isinstance(action, RerouteFailed):
-                self.stop_short = None
+                actions += self._stop_short_instead()
         return actions
 
 

@@ -17,7 +17,8 @@ shares nothing with the code it judges: no production ranking, no protocol query
     service through its pickup);
 (e) no battery drops below the safe threshold;
 (f) a drone carrying mail flies only to its drop-off, or to a charger, or off a way a peer asked
-    it to leave (its request named the cell the drone rested on);
+    it to leave (its request named the cell the drone rested on), or short of the rest of its plan
+    when a vehicle down or a drone it saw leave may hold a cell of that rest;
 (g) each executor flies its plan: at every step, the cell the plan it last started puts it
     in (its last cell once the plan is over), one cell a period.
 
@@ -97,7 +98,7 @@ class Monitors:
     #: (a) what each drone down was committed to before, and who has heard it came down
     before_down: dict[str, Trajectory] = field(default_factory=dict)
     told_down: frozenset[tuple[str, str]] = frozenset()
-    #: (f) cells of ways each drone was asked to leave since its last plan
+    #: (f) the way each drone was last asked to leave, since its last plan
     asked_to_clear: tuple[tuple[str, frozenset[Cell]], ...] = ()
 
     def __post_init__(self) -> None:
@@ -324,15 +325,30 @@ class Monitors:
             return
         if action.trajectory.cells[0] in way and goal not in way:
             return
+        if self._stops_short(drone, action.trajectory):
+            return
         raise Violation("f", f"{drone} carries mail {mail.id} (drop-off {cell_text(mail.dropoff)}) but flies to "
                              f"{cell_text(goal)}, neither its drop-off nor a charger, nor off a way it was asked to "
-                             f"clear")
+                             f"clear, nor short of a cell held for good")
+
+    def _stops_short(self, drone: str, new: Trajectory) -> bool:
+        """The plan flown, made new from some step on, ends short of its goal: fine when the rest of
+        the old one crossed a cell a vehicle down, or a drone this one saw leave, may hold for good."""
+        old = self.committed[drone]
+        parting = next((t for t in range(new.start_step, new.end_step + 1) if _at(new, t) != _at(old, t)), None)
+        if new.start_step >= old.end_step or parting is None or parting <= new.start_step:
+            return False  # not the rest of the plan flown made new
+        rest = {_at(old, t) for t in range(parting, old.end_step + 1)}
+        held = {c for _, c in self.down}
+        for peer in self.departed.get(drone, ()):
+            gone = self.committed[peer]
+            held |= {_at(gone, t) for t in range(parting - self.config.delta - 1, gone.end_step + 1)}
+        return bool(rest & held)
 
     def asked_to_leave(self, drone: str, way: tuple[Cell, ...]) -> None:
-        """A peer's request asked the drones resting on ``way`` to leave it, ``drone`` among them."""
-        ways = dict(self.asked_to_clear)
-        self.asked_to_clear = (*((d, w) for d, w in self.asked_to_clear if d != drone),
-                               (drone, ways.get(drone, frozenset()) | frozenset(way)))
+        """A peer's request asked the drones resting on ``way`` to leave it, ``drone`` among them (the
+        latest such request is the one a drone answers)."""
+        self.asked_to_clear = (*((d, w) for d, w in self.asked_to_clear if d != drone), (drone, frozenset(way)))
 
 
 def same_future(a: Trajectory, b: Trajectory, since: int) -> bool:

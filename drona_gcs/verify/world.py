@@ -709,7 +709,8 @@ def _clone_stack(stack: DroneStack) -> DroneStack:
 
 
 def _stack_key(stack: DroneStack) -> Hashable:
-    own = (stack.arrival, stack.unreached, stack.asked_clear, stack.stuck, stack.stop_short)  # what it keeps besides
+    # What the stack keeps besides its machines.
+    own = (stack.arrival, stack.unreached, stack.asked_clear, stack.stuck, stack.stop_short, stack.threat)
     return (*(_machine_key(getattr(stack, name)) for name in _MACHINES), own)
 
 
