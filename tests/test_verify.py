@@ -151,15 +151,16 @@ def test_a_copy_of_what_a_crashed_agent_sent_still_comes_before_its_leave() -> N
     assert ("deliver", left.seq) in world.enabled()
 
 
-@pytest.mark.parametrize("drones, requests, delta, seed, strategy, obstacles", [
-    (3, 4, 1, 3, Strategy.RANDOM, 0.2),  # a restarted agent's first request was dropped as late
-    (4, 4, 0, 649216, Strategy.PCT, 0.2),  # planned around a plan whose agent died: flew into its vehicle
-    (5, 4, 0, 150073, Strategy.PCT, 0.0),  # a vehicle down on the goal of a plan flown: flew into it
+@pytest.mark.parametrize("drones, requests, delta, seed, strategy, obstacles, crashes", [
+    (3, 4, 1, 3, Strategy.RANDOM, 0.2, 1),  # a restarted agent's first request was dropped as late
+    (4, 4, 0, 649216, Strategy.PCT, 0.2, 1),  # planned around a plan whose agent died: flew into its vehicle
+    (5, 4, 0, 150073, Strategy.PCT, 0.0, 1),  # a vehicle down on the goal of a plan flown: flew into it
+    (3, 4, 1, 76051, Strategy.PCT, 0.2, 0),  # a vehicle down cut the goal off: flew on into it
 ])
-def test_clean_stack_stays_safe_when_agents_crash_and_restart(drones: int, requests: int, delta: int, seed: int,
-                                                              strategy: Strategy, obstacles: float) -> None:
-    """Found by crash sweeps (see each case); the stack must survive them all."""
-    explorer = Explorer(Scenario(drones=drones, requests=requests, delta=delta, seed=seed, crashes=1,
+def test_clean_stack_stays_safe_when_vehicles_come_down_and_agents_crash(
+        drones: int, requests: int, delta: int, seed: int, strategy: Strategy, obstacles: float, crashes: int) -> None:
+    """Found by sweeps (see each case); the stack must survive them all."""
+    explorer = Explorer(Scenario(drones=drones, requests=requests, delta=delta, seed=seed, crashes=crashes,
                                  obstacles=obstacles))
     outcome = explorer.run(strategy, schedules=400, max_depth=5000, seed=seed)
     assert outcome.violation is None, str(outcome.violation)

@@ -86,6 +86,11 @@ settled here, and one message it sends is saved (the second point):
   round: my new rest avoids every answer, and a drone ahead of me in line plans
   against the plan I fly, which I do not change before it has planned. A cell
   crossed within ``lead_steps`` cannot be helped this way (found by the tester).
+* **A vehicle that comes down by itself** (a failsafe, a pilot) stays where it came
+  down. I then answer with that cell for good, tell every peer (``Grounded``), end a
+  round under way with no plan and plan nothing more. A peer told (``PeerDown``)
+  holds that cell for good in every plan, takes it over any answer of mine the news
+  overtook, and plans anew the rest of the plan it flies if that crosses it.
 * **My vehicle can be lost** (its link closed or silent). It may then be anywhere on
   my trajectory from when it was last seen, or where it was seen: I keep answering with
   my trajectory and also name those cells (``holds``), which every peer holds for good
