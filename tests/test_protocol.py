@@ -28,8 +28,6 @@ from drona_gcs.stack.protocol import (
     CoordinationProtocol,
     Event,
     Grounded,
-    HeldShort,
-    HoldShort,
     NewTask,
     PeerDown,
     PeerJoined,
@@ -95,15 +93,14 @@ def request(task_id: TaskId, sender: str, now: int = 0) -> ReqForCurrentTraj:
 
 # =========================================================== the state table
 EVENT_TYPES: tuple[type, ...] = (NewTask, PlanCompleted, PeerLeft, PeerJoined, ReqForCurrentTraj, CurrentTraj,
-                                 VehicleLost, Relocated, Reroute, VehicleDown, PeerDown, HoldShort)
+                                 VehicleLost, Relocated, Reroute, VehicleDown, PeerDown)
 #: What Protocol 1 takes in each state (paper section 3.1); the rest is a protocol violation. A vehicle
 #: found again is not placed while a round is under way (its request carried where it was). Only a
 #: drone flying a plan plans its rest anew (Reroute), and that round ends when the plan does.
 REJECTED = {(State.COORDINATING, NewTask), (State.EXECUTING, NewTask), (State.REROUTING, NewTask),
             (State.WAIT_FOR_TASK, PlanCompleted), (State.COORDINATING, PlanCompleted),
             (State.COORDINATING, Relocated), (State.REROUTING, Relocated),
-            (State.WAIT_FOR_TASK, Reroute), (State.COORDINATING, Reroute), (State.REROUTING, Reroute),
-            (State.WAIT_FOR_TASK, HoldShort), (State.COORDINATING, HoldShort), (State.REROUTING, HoldShort)}
+            (State.WAIT_FOR_TASK, Reroute), (State.COORDINATING, Reroute), (State.REROUTING, Reroute)}
 
 
 def in_state(state: State) -> CoordinationProtocol:
@@ -132,7 +129,6 @@ def sample(event_type: type) -> Event:
         Reroute: Reroute(Task(TaskId(9, "a", 2), GOAL)),
         VehicleDown: VehicleDown((1, 0, 0)),
         PeerDown: PeerDown("b", (3, 3, 0)),
-        HoldShort: HoldShort(3),
     }
     return samples[event_type]
 
@@ -878,11 +874,3 @@ def test_a_reroute_with_no_peer_left_to_ask_plans_from_the_plan_flown() -> None:
     assert proto.handle(PeerLeft("b"), 2) == [Threatened("b", ((3, 0, 0),))]
     new = started(proto.handle(Reroute(Task(TaskId(6, "a", 2), GOAL)), 2)).trajectory
     assert all(new.at(s) == plan.at(s) for s in range(0, 5)) and (3, 0, 0) not in new.suffix_from(4).cells
-
-
-def test_a_vehicle_down_just_ahead_has_me_hold_short_before_a_round() -> None:
-    """Found by the 60 s sweep: a vehicle came down on the cell my plan entered two steps later,
-    sooner than a round could end; I flew on into it. I stop before that cell, then reroute."""
-    proto, plan = flying_past_b()
-    assert proto.handle(HoldShort(4), 3) == [HeldShort(Trajectory(plan.start_step, plan.cells[:3]))]
-    assert proto.trajectory is not None and proto.trajectory.last == plan.at(4) and proto.state is State.EXECUTING

@@ -42,8 +42,6 @@ from drona_gcs.stack.protocol import Action as ProtocolAction
 from drona_gcs.stack.protocol import (
     CoordinationProtocol,
     Event,
-    HeldShort,
-    HoldShort,
     NewTask,
     PeerDown,
     PeerJoined,
@@ -259,24 +257,14 @@ class DroneStack:
             flight -= 1 if hovering is not None else 1 + self.protocol.lead_steps
         return Task(self.clock.next_id(max(physical_time, step)), leg.goal, flight, hovering, self._way_to_clear(leg))
 
-    def _hold_short_of(self, threat: Threatened) -> list[DroneAction]:
-        """Stop before the first held cell of the plan flown when a round could not end in time
-        (within twice the lead steps), and hold there (see CoordinationProtocol's HoldShort)."""
-        trajectory, now, lead = self.protocol.trajectory, self.now, self.protocol.lead_steps
-        assert trajectory is not None
-        held = set(threat.cells)
-        entering = next((s for s in range(now + 1, trajectory.end_step + 1) if trajectory.at(s) in held), None)
-        if entering is None or entering > now + 2 * lead:
-            return []
-        return self._protocol(HoldShort(entering - 1))
-
-    def _reroute_task(self, threat: Threatened, goal: Cell) -> Task:
+    def _reroute_task(self, threat: Threatened) -> Task:
         """A new plan for the rest of the leg flown: same goal, with what the battery affords now
         less what must remain there; it is flown from now on (hovering, as far as budgets go). When
         the goal itself may be held for good, the leg stops short, at the nearest cell off the held
         ones, and is decided anew from there (see :meth:`_arrive`)."""
-        now = self.now
-        self.stop_short, self.threat = None, threat
+        trajectory, now = self.protocol.trajectory, self.now
+        assert trajectory is not None
+        goal, self.stop_short, self.threat = trajectory.last, None, threat
         if goal in threat.cells:
             goal = self._short_of(threat) or goal
         return Task(self.clock.next_id(now), goal, self.mail.flight_to(goal, self.level), hovering_since=now)
@@ -325,8 +313,7 @@ class DroneStack:
             return []
         if flown == arrival.goal:
             self.arrival = None
-            if self.mail.goal is not None and arrival.goal != self.mail.goal:
-                # The leg stopped short (of a vehicle down, a departed drone): not done, decided anew here.
+            if arrival.goal == self.stop_short:  # the leg stopped short: not done, decided anew from here
                 self.stop_short = None
                 self.mail.relocate(arrival.goal, landed=True)
                 return []
@@ -371,13 +358,7 @@ class DroneStack:
                 self.unreached = action.task.goal
                 actions += self.mail.leg_failed(self.now, cut_off=action.cut_off)
             elif isinstance(action, Threatened):
-                trajectory = self.protocol.trajectory
-                assert trajectory is not None
-                goal = trajectory.last
-                actions += self._hold_short_of(action)
-                actions += self._protocol(Reroute(self._reroute_task(action, goal)))
-            elif isinstance(action, HeldShort):
-                self.executor.start(action.trajectory)
+                actions += self._protocol(Reroute(self._reroute_task(action)))
             elif isinstance(action, RerouteFailed):
                 actions += self._stop_short_instead()
         return actions

@@ -69,7 +69,7 @@ class PlanExecutor:
 
     def _continues(self, trajectory: Trajectory) -> bool:
         flown = self.trajectory
-        return (flown is not None and trajectory.start_step <= self.step <= trajectory.end_step
+        return (flown is not None and trajectory.start_step <= self.step < trajectory.end_step
                 and all(trajectory.at(s) == flown.at(s) for s in range(trajectory.start_step, self.step + 1)))
 
     def relocate(self, cell: Cell) -> None:

@@ -82,10 +82,7 @@ settled here, and one message it sends is saved (the second point):
   new plan to the same goal (``Reroute``) and I coordinate it as any task
   (``REROUTING``), answering with the plan I fly on meanwhile. The new plan starts
   where that one is at its start step, and the two joined are what I then answer
-  with. No plan (or the old one ended first): I fly on what I have. When the
-  crossing comes sooner than a round could end, I first stop short of it and hold
-  (``HoldShort``, the one change to my plan made without a round, told to every
-  peer as a new plan is). Sound as any
+  with. No plan (or the old one ended first): I fly on what I have. Sound as any
   round: my new rest avoids every answer, and a drone ahead of me in line plans
   against the plan I fly, which I do not change before it has planned. A cell
   crossed within ``lead_steps`` cannot be helped this way (found by the tester).
@@ -180,14 +177,6 @@ class Relocated:
 
 
 @dataclass(frozen=True)
-class HoldShort:
-    """Stop where the plan I fly is at ``step`` and hold there: flying on would enter a cell held
-    for good sooner than a round could end."""
-
-    step: int
-
-
-@dataclass(frozen=True)
 class VehicleDown:
     """My vehicle came down by itself in ``cell`` (a failsafe, a pilot): it stays there for good."""
 
@@ -210,7 +199,7 @@ class Reroute:
 
 
 Event = (NewTask | PlanCompleted | PeerLeft | PeerJoined | ReqForCurrentTraj | CurrentTraj | VehicleLost
-         | Relocated | Reroute | VehicleDown | PeerDown | HoldShort)
+         | Relocated | Reroute | VehicleDown | PeerDown)
 
 
 # ----------------------------------------------------------------- actions
@@ -263,14 +252,7 @@ class Grounded:
     trajectory: Trajectory
 
 
-@dataclass(frozen=True)
-class HeldShort:
-    """My plan now ends where I hold, short of a cell held for good (no round: there was no time)."""
-
-    trajectory: Trajectory
-
-
-Action = Send | Broadcast | StartExecuting | TaskFailed | Threatened | RerouteFailed | Grounded | HeldShort
+Action = Send | Broadcast | StartExecuting | TaskFailed | Threatened | RerouteFailed | Grounded
 
 
 @dataclass
@@ -493,15 +475,6 @@ class CoordinationProtocol:
         crossed = event.cell in self.trajectory.suffix_from(now + self.lead_steps).cells
         return [Threatened(event.drone, (event.cell,))] if crossed else []
 
-    def _on_hold_short(self, event: HoldShort, now: int) -> list[Action]:
-        """The last resort, unilateral: peers planned around the rest of my plan, not around me
-        holding; but flying on would meet a vehicle that is there for good."""
-        flown = self.trajectory
-        assert flown is not None
-        kept = flown.cells[:max(1, event.step - flown.start_step + 1)]
-        self.trajectory = Trajectory(flown.start_step, kept)
-        return [HeldShort(self.trajectory)]
-
     def _on_reroute(self, event: Reroute, now: int) -> list[Action]:
         return self._begin_round(event.task, State.REROUTING, now)
 
@@ -629,7 +602,6 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         CurrentTraj: CoordinationProtocol._ignore,
         PlanCompleted: CoordinationProtocol._on_completed,  # -> WAIT_FOR_TASK
         Reroute: CoordinationProtocol._on_reroute,  # -> REROUTING
-        HoldShort: CoordinationProtocol._on_hold_short,
         PeerLeft: CoordinationProtocol._on_peer_left,  # may report Threatened
         PeerJoined: CoordinationProtocol._on_peer_joined,
         VehicleLost: CoordinationProtocol._on_vehicle_lost,

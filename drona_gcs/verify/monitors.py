@@ -345,11 +345,6 @@ class Monitors:
             held |= {_at(gone, t) for t in range(parting - self.config.delta - 1, gone.end_step + 1)}
         return bool(rest & held)
 
-    def held_short(self, drone: str, trajectory: Trajectory) -> None:
-        """``drone`` stopped short of a cell held for good, with no round: it is committed to that
-        (which (b) judges as it does every flight)."""
-        self.committed[drone] = trajectory
-
     def asked_to_leave(self, drone: str, way: tuple[Cell, ...]) -> None:
         """A peer's request asked the drones resting on ``way`` to leave it, ``drone`` among them (the
         latest such request is the one a drone answers)."""

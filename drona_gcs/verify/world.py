@@ -45,16 +45,7 @@ from drona_gcs.stack.mail import (
     Phase,
 )
 from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj
-from drona_gcs.stack.protocol import (
-    Broadcast,
-    Grounded,
-    HeldShort,
-    RerouteFailed,
-    Send,
-    StartExecuting,
-    TaskFailed,
-    Threatened,
-)
+from drona_gcs.stack.protocol import Broadcast, Grounded, RerouteFailed, Send, StartExecuting, TaskFailed, Threatened
 from drona_gcs.verify.monitors import Flier, Monitors, cell_text, cells_text
 from drona_gcs.verify.mutants import planner_delta, plant
 from drona_gcs.workspace import Cell, Workspace
@@ -587,12 +578,6 @@ class World:
                 for peer in self.config.drones:
                     if peer != drone:
                         self._post(drone, peer, Announce(action.trajectory))
-            if isinstance(action, HeldShort):
-                self.monitors.held_short(drone, action.trajectory)
-                if self.config.faults.announce:
-                    for peer in self.config.drones:
-                        if peer != drone:
-                            self._post(drone, peer, Announce(action.trajectory))
             if isinstance(action, Grounded):  # as the agent does, announce or not
                 for peer in self.config.drones:
                     if peer != drone:
@@ -688,8 +673,6 @@ def _note(action: object) -> str:
         return f"no plan for task {action.task.id} to {cell_text(action.task.goal)}: {action.reason}"
     if isinstance(action, Threatened):
         return f"{action.departed} may hold {cell_text(action.cells[0])} of my plan for good: plans its rest anew"
-    if isinstance(action, HeldShort):
-        return f"holds short at {cell_text(action.trajectory.last)}: {cells_text(action.trajectory)}"
     if isinstance(action, RerouteFailed):
         return f"no new plan for the rest of mine (task {action.task.id}): {action.reason}"
     if isinstance(action, GoTo):

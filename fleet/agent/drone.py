@@ -39,7 +39,6 @@ from drona_gcs.stack.messages import CurrentTraj
 from drona_gcs.stack.protocol import (
     Broadcast,
     Grounded,
-    HeldShort,
     RerouteFailed,
     Send,
     StartExecuting,
@@ -298,10 +297,6 @@ class DroneAgent:
             elif isinstance(action, Threatened):
                 log.warning("%s: %s may hold %s of my plan for good: planning its rest anew", self.me,
                             action.departed, [list(c) for c in action.cells])
-            elif isinstance(action, HeldShort):
-                log.warning("%s: holding short at %s of a cell held for good", self.me, list(action.trajectory.last))
-                held = PlanAnnounce(trajectory=WireTrajectory.of(action.trajectory))
-                self.node.put(self.keys.plan(self.me), encode(self.me, self.clock(), held))
             elif isinstance(action, Grounded):
                 grounded = PlanAnnounce(trajectory=WireTrajectory.of(action.trajectory), grounded=True)
                 self.node.put(self.keys.plan(self.me), encode(self.me, self.clock(), grounded))
