@@ -16,7 +16,7 @@ import pytest
 
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.battery import BatteryModel
-from drona_gcs.stack.drone import CONFIRM_STEPS, DroneAction, DroneStack, LegNotFlown, StackConfig
+from drona_gcs.stack.drone import CONFIRM_STEPS, DroneAction, DroneStack, LegNotFlown, StackConfig, yield_spot
 from drona_gcs.stack.mail import MAX_MISSES, GoTo, MailDelivered, MailPickedUp, MailRejected, MailRequest, Phase
 from drona_gcs.stack.messages import Message
 from drona_gcs.stack.protocol import Broadcast, Send, State
@@ -288,3 +288,14 @@ def test_a_drone_parked_on_the_only_way_makes_way_for_mail_on_board(down: str) -
     moves = [a for a in done[parked] if isinstance(a, GoTo)]
     assert moves[0].purpose is Phase.MAKING_WAY and moves[0].goal != ws.drones[parked]
     assert moves[-1].purpose is Phase.TO_PARKING  # and home again afterwards
+
+
+def test_a_drone_boxed_in_on_a_way_makes_way_to_a_charger_when_nothing_else_is_left() -> None:
+    """Found by the 60 s sweep: boxed in by a parked drone and a vehicle down, a drone asked to make
+    way found no cell but a charger, stayed, and the mail behind it waited for good."""
+    corridor = Workspace.build(size=(4, 1, 1), charging_stations=((0, 0, 0),), drones={"d1": (1, 0, 0)})
+    way = frozenset({(1, 0, 0), (2, 0, 0), (3, 0, 0)})  # where it rests is on the way
+    assert yield_spot(corridor, (1, 0, 0), way, ()) == (0, 0, 0)
+    assert yield_spot(corridor, (1, 0, 0), way | {(0, 0, 0)}, ()) is None
+    wide = Workspace.build(size=(4, 2, 1), charging_stations=((0, 0, 0),), drones={"d1": (1, 0, 0)})
+    assert yield_spot(wide, (1, 0, 0), way, ()) == (1, 1, 0)  # a free cell first, though farther

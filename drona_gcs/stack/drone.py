@@ -370,12 +370,13 @@ ASKING = frozenset({Phase.TO_PICKUP, Phase.TO_DROPOFF, Phase.TO_CHARGER})
 
 def yield_spot(workspace: Workspace, here: Cell, way: frozenset[Cell], taken: Collection[Cell]) -> Cell | None:
     """The nearest cell off ``way`` a drone resting in ``here`` can make way to: free, reachable
-    around other resting drones, and no charger or parking cell (where drones come to rest)."""
+    around other resting drones, and no charger or parking cell (where drones come to rest) unless
+    only those are left (boxed in, a drone would otherwise stay on the way)."""
     rest_spots = {*workspace.charging_stations, *workspace.parking}
     reach = workspace.distances_from(here, frozenset(taken) - {here})
-    spots = [(steps, cell) for cell, steps in reach.items()
-             if cell not in way and cell not in taken and cell not in rest_spots]
-    return min(spots)[1] if spots else None
+    spots = [(cell in rest_spots, steps, cell) for cell, steps in reach.items()
+             if cell not in way and cell not in taken]
+    return min(spots)[2] if spots else None
 
 
 def own_parking(parking: Sequence[Cell], drones: Sequence[str], me: str) -> Sequence[Cell]:
