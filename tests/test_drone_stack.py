@@ -10,7 +10,7 @@ the test's network may hold back.
 from __future__ import annotations
 
 import random
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 import pytest
 
@@ -108,6 +108,16 @@ CHARGED = Workspace.build(size=(6, 6, 1), drones={"d1": (0, 2, 0), "d2": (5, 3, 
                           charging_stations=((0, 0, 0), (5, 0, 0)), parking=((0, 5, 0), (5, 5, 0)))
 
 
+def route(stacks: Mapping[str, DroneStack], inbox: list[tuple[str, Message]], sender: str,
+          actions: list[DroneAction]) -> None:
+    """Put ``sender``'s messages in ``inbox``, as (receiver, message), in the order sent."""
+    for action in actions:
+        if isinstance(action, Send):
+            inbox.append((action.to, action.message))
+        elif isinstance(action, Broadcast):
+            inbox.extend((d, action.message) for d in stacks if d != sender)
+
+
 def fleet_of_two(ws: Workspace, mail: MailRequest, level: float, steps: int,
                  held: Callable[[DroneStack, int], bool]) -> list[Seen]:
     """d1 and d2 on ``ws``, d1 with ``mail`` and ``level`` % of battery; the network delivers every
@@ -121,11 +131,7 @@ def fleet_of_two(ws: Workspace, mail: MailRequest, level: float, steps: int,
     seen: list[Seen] = []
 
     def post(sender: str, actions: list[DroneAction]) -> None:
-        for action in actions:
-            if isinstance(action, Send):
-                inbox.append((action.to, action.message))
-            elif isinstance(action, Broadcast):
-                inbox.extend((d, action.message) for d in stacks if d != sender)
+        route(stacks, inbox, sender, actions)
 
     for step in range(steps):
         for drone, stack in stacks.items():
@@ -260,11 +266,7 @@ def fleet_on_the_ring(ws: Workspace, down: str, steps: int) -> dict[str, list[Dr
 
     def post(sender: str, actions: list[DroneAction]) -> None:
         done[sender] += actions
-        for action in actions:
-            if isinstance(action, Send):
-                inbox.append((action.to, action.message))
-            elif isinstance(action, Broadcast):
-                inbox.extend((d, action.message) for d in stacks if d != sender)
+        route(stacks, inbox, sender, actions)
 
     for step in range(steps):
         for drone, stack in stacks.items():
