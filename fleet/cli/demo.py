@@ -5,7 +5,8 @@ It starts ``drona sim-vehicle --count N`` (fake ArduCopters), ``drona agent
 the dashboard, dispatching over Zenoh), each in its own process, on an embedded
 workspace unless ``--workspace`` names one. It prints the dashboard's URL and
 the operator token, and stops everything cleanly on Ctrl-C: the agents finish
-their plans and land, then the vehicles and the service stop.
+their plans and land, then the vehicles and the service stop. The children die
+with the demo however it ends, ``kill -9`` included (:mod:`fleet.cli.lifeline`).
 """
 
 from __future__ import annotations
@@ -121,8 +122,22 @@ async def _demo(args: argparse.Namespace, workspace: Path, drones: int, token: s
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
+    # A watched pipe, not prctl(PR_SET_PDEATHSIG): that signal fires when the *thread* that forked
+    # exits, needs a preexec_fn (unsafe with threads), races with a launcher dying before the
+    # child's prctl, and is Linux-only. The pipe's EOF comes when this process ends, however and
+    # whenever, even before a child starts reading. The write end is not inherited (PEP 446).
+    lifeline, held = os.pipe()
+    try:
+        return await _fly(args, workspace, drones, token, state, lifeline, stop)
+    finally:
+        os.close(lifeline)
+        os.close(held)  # children still running (started, then the demo failed) go
+
+
+async def _fly(args: argparse.Namespace, workspace: Path, drones: int, token: str, state: Path,
+               lifeline: int, stop: asyncio.Event) -> int:
     ws = ["--workspace", str(workspace)]
-    vehicles = await _start("sim-vehicle", *ws, "--count", str(drones), "--speedup", str(args.speedup),
+    vehicles = await _start(lifeline, "sim-vehicle", *ws, "--count", str(drones), "--speedup", str(args.speedup),
                             "--autopilot", args.autopilot, "--base-port", str(args.vehicle_port),
                             "--ready-after", str(args.ready_after))
     zenoh = f"tcp/127.0.0.1:{args.zenoh_port}"
@@ -130,9 +145,10 @@ async def _demo(args: argparse.Namespace, workspace: Path, drones: int, token: s
                   "--listen", zenoh, "--connect", zenoh]
     if args.record:
         agent_args += ["--record", str(args.record)]
-    agents = await _start("agent", *agent_args, stderr=asyncio.subprocess.PIPE)
-    service = await _start("serve", *ws, "--demo", "--token", token, "--db", str(args.db), "--host", args.host,
-                           "--port", str(args.port), "--connect", zenoh, stdout=asyncio.subprocess.PIPE)
+    agents = await _start(lifeline, "agent", *agent_args, stderr=asyncio.subprocess.PIPE)
+    service = await _start(lifeline, "serve", *ws, "--demo", "--token", token, "--db", str(args.db),
+                           "--host", args.host, "--port", str(args.port), "--connect", zenoh,
+                           stdout=asyncio.subprocess.PIPE)
     children = {"service": service, "agents": agents, "vehicles": vehicles}
     try:
         async with asyncio.TaskGroup() as group:
@@ -160,12 +176,14 @@ async def _demo(args: argparse.Namespace, workspace: Path, drones: int, token: s
     return 1 if failed and not stop.is_set() else 0
 
 
-async def _start(command: str, *arguments: str, stdout: int | None = None,
+async def _start(lifeline: int, command: str, *arguments: str, stdout: int | None = None,
                  stderr: int | None = None) -> asyncio.subprocess.Process:
-    # Own session: a Ctrl-C in the terminal reaches the demo only, which stops the children in order.
-    return await asyncio.create_subprocess_exec(sys.executable, "-m", "fleet.cli", command, *arguments,
-                                                stdout=stdout, stderr=stderr, start_new_session=True,
-                                                env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    """``drona command arguments...``, dying with the demo (``lifeline``: the pipe's read end)."""
+    # Own session: a Ctrl-C in the terminal reaches the demo only, which stops the children in order;
+    # and each child leads its own process group, which its lifeline kills whole.
+    return await asyncio.create_subprocess_exec(sys.executable, "-m", "fleet.cli.lifeline", str(lifeline), command,
+                                                *arguments, stdout=stdout, stderr=stderr, start_new_session=True,
+                                                pass_fds=(lifeline,), env={**os.environ, "PYTHONUNBUFFERED": "1"})
 
 
 async def _wait_for(stream: asyncio.StreamReader | None, marker: str, who: str) -> str | None:

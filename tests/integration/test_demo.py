@@ -3,12 +3,14 @@ dashboard in headless Chromium shows it; Ctrl-C stops everything and the recorde
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -25,13 +27,16 @@ pytestmark = pytest.mark.slow
 TOKEN = "demo-test-token-0123456789"
 
 
-def start_demo(tmp_path: Path, drones: int) -> tuple[subprocess.Popen[str], str]:
-    port = free_port_block(1, socket.SOCK_STREAM)
-    command = [sys.executable, "-m", "fleet.cli", "demo", "--drones", str(drones), "--port", str(port),
+def demo_ports(drones: int) -> list[str]:
+    """Free ports for a demo: the service's, the vehicles' and the agents'."""
+    return ["--port", str(free_port_block(1, socket.SOCK_STREAM)), "--vehicle-port", str(free_udp_base(drones)),
+            "--zenoh-port", str(free_port_block(drones, socket.SOCK_STREAM))]
+
+
+def start_demo(tmp_path: Path, drones: int, ports: list[str] | None = None) -> tuple[subprocess.Popen[str], str]:
+    command = [sys.executable, "-m", "fleet.cli", "demo", "--drones", str(drones),
                "--tau", "0.5", "--speedup", "4", "--db", str(tmp_path / "demo.db"),
-               "--record", str(tmp_path / "record.jsonl"), "--token", TOKEN,
-               "--vehicle-port", str(free_udp_base(drones)),
-               "--zenoh-port", str(free_port_block(drones, socket.SOCK_STREAM))]
+               "--record", str(tmp_path / "record.jsonl"), "--token", TOKEN, *(ports or demo_ports(drones))]
     demo = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})
     assert demo.stdout is not None
@@ -40,6 +45,7 @@ def start_demo(tmp_path: Path, drones: int) -> tuple[subprocess.Popen[str], str]
         seen.append(line)
         if "dashboard http" in line:
             return demo, line.split("dashboard ", 1)[1].split()[0].rstrip("/")
+    demo.communicate(timeout=30)  # reaped, its pipe closed
     raise AssertionError("the demo never printed its dashboard URL:\n" + "".join(seen))
 
 
@@ -88,3 +94,64 @@ def load_workspace_of_demo(tmp_path: Path) -> Any:
     path = tmp_path / "demo-workspace.yaml"
     path.write_text(yaml.safe_dump(demo_workspace(4, 0.5)))
     return load_workspace(path)
+
+
+def test_kill_9_of_the_demo_takes_its_children_and_their_ports_along(tmp_path: Path) -> None:
+    """Issue 26: the demo is one unit. Its vehicles, agents and service die with it, so a demo
+    restarted on the same ports starts (rather than failing with "Address already in use")."""
+    ports = demo_ports(2)
+    demo, url = start_demo(tmp_path, drones=2, ports=ports)
+    children = child_pids(demo.pid)
+    try:
+        assert len(children) == 3, children  # vehicles, agents, service
+        demo.kill()
+        demo.wait(10)
+        assert wait_gone(children, timeout=15.0) == [], "children outlived the demo's kill -9"
+        again, url_again = start_demo(tmp_path, drones=2, ports=ports)
+        again.send_signal(signal.SIGINT)
+        output, _ = again.communicate(timeout=150)
+        assert again.returncode == 0, output
+        assert url_again == url
+    finally:
+        reap(demo, children)
+
+
+def child_pids(parent: int) -> list[int]:
+    """The pids whose parent is ``parent`` (from /proc)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue  # gone meanwhile
+        if int(fields[1]) == parent:
+            found.append(int(stat.parent.name))
+    return sorted(found)
+
+
+def alive(pid: int) -> bool:
+    """Running (a zombie waiting for its reaper counts as gone)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def wait_gone(pids: list[int], timeout: float) -> list[int]:
+    """Those of ``pids`` still alive after ``timeout`` seconds (at once when none is)."""
+    deadline = time.monotonic() + timeout
+    while (left := [p for p in pids if alive(p)]) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    return left
+
+
+def reap(demo: subprocess.Popen[str], children: list[int]) -> None:
+    """Whatever a failed test left running: the demo, and its children's process groups (own sessions),
+    which hold the demo's stdout open."""
+    if demo.poll() is None:
+        demo.kill()
+    for pid in children:
+        with contextlib.suppress(OSError):
+            if alive(pid) and b"fleet.cli" in Path(f"/proc/{pid}/cmdline").read_bytes():
+                os.killpg(pid, signal.SIGKILL)
+    demo.communicate(timeout=10)
