@@ -1,5 +1,5 @@
-"""Issue 26, in small: the lifeline that ties ``drona demo``'s children to it (the whole demo,
-killed with -9, is in tests/integration/test_demo.py)."""
+"""Issue 26, in small: the lifeline that ties ``drona demo``'s children to it, and the demo's token
+beside ``DRONA_API_TOKENS`` (the whole demo, killed with -9, is in tests/integration/test_demo.py)."""
 
 from __future__ import annotations
 
@@ -11,6 +11,12 @@ import sys
 import time
 from pathlib import Path
 from typing import Any
+
+import pytest
+
+from api.auth import Principal, Role
+from fleet.cli import build_parser
+from fleet.cli.serve import _settings
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -79,3 +85,41 @@ def test_a_child_whose_launcher_died_before_it_started_watching_dies_too() -> No
         assert child.wait(30) == -signal.SIGKILL
     finally:
         reap(child)
+
+
+def serve_settings(monkeypatch: pytest.MonkeyPatch, tokens: str, *options: str) -> tuple[Any, str | None]:
+    """``drona serve --demo OPTIONS`` as the demo starts it, with ``DRONA_API_TOKENS=tokens``."""
+    monkeypatch.setenv("DRONA_API_TOKENS", tokens)
+    monkeypatch.delenv("DRONA_API_TOKEN_FILE", raising=False)
+    return _settings(build_parser("serve").parse_args(["serve", "--workspace", "ws.yaml", "--demo", *options]))
+
+
+def test_the_demo_token_also_listed_as_an_operator_s_is_that_operator(monkeypatch: pytest.MonkeyPatch) -> None:
+    settings, made = serve_settings(monkeypatch, "operator:T0123:alice submitter:S0123", "--token", "T0123")
+    table = settings.token_table()
+    assert made == "T0123"
+    assert table.lookup("T0123") == Principal("alice", Role.OPERATOR)  # the listing stands, its name too
+    assert table.lookup("S0123") is not None and len(list(table.entries())) == 2
+
+
+def test_the_demo_token_joins_the_listed_ones(monkeypatch: pytest.MonkeyPatch) -> None:
+    settings, _ = serve_settings(monkeypatch, "submitter:S0123", "--token", "T0123")
+    table = settings.token_table()
+    assert table.lookup("T0123") == Principal("demo", Role.OPERATOR)
+    assert table.lookup("S0123") is not None
+
+
+def test_the_demo_token_listed_as_a_submitter_s_is_a_conflict_named(monkeypatch: pytest.MonkeyPatch) -> None:
+    with pytest.raises(ValueError, match="--token is bob's submitter token in DRONA_API_TOKENS") as error:
+        serve_settings(monkeypatch, "submitter:T0123:bob", "--token", "T0123")
+    assert "T0123" not in str(error.value)  # a secret never shows
+
+
+def test_the_demo_token_listed_in_the_token_file_is_that_operator(monkeypatch: pytest.MonkeyPatch,
+                                                                  tmp_path: Path) -> None:
+    (tmp_path / "tokens").write_text("operator:T0123:carol\n")
+    monkeypatch.setenv("DRONA_API_TOKEN_FILE", str(tmp_path / "tokens"))
+    monkeypatch.delenv("DRONA_API_TOKENS", raising=False)
+    settings, _ = _settings(build_parser("serve").parse_args(
+        ["serve", "--workspace", "ws.yaml", "--demo", "--token", "T0123"]))
+    assert settings.token_table().lookup("T0123") == Principal("carol", Role.OPERATOR)

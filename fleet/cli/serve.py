@@ -42,7 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", help="address to listen on (default 127.0.0.1)")
     parser.add_argument("--port", type=int, help="port to listen on (default 8000; 0: any free port)")
     parser.add_argument("--demo", action="store_true", help="demo/dev mode: without a token, make one and print it")
-    parser.add_argument("--token", help="in demo mode: the operator token to use (default: a random one)")
+    parser.add_argument("--token", help="in demo mode: the operator token to use (default: a random one), "
+                        "besides those of DRONA_API_TOKENS and DRONA_API_TOKEN_FILE")
     parser.add_argument("--gateway", choices=sorted(GATEWAYS), default=next(iter(GATEWAYS)),
                         help="how to reach the drones; 'simulated' is an in-memory fake fleet for dev and tests")
     parser.add_argument("--sim-drones", type=int, help="simulated gateway: number of drones "
@@ -89,12 +90,27 @@ def _settings(args: argparse.Namespace) -> tuple[Any, str | None]:
         settings = ApiSettings(**given)
         if settings.demo and (args.token or not settings.token_table()):
             made = args.token or make_token()
-            settings = settings.model_copy(update={"tokens": f"{settings.tokens} operator:{made}:demo".strip()})
+            settings = _with_demo_token(settings, made)
         elif args.token:
             raise ValueError("--token is for demo mode (--demo); otherwise set DRONA_API_TOKENS")
     except ValidationError as exc:
         raise ValueError("; ".join(_setting_error(e) for e in exc.errors())) from None
     return settings, made
+
+
+def _with_demo_token(settings: Any, token: str) -> Any:
+    """The demo's operator token joins the configured ones (``DRONA_API_TOKENS``, ``DRONA_API_TOKEN_FILE``).
+
+    Listed there already as an operator's, that entry stands, its name too (``drona demo --token T``
+    in an environment that lists ``operator:T``); listed as a submitter's, it is a conflict.
+    """
+    known = settings.token_table().lookup(token)
+    if known is None:
+        return settings.model_copy(update={"tokens": f"{settings.tokens} operator:{token}:demo".strip()})
+    if not known.is_operator:
+        raise ValueError(f"--token is {known.name}'s submitter token in DRONA_API_TOKENS or DRONA_API_TOKEN_FILE; "
+                         "the demo's token is an operator's: pass another one")
+    return settings
 
 
 def _setting_error(error: Any) -> str:

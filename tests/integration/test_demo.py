@@ -33,12 +33,13 @@ def demo_ports(drones: int) -> list[str]:
             "--zenoh-port", str(free_port_block(drones, socket.SOCK_STREAM))]
 
 
-def start_demo(tmp_path: Path, drones: int, ports: list[str] | None = None) -> tuple[subprocess.Popen[str], str]:
+def start_demo(tmp_path: Path, drones: int, ports: list[str] | None = None,
+               env: dict[str, str] | None = None) -> tuple[subprocess.Popen[str], str]:
     command = [sys.executable, "-m", "fleet.cli", "demo", "--drones", str(drones),
                "--tau", "0.5", "--speedup", "4", "--db", str(tmp_path / "demo.db"),
                "--record", str(tmp_path / "record.jsonl"), "--token", TOKEN, *(ports or demo_ports(drones))]
     demo = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                            env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})})
     assert demo.stdout is not None
     seen = []
     for line in demo.stdout:  # ends when the demo does: bounded
@@ -114,6 +115,20 @@ def test_kill_9_of_the_demo_takes_its_children_and_their_ports_along(tmp_path: P
         assert url_again == url
     finally:
         reap(demo, children)
+
+
+def test_the_demo_starts_with_its_token_also_in_drona_api_tokens(tmp_path: Path) -> None:
+    """Issue 26: the service takes the demo's --token and DRONA_API_TOKENS together; the token
+    listed in both, as an operator's, is one operator, not an error."""
+    demo, url = start_demo(tmp_path, drones=1, env={"DRONA_API_TOKENS": f"operator:{TOKEN} submitter:sub-token-1"})
+    try:
+        for token, status in ((TOKEN, 200), ("sub-token-1", 403)):
+            answer = httpx.get(f"{url}/v1/fleet", headers={"Authorization": f"Bearer {token}"}, timeout=10)
+            assert answer.status_code == status, (token, answer.text)
+    finally:
+        demo.send_signal(signal.SIGINT)
+        output, _ = demo.communicate(timeout=150)
+    assert demo.returncode == 0, output
 
 
 def child_pids(parent: int) -> list[int]:
