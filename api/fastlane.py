@@ -5,19 +5,22 @@ second with p99 <= 50 ms on two cores). Its endpoint takes only the request and
 returns a response, so it needs nothing from FastAPI's routing and dependency
 machinery, which costs about as much CPU as the endpoint itself. This
 middleware calls that very endpoint directly, and turns its errors into
-answers with FastAPI's own handlers, so both ways give the same result; the
-route stays registered as usual, for the OpenAPI document. It sits inside
-FastAPI's body-size limit and server-error middlewares, like any user middleware.
+answers with the app's own handlers (:mod:`api.handlers`), so both ways give
+the same result; the route stays registered as usual, for the OpenAPI
+document. It sits inside FastAPI's body-size limit and server-error
+middlewares, like any user middleware.
 """
 
 from __future__ import annotations
 
 from collections.abc import Awaitable, Callable
 
-from fastapi import HTTPException, Request, Response
-from fastapi.exception_handlers import http_exception_handler, request_validation_exception_handler
+from fastapi import Request, Response
 from fastapi.exceptions import RequestValidationError
+from starlette.exceptions import HTTPException
 from starlette.types import ASGIApp, Receive, Scope, Send
+
+from api.handlers import http_error, validation_error
 
 Endpoint = Callable[[Request], Awaitable[Response]]
 
@@ -37,7 +40,7 @@ class FastLane:
         try:
             response = await self.endpoint(request)
         except RequestValidationError as exc:
-            response = await request_validation_exception_handler(request, exc)
+            response = await validation_error(request, exc)
         except HTTPException as exc:
-            response = await http_exception_handler(request, exc)
+            response = await http_error(request, exc)
         await response(scope, receive, send)

@@ -14,10 +14,9 @@ from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from typing import Any
 
-from fastapi import FastAPI, Request, Response
-from fastapi.exception_handlers import http_exception_handler
+from fastapi import FastAPI
+from fastapi.exceptions import RequestValidationError
 from fastapi.openapi.utils import get_openapi
-from fastapi.routing import APIRoute
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
@@ -27,8 +26,10 @@ from api.errors import ConfigError
 from api.events import EventBus
 from api.fastlane import FastLane
 from api.gateway import FleetGateway
+from api.handlers import http_error, validation_error
+from api.headlimit import HeadLimit
 from api.models import MailCreate, MailPublic, WorkspacePublic
-from api.routes import dashboard, events, fleet, health, mail
+from api.routes import dashboard, docs, events, fleet, health, mail
 from api.settings import ApiSettings
 from api.store import Change, Store
 from api.validation import MailChecker
@@ -39,6 +40,9 @@ from fleet.clock import periodic
 log = logging.getLogger(__name__)
 #: Largest request body accepted (a mail request is well under 1 KiB).
 MAX_BODY_BYTES = 64 * 1024
+#: Largest request line and headers accepted (see api.headlimit; ``drona serve`` has uvicorn's h11 hold
+#: no more than this of an incomplete head).
+MAX_HEAD_BYTES = 32 * 1024
 
 
 class _Shutdown(Exception):
@@ -79,27 +83,20 @@ def create_app(settings: ApiSettings, gateway: FleetGateway, workspace: Workspac
         except* _Shutdown:
             pass
 
+    # FastAPI's own /docs and /redoc load their scripts from a CDN: ours (api.routes.docs) are served here.
     app = FastAPI(title="drona-gcs", version="1", lifespan=lifespan, max_body_size=MAX_BODY_BYTES,
+                  docs_url=None, redoc_url=None,
                   description="Mail requests for a DRONA drone fleet: submit, follow, cancel; the fleet's live state.")
-    for module in (mail, fleet, events, health, dashboard):
+    for module in (mail, fleet, events, health, dashboard, docs):
         app.include_router(module.router)
     app.mount("/static", StaticFiles(directory=dashboard.STATIC_DIR), name="static")
+    app.mount(docs.ASSETS_URL, StaticFiles(directory=docs.ASSETS_DIR), name="docs-assets")
     app.add_middleware(FastLane, method="POST", path="/v1/mail", endpoint=mail.submit)
+    app.add_middleware(HeadLimit, limit=MAX_HEAD_BYTES)  # added last: it runs first
     app.openapi = lambda: _openapi(app)  # type: ignore[method-assign]
-    app.add_exception_handler(StarletteHTTPException, _http_error)
+    app.add_exception_handler(StarletteHTTPException, http_error)
+    app.add_exception_handler(RequestValidationError, validation_error)
     return app
-
-
-async def _http_error(request: Request, exc: Exception) -> Response:
-    """FastAPI's answer, except that a 405's ``Allow`` lists the methods of every route on the path
-    (Starlette names only those of the first route it matched: GET /v1/mail hid POST /v1/mail)."""
-    assert isinstance(exc, StarletteHTTPException)
-    if exc.status_code == 405:
-        path = request.url.path
-        allowed = sorted({m for r in request.app.routes if isinstance(r, APIRoute) and r.path_regex.fullmatch(path)
-                          for m in r.methods or ()})
-        exc = StarletteHTTPException(405, exc.detail, headers={"Allow": ", ".join(allowed)})
-    return await http_exception_handler(request, exc)
 
 
 def _openapi(app: FastAPI) -> dict[str, Any]:

@@ -22,7 +22,8 @@ _IDEMPOTENCY_KEY = re.compile(r"[\x21-\x7e]{1,200}")
 
 
 @router.post("", status_code=status.HTTP_201_CREATED, response_model=MailDetail, openapi_extra=MAIL_CREATE_EXTRA,
-             responses={409: {"model": ErrorOut, "description": "the Idempotency-Key was used with another request"}})
+             responses={409: {"model": ErrorOut, "description": "the Idempotency-Key was used with another request"},
+                        415: {"model": ErrorOut, "description": "the body is not declared application/json"}})
 async def submit(request: Request) -> Response:
     """Submit a mail request; answered once it is stored durably.
 
@@ -32,6 +33,7 @@ async def submit(request: Request) -> Response:
     # resolves nothing; the body is parsed by pydantic straight from the JSON bytes and the answer is
     # serialised once. MAIL_CREATE_EXTRA documents the body and the header as usual.
     caller = await get_caller(request)
+    _require_json(request)
     key = _idempotency_key(request)
     body = _parse(await request.body())
     service = caller.service
@@ -49,6 +51,16 @@ async def submit(request: Request) -> Response:
         service.store.history(record.seq)
     return Response(MailDetail.with_history(record, history).model_dump_json(), status.HTTP_201_CREATED,
                     None if created else {"Idempotent-Replayed": "true"}, "application/json")
+
+
+def _require_json(request: Request) -> None:
+    """415 unless the body is declared JSON (a charset parameter is fine): a text/plain body is
+    taken for a mistake, not guessed at."""
+    declared = request.headers.get("content-type")
+    if declared is None or declared.partition(";")[0].strip().lower() != "application/json":
+        came = f"it came as {declared}" if declared else "it came without one"
+        raise HTTPException(status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
+                            f"the body must be sent as Content-Type: application/json ({came})")
 
 
 def _idempotency_key(request: Request) -> str | None:

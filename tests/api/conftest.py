@@ -4,6 +4,7 @@
   it (ASGI, no socket) and a :class:`SimulatedGateway` the test steps by hand by default.
 * :class:`ServiceProcess` runs ``drona serve`` (simulated gateway) on a free port, for the
   tests that need a real socket, a real crash or a browser.
+* :func:`browser` is headless Chromium, for the tests of what a page shows.
 
 Async tests are plain functions calling :func:`run` (asyncio.run with a time limit).
 """
@@ -13,11 +14,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import threading
-from collections.abc import AsyncIterator, Callable, Coroutine
+from collections.abc import AsyncIterator, Callable, Coroutine, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -178,3 +180,33 @@ def workspace_file(tmp_path: Path) -> Path:
     path = tmp_path / "ws.json"
     path.write_text(json.dumps(WORKSPACE))
     return path
+
+
+@pytest.fixture
+def service(workspace_file: Path, tmp_path: Path) -> Iterator[ServiceProcess]:
+    """``drona serve`` on the test workspace, stopped by SIGTERM at the end (and it must stop cleanly)."""
+    proc = ServiceProcess(workspace_file, tmp_path / "mail.db")
+    yield proc
+    assert proc.stop() == 0
+
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+
+
+@pytest.fixture
+def browser() -> Iterator[Any]:
+    """Headless Chromium (Debian's, driven by Playwright); the test is skipped, saying why, without it."""
+    if not Path(CHROMIUM).exists():
+        print(f"skipping the browser test: no Chromium at {CHROMIUM} (apt-get install chromium)")
+        pytest.skip(f"no Chromium at {CHROMIUM}: apt-get install chromium")
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        print("skipping the browser test: the playwright package is not installed")
+        pytest.skip("the playwright package is not installed")
+    with sync_playwright() as p:
+        chromium = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        try:
+            yield chromium
+        finally:
+            chromium.close()

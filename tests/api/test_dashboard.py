@@ -5,35 +5,10 @@ Skipped, with the reason printed, when Chromium or Playwright is missing (``apt-
 
 from __future__ import annotations
 
-import shutil
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import pytest
-
 from tests.api.conftest import OPERATOR, ServiceProcess
-
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-
-
-@pytest.fixture
-def browser() -> Iterator[Any]:
-    if not Path(CHROMIUM).exists():
-        print(f"skipping the browser test: no Chromium at {CHROMIUM} (apt-get install chromium)")
-        pytest.skip(f"no Chromium at {CHROMIUM}: apt-get install chromium")
-    try:
-        from playwright.sync_api import sync_playwright
-    except ImportError:
-        print("skipping the browser test: the playwright package is not installed")
-        pytest.skip("the playwright package is not installed")
-    with sync_playwright() as p:
-        chromium = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
-        try:
-            yield chromium
-        finally:
-            chromium.close()
-
 
 #: Moves d3 to the map's last column, draws, and returns its label's extent and the map's width.
 LABEL_IN_LAST_COLUMN = """() => {

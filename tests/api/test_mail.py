@@ -10,6 +10,8 @@ from api.settings import ApiSettings
 from drona_gcs.workspace import Workspace
 from tests.api.conftest import SUBMITTER, auth, run, running
 
+JSON = {"Content-Type": "application/json"}
+
 
 def test_submit_answers_201_with_the_stored_mail(settings: ApiSettings, workspace: Workspace) -> None:
     async def body() -> None:
@@ -68,9 +70,51 @@ def test_a_bad_request_gets_422_naming_the_field_and_reason(settings: ApiSetting
 def test_not_json_is_a_422(settings: ApiSettings, workspace: Workspace) -> None:
     async def body() -> None:
         async with running(settings, workspace) as h:
-            res = await h.client.post("/v1/mail", content=b"{not json", headers=auth())
+            res = await h.client.post("/v1/mail", content=b"{not json", headers={**auth(), **JSON})
             assert res.status_code == 422
             assert res.json()["detail"][0]["type"] == "json_invalid"
+
+    run(body())
+
+
+CELLS = '"pickup": [1, 1, 0], "dropoff": [7, 6, 0]'
+#: Bodies with numbers JSON cannot carry back (Python reads them as inf or nan), and where the 422 points.
+NON_FINITE: list[tuple[str, list[str | int]]] = [
+    (f'{{{CELLS}, "priority": 1e400}}', ["body", "priority"]),
+    (f'{{{CELLS}, "priority": NaN}}', ["body", "priority"]),
+    (f'{{{CELLS}, "priority": -Infinity}}', ["body", "priority"]),
+    ('{"pickup": [1e999, 1, 0], "dropoff": [7, 6, 0], "priority": 3}', ["body", "pickup", 0]),
+    (f'{{{CELLS}, "priority": 3, "note": 1e999}}', ["body", "note"]),
+    (f'{{{CELLS}, "priority": 3, "extra": [NaN, 1e400]}}', ["body", "extra"]),
+]
+
+
+def test_a_number_json_cannot_carry_gets_a_422_naming_the_field(settings: ApiSettings,
+                                                                 workspace: Workspace) -> None:
+    async def body() -> None:
+        async with running(settings, workspace) as h:
+            for raw, loc in NON_FINITE:
+                res = await h.client.post("/v1/mail", content=raw, headers={**auth(), **JSON})
+                assert res.status_code == 422, (raw, res.status_code, res.text)
+                error = res.json()["detail"][0]
+                assert error["loc"] == loc and error["msg"], (raw, error)
+
+    run(body())
+
+
+def test_a_body_not_declared_json_gets_415(settings: ApiSettings, workspace: Workspace) -> None:
+    async def body() -> None:
+        async with running(settings, workspace) as h:
+            mail = b'{"pickup": [1, 1, 0], "dropoff": [7, 6, 0], "priority": 3}'
+            for declared in ("text/plain", "application/x-www-form-urlencoded", "application/jsonx", None):
+                headers = auth() if declared is None else {**auth(), "Content-Type": declared}
+                res = await h.client.post("/v1/mail", content=mail, headers=headers)
+                assert res.status_code == 415, (declared, res.status_code)
+                assert "application/json" in res.json()["detail"]
+            assert (await h.client.get("/v1/mail", headers=auth())).json()["items"] == []
+            for declared in ("application/json", "Application/JSON; charset=utf-8"):
+                res = await h.client.post("/v1/mail", content=mail, headers={**auth(), "Content-Type": declared})
+                assert res.status_code == 201, (declared, res.text)
 
     run(body())
 

@@ -1,20 +1,23 @@
-"""``drona serve`` as a process: start-up refusals, SSE, kill -9 during a burst, schemathesis on the document."""
+"""``drona serve`` as a process: start-up refusals, SSE, kill -9 during a burst, the request head's limit,
+schemathesis on the document."""
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import os
+import socket
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 import httpx
-import pytest
 
+from api.main import MAX_HEAD_BYTES
 from tests.api.conftest import OPERATOR, REPO, ServiceProcess, auth, run
 
 
@@ -36,13 +39,6 @@ def test_serve_refuses_to_start_without_a_token_or_workspace(workspace_file: Pat
                 env={"DRONA_API_TOKENS": f"operator:{OPERATOR}"})
     assert res.returncode == 2 and "missing.yaml" in res.stderr
     assert not (tmp_path / "x.db").exists()
-
-
-@pytest.fixture
-def service(workspace_file: Path, tmp_path: Path) -> Iterator[ServiceProcess]:
-    proc = ServiceProcess(workspace_file, tmp_path / "mail.db")
-    yield proc
-    assert proc.stop() == 0  # SIGTERM: a clean stop
 
 
 def events(url: str, token: str, until: Any, timeout: float = 20.0) -> list[tuple[str, dict[str, Any]]]:
@@ -140,6 +136,41 @@ def test_every_acknowledged_mail_survives_kill_9_and_is_delivered(workspace_file
         assert not remaining
     finally:
         assert second.stop() == 0
+
+
+def exchange(url: str, request: bytes) -> tuple[bytes, bool]:
+    """Send ``request`` raw on a new connection: the answer, and whether the service cut the sending short."""
+    where = urlsplit(url)
+    with socket.create_connection((where.hostname, where.port), timeout=10) as sock:
+        cut = False
+        try:
+            sock.sendall(request)
+            sock.shutdown(socket.SHUT_WR)
+        except (BrokenPipeError, ConnectionResetError):
+            cut = True
+        answer = b""
+        with contextlib.suppress(ConnectionResetError):  # closed with our bytes unread: the answer may be lost
+            while chunk := sock.recv(65536):
+                answer += chunk
+    return answer, cut
+
+
+def head_of(padding: int) -> bytes:
+    """A GET /healthz (no token needed: a 200 if the app sees it) with a header ``padding`` bytes long."""
+    return b"GET /healthz HTTP/1.1\r\nHost: test\r\nConnection: close\r\nX-Padding: " + b"a" * padding + b"\r\n\r\n"
+
+
+def test_a_request_head_over_the_limit_is_refused_unread(service: ServiceProcess) -> None:
+    """Under the limit, served; over it, a 431 and not the route's answer; 10 MB, cut short by the
+    server (uvicorn's h11) before the head is complete; and the service lives on."""
+    answer, _ = exchange(service.url, head_of(MAX_HEAD_BYTES // 2))
+    assert answer.startswith(b"HTTP/1.1 200 "), answer[:200]
+    answer, _ = exchange(service.url, head_of(MAX_HEAD_BYTES + 1024))
+    assert answer.startswith(b"HTTP/1.1 431 "), answer[:200]
+    answer, cut = exchange(service.url, head_of(10 * 1024 * 1024))
+    assert cut, answer[:200]  # read whole, it would have had its 431
+    assert not answer or answer.startswith(b"HTTP/1.1 400 "), answer[:200]
+    assert httpx.get(f"{service.url}/healthz").status_code == 200
 
 
 def test_schemathesis_finds_no_server_error_and_no_schema_violation(service: ServiceProcess, tmp_path: Path) -> None:
