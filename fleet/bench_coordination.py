@@ -39,6 +39,7 @@ from drona_gcs.workspace import Cell, Workspace
 from drona_gcs.workspace_files import load_workspace
 from fleet.sim.ports import free_port_block, free_udp_base
 from fleet.transport.fleet_client import FleetClient
+from fleet.transport.identity import SERVICE, make_certs
 from fleet.transport.keys import FleetKeys
 from fleet.transport.node import ZenohNode, ZenohSettings
 from fleet.transport.wire import DroneState, MailOrder, MailStatus, MailStatusReport, WireError, decode
@@ -94,11 +95,16 @@ def _rim(side: int) -> list[tuple[int, int]]:
 
 
 async def run_bench(agents: int, processes: int, seconds: float, steady_after: float, workdir: Path,
-                    seed: int = 1, shared_session: bool = True) -> CoordinationResult:
+                    seed: int = 1, shared_session: bool = True, secure: bool = True) -> CoordinationResult:
+    """``secure``: mutual TLS and access control (certificates made in ``workdir``), a session per drone."""
     ws_file = workdir / f"bench-{agents}.yaml"
     ws_file.write_text(bench_workspace(agents))
     workspace = load_workspace(ws_file)
     names = list(workspace.drones)[:agents]
+    tls_dir = workdir / "tls" if secure else None
+    if tls_dir is not None:
+        make_certs(tls_dir, [*workspace.drones, SERVICE])
+    security = ["--tls-dir", str(tls_dir)] if tls_dir else ["--insecure", *(["--shared-session"] * shared_session)]
     base, port = free_udp_base(agents), free_port_block(agents, socket.SOCK_STREAM)
     fleet = f"bench-{port}"
     children = [_spawn(["sim-vehicle", "--workspace", str(ws_file), "--count", str(agents), "--base-port",
@@ -111,9 +117,9 @@ async def run_bench(agents: int, processes: int, seconds: float, steady_after: f
                                 "--fleet", fleet, "--listen", f"tcp/127.0.0.1:{port + first}",
                                 "--connect", f"tcp/127.0.0.1:{port}", "--vehicle-base-port", str(base),
                                 "--lead-steps", "4", "--telemetry-hz", str(TELEMETRY_HZ), "--log-level", "WARNING",
-                                *(["--shared-session"] if shared_session else [])]))
+                                *security]))
     try:
-        return await _measure(children, workspace, names, fleet, port, seconds, steady_after, seed)
+        return await _measure(children, workspace, names, fleet, port, seconds, steady_after, seed, tls_dir)
     finally:
         # The agents first (they land and leave), then the vehicles they land.
         for group in (children[1:], children[:1]):
@@ -128,9 +134,11 @@ async def run_bench(agents: int, processes: int, seconds: float, steady_after: f
 
 
 async def _measure(children: list[subprocess.Popen[bytes]], workspace: Workspace, names: list[str], fleet: str,
-                   port: int, seconds: float, steady_after: float, seed: int) -> CoordinationResult:
+                   port: int, seconds: float, steady_after: float, seed: int,
+                   tls_dir: Path | None) -> CoordinationResult:
     keys = FleetKeys(fleet)
-    node = await ZenohNode.open(ZenohSettings(connect=(f"tcp/127.0.0.1:{port}",)), "bench")
+    settings = ZenohSettings(connect=(f"tcp/127.0.0.1:{port}",)).secured(tls_dir, SERVICE, keys, names)
+    node = await ZenohNode.open(settings, "bench")
     latencies = PlanLatencies()
     alive: set[str] = set()
     all_up = asyncio.Event()
@@ -346,15 +354,16 @@ def run(args: argparse.Namespace) -> int:
         print("drona bench coordination: --agents must be >= 2 and --seconds > 0", file=sys.stderr)
         return 2
     processes = max(1, min(args.processes or default_processes(), agents))
-    shared = not args.session_per_drone
+    shared = not args.session_per_drone and args.insecure
     if not args.json:
+        links = "plain TCP" if args.insecure else "mutual TLS, access control"
         print(f"drona bench coordination: {agents} agents (a Zenoh session per "
-              f"{'process' if shared else 'drone'}) in {processes} `drona agent --count` processes, {agents} fake "
-              f"vehicles in a `drona sim-vehicle`, loopback; mail for {seconds:g} s", flush=True)
+              f"{'process' if shared else 'drone'}, {links}) in {processes} `drona agent --count` processes, "
+              f"{agents} fake vehicles in a `drona sim-vehicle`, loopback; mail for {seconds:g} s", flush=True)
     with tempfile.TemporaryDirectory() as workdir:
         try:
             result = asyncio.run(run_bench(agents, processes, seconds, args.steady_after, Path(workdir),
-                                           shared_session=shared))
+                                           shared_session=shared, secure=not args.insecure))
         except BenchError as exc:
             print(f"drona bench coordination: {exc}", file=sys.stderr)
             return 1

@@ -8,10 +8,13 @@ is found they are skipped with a reason that says where we looked.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import os
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+
+from fleet.transport.identity import ROUTER, SERVICE, make_certs
 
 SHARED_DIR = Path(__file__).resolve().parents[1].parent / "shared"
 
@@ -32,6 +35,27 @@ def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
             wanted = " or ".join(str(SHARED_DIR / p) for p in patterns)
             params = [pytest.param(None, marks=pytest.mark.skip(reason=f"shared data not found: no {wanted}"))]
         metafunc.parametrize(arg, params)
+
+
+#: Every test's fleet runs as `drona demo` and deploy/ do: mutual TLS and the fleet's access control, with
+#: certificates for these names, made once per test session (a test of --insecure says so itself).
+CERT_NAMES = [*(f"d{i}" for i in range(257)), SERVICE, ROUTER]
+
+
+@pytest.fixture(scope="session", autouse=True)
+def fleet_certificates(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """The fleet's CA and certificates, in ``DRONA_TLS_DIR`` for every process the tests start."""
+    tls_dir = tmp_path_factory.mktemp("fleet-tls")
+    make_certs(tls_dir, CERT_NAMES)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("DRONA_TLS_DIR", str(tls_dir))
+        patch.delenv("DRONA_INSECURE", raising=False)
+        yield tls_dir
+
+
+def fleet_tls_dir() -> Path:
+    """The test session's certificates (see :func:`fleet_certificates`)."""
+    return Path(os.environ["DRONA_TLS_DIR"])
 
 
 @pytest.fixture(scope="session")

@@ -51,7 +51,7 @@ class RecordingNode:
         self.puts.append((key, payload))
 
     def statuses(self, mail_id: str) -> list[tuple[MailStatus, str]]:
-        reports = [decode(p).body for k, p in self.puts if k == KEYS.status(mail_id)]
+        reports = [decode(p).body for k, p in self.puts if k == KEYS.status("d1", mail_id)]
         return [(r.status, r.reason) for r in reports if isinstance(r, MailStatusReport)]
 
 
@@ -146,7 +146,7 @@ def test_a_departed_peer_last_heard_after_its_plan_holds_only_where_it_rested() 
                 agent._on_plan(KEYS.plan("d2"), encode("d2", 1000.0, announce))
         if heard_after_the_plan:  # d2 starts a round for a new task, then is killed
             request = ReqForCurrentTraj(TaskId(40, "d2", 2), "d2", flown, ("d1",))  # idle where its plan ended
-            agent._on_protocol(KEYS.proto("all"), encode("d2", 1000.0, from_core(request)))
+            agent._on_protocol(KEYS.proto("all", "d2"), encode("d2", 1000.0, from_core(request)))
         agent._on_liveliness(KEYS.alive("d2"), False)
         return stack.protocol.ghost_obstacles()
 
@@ -175,19 +175,19 @@ def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_ever
             where = Trajectory.stationary(ws.drones[peer], 0)  # its answer too (see drona_gcs.stack.protocol)
             asked = tuple(sorted(set(ws.drones) - {peer}))
             request = ReqForCurrentTraj(TaskId(mine.stamp + 5, peer, 1), peer, where, asked)
-            agent._on_protocol(KEYS.proto("all"), encode(peer, 1000.0, from_core(request)))
+            agent._on_protocol(KEYS.proto("all", peer), encode(peer, 1000.0, from_core(request)))
         node.puts.clear()
         for peer in sorted({"d2", "d3", "d4"} - set(waiting)):
             answer = CurrentTraj(peer, Trajectory.stationary(ws.drones[peer], 0), mine)
-            agent._on_protocol(KEYS.proto("d1"), encode(peer, 1000.0, from_core(answer)))
+            agent._on_protocol(KEYS.proto("d1", peer), encode(peer, 1000.0, from_core(answer)))
         assert stack.protocol.state is State.EXECUTING
         await asyncio.sleep(0)  # the plan's announcement, if any, goes out once the answers have
-        protocol = (KEYS.proto(""), KEYS.answers(), KEYS.plan("d1"))
+        protocol = (f"{KEYS.root}/proto/", f"{KEYS.root}/answers/", KEYS.plan("d1"))
         return [(k, decode(p)) for k, p in node.puts if k.startswith(protocol)]
 
     sent = asyncio.run(scenario(["d2", "d3"]))
     # Every drone reads the answers: they are the plan's announcement too, and no other goes out.
-    assert [key for key, _ in sent] == [KEYS.answers()]
+    assert [key for key, _ in sent] == [KEYS.answers("d1")]
     envelope = sent[0][1]
     assert isinstance(envelope, Envelope) and isinstance(envelope.body, CurTrajTo)
     assert set(envelope.body.replies) == {"d2", "d3"}
@@ -198,7 +198,7 @@ def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_ever
     assert to_core(envelope, "d4") is None  # d4 did not wait: nothing in it for d4
     # A single drone waiting gets its answer on its own key, as ever.
     alone = asyncio.run(scenario(["d2"]))
-    assert [(key, type(e.body).__name__) for key, e in alone] == [(KEYS.proto("d2"), "CurTraj"),
+    assert [(key, type(e.body).__name__) for key, e in alone] == [(KEYS.proto("d2", "d1"), "CurTraj"),
                                                                   (KEYS.plan("d1"), "PlanAnnounce")]
 
 
@@ -221,7 +221,7 @@ def test_an_answer_to_other_drones_tells_this_one_the_senders_new_plan() -> None
             if step == 1:
                 agent._on_plan(KEYS.plan("d2"), encode("d2", 1000.0, PlanAnnounce(trajectory=WireTrajectory.of(old))))
         to_d3 = answers(new, {"d3": TaskId(9, "d3", 1)})
-        agent._on_protocol(KEYS.answers(), encode("d2", 1000.0, to_d3))
+        agent._on_protocol(KEYS.answers("d2"), encode("d2", 1000.0, to_d3))
         agent._on_liveliness(KEYS.alive("d2"), False)  # gone before the announcement of `new` came
         return stack.protocol.ghost_obstacles()
 
@@ -243,7 +243,7 @@ def test_answers_for_a_round_that_is_over_still_tell_the_senders_new_plan() -> N
         agent.tick(0)
         assert stack.protocol.state is State.WAIT_FOR_TASK  # no round of d1's under way
         late = answers(new, {"d1": TaskId(3, "d1", 1), "d9": TaskId(4, "d9", 1)})
-        agent._on_protocol(KEYS.answers(), encode("d2", 1000.0, late))
+        agent._on_protocol(KEYS.answers("d2"), encode("d2", 1000.0, late))
         return stack.protocol.known["d2"]
 
     assert asyncio.run(scenario()) == new
@@ -298,9 +298,9 @@ def test_a_lost_vehicle_is_its_drones_problem_and_back_in_a_held_cell_the_drone_
             agent.tick(step)
             for k, p in list(node.puts):
                 body = decode(p).body
-                if isinstance(body, ReqTraj) and k == KEYS.proto("all"):
+                if isinstance(body, ReqTraj) and k == KEYS.proto("all", "d1"):
                     reply = CurrentTraj("d2", Trajectory.stationary((7, 7, 0), 0), body.task_id.core())
-                    agent._on_protocol(KEYS.proto("d1"), encode("d2", 1000.0, from_core(reply)))
+                    agent._on_protocol(KEYS.proto("d1", "d2"), encode("d2", 1000.0, from_core(reply)))
                     node.puts.remove((k, p))
             vehicle.cell = stack.executor.cell
             step += 1
@@ -316,9 +316,9 @@ def test_a_lost_vehicle_is_its_drones_problem_and_back_in_a_held_cell_the_drone_
         assert agent.alarms["vehicle_lost"].startswith("vehicle_lost: vehicle 1 on udpin")
         assert node.statuses("m")[-1] == (MailStatus.REJECTED, "drone d1's vehicle is lost")
         assert set(stack.protocol.holds()) >= set(plan.suffix_from(step + 2).cells) | {seen}
-        asked = ReqForCurrentTraj(TaskId(10**9, "d2", 9), "d2", Trajectory.stationary((7, 7, 0), step), ("d1",))
+        asked = ReqForCurrentTraj(TaskId(step + 50, "d2", 9), "d2", Trajectory.stationary((7, 7, 0), step), ("d1",))
         node.puts.clear()
-        agent._on_protocol(KEYS.proto("all"), encode("d2", 1000.0, from_core(asked)))
+        agent._on_protocol(KEYS.proto("all", "d2"), encode("d2", 1000.0, from_core(asked)))
         answer = to_core(decode(node.puts[-1][1]), "d2")
         assert isinstance(answer, CurrentTraj) and set(answer.holds) == set(stack.protocol.holds())
         with_mail = MailOrder(id="m2", pickup=[2, 2, 0], dropoff=[3, 5, 0], priority=5)
@@ -394,3 +394,28 @@ def test_a_peer_that_says_its_vehicle_came_down_is_an_obstacle_for_good() -> Non
 
     stack = asyncio.run(scenario())
     assert stack.protocol.peers_down == {"d2": (4, 4, 0)}
+
+
+def test_a_message_whose_sender_is_not_its_keys_writer_is_dropped() -> None:
+    """The access control lets only drone dX write dX's keys; a message on them that names another
+    sender is a forgery (or a peer's bug) and changes nothing: here d3 claims, on its own keys, that
+    d2 flies somewhere else."""
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0,
+                         drones={"d1": (0, 0, 0), "d2": (7, 0, 0), "d3": (7, 7, 0)})
+    lie = Trajectory(5, ((7, 0, 0), (6, 0, 0), (5, 0, 0)))
+
+    def known_after(key: str, sender: str, body: PlanAnnounce | CurTrajTo) -> Trajectory | None:
+        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+        agent = DroneAgent(stack, RecordingNode(), KEYS, ScriptedVehicle(), GeoFrame(ws),  # type: ignore[arg-type]
+                           lambda: 1000.0)
+        agent.tick(0)
+        handler = agent._on_plan if isinstance(body, PlanAnnounce) else agent._on_protocol
+        handler(key, encode(sender, 1000.0, body))
+        return stack.protocol.known.get("d2")
+
+    announce = PlanAnnounce(trajectory=WireTrajectory.of(lie))
+    answer = answers(lie, {"d3": TaskId(9, "d3", 1)})
+    assert known_after(KEYS.plan("d2"), "d2", announce) == lie  # d2 on its own key: believed
+    assert known_after(KEYS.plan("d3"), "d2", announce) != lie
+    assert known_after(KEYS.answers("d2"), "d2", answer) == lie
+    assert known_after(KEYS.answers("d3"), "d2", answer) != lie

@@ -35,7 +35,7 @@ import yaml
 
 from drona_gcs.geo import check_speed
 from drona_gcs.workspace_files import load_workspace
-from fleet.cli import COMMANDS, build_parser
+from fleet.cli import COMMANDS, build_parser, main
 from fleet.cli.sim_vehicle import max_speed
 from fleet.sim.ports import free_port
 from fleet.vehicle.urls import parse_link_url
@@ -49,7 +49,8 @@ CONTAINER_DIR = DEPLOY / "container"
 #: The agent's settings from the environment (pydantic-settings, prefix DRONA_).
 SETTINGS = frozenset({
     "DRONA_WORKSPACE", "DRONA_DRONE", "DRONA_VEHICLE", "DRONA_FLEET", "DRONA_ZENOH_CONFIG",
-    "DRONA_LISTEN", "DRONA_CONNECT", "DRONA_LEASE_S", "DRONA_EPOCH", "DRONA_RECORD",
+    "DRONA_LISTEN", "DRONA_CONNECT", "DRONA_LEASE_S", "DRONA_EPOCH", "DRONA_RECORD", "DRONA_TLS_DIR",
+    "DRONA_INSECURE",
 })
 KEY = "drona/deploy-test/put"
 ARRIVAL_S = 5.0  #: how long a sample may take to arrive over loopback
@@ -162,24 +163,18 @@ def test_client_and_router_configs_connect(zenoh: ModuleType, sessions: tuple[An
 
 
 # ------------------------------------------------------------------ TLS, mutual authentication
-LOOPBACK_SANS = "DNS:localhost,IP:127.0.0.1"
 
 
 @pytest.fixture(scope="module")
 def certs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """make-certs.sh run twice: the fleet CA (a router, a node) and a stranger CA (a node)."""
-    if shutil.which("openssl") is None:
-        print("openssl is not installed: cannot make test certificates")
-        pytest.skip("openssl is not installed: cannot make test certificates")
+    """`drona certs` run twice: the fleet CA (a router, a node) and a stranger CA (a node)."""
     base = tmp_path_factory.mktemp("tls")
-    script = TLS_DIR / "make-certs.sh"
     for folder, names in (("fleet", ("router", "node")), ("stranger", ("node",))):
-        subprocess.run(["sh", str(script), str(base / folder), *(f"{n}={LOOPBACK_SANS}" for n in names)],
-                       check=True, capture_output=True, timeout=60)
+        assert main(["certs", str(base / folder), *(f"--name={n}" for n in names)]) == 0
     found = {"ca": base / "fleet/ca.pem", "router": base / "fleet/router", "node": base / "fleet/node",
              "stranger": base / "stranger/node"}
     for name, path in found.items():
-        assert path.exists(), f"make-certs.sh made no {name}: {path}"
+        assert path.exists(), f"drona certs made no {name}: {path}"
     return found
 
 
@@ -266,7 +261,7 @@ def _check_value(name: str, value: str) -> None:
         assert float(value) > 0
     elif name == "DRONA_EPOCH":
         assert float(value) >= 0
-    elif name in ("DRONA_WORKSPACE", "DRONA_ZENOH_CONFIG", "DRONA_RECORD"):
+    elif name in ("DRONA_WORKSPACE", "DRONA_ZENOH_CONFIG", "DRONA_RECORD", "DRONA_TLS_DIR"):
         assert value.startswith("/"), f"{name}: use an absolute path, got {value!r}"
     else:
         assert re.fullmatch(r"[A-Za-z0-9_.-]+", value), f"{name}: {value!r}"
@@ -277,7 +272,8 @@ def test_env_examples_name_exactly_the_agents_settings() -> None:
     agent = _env_names(SYSTEMD_DIR / "agent.env.example")
     assert not fleet.keys() & agent.keys(), f"in both examples: {sorted(fleet.keys() & agent.keys())}"
     assert fleet.keys() | agent.keys() == SETTINGS, f"missing: {sorted(SETTINGS - fleet.keys() - agent.keys())}"
-    assert {"DRONA_WORKSPACE", "DRONA_FLEET", "DRONA_EPOCH", "DRONA_LEASE_S"} <= fleet.keys()
+    assert {"DRONA_WORKSPACE", "DRONA_FLEET", "DRONA_EPOCH", "DRONA_LEASE_S", "DRONA_TLS_DIR"} <= fleet.keys()
+    assert fleet["DRONA_TLS_DIR"] is not None and fleet.get("DRONA_INSECURE") is None  # secure by default
     for name, value in (fleet | agent).items():
         if value is not None:
             _check_value(name, value)
@@ -358,17 +354,21 @@ def test_units_pass_systemd_analyze_verify(tmp_path: Path) -> None:
 
 
 # ------------------------------------------------------------------ containers
-def test_compose_runs_a_router_four_vehicles_and_four_agents() -> None:
+def test_compose_makes_certificates_and_runs_a_router_four_vehicles_and_four_agents() -> None:
     compose = yaml.safe_load((CONTAINER_DIR / "compose.yaml").read_text())
     services = compose["services"]
-    assert set(services) == {"router", "vehicles", "agents"}
+    assert set(services) == {"certs", "router", "vehicles", "agents"}
     for name, service in services.items():
         assert service["network_mode"] == "host", name
         for volume in service["volumes"]:
-            assert (CONTAINER_DIR / volume.split(":")[0]).exists(), f"{name}: {volume}"
+            source = volume.split(":")[0]
+            assert source in compose["volumes"] or (CONTAINER_DIR / source).exists(), f"{name}: {volume}"
         _parses("drona " + " ".join(service["command"]))
     assert services["agents"]["stop_signal"] == "SIGINT"
     assert services["agents"]["environment"]["DRONA_ZENOH_CONFIG"] == "/etc/drona/zenoh.json5"
+    # Secure by default: the agents and the router run with the certificates the first service makes.
+    assert services["agents"]["environment"]["DRONA_TLS_DIR"] == "/etc/drona/tls"
+    assert "--tls-dir" in services["router"]["command"] and services["certs"]["command"][0] == "certs"
     vehicles = build_parser("sim-vehicle").parse_args(services["vehicles"]["command"])
     workspace = load_workspace(CONTAINER_DIR / "workspace.yaml")
     assert len(workspace.drones) >= vehicles.count == 4

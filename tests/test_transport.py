@@ -24,7 +24,18 @@ from fleet.transport import node as node_module
 from fleet.transport.gateway import ZenohGateway
 from fleet.transport.keys import FleetKeys, check_name
 from fleet.transport.node import ORDINARY_WAITS_AT_MOST_S, ZenohNode, ZenohSettings, _Inbox
-from fleet.transport.wire import MailOrder, WireError, answers, checked, decode, encode, from_core, to_core, to_json
+from fleet.transport.wire import (
+    VERSION,
+    MailOrder,
+    WireError,
+    answers,
+    checked,
+    decode,
+    encode,
+    from_core,
+    to_core,
+    to_json,
+)
 from fleet.vehicle.urls import open_transport, parse_link_url
 
 TASK = TaskId(12, "d1", 3)
@@ -50,12 +61,12 @@ def test_one_answer_to_several_drones_is_each_ones_answer_and_nothing_to_the_oth
 
 
 def envelope(body: dict[str, object], **over: object) -> bytes:
-    return json.dumps({"v": 6, "sender": "d2", "sent_at": 1.0, "body": body, **over}).encode()
+    return json.dumps({"v": VERSION, "sender": "d2", "sent_at": 1.0, "body": body, **over}).encode()
 
 
 @pytest.mark.parametrize("payload, problem", [
     (b"not json", "JSON is malformed"),
-    (b'{"v": 6, "sender": "d\xff", "sent_at": 1.0, "body": {"kind": "clock_ping"}}', "not UTF-8"),
+    (b'{"v": 7, "sender": "d\xff", "sent_at": 1.0, "body": {"kind": "clock_ping"}}', "not UTF-8"),
     (envelope({"kind": "clock_ping"}, v=3), "Invalid enum value 3 - at `$.v`"),
     (envelope({"kind": "teleport"}), "Invalid value 'teleport' - at `$.body.kind`"),
     (envelope({"kind": "req_traj", "task_id": {"stamp": "12", "drone": "d1", "seq": 1}}),
@@ -99,7 +110,7 @@ def test_the_wire_format_is_the_documented_json() -> None:
     """Other tools read these bytes: the envelope's fields in order, the body tagged by its kind."""
     request = ReqForCurrentTraj(TASK, "d1", Trajectory(40, ((1, 2, 0), (2, 2, 0))), ("d2",))
     payload = encode("d1", 5.5, from_core(request))
-    assert payload == (b'{"v":6,"sender":"d1","sent_at":5.5,"body":{"kind":"req_traj",'
+    assert payload == (b'{"v":7,"sender":"d1","sent_at":5.5,"body":{"kind":"req_traj",'
                        b'"task_id":{"stamp":%d,"drone":"%s","seq":%d,"epoch":0},'
                        b'"trajectory":{"start_step":40,"cells":[[1,2,0],[2,2,0]]},"asked":["d2"],"holds":[],"clear":[]}}'
                        % (TASK.stamp, TASK.drone.encode(), TASK.seq))
@@ -136,9 +147,13 @@ def test_a_non_protocol_body_is_not_taken_for_a_protocol_message() -> None:
 
 def test_keys_live_under_the_fleet_and_names_must_be_single_chunks() -> None:
     keys = FleetKeys("north")
-    assert keys.proto("d1") == "drona/north/proto/d1"
+    assert keys.proto("d1", "d2") == "drona/north/proto/d2/d1"
     assert keys.alive() == "drona/north/alive/*"
-    assert keys.last_chunk(keys.status("m-1")) == "m-1"
+    assert keys.last_chunk(keys.status(mail="m-1")) == "m-1"
+    # Whoever writes a key is named in it: the access control lets only that drone write there.
+    written = [keys.proto("d1", "d2"), keys.proto("all", "d2"), keys.answers("d2"), keys.plan("d2"),
+               keys.state("d2"), keys.held("d2"), keys.status("d2", "m-1"), keys.alive("d2")]
+    assert {keys.writer(key) for key in written} == {"d2"}
     for bad in ("a/b", "*", "", "d 1", "d1\n"):
         with pytest.raises(ValueError, match="Zenoh key chunk"):
             check_name("drone", bad)

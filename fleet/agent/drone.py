@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TextIO
@@ -53,6 +54,7 @@ from fleet.agent.outbox import Answers, coalesced, urgency
 from fleet.agent.vehicle import VehicleSupervisor
 from fleet.agent.watch import Seen, VehicleWatch, Verdict, record_line
 from fleet.executor import SetpointLoop, StepReport
+from fleet.logs import Throttled
 from fleet.transport.keys import FleetKeys
 from fleet.transport.node import Query, ZenohNode
 from fleet.transport.wire import (
@@ -62,6 +64,7 @@ from fleet.transport.wire import (
     CurTrajTo,
     DroneState,
     Health,
+    PeerBounds,
     PlanAnnounce,
     ReqTraj,
     TaskView,
@@ -94,8 +97,9 @@ class Metrics:
 class DroneAgent:
     def __init__(self, stack: DroneStack, node: ZenohNode, keys: FleetKeys, link: VehicleLink,
                  frame: GeoFrame, clock: Callable[[], float], record: TextIO | None = None,
-                 timeouts: Timeouts = DEFAULT_TIMEOUTS) -> None:
+                 timeouts: Timeouts = DEFAULT_TIMEOUTS, epoch_s: float = 0.0) -> None:
         self.me, self.stack, self.node, self.keys = stack.me, stack, node, keys
+        self.epoch_s = epoch_s  #: the fleet epoch: step k starts at epoch + k tau
         self.link, self.frame, self.clock, self.record = link, frame, clock, record
         self.ws: Workspace = stack.config.workspace
         self.delta = stack.config.planner.delta
@@ -123,6 +127,9 @@ class DroneAgent:
         #: the step at which each peer was last heard from (a protocol message, a plan, a clock reply)
         self.heard_at: dict[str, int] = {}
         self.mail = MailDesk(stack, node, keys, clock, on_change=self.publish_state_soon)
+        ws = stack.config.workspace
+        self.bounds = PeerBounds.of(ws.size, ws.plan_length_limit)
+        self.dropped = Throttled(log)  #: one line per key and period for what peers send that is refused
         self._state_scheduled = False
 
     # ------------------------------------------------------------ start-up
@@ -278,13 +285,13 @@ class DroneAgent:
         told_everyone = False  # a new plan went to every drone with its answers: no announcement needed
         for action in ordered:
             if isinstance(action, Send):
-                self._send(self.keys.proto(action.to), from_core(action.message))
+                self._send(self.keys.proto(action.to, self.me), from_core(action.message))
             elif isinstance(action, Broadcast):
                 # One put that Zenoh fans out to every peer (N - 1 messages on the wire, one call here).
-                self._send(self.keys.proto(BROADCAST), from_core(action.message),
+                self._send(self.keys.proto(BROADCAST, self.me), from_core(action.message),
                            copies=len(self.stack.protocol.members))
             elif isinstance(action, Answers):
-                self._send(self.keys.answers(), answers(action.trajectory, action.replies, action.holds),
+                self._send(self.keys.answers(self.me), answers(action.trajectory, action.replies, action.holds),
                            copies=len(action.replies))
                 told_everyone = True
             elif isinstance(action, GoTo):
@@ -345,12 +352,11 @@ class DroneAgent:
             envelope = decode(payload)
             if envelope.sender == self.me:
                 return  # my own request to everyone (proto/all) comes back to me too
+            self._check_sender(key, envelope.sender)
+            self.bounds.check(envelope.body, self._step_now())
             message = to_core(envelope, self.me)
         except WireError as exc:
-            log.warning("%s: dropped a message on %s: %s", self.me, key, exc)
-            return
-        if envelope.sender not in self.stack.protocol.peers:
-            log.warning("%s: dropped a message from %r, not a peer of this fleet", self.me, envelope.sender)
+            self.dropped.warning(key, "%s: dropped a message on %s: %s", self.me, key, exc)
             return
         self.heard_at[envelope.sender] = self.stack.now
         if isinstance(envelope.body, CurTrajTo):
@@ -367,16 +373,31 @@ class DroneAgent:
     def _on_plan(self, key: str, payload: bytes) -> None:
         try:
             envelope = decode(payload)
+            if envelope.sender == self.me:
+                return
+            self._check_sender(key, envelope.sender)
+            self.bounds.check(envelope.body, self._step_now())
         except WireError as exc:
-            log.warning("%s: dropped a plan on %s: %s", self.me, key, exc)
+            self.dropped.warning(key, "%s: dropped a plan on %s: %s", self.me, key, exc)
             return
         body, sender = envelope.body, envelope.sender
-        if isinstance(body, PlanAnnounce) and sender != self.me and sender in self.stack.protocol.peers:
+        if isinstance(body, PlanAnnounce):
             self.heard_at[sender] = self.stack.now
             if body.grounded:
                 self._carry_out(self.stack.peer_down(sender, body.trajectory.core().last))
             else:
                 self.stack.heard(sender, body.trajectory.core())
+
+    def _step_now(self) -> int:
+        """The step on this clock, also before the first boundary is stepped."""
+        return max(self.stack.now, math.floor((self.clock() - self.epoch_s) / self.ws.tau_s))
+
+    def _check_sender(self, key: str, sender: str) -> None:
+        """A peer of this fleet, speaking on its own key (the access control lets only it write there)."""
+        if sender != self.keys.writer(key):
+            raise WireError(f"sender {sender!r} is not the key's writer {self.keys.writer(key)!r}")
+        if sender not in self.stack.protocol.peers:
+            raise WireError(f"sender {sender!r} is not a peer of this fleet")
 
     def _on_liveliness(self, key: str, alive: bool) -> None:
         peer = self.keys.last_chunk(key)

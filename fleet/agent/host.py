@@ -102,7 +102,9 @@ def zenoh_settings(settings: AgentSettings, workspace: Workspace, names: Sequenc
         drones = list(workspace.drones)
         listen = tuple(agent_endpoint(drones.index(name)) for name in names)
         connect = tuple(agent_endpoint(i) for i, drone in enumerate(drones) if drone not in names)
-    return ZenohSettings(listen=listen, connect=connect, config_file=settings.zenoh_config, lease_s=settings.lease_s)
+    plain = ZenohSettings(listen=listen, connect=connect, config_file=settings.zenoh_config, lease_s=settings.lease_s,
+                          max_frames=len(workspace.drones))
+    return plain.secured(settings.tls_dir, names[0], FleetKeys(settings.fleet), list(workspace.drones))
 
 
 def _shift_port(endpoint: str, offset: int) -> str:
@@ -139,7 +141,8 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
                                    lambda link: link.close())
         for node, link, name in zip(nodes, links, host.names, strict=True):
             stack = DroneStack(name, config, ws.drones, epoch=time.time_ns() // 1_000_000)
-            agent = DroneAgent(stack, node, keys, link, frame, host.clock, record, timeouts(settings))
+            agent = DroneAgent(stack, node, keys, link, frame, host.clock, record, timeouts(settings),
+                               epoch_s=settings.epoch)
             agent.mail.adopt = settings.adopt_mail
             agent.lease_steps = math.ceil(settings.lease_s / ws.tau_s)
             host.agents.append(agent)

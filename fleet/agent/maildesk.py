@@ -137,7 +137,7 @@ class MailDesk:
     def report(self, mail_id: str, status: MailStatus, reason: str = "", drone: str | None = None) -> None:
         report = MailStatusReport(id=mail_id, drone=drone or self.me, status=status, step=self.stack.now,
                                   reason=reason)
-        self.node.put(self.keys.status(mail_id), encode(self.me, self.clock(), report), once=True)
+        self.node.put(self.keys.status(self.me, mail_id), encode(self.me, self.clock(), report), once=True)
         log.info("%s: mail %s %s%s", self.me, mail_id, status.value, f" ({reason})" if reason else "")
 
     # ---------------------------------------------------------- holdings
@@ -164,7 +164,8 @@ class MailDesk:
         except WireError as exc:
             log.warning("%s: dropped a mail list on %s: %s", self.me, key, exc)
             return
-        if isinstance(body, HeldMail) and body.drone != self.me and body.drone in self.stack.protocol.peers:
+        writer = self.keys.writer(key)
+        if isinstance(body, HeldMail) and body.drone == writer != self.me and writer in self.stack.protocol.peers:
             self.peer_mail[body.drone] = body.mail
             for mail in body.mail:  # taken over by that drone
                 self.orphans.pop(mail.id, None)

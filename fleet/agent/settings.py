@@ -14,6 +14,7 @@ from typing import Annotated, Literal
 from pydantic import Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
+from fleet.transport.identity import IdentityError, check_security
 from fleet.transport.keys import check_name
 from fleet.vehicle.signing import parse_key, read_key_file
 
@@ -56,6 +57,9 @@ class AgentSettings(BaseSettings):
     #: MAVLink 2 keys: one key (one drone), or a line "DRONE KEY" per drone (fleet.vehicle.signing)
     signing_key_file: Path | None = None
     log_level: str = "INFO"
+    tls_dir: Path | None = None  #: the fleet's certificates (drona certs): mutual TLS and access control
+    insecure: bool = False  #: plain TCP, anyone on the network may speak for any drone
+
 
     @field_validator("listen", "connect", mode="before")
     @classmethod
@@ -88,9 +92,18 @@ class AgentSettings(BaseSettings):
         if self.count > 1 and self.signing_key is not None:
             raise ValueError("DRONA_SIGNING_KEY is one vehicle's key: with --count > 1 give each drone its own "
                              "in --signing-key-file, a line 'DRONE KEY' each")
+        self._check_security()
         if self.signing_key_file is not None and not self.signing_key_file.is_file():
             raise ValueError(f"signing_key_file: no such file {self.signing_key_file}")
         return self
+
+    def _check_security(self) -> None:
+        try:
+            check_security(self.tls_dir, self.insecure)
+        except IdentityError as exc:
+            raise ValueError(str(exc)) from exc
+        if self.tls_dir is not None and self.shared_session and self.count > 1:
+            raise ValueError("--shared-session with --tls-dir: each drone needs a session of its own identity")
 
     def signing_keys(self, drones: Sequence[str]) -> dict[str, bytes]:
         """Each of ``drones``' MAVLink 2 signing key; {} when signing is off. SigningKeyError if one is

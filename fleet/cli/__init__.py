@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "mail": ("fleet.cli.mail", "give the fleet a mail over Zenoh, and optionally follow it until delivered"),
     "router": ("fleet.cli.router", "a Zenoh router for agents in client mode"),
     "demo": ("fleet.cli.demo", "a fleet in one command: service and dashboard, agents and fake vehicles"),
+    "certs": ("fleet.cli.certs", "the fleet's CA and certificates: mutual TLS and access control on Zenoh"),
     "audit": ("fleet.cli.audit", "judge a recorded run (--record files) for collisions under Delta"),
 }
 

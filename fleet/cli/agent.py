@@ -71,6 +71,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
              "instead come from DRONA_SIGNING_KEY (not a flag: ps shows flags) [DRONA_SIGNING_KEY_FILE]")
     add("--no-adopt-mail", dest="adopt_mail", action="store_const", const=False,
         help="do not take over a departed drone's mail (when `drona serve` dispatches, it reassigns it)")
+    add("--tls-dir", type=Path, help="the fleet's certificates, made by `drona certs`: Zenoh runs with mutual TLS and "
+                                     "the fleet's access control, each drone its own identity [DRONA_TLS_DIR]")
+    add("--insecure", action="store_const", const=True,
+        help="plain TCP without identities: anyone on the network may speak for any drone [DRONA_INSECURE]")
     add("--log-level", help="DEBUG, INFO (default), WARNING")
 
 

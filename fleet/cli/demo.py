@@ -16,6 +16,7 @@ import asyncio
 import contextlib
 import os
 import secrets
+import shutil
 import signal
 import sys
 import tempfile
@@ -25,7 +26,10 @@ import yaml
 
 from drona_gcs.errors import DronaError
 from drona_gcs.geo import check_speed
+from drona_gcs.workspace import Workspace
 from drona_gcs.workspace_files import load_workspace
+from fleet.cli.security import add_security_arguments, tls_dir_from
+from fleet.transport.identity import SERVICE, make_certs
 from fleet.transport.node import AGENT_BASE_PORT
 
 DEMO_SIDE_X, DEMO_SIDE_Y = 16, 12
@@ -50,6 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add("--autopilot", choices=["ardupilot", "px4"], default="ardupilot", help="fake vehicles' personality")
     add("--vehicle-port", type=int, default=14540, help="vehicle i talks MAVLink on UDP port (this + i)")
     add("--zenoh-port", type=int, default=AGENT_BASE_PORT, help="drone i's agent listens on TCP port (this + i)")
+    add_security_arguments(parser)  # neither given: the demo makes a fleet CA and certificates of its own
 
 
 def demo_workspace(drones: int, tau: float) -> dict[str, object]:
@@ -79,12 +84,13 @@ def run(args: argparse.Namespace) -> int:
         workspace = load_workspace(workspace_file)
         check_speed(workspace, 5.0 * args.speedup)
         drones = len(workspace.drones) if args.workspace else args.drones
+        security = _security(args, workspace, state)
     except (ValueError, DronaError, OSError) as exc:
         print(f"drona demo: {exc}", file=sys.stderr)
         return 2
     token = args.token or secrets.token_urlsafe(18)
     try:
-        return asyncio.run(_demo(args, workspace_file, drones, token, state))
+        return asyncio.run(_demo(args, workspace_file, drones, token, state, security))
     except DronaError as exc:
         print(f"drona demo: {exc}", file=sys.stderr)
         return 1
@@ -99,6 +105,15 @@ def _check(args: argparse.Namespace) -> None:
         raise ValueError(f"--tau must be > 0, got {args.tau}")
     if not 0 < args.port < 65536:
         raise ValueError(f"--port must be within 1..65535, got {args.port}")
+
+
+def _security(args: argparse.Namespace, workspace: Workspace, state: Path) -> list[str]:
+    """The children's security flags: the certificates given, or made for this demo; or --insecure."""
+    if args.insecure or args.tls_dir is not None:
+        tls_dir = tls_dir_from(args)
+        return ["--insecure"] if tls_dir is None else ["--tls-dir", str(tls_dir)]
+    make_certs(state / "tls", [*workspace.drones, SERVICE])
+    return ["--tls-dir", str(state / "tls")]
 
 
 def _workspace_file(args: argparse.Namespace, state: Path) -> Path:
@@ -117,7 +132,8 @@ def _workspace_file(args: argparse.Namespace, state: Path) -> Path:
     return path
 
 
-async def _demo(args: argparse.Namespace, workspace: Path, drones: int, token: str, state: Path) -> int:
+async def _demo(args: argparse.Namespace, workspace: Path, drones: int, token: str, state: Path,
+                security: list[str]) -> int:
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -128,26 +144,26 @@ async def _demo(args: argparse.Namespace, workspace: Path, drones: int, token: s
     # whenever, even before a child starts reading. The write end is not inherited (PEP 446).
     lifeline, held = os.pipe()
     try:
-        return await _fly(args, workspace, drones, token, state, lifeline, stop)
+        return await _fly(args, workspace, drones, token, state, lifeline, stop, security)
     finally:
         os.close(lifeline)
         os.close(held)  # children still running (started, then the demo failed) go
 
 
 async def _fly(args: argparse.Namespace, workspace: Path, drones: int, token: str, state: Path,
-               lifeline: int, stop: asyncio.Event) -> int:
+               lifeline: int, stop: asyncio.Event, security: list[str]) -> int:
     ws = ["--workspace", str(workspace)]
     vehicles = await _start(lifeline, "sim-vehicle", *ws, "--count", str(drones), "--speedup", str(args.speedup),
                             "--autopilot", args.autopilot, "--base-port", str(args.vehicle_port),
                             "--ready-after", str(args.ready_after))
     zenoh = f"tcp/127.0.0.1:{args.zenoh_port}"
     agent_args = [*ws, "--count", str(drones), "--no-adopt-mail", "--vehicle-base-port", str(args.vehicle_port),
-                  "--listen", zenoh, "--connect", zenoh]
+                  "--listen", zenoh, "--connect", zenoh, *security]
     if args.record:
         agent_args += ["--record", str(args.record)]
     agents = await _start(lifeline, "agent", *agent_args, stderr=asyncio.subprocess.PIPE)
     service = await _start(lifeline, "serve", *ws, "--demo", "--token", token, "--db", str(args.db),
-                           "--host", args.host, "--port", str(args.port), "--connect", zenoh,
+                           "--host", args.host, "--port", str(args.port), "--connect", zenoh, *security,
                            stdout=asyncio.subprocess.PIPE)
     children = {"service": service, "agents": agents, "vehicles": vehicles}
     try:
@@ -166,10 +182,7 @@ async def _fly(args: argparse.Namespace, workspace: Path, drones: int, token: st
             await _stop_all(children)
     finally:
         await _stop_all(children)
-        with contextlib.suppress(OSError):
-            for leftover in state.iterdir():
-                leftover.unlink()
-            state.rmdir()
+        shutil.rmtree(state, ignore_errors=True)
     failed = {name: p.returncode for name, p in children.items() if p.returncode not in (0, None)}
     if failed:
         print(f"drona demo: exit codes {failed}", file=sys.stderr)

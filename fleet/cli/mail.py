@@ -18,7 +18,9 @@ import uuid
 from pathlib import Path
 
 from drona_gcs.errors import DronaError
+from fleet.cli.security import add_security_arguments, tls_dir_from
 from fleet.transport.fleet_client import FleetClient
+from fleet.transport.identity import SERVICE
 from fleet.transport.keys import FleetKeys, check_name
 from fleet.transport.node import ZenohNode, ZenohSettings, agent_endpoint
 from fleet.transport.wire import MailOrder, MailStatus, MailStatusReport, WireError, checked, decode, to_json
@@ -42,6 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add("--connect", action="append", metavar="EP",
         help=f"Zenoh endpoint of an agent or router (default: tcp/127.0.0.1:7448..{7447 + DEFAULT_AGENTS})")
     add("--zenoh-config", type=Path, help="Zenoh JSON5 configuration file")
+    add_security_arguments(parser)
     add("--discover-timeout", type=float, default=10.0, help="how long to wait for a drone to answer (default 10)")
 
 
@@ -83,12 +86,14 @@ def run(args: argparse.Namespace) -> int:
 async def _mail(args: argparse.Namespace, order: MailOrder) -> int:
     connect = tuple(args.connect or ()) or (
         () if args.zenoh_config else tuple(agent_endpoint(i) for i in range(DEFAULT_AGENTS)))
-    node = await ZenohNode.open(ZenohSettings(connect=connect, config_file=args.zenoh_config), "drona-mail")
     keys = FleetKeys(args.fleet)
+    settings = ZenohSettings(connect=connect, config_file=args.zenoh_config).secured(tls_dir_from(args), SERVICE,
+                                                                                     keys, None)
+    node = await ZenohNode.open(settings, "drona-mail")
     reports: asyncio.Queue[MailStatusReport] = asyncio.Queue()
     try:
         if args.wait:  # subscribe first: no report can slip by between the order and the subscription
-            node.subscribe(keys.status(order.id), lambda key, payload: _queue_report(reports, payload))
+            node.subscribe(keys.status(mail=order.id), lambda key, payload: _queue_report(reports, key, payload))
         client = FleetClient(node, keys, f"mail-{order.id}")
         ack = await client.dispatch(order, args.drone, args.discover_timeout)
         _emit({"id": order.id, "drone": ack.drone, "status": "accepted" if ack.accepted else "refused",
@@ -104,12 +109,13 @@ async def _mail(args: argparse.Namespace, order: MailOrder) -> int:
         await node.close()
 
 
-def _queue_report(reports: asyncio.Queue[MailStatusReport], payload: bytes) -> None:
+def _queue_report(reports: asyncio.Queue[MailStatusReport], key: str, payload: bytes) -> None:
     try:
-        body = decode(payload).body
+        envelope = decode(payload)
     except WireError:
         return
-    if isinstance(body, MailStatusReport):
+    body = envelope.body
+    if isinstance(body, MailStatusReport) and body.drone == envelope.sender == FleetKeys.writer(key):
         reports.put_nowait(body)
 
 

@@ -28,6 +28,7 @@ import uvicorn
 from drona_gcs.errors import DronaError
 from drona_gcs.workspace import Workspace
 from fleet import runtime
+from fleet.cli.security import add_security_arguments, tls_dir_from
 
 #: --gateway name -> "module:factory"; factory(workspace, args) -> FleetGateway. The first is the default.
 GATEWAYS: dict[str, str] = {
@@ -53,6 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--connect", action="append", metavar="EP", help="zenoh gateway: endpoint of an agent or "
                         "router (repeatable; default: where `drona agent` listens on this machine)")
     parser.add_argument("--zenoh-config", type=Path, help="zenoh gateway: Zenoh JSON5 configuration file")
+    add_security_arguments(parser)
     parser.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
 
 
@@ -134,6 +136,7 @@ def _gateway(args: argparse.Namespace, workspace: Workspace) -> Any:
         if args.sim_step <= 0:
             raise ValueError(f"--sim-step must be > 0, got {args.sim_step}")
         return getattr(importlib.import_module(module_name), factory)(workspace, drones, args.sim_step)
+    args.tls_dir = tls_dir_from(args)
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:

@@ -22,6 +22,7 @@ from api.gateway import TrajectoryView as View
 from drona_gcs.geo import GeoFrame
 from drona_gcs.workspace import Cell, Workspace
 from fleet.transport.fleet_client import QUERY_TIMEOUT_S, FleetClient, FleetUnavailable
+from fleet.transport.identity import SERVICE
 from fleet.transport.keys import FleetKeys
 from fleet.transport.node import ZenohNode, ZenohSettings, agent_endpoint
 from fleet.transport.wire import DroneState, MailCancel, MailStatus, WireError, decode, encode
@@ -46,7 +47,9 @@ class ZenohGateway:
         config: Path | None = getattr(args, "zenoh_config", None)
         if not connect and config is None:  # on one machine: where `drona agent` listens by default
             connect = tuple(agent_endpoint(i) for i in range(len(workspace.drones)))
-        self.settings = ZenohSettings(connect=connect, config_file=config)
+        tls_dir: Path | None = getattr(args, "tls_dir", None)
+        self.settings = ZenohSettings(connect=connect, config_file=config).secured(
+            tls_dir, SERVICE, self.keys, list(workspace.drones))
         self.listener: FleetListener | None = None
         self.views: dict[str, DroneView] = {}
         self.node: ZenohNode | None = None
@@ -106,6 +109,9 @@ class ZenohGateway:
             return
         if not isinstance(body, DroneState) or body.drone not in self.workspace.drones:
             return
+        if body.drone != self.keys.writer(key):
+            log.warning("dropped %s's state on %s: not its key", body.drone, key)
+            return
         view = self._view(body)
         self.views[view.id] = view
         if self.listener is not None:
@@ -119,6 +125,10 @@ class ZenohGateway:
             return
         body = envelope.body
         if not isinstance(body, WireReport):
+            return
+        if not body.drone == envelope.sender == self.keys.writer(key):
+            log.warning("dropped a report on %s from %r about %s's mail: only a drone reports its own", key,
+                        envelope.sender, body.drone)
             return
         status = STATUS[body.status]
         if status is not None and self.listener is not None:

@@ -2,16 +2,20 @@
 
 =============================  =============================================
 ``alive/<drone>``              liveliness token: the drone is a member
-``proto/<drone>``              Protocol 1 messages to the drone (``proto/all``: to every drone)
-``answers``                    one trajectory answering several drones' requests (each takes its own)
+``proto/<sender>/<drone>``     Protocol 1 messages to the drone (``proto/<sender>/all``: to every drone)
+``answers/<sender>``           one trajectory answering several drones' requests (each takes its own)
 ``state/<drone>``              the drone's state (published each step; queryable)
 ``plan/<drone>``               the drone's new plan, once made
 ``held/<drone>``               the mail the drone holds (published on change; queryable)
 ``mail/assign/<drone>``        query: give the drone a mail (reply: mail_ack)
 ``mail/cancel/<drone>``        query: drop a mail still waiting (reply: mail_ack)
-``mail/status/<mail id>``      mail status reports
+``mail/status/<drone>/<mail>`` the drone's reports on a mail it holds
 ``clock/<drone>``              query: the drone's clock (offset estimation)
 =============================  =============================================
+
+Whoever writes a key is named in it (``<sender>``, or the drone the key is of): the fleet's access
+control (:mod:`fleet.transport.identity`) lets only that identity write there, and a receiver
+checks that a message's sender is the key's (:meth:`FleetKeys.writer`).
 """
 
 from __future__ import annotations
@@ -43,11 +47,11 @@ class FleetKeys:
     def alive(self, drone: str = "*") -> str:
         return f"{self.root}/alive/{drone}"
 
-    def proto(self, drone: str) -> str:
-        return f"{self.root}/proto/{drone}"
+    def proto(self, drone: str, sender: str = "*") -> str:
+        return f"{self.root}/proto/{sender}/{drone}"
 
-    def answers(self) -> str:
-        return f"{self.root}/answers"
+    def answers(self, sender: str = "*") -> str:
+        return f"{self.root}/answers/{sender}"
 
     def state(self, drone: str = "*") -> str:
         return f"{self.root}/state/{drone}"
@@ -64,11 +68,19 @@ class FleetKeys:
     def cancel(self, drone: str) -> str:
         return f"{self.root}/mail/cancel/{drone}"
 
-    def status(self, mail: str = "*") -> str:
-        return f"{self.root}/mail/status/{mail}"
+    def status(self, drone: str = "*", mail: str = "*") -> str:
+        return f"{self.root}/mail/status/{drone}/{mail}"
 
     def clock(self, drone: str = "*") -> str:
         return f"{self.root}/clock/{drone}"
 
     def last_chunk(self, key: str) -> str:
         return key.rsplit("/", 1)[-1]
+
+    @staticmethod
+    def writer(key: str) -> str:
+        """Who may write ``key`` (of any fleet): its sender chunk, or the drone the key is of."""
+        chunks = key.split("/")[2:]  # after drona/<fleet>/
+        if chunks[:2] == ["mail", "status"] and len(chunks) == 4:
+            return chunks[2]
+        return chunks[1] if chunks[0] == "proto" and len(chunks) == 3 else chunks[-1]

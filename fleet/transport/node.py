@@ -38,13 +38,16 @@ import threading
 import time
 import weakref
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol
 
 import zenoh
 
 from drona_gcs.errors import DronaError
+from fleet.logs import Throttled
+from fleet.transport.identity import Identity, access_control
+from fleet.transport.keys import FleetKeys
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +73,10 @@ class ZenohSettings:
     lease_s: float | None = None  #: how long a silent link lives (Zenoh's default is 10 s)
     multicast: bool = False  #: multicast scouting (off: on this kind of host it picks the wrong interface)
     extra: tuple[tuple[str, str], ...] = field(default=())  #: more (key, JSON5 value) pairs
+    identity: Identity | None = None  #: mutual TLS with this certificate (None: plain TCP, --insecure)
+    access: dict[str, Any] | None = None  #: Zenoh's access_control (see fleet.transport.identity)
+    #: the most messages (lines) one sample may carry: a host gathers one per drone it hosts at most
+    max_frames: int | None = None
 
     def config(self) -> zenoh.Config:
         """The Zenoh configuration; :class:`TransportError` naming what is wrong."""
@@ -81,6 +88,10 @@ class ZenohSettings:
                 cfg.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
             if self.connect:
                 cfg.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+            if self.identity is not None:
+                _mutual_tls(cfg, self.identity)
+            if self.access is not None:
+                cfg.insert_json5("access_control", json.dumps(self.access))
             if self.config_file is None:
                 cfg.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast))
                 # Endpoints not up yet are retried in the background; retry often, so a fleet
@@ -97,6 +108,33 @@ class ZenohSettings:
             source = f" in {self.config_file}" if self.config_file else ""
             raise TransportError(f"Zenoh configuration{source}: {exc}") from exc
         return cfg
+
+    def secured(self, tls_dir: Path | None, name: str, keys: FleetKeys,
+                drones: Sequence[str] | None) -> ZenohSettings:
+        """These settings as ``name`` of the fleet: mutual TLS, and the fleet's access control over what the
+        ``drones`` say (None: none, for a tool that only asks and checks its answers' writers itself).
+        Unchanged without ``tls_dir`` (a plain-TCP fleet, ``--insecure``)."""
+        if tls_dir is None:
+            return self
+        access = access_control(keys, drones) if drones is not None else None
+        return replace(self, identity=Identity.of(tls_dir, name), access=access)
+
+
+
+def _mutual_tls(cfg: zenoh.Config, identity: Identity) -> None:
+    """TLS links only, with ``identity``'s files; every ``tcp/`` endpoint (given, in the file or Zenoh's
+    default) is taken as ``tls/`` on the same address."""
+    for section in ("listen/endpoints", "connect/endpoints"):
+        cfg.insert_json5(section, json.dumps(_as_tls(json.loads(cfg.get_json(section)))))
+    cfg.insert_json5("transport/link/protocols", json.dumps(["tls"]))
+    cfg.insert_json5("transport/link/tls", json.dumps(identity.tls_config()))
+
+
+def _as_tls(endpoints: Any) -> Any:
+    """Endpoints as Zenoh's config holds them (a list, or a list per mode), ``tcp/`` ones made ``tls/``."""
+    if isinstance(endpoints, dict):
+        return {mode: _as_tls(listed) for mode, listed in endpoints.items()}
+    return [f"tls/{ep.removeprefix('tcp/')}" if ep.startswith("tcp/") else ep for ep in endpoints]
 
 
 def agent_endpoint(index: int, host: str = DEFAULT_HOST) -> str:
@@ -140,6 +178,8 @@ class ZenohNode:
         self._pending: set[asyncio.Future[None]] = set()  #: queries waiting for their last reply
         self._gathered: dict[str, list[bytes]] | None = None  #: puts held while a gathering sample is handed round
         self.closed = False
+        self.max_frames: int | None = None  #: see ZenohSettings.max_frames
+        self._refused = Throttled(log)
 
     def view(self, name: str) -> ZenohNode:
         """A node on the same session with declarations of its own: closing it undeclares them and
@@ -156,7 +196,9 @@ class ZenohNode:
             session = await asyncio.to_thread(zenoh.open, config)
         except zenoh.ZError as exc:
             raise TransportError(f"{name}: cannot open a Zenoh session: {exc}") from exc
-        return cls(session, asyncio.get_running_loop(), name)
+        node = cls(session, asyncio.get_running_loop(), name)
+        node.max_frames = settings.max_frames
+        return node
 
     # ------------------------------------------------------ declarations
     def subscribe(self, key: str, handler: SampleHandler, gather: bool = False, first: bool = False) -> None:
@@ -223,6 +265,10 @@ class ZenohNode:
         """(On the session's root.) Each frame of a sample to the fanout's handlers; the puts they
         make meanwhile gathered if the fanout gathers (and not already gathering: one level)."""
         frames = [f for f in payload.split(FRAME_END) if f] if FRAME_END in payload else [payload]
+        if self.max_frames is not None and len(frames) > self.max_frames:
+            self._refused.warning(key, "%s: refused a sample of %d messages on %s (at most %d: one per drone)",
+                                  self.name, len(frames), key, self.max_frames)
+            return
         if not fanout.gather or self._gathered is not None:
             for frame in frames:
                 fanout.deliver(key, frame)

@@ -10,10 +10,10 @@ fatal).
 
 The bodies, by key (see :mod:`fleet.transport.keys`):
 
-* ``proto/<drone>``: ``req_traj`` and ``cur_traj``, Protocol 1's two messages
+* ``proto/<sender>/<drone>``: ``req_traj`` and ``cur_traj``, Protocol 1's two messages
   (``req_traj`` carries the requester's trajectory: see :mod:`drona_gcs.stack.protocol`).
-* ``proto/all``: a ``req_traj`` to everyone.
-* ``answers``: ``cur_traj_to``, one trajectory answering the requests of
+* ``proto/<sender>/all``: a ``req_traj`` to everyone.
+* ``answers/<sender>``: ``cur_traj_to``, one trajectory answering the requests of
   several drones at once (a new plan, to every drone that waited for it),
   which each drone named in ``replies`` takes as its ``cur_traj`` and the
   others ignore.
@@ -26,7 +26,10 @@ The bodies, by key (see :mod:`fleet.transport.keys`):
   drone replies ``mail_ack`` (accepted, or refused with the reason).
 * ``mail/cancel/<drone>``: a query with a ``mail_cancel``; ``mail_ack``
   accepted if the mail was still waiting (it is dropped), refused if under way.
-* ``mail/status/<mail id>``: ``mail_status`` reports as a mail moves.
+* ``mail/status/<drone>/<mail id>``: ``mail_status`` reports as a mail its drone holds moves.
+
+A receiver takes a message only from the peer that may write its key (:meth:`FleetKeys.writer`,
+enforced by the fleet's access control) and only within :class:`PeerBounds`.
 * ``clock/<drone>``: a query with a ``clock_ping``; the reply is a
   ``clock_pong`` with the peer's clock (offset estimation).
 """
@@ -35,7 +38,8 @@ from __future__ import annotations
 
 import enum
 import functools
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Annotated, Any, Final, Literal, TypeVar
 
 import msgspec
@@ -50,8 +54,9 @@ from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj, Ta
 #: 5: protocol messages carry ``holds``, the cells a drone whose vehicle is lost holds besides its trajectory;
 #: 6: ``req_traj`` carries ``asked``, the peers its round waits for, and ``clear``, a way the requester
 #: asks resting drones to leave; task ids carry the ``epoch`` (incarnation) of the agent that made them;
-#: ``plan`` says ``grounded`` when a vehicle came down by itself.
-VERSION: Final = 6
+#: ``plan`` says ``grounded`` when a vehicle came down by itself;
+#: 7: keys name their writer (``proto/<sender>/<to>``, ``answers/<sender>``, ``mail/status/<drone>/<mail>``).
+VERSION: Final = 7
 
 CellList = Annotated[list[int], msgspec.Meta(min_length=3, max_length=3)]
 #: A mail id is a Zenoh key chunk (mail/status/<id>); \Z, not $: "$" would let a final newline through.
@@ -253,7 +258,7 @@ Body = (ReqTraj | CurTraj | CurTrajTo | PlanAnnounce | DroneState | HeldMail | M
 
 
 class Envelope(_Strict, frozen=True, kw_only=True):
-    v: Literal[6] = VERSION
+    v: Literal[7] = VERSION
     sender: Annotated[str, msgspec.Meta(min_length=1)]
     sent_at: float
     body: Body
@@ -261,6 +266,54 @@ class Envelope(_Strict, frozen=True, kw_only=True):
 
 _ENCODER = msgspec.json.Encoder()
 _DECODER = msgspec.json.Decoder(Envelope)
+
+
+#: How far ahead of the receiver's step a task id's stamp may be. Stamps follow the sender's step (a hybrid
+#: clock: a burst of ids in one step runs a few ahead); a stamp far beyond would drag every clock it reaches.
+STAMP_AHEAD_STEPS: Final = 1000
+
+
+@dataclass(frozen=True)
+class PeerBounds:
+    """What a peer's protocol message or plan may carry in this workspace: cells inside it,
+    trajectories no plan here can outgrow (a plan and the one it was spliced onto, each at most
+    L_max long: twice that again for margin), task ids not far ahead of our clock."""
+
+    size: tuple[int, int, int]
+    max_cells: int
+
+    @classmethod
+    def of(cls, size: tuple[int, int, int], plan_length_limit: int) -> PeerBounds:
+        return cls(size, 4 * (plan_length_limit + 1))
+
+    def check(self, body: Body, now: int) -> None:
+        """:class:`WireError` naming what is out of bounds."""
+        trajectory = getattr(body, "trajectory", None)
+        if isinstance(trajectory, WireTrajectory):
+            if len(trajectory.cells) > self.max_cells:
+                raise WireError(f"a trajectory of {len(trajectory.cells)} cells: no plan here has more than "
+                                f"{self.max_cells}")
+            self._inside(trajectory.cells)
+        self._inside((*getattr(body, "holds", ()), *getattr(body, "clear", ())))
+        for task_id in _task_ids(body):
+            if task_id.stamp > now + STAMP_AHEAD_STEPS:
+                raise WireError(f"task id stamp {task_id.stamp} is {task_id.stamp - now} steps ahead of this "
+                                f"clock (at most {STAMP_AHEAD_STEPS})")
+
+    def _inside(self, cells: Sequence[tuple[int, int, int]]) -> None:
+        for cell in cells:
+            if not all(0 <= c < n for c, n in zip(cell, self.size, strict=True)):
+                raise WireError(f"cell {list(cell)} is outside the {'x'.join(map(str, self.size))} workspace")
+
+
+def _task_ids(body: Body) -> list[WireTaskId]:
+    if isinstance(body, ReqTraj):
+        return [body.task_id]
+    if isinstance(body, CurTraj):
+        return [body.in_reply_to]
+    if isinstance(body, CurTrajTo):
+        return list(body.replies.values())
+    return []
 
 
 def encode(sender: str, sent_at: float, body: Body) -> bytes:

@@ -26,9 +26,11 @@ from drona_gcs.audit import Audit, audit
 from drona_gcs.workspace_files import load_workspace
 from fleet.sim.ports import free_port_block, free_udp_base
 from fleet.transport.fleet_client import FleetClient
+from fleet.transport.identity import SERVICE
 from fleet.transport.keys import FleetKeys
 from fleet.transport.node import ZenohNode, ZenohSettings
 from fleet.transport.wire import DroneState, MailOrder, MailStatus, MailStatusReport, WireError, decode
+from tests.conftest import fleet_tls_dir
 
 DRONA = [sys.executable, "-m", "fleet.cli"]
 SPEEDUP = 6.0  #: the fake vehicles' simulated seconds per second: they track a cell per tau easily
@@ -74,6 +76,11 @@ class FleetProcesses:
         base = free_port_block(len(self.drones), socket.SOCK_STREAM)
         self.ports = {d: base + i for i, d in enumerate(self.drones)}
 
+    @property
+    def tls_dir(self) -> Path | None:
+        """The fleet's certificates; None for a hosted fleet: a shared session has no one drone's identity."""
+        return None if self.hosted else fleet_tls_dir()
+
     def endpoint(self, drone: str) -> str:
         return f"tcp/127.0.0.1:{self.ports[drone]}"
 
@@ -100,7 +107,7 @@ class FleetProcesses:
         return [*DRONA, "agent", "--workspace", str(self.workspace), "--drone", first,
                 "--count", str(len(self.drones)), "--shared-session", "--vehicle-base-port", str(self.vehicle_base),
                 "--fleet", self.fleet, "--listen", self.endpoint(first), "--record", str(self.record("host")),
-                "--lead-steps", str(LEAD_STEPS), *self.agent_options]
+                "--lead-steps", str(LEAD_STEPS), "--insecure", *self.agent_options]
 
     def agent_command(self, drone: str, index: int) -> list[str]:
         command = [*DRONA, "agent", "--workspace", str(self.workspace), "--drone", drone,
@@ -122,6 +129,8 @@ class FleetProcesses:
 
     def _spawn(self, name: str, command: list[str]) -> subprocess.Popen[bytes]:
         env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONFAULTHANDLER": "1"}
+        if self.tls_dir is None:
+            env.pop("DRONA_TLS_DIR", None)
         with (self.tmp / f"{name}.log").open("ab") as log:  # the child keeps its own handle
             return subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env)
 
@@ -187,7 +196,8 @@ class Observer:
 
     async def __aenter__(self) -> Observer:
         connect = tuple(self.fleet.endpoint(d) for d in self.fleet.drones)
-        self.node = await ZenohNode.open(ZenohSettings(connect=connect), "observer")
+        settings = ZenohSettings(connect=connect).secured(self.fleet.tls_dir, SERVICE, self.keys, self.fleet.drones)
+        self.node = await ZenohNode.open(settings, "observer")
         self.node.subscribe(self.keys.status(), self._on_report)
         self.node.subscribe(self.keys.state(), self._on_state)
         self.node.watch_liveliness(self.keys.alive(), self._on_alive)

@@ -21,7 +21,7 @@ from drona_gcs.audit import audit
 from drona_gcs.workspace_files import load_workspace
 from fleet.cli.demo import demo_workspace
 from fleet.sim.ports import free_port_block, free_udp_base
-from tests.api.test_dashboard import browser  # noqa: F401  (the fixture)
+from tests.api.conftest import browser  # noqa: F401  (the fixture)
 
 pytestmark = pytest.mark.slow
 TOKEN = "demo-test-token-0123456789"

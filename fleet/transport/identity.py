@@ -1,0 +1,222 @@
+"""Who is who on the fleet's Zenoh network, and what each may say.
+
+Every node has a certificate signed by the fleet's CA, its common name its identity: a
+drone's id, :data:`SERVICE` for the service (and operators' tools such as ``drona mail``),
+:data:`ROUTER` for a Zenoh router. Links are mutual TLS: a node without a certificate of
+the fleet's CA gets no link at all. Zenoh's access control then ties each key to the one
+identity that may write it (:func:`access_control`): drone ``dX`` puts only on its own
+keys (``proto/<to>/dX``, ``answers/dX``, ``plan/dX``, ``state/dX``, ``held/dX``,
+``mail/status/dX/<mail>``), declares only the liveliness token ``alive/dX``, serves only its
+own queryables; only the service may ask (assign, cancel mail). Everything else is denied.
+A router relays what its clients may say, so what comes from a router is taken as its
+clients': the router enforces the same rules at its ingress.
+
+The CA's key signs; keep it off the drones (``drona certs`` makes everything in one
+directory: copy ``ca.pem`` and a node's own folder to each host).
+"""
+
+from __future__ import annotations
+
+import datetime
+import ipaddress
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from cryptography import x509
+from cryptography.hazmat.primitives import hashes, serialization
+from cryptography.hazmat.primitives.asymmetric import ec
+from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+from drona_gcs.errors import DronaError
+from fleet.transport.keys import FleetKeys, check_name
+
+SERVICE = "service"  #: the service's identity: the only one that may assign or cancel mail
+ROUTER = "router"  #: a Zenoh router's identity: relays its clients' messages
+CA_FILE, CA_KEY_FILE = "ca.pem", "ca-key.pem"
+DAYS = 825
+
+#: Every kind of message Zenoh's access control knows.
+ALL_MESSAGES = ("put", "delete", "declare_subscriber", "query", "reply", "declare_queryable",
+                "liveliness_token", "liveliness_query", "declare_liveliness_subscriber")
+_LISTENING = ("declare_subscriber", "liveliness_query", "declare_liveliness_subscriber")
+
+
+class IdentityError(DronaError):
+    """A certificate or key is missing or unreadable."""
+
+
+@dataclass(frozen=True)
+class Identity:
+    """One node's TLS files: the fleet's CA, its certificate and key."""
+
+    ca: Path
+    cert: Path
+    key: Path
+
+    @classmethod
+    def of(cls, tls_dir: Path, name: str) -> Identity:
+        """``name``'s identity in a folder made by :func:`make_certs`; :class:`IdentityError` naming a missing file."""
+        identity = cls(tls_dir / CA_FILE, tls_dir / name / "cert.pem", tls_dir / name / "key.pem")
+        for path in (identity.ca, identity.cert, identity.key):
+            if not path.is_file():
+                raise IdentityError(f"{name}: no {path} (make the fleet's certificates with `drona certs {tls_dir} "
+                                    f"--workspace W`, or run with --insecure)")
+        return identity
+
+    def tls_config(self) -> dict[str, Any]:
+        """Zenoh's ``transport/link/tls`` for mutual TLS with this identity."""
+        return {
+            "root_ca_certificate": str(self.ca),
+            "enable_mtls": True,
+            "listen_certificate": str(self.cert),
+            "listen_private_key": str(self.key),
+            "connect_certificate": str(self.cert),
+            "connect_private_key": str(self.key),
+            # Who a node is is its certificate's common name (access control reads it), not the address
+            # it was dialled at: gossip hands out addresses no certificate lists.
+            "verify_name_on_connect": False,
+            "close_link_on_expiration": False,  # renew certificates on the ground, not by dropping links in flight
+        }
+
+
+def check_security(tls_dir: Path | None, insecure: bool) -> Path | None:
+    """The certificates' folder to use, or None for a plain-TCP fleet, which must be asked for."""
+    if tls_dir is None and not insecure:
+        raise IdentityError("no fleet certificates: give --tls-dir DIR (made by `drona certs DIR --workspace W`) "
+                            "[DRONA_TLS_DIR], or --insecure for a plain-TCP fleet anyone on the network can steer")
+    if tls_dir is not None and insecure:
+        raise IdentityError("--tls-dir and --insecure: give one")
+    if tls_dir is not None and not tls_dir.is_dir():
+        raise IdentityError(f"--tls-dir: no such folder {tls_dir}")
+    return tls_dir
+
+
+def access_control(keys: FleetKeys, drones: Sequence[str]) -> dict[str, Any]:
+    """Zenoh's ``access_control``: each identity may write only its own keys (see the module's docstring)."""
+    root = keys.root
+    rules: list[dict[str, Any]] = [
+        _rule("listen", ["ingress"], _LISTENING, [f"{root}/**"]),
+        _rule("ask-drones", ["ingress"], ["query"], [keys.clock(), keys.held(), keys.state()]),
+        _rule("ask-all", ["ingress"], ["query"], [f"{root}/**"]),
+        _rule("relay", ["ingress"], ALL_MESSAGES, [f"{root}/**"]),
+        _rule("tell", ["egress"], ALL_MESSAGES, [f"{root}/**"]),
+    ]
+    subjects = [{"id": name, "cert_common_names": [name]} for name in [*drones, SERVICE, ROUTER]]
+    policies: list[dict[str, Any]] = [
+        {"id": "everyone", "rules": ["listen", "tell"], "subjects": [*drones, SERVICE, ROUTER]},
+        {"id": "drones", "rules": ["ask-drones"], "subjects": list(drones)},
+        {"id": "service", "rules": ["ask-all"], "subjects": [SERVICE]},
+        {"id": "router", "rules": ["relay"], "subjects": [ROUTER]},
+    ]
+    for drone in drones:
+        rules += _own_keys(keys, check_name("drone", drone))
+        policies.append({"id": f"own-{drone}", "rules": [f"{drone}-{kind}" for kind in ("puts", "token", "serves")],
+                         "subjects": [drone]})
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
+            "policies": policies}
+
+
+def _own_keys(keys: FleetKeys, drone: str) -> list[dict[str, Any]]:
+    puts = [keys.proto("*", drone), keys.answers(drone), keys.plan(drone), keys.state(drone), keys.held(drone),
+            keys.status(drone)]
+    serves = [keys.state(drone), keys.held(drone), keys.clock(drone), keys.assign(drone), keys.cancel(drone)]
+    return [_rule(f"{drone}-puts", ["ingress"], ["put"], puts),
+            _rule(f"{drone}-token", ["ingress"], ["liveliness_token"], [keys.alive(drone)]),
+            _rule(f"{drone}-serves", ["ingress"], ["declare_queryable", "reply"], serves)]
+
+
+def _rule(rule_id: str, flows: Sequence[str], messages: Sequence[str], key_exprs: Sequence[str]) -> dict[str, Any]:
+    return {"id": rule_id, "permission": "allow", "flows": list(flows), "messages": list(messages),
+            "key_exprs": list(key_exprs)}
+
+
+# ------------------------------------------------------------------ certificates
+def make_certs(out: Path, names: Sequence[str], sans: Sequence[str] = (), days: int = DAYS) -> list[Path]:
+    """The fleet's CA (made once in ``out``, reused after) and a certificate per name, each good for both ends
+    of a link; the certificates made. ``sans``: more names and addresses (``DNS:x``, ``IP:a.b.c.d``) for all."""
+    extra = [_san(entry) for entry in sans]
+    out.mkdir(parents=True, exist_ok=True)
+    ca_cert, ca_key = _ca(out, days)
+    made = []
+    for name in names:
+        check_name("certificate name", name)
+        key = ec.generate_private_key(ec.SECP256R1())
+        alt = [x509.DNSName(name), x509.DNSName("localhost"), x509.IPAddress(ipaddress.ip_address("127.0.0.1")),
+               *extra]
+        usage = x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH])
+        cert = (_builder(name, ca_cert.subject, key, days)
+                .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+                .add_extension(_key_usage(sign_certs=False), critical=True)
+                .add_extension(usage, critical=False)
+                .add_extension(x509.SubjectAlternativeName(alt), critical=False)
+                .sign(ca_key, hashes.SHA256()))
+        folder = out / name
+        folder.mkdir(exist_ok=True)
+        _write(folder / "key.pem", _pem_key(key), private=True)
+        _write(folder / "cert.pem", cert.public_bytes(serialization.Encoding.PEM))
+        made.append(folder / "cert.pem")
+    return made
+
+
+def _ca(out: Path, days: int) -> tuple[x509.Certificate, ec.EllipticCurvePrivateKey]:
+    cert_path, key_path = out / CA_FILE, out / CA_KEY_FILE
+    if cert_path.is_file() and key_path.is_file():
+        try:
+            key = serialization.load_pem_private_key(key_path.read_bytes(), password=None)
+            cert = x509.load_pem_x509_certificate(cert_path.read_bytes())
+        except ValueError as exc:
+            raise IdentityError(f"the fleet's CA in {out}: {exc}") from exc
+        if not isinstance(key, ec.EllipticCurvePrivateKey):
+            raise IdentityError(f"{key_path}: not an EC key")
+        return cert, key
+    key = ec.generate_private_key(ec.SECP256R1())
+    subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "drona fleet CA")])
+    cert = (_builder("drona fleet CA", subject, key, days)
+            .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
+            .add_extension(_key_usage(sign_certs=True), critical=True)
+            .sign(key, hashes.SHA256()))
+    _write(key_path, _pem_key(key), private=True)
+    _write(cert_path, cert.public_bytes(serialization.Encoding.PEM))
+    return cert, key
+
+
+def _builder(common_name: str, issuer: x509.Name, key: ec.EllipticCurvePrivateKey,
+             days: int) -> x509.CertificateBuilder:
+    now = datetime.datetime.now(datetime.UTC)
+    return (x509.CertificateBuilder()
+            .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, common_name)]))
+            .issuer_name(issuer)
+            .public_key(key.public_key())
+            .serial_number(x509.random_serial_number())
+            .not_valid_before(now - datetime.timedelta(minutes=5))  # hosts' clocks differ a little
+            .not_valid_after(now + datetime.timedelta(days=days)))
+
+
+def _key_usage(*, sign_certs: bool) -> x509.KeyUsage:
+    return x509.KeyUsage(digital_signature=not sign_certs, content_commitment=False, key_encipherment=False,
+                         data_encipherment=False, key_agreement=False, key_cert_sign=sign_certs,
+                         crl_sign=sign_certs, encipher_only=False, decipher_only=False)
+
+
+def _san(entry: str) -> x509.GeneralName:
+    kind, _, value = entry.partition(":")
+    try:
+        if kind == "DNS" and value:
+            return x509.DNSName(value)
+        if kind == "IP":
+            return x509.IPAddress(ipaddress.ip_address(value))
+    except ValueError as exc:
+        raise IdentityError(f"subject alternative name {entry!r}: {exc}") from exc
+    raise IdentityError(f"subject alternative name {entry!r}: write DNS:name or IP:address")
+
+
+def _pem_key(key: ec.EllipticCurvePrivateKey) -> bytes:
+    return key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                             serialization.NoEncryption())
+
+
+def _write(path: Path, data: bytes, *, private: bool = False) -> None:
+    path.write_bytes(data)
+    path.chmod(0o600 if private else 0o644)
