@@ -18,9 +18,12 @@ from fleet.agent.drone import DroneAgent
 from fleet.executor import StepReport
 from fleet.transport.keys import FleetKeys
 from fleet.transport.wire import (
+    CommandAck,
+    CommandAction,
     CurTrajTo,
     DroneState,
     Envelope,
+    FleetCommand,
     MailOrder,
     MailStatus,
     MailStatusReport,
@@ -419,3 +422,31 @@ def test_a_message_whose_sender_is_not_its_keys_writer_is_dropped() -> None:
     assert known_after(KEYS.plan("d3"), "d2", announce) != lie
     assert known_after(KEYS.answers("d2"), "d2", answer) == lie
     assert known_after(KEYS.answers("d3"), "d2", answer) != lie
+
+
+def test_an_operators_command_reaches_the_stack_and_is_acknowledged() -> None:
+    """``command/<me>``: a recall hands back the mail not on board and the drone says so in its state."""
+    replies: list[tuple[str, bytes]] = []
+
+    class Query:
+        payload = None
+
+        def reply(self, key: str, payload: bytes) -> None:
+            replies.append((key, payload))
+
+    async def scenario() -> tuple[DroneAgent, RecordingNode]:
+        node = RecordingNode()
+        stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
+        agent = DroneAgent(stack, node, KEYS, ScriptedVehicle(), FRAME, lambda: 1000.0)  # type: ignore[arg-type]
+        agent.mail.take(MailOrder(id="m", pickup=[3, 3, 0], dropoff=[5, 5, 0], priority=1))
+        command = FleetCommand(action=CommandAction.RECALL, by="operator ops")
+        agent._on_command(KEYS.command("d1"), encode("service", 1000.0, command), Query())  # type: ignore[arg-type]
+        await asyncio.sleep(0)  # mail progress goes out after the work at hand
+        return agent, node
+
+    agent, node = asyncio.run(scenario())
+    assert node.statuses("m") == [(MailStatus.ACCEPTED, ""), (MailStatus.REJECTED, "recall by operator ops")]
+    assert agent.state().command == "recall"
+    [(key, payload)] = replies
+    ack = decode(payload).body
+    assert key == KEYS.command("d1") and isinstance(ack, CommandAck) and ack.accepted and ack.drone == "d1"

@@ -31,6 +31,7 @@ from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 
+from drona_gcs.errors import ProblemError
 from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.planner.heuristic import UNREACHABLE, GoalDistance
@@ -144,6 +145,7 @@ class DroneStack:
         self.stuck: frozenset[Cell] = frozenset()  #: of those, cells still taken at the next failure
         self.stop_short: Cell | None = None  #: where a rerouted leg ends instead of its goal, held for good
         self.threat: Threatened | None = None  #: what the reroute under way goes around
+        self.commanded: str | None = None  #: the operator's command in force (see :meth:`command`)
 
     # ------------------------------------------------------------ inputs
     @property
@@ -174,6 +176,62 @@ class DroneStack:
     def cancel(self, mail_id: str) -> bool:
         """Drop a mail that waits in the queue (False if it is under way or unknown)."""
         return self.mail.cancel(mail_id)
+
+    # ------------------------------------------------------ operator's commands
+    def command(self, action: str, reason: str) -> list[DroneAction]:
+        """An operator's command by name: pause, resume, recall or land (ProblemError for another)."""
+        if action == "pause":
+            self.pause()
+            actions: list[DroneAction] = []
+        elif action == "resume":
+            self.resume()
+            actions = []
+        elif action == "recall":
+            actions = self.recall(reason)
+        elif action == "land":
+            actions = self.land_here(reason)
+        else:
+            raise ProblemError(f"no such command {action!r}: pause, resume, recall or land")
+        self.commanded = None if action == "resume" else action
+        return actions
+
+    def pause(self) -> None:
+        """No mail starts: legs under way are flown to their end, mail on board is delivered, then the
+        drone parks (at its parking cell, or a charger) as an idle one does."""
+        self.mail.paused = True
+
+    def resume(self) -> None:
+        """Undo :meth:`pause`, :meth:`recall` and :meth:`land_here`: the drone takes mail again."""
+        self.mail.paused = self.mail.held = False
+
+    def recall(self, reason: str) -> list[DroneAction]:
+        """Finish the leg under way, hand back every mail not on board (mail on board is delivered
+        first), then park, paused."""
+        self.pause()
+        return list(self.mail.release(reason))
+
+    def land_here(self, reason: str) -> list[DroneAction]:
+        """Stop where the drone is, through the protocol: a drone flying a plan plans its rest anew,
+        to stay at the cell its plan reaches once a new plan can start (a round, as any reroute: every
+        peer learns it stays there before it stops); at rest it lands where it is. Mail not on board is
+        handed back; then no leg at all until :meth:`resume`. Should the round find no plan, the drone
+        flies its plan to the end and stays there, as its peers planned."""
+        actions = self.recall(reason)
+        self.mail.held = True
+        return [*actions, *self._stop_here()]
+
+    def _stop_here(self) -> list[DroneAction]:
+        """A held drone flying a plan: plan its rest anew, to stay where the plan is once a new plan can
+        start (see :meth:`land_here`). A round under way ends in a plan, which this stops in turn."""
+        trajectory = self.protocol.trajectory
+        if self.protocol.state is not State.EXECUTING or trajectory is None:
+            return []
+        stop = trajectory.at(self.now + self.protocol.lead_steps)
+        if stop == trajectory.last:
+            return []
+        self.stop_short, self.threat = stop, None
+        task = Task(self.clock.next_id(self.now), stop, self.mail.flight_to(stop, self.level), hovering_since=self.now)
+        return self._protocol(Reroute(task))
 
     def vehicle_down(self, reason: str, cell: Cell) -> list[DroneAction]:
         """The vehicle came down by itself in ``cell``: hand every mail back (see MailPlanner.abandon),
@@ -354,6 +412,8 @@ class DroneStack:
                 self.executor.start(action.trajectory)
                 self.mail.took_off()
                 self.unreached, self.asked_clear, self.stuck = None, frozenset(), frozenset()
+                if self.mail.held and self.stop_short is None:
+                    actions += self._stop_here()  # landed by the operator while this round went on
             elif isinstance(action, TaskFailed):
                 self.unreached = action.task.goal
                 actions += self.mail.leg_failed(self.now, cut_off=action.cut_off)

@@ -209,6 +209,8 @@ class MailPlanner:
     strikes: dict[str, int] = field(default_factory=dict)  #: legs to each mail's pickup that found no plan
     make_way_to: Cell | None = None  #: a peer's way crosses our cell: leave for this one
     hold_steps: int = 16  #: how long a drone that made way stays out of it before going home
+    paused: bool = False  #: the operator's pause: no mail starts (mail on board is still delivered)
+    held: bool = False  #: the operator landed the drone where it is: no leg at all until resumed
 
     # ---------------------------------------------------------- inputs
     def assign(self, request: MailRequest) -> None:
@@ -403,6 +405,9 @@ class MailPlanner:
         self.occupied = frozenset(c for c in self.chargers if c in taken)
         if self.phase is Phase.CHARGING and level >= self.recharged_level:
             self.battery_recharged()  # also ends charging for a mail it could not afford
+        if self.held and not self.busy:
+            self.landed_here = True  # where it stopped: down there, or hovering above layer 0
+            return []
         if self.busy or self.phase is Phase.CHARGING:
             return []
         budget = self._budget(now, level)
@@ -425,7 +430,7 @@ class MailPlanner:
             return self._to_one_of(spots, budget, taken, Phase.TO_PARKING)
         if self.low:
             return self._to_charger(budget, taken)
-        if self.queue:
+        if self.queue and not self.paused:
             return self._start_next_mail(budget, taken)
         if spots and not self._parked():
             return self._to_one_of(spots, budget, taken, Phase.TO_PARKING)

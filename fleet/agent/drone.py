@@ -60,9 +60,11 @@ from fleet.transport.node import Query, ZenohNode
 from fleet.transport.wire import (
     ClockPing,
     ClockPong,
+    CommandAck,
     CurTraj,
     CurTrajTo,
     DroneState,
+    FleetCommand,
     Health,
     PeerBounds,
     PlanAnnounce,
@@ -148,6 +150,7 @@ class DroneAgent:
         node.subscribe(keys.plan(), self._on_plan)
         node.queryable(keys.state(self.me), self._on_state_query)
         node.queryable(keys.clock(self.me), self._on_clock_query)
+        node.queryable(keys.command(self.me), self._on_command)
         self.mail.declare()
         # With the protocol's messages, in the order they came: a peer that left and came back must not have
         # its new request handled before its leaving (which would drop the request, held for an answer).
@@ -451,7 +454,7 @@ class DroneAgent:
             clock_offset_s={p: round(s.offset_s, 6) for p, s in sorted(self.clocks.peers.items())},
             plans=self.metrics.plans, messages_sent=self.metrics.messages_sent,
             coordination_ms=round(self.metrics.latencies_s[-1] * 1000, 3) if self.metrics.latencies_s else None,
-            vehicle=self.watch.view())
+            vehicle=self.watch.view(), command=stack.commanded)
 
     def publish_state(self) -> None:
         self._state_scheduled = False
@@ -465,6 +468,21 @@ class DroneAgent:
 
     def _on_state_query(self, key: str, payload: bytes, query: Query) -> None:
         query.reply(self.keys.state(self.me), encode(self.me, self.clock(), self.state()))
+
+    def _on_command(self, key: str, payload: bytes, query: Query) -> None:
+        """An operator's command (only the service may ask: see fleet.transport.identity)."""
+        try:
+            body = decode(payload).body
+            if not isinstance(body, FleetCommand):
+                raise WireError(f"expected a command, got {body.kind}")
+        except WireError as exc:
+            self.dropped.warning(key, "%s: dropped a command on %s: %s", self.me, key, exc)
+            return
+        log.warning("%s: %s, by %s", self.me, body.action.value, body.by)
+        self._carry_out(self.stack.command(body.action.value, f"{body.action.value} by {body.by}"))
+        self.publish_state_soon()
+        ack = CommandAck(drone=self.me, action=body.action, accepted=True)
+        query.reply(self.keys.command(self.me), encode(self.me, self.clock(), ack))
 
     # ----------------------------------------------------------------- clock
     def _on_clock_query(self, key: str, payload: bytes, query: Query) -> None:

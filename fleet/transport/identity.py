@@ -121,7 +121,8 @@ def access_control(keys: FleetKeys, drones: Sequence[str]) -> dict[str, Any]:
 def _own_keys(keys: FleetKeys, drone: str) -> list[dict[str, Any]]:
     puts = [keys.proto("*", drone), keys.answers(drone), keys.plan(drone), keys.state(drone), keys.held(drone),
             keys.status(drone)]
-    serves = [keys.state(drone), keys.held(drone), keys.clock(drone), keys.assign(drone), keys.cancel(drone)]
+    serves = [keys.state(drone), keys.held(drone), keys.clock(drone), keys.assign(drone), keys.cancel(drone),
+              keys.command(drone)]
     return [_rule(f"{drone}-puts", ["ingress"], ["put"], puts),
             _rule(f"{drone}-token", ["ingress"], ["liveliness_token"], [keys.alive(drone)]),
             _rule(f"{drone}-serves", ["ingress"], ["declare_queryable", "reply"], serves)]

@@ -11,6 +11,7 @@
 ``mail/cancel/<drone>``        query: drop a mail still waiting (reply: mail_ack)
 ``mail/status/<drone>/<mail>`` the drone's reports on a mail it holds
 ``clock/<drone>``              query: the drone's clock (offset estimation)
+``command/<drone>``            query: an operator's command (pause, resume, recall, land)
 =============================  =============================================
 
 Whoever writes a key is named in it (``<sender>``, or the drone the key is of): the fleet's access
@@ -73,6 +74,9 @@ class FleetKeys:
 
     def clock(self, drone: str = "*") -> str:
         return f"{self.root}/clock/{drone}"
+
+    def command(self, drone: str = "*") -> str:
+        return f"{self.root}/command/{drone}"
 
     def last_chunk(self, key: str) -> str:
         return key.rsplit("/", 1)[-1]

@@ -32,6 +32,8 @@ A receiver takes a message only from the peer that may write its key (:meth:`Fle
 enforced by the fleet's access control) and only within :class:`PeerBounds`.
 * ``clock/<drone>``: a query with a ``clock_ping``; the reply is a
   ``clock_pong`` with the peer's clock (offset estimation).
+* ``command/<drone>``: a query with an operator's ``command`` (only the service may ask); the
+  reply is a ``command_ack``.
 """
 
 from __future__ import annotations
@@ -195,6 +197,7 @@ class DroneState(_Body, frozen=True, kw_only=True, tag="state"):
     plans: int = 0  #: plans made so far
     messages_sent: int = 0  #: protocol messages sent so far
     coordination_ms: float | None = None  #: the last plan's: task arrival to plan scheduled
+    command: str | None = None  #: the operator's command in force: pause, recall or land (None: none)
     vehicle: VehicleView | None = None
 
 
@@ -253,8 +256,29 @@ class ClockPong(_Body, frozen=True, kw_only=True, tag="clock_pong"):
     pass
 
 
+class CommandAction(enum.Enum):
+    PAUSE = "pause"  #: start no mail; legs under way and mail on board are flown; then park
+    RESUME = "resume"  #: undo every command below
+    RECALL = "recall"  #: as pause, and hand back every mail not on board
+    LAND = "land"  #: as recall, and stop where the drone is (through the protocol), until resumed
+
+
+class FleetCommand(_Body, frozen=True, kw_only=True, tag="command"):
+    """An operator's command, from the service (``command/<drone>``); the reply is a ``command_ack``."""
+
+    action: CommandAction
+    by: Annotated[str, msgspec.Meta(max_length=200)]  #: who asked, for the drone's log
+
+
+class CommandAck(_Body, frozen=True, kw_only=True, tag="command_ack"):
+    drone: str
+    action: CommandAction
+    accepted: bool
+    reason: str = ""
+
+
 Body = (ReqTraj | CurTraj | CurTrajTo | PlanAnnounce | DroneState | HeldMail | MailOrder | MailCancel | MailAck
-        | MailStatusReport | ClockPing | ClockPong)
+        | MailStatusReport | ClockPing | ClockPong | FleetCommand | CommandAck)
 
 
 class Envelope(_Strict, frozen=True, kw_only=True):
