@@ -123,3 +123,10 @@ def test_cli_refuses_a_bound_outside_0_1(tmp_path: Path, capsys: pytest.CaptureF
     with pytest.raises(SystemExit):
         run_cli(tmp_path, [], "--min-conformance", "1.5", capsys=capsys)
     assert "not a fraction between 0 and 1" in capsys.readouterr().err
+
+
+def test_cli_names_a_line_that_is_json_but_not_a_record(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "ws.json").write_text(json.dumps({"size": [5, 5, 1]}))
+    (tmp_path / "run.jsonl").write_text("[1, 2, 3]\n")
+    assert main(["audit", "--workspace", str(tmp_path / "ws.json"), str(tmp_path / "run.jsonl")]) == 2
+    assert "run.jsonl:1: not a JSON object" in capsys.readouterr().err

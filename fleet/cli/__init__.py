@@ -26,6 +26,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("fleet.cli.demo", "a fleet in one command: service and dashboard, agents and fake vehicles"),
     "certs": ("fleet.cli.certs", "the fleet's CA and certificates: mutual TLS and access control on Zenoh"),
     "audit": ("fleet.cli.audit", "judge a recorded run (--record files) for collisions under Delta"),
+    "replay": ("fleet.cli.replay", "play a recorded run (--record file) back on a map, with the audit's findings"),
 }
 
 

@@ -35,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     try:
         workspace = load_workspace(args.workspace)
-        result = audit(workspace, _records(args.records))
+        result = audit(workspace, read_records(args.records))
     except (DronaError, OSError) as exc:
         print(f"drona audit: {exc}", file=sys.stderr)
         return 2
@@ -111,13 +111,17 @@ def _count(text: str) -> int:
     return value
 
 
-def _records(paths: list[Path]) -> Iterator[dict[str, object]]:
+def read_records(paths: list[Path]) -> Iterator[dict[str, object]]:
+    """The records of ``--record`` files, blank lines skipped (``drona replay`` reads them too)."""
     for path in paths:
         with path.open(encoding="utf-8") as lines:
             for number, line in enumerate(lines, 1):
                 if not line.strip():
                     continue
                 try:
-                    yield json.loads(line)
+                    record = json.loads(line)
                 except json.JSONDecodeError as exc:
                     raise DronaError(f"{path}:{number}: not JSON: {exc.msg}") from exc
+                if not isinstance(record, dict):  # the audit reads fields: a list or a number has none
+                    raise DronaError(f"{path}:{number}: not a JSON object: {line.strip()[:40]}")
+                yield record
