@@ -31,7 +31,7 @@ from urllib.parse import urlsplit
 from api.validation import MailChecker
 from drona_gcs.bench.workload import random_workspace
 from drona_gcs.workspace import Workspace
-from fleet import runtime
+from fleet import bench_plot, runtime
 
 Pair = tuple[tuple[int, int, int], tuple[int, int, int]]  #: a pickup and a drop-off
 TARGET_RATE = 1000.0
@@ -89,6 +89,7 @@ async def _main(args: argparse.Namespace, seconds: float) -> int:
         with tempfile.TemporaryDirectory(prefix="drona-bench-api-") as tmp:
             result = await _with_service(Path(tmp), args, seconds, rng)
     _print(result, args.json)
+    bench_plot.write(args, "api", result)
     return 0
 
 

@@ -37,6 +37,7 @@ from pathlib import Path
 from drona_gcs.stack.protocol import State
 from drona_gcs.workspace import Cell, Workspace
 from drona_gcs.workspace_files import load_workspace
+from fleet import bench_plot
 from fleet.sim.ports import free_port_block, free_udp_base
 from fleet.transport.fleet_client import FleetClient
 from fleet.transport.identity import SERVICE, make_certs
@@ -371,6 +372,7 @@ def run(args: argparse.Namespace) -> int:
         # A figure with nothing to go on (no plan after the opening) is null: strict JSON parsers refuse NaN.
         row = {"processes": processes, **asdict(result)}
         print(json.dumps({k: None if isinstance(v, float) and math.isnan(v) else v for k, v in row.items()}))
+        bench_plot.write(args, "coordination", result)
         return 0
     print(f"plans {result.plans} in {result.seconds:.1f} s ({result.delivered} mails delivered)\n"
           f"coordination latency, task arrival to plan scheduled: p50 {result.p50_ms:.2f} ms, "
@@ -382,4 +384,5 @@ def run(args: argparse.Namespace) -> int:
           f"coordinating alone, 1.5(N-1) = {1.5 * (agents - 1):g} on average for a fleet coordinating at once)\n"
           f"CPU per agent {result.cpu_ms_per_s_per_agent:.1f} ms/s (the agent processes / agents; the vehicles' "
           f"process {result.vehicles_cpu_s_per_s:.2f} s/s)")
+    bench_plot.write(args, "coordination", result)
     return 0

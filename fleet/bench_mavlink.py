@@ -47,6 +47,7 @@ from drona_gcs.geo import GeoFrame
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.executor import ExecutorAction, PlanExecutor
 from drona_gcs.workspace import Workspace
+from fleet import bench_plot
 from fleet.executor import SetpointFleet, SetpointLoop, StepReport
 from fleet.sim.fleet import DEFAULT_HOME, DEFAULT_SPACING_M
 from fleet.sim.ports import free_udp_base
@@ -169,14 +170,18 @@ def run(args: argparse.Namespace) -> int:
     if not as_json:
         print("drona bench mavlink: loopback UDP, real MAVLink bytes; vehicles in a `drona sim-vehicle` "
               "subprocess, links in this process", flush=True)
+    rows: list[TelemetryRow | JitterRow] = []
     try:
         if s.only in (None, "telemetry"):
-            _emit(asyncio.run(bench_telemetry(s.vehicles, s.seconds, s.warmup, s.stream_hz)), as_json)
+            rows.append(asyncio.run(bench_telemetry(s.vehicles, s.seconds, s.warmup, s.stream_hz)))
+            _emit(rows[-1], as_json)
         if s.only in (None, "jitter"):
-            _emit(asyncio.run(bench_jitter(s.loops, s.tau, s.boundaries, s.stream_hz, s.rate_hz)), as_json)
+            rows.append(asyncio.run(bench_jitter(s.loops, s.tau, s.boundaries, s.stream_hz, s.rate_hz)))
+            _emit(rows[-1], as_json)
     except BenchError as exc:
         print(f"drona bench mavlink: {exc}", file=sys.stderr)
         return 1
+    bench_plot.write(args, "mavlink", rows)
     return 0
 
 

@@ -20,13 +20,14 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 
 import drona_gcs.planner as planner_module
 from drona_gcs.bench.workload import TaskStream, random_workspace
 from drona_gcs.errors import NoPlanFound
 from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
-from fleet import runtime
+from fleet import bench_plot, runtime
 
 #: Table 2 of the paper: mean seconds per plan of their A* plan generator, by (W, R).
 PAPER_ASTAR: dict[tuple[int, int], float] = {
@@ -76,6 +77,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--deltas", default="0,1", help="skew windows to run (default 0,1)")
     parser.add_argument("--no-smt", action="store_true", help="skip the Z3 generator (Table 1)")
     parser.add_argument("--seed", type=int, default=2017)
+    parser.add_argument("--plot", type=Path, metavar="FILE",
+                        help="also draw the figures into FILE, a .png or .svg (needs matplotlib: the plot extra)")
     _add_mavlink_arguments(parser)
     group = parser.add_argument_group("bench coordination")
     group.add_argument("--agents", type=int, help="agents, each with its own fake vehicle "
@@ -112,6 +115,12 @@ def _add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.plot is not None:
+        try:
+            bench_plot.check_target(args.plot)
+        except bench_plot.PlotError as exc:
+            print(f"drona bench: {exc}", file=sys.stderr)
+            return 2
     if args.what == "mavlink":
         from fleet import bench_mavlink
 
@@ -139,15 +148,19 @@ def run(args: argparse.Namespace) -> int:
     rows = [bench_astar(w, r, d, tasks, args.seed) for d in deltas for (w, r) in cells]
     for row in rows:
         _emit(row, args.json)
+    smt_rows: list[Row] = []
     if not args.no_smt:
         smt_cells = [(16, 4)] if args.quick else sorted(PAPER_SMT)
         smt_cells = [(w, r) for (w, r) in smt_cells if (grids is None or w in grids)
                      and (drones is None or r in drones)]
         for w, r in smt_cells:
-            _emit(bench_smt(w, r, args.smt_tasks, args.seed), args.json)
+            smt_rows.append(bench_smt(w, r, args.smt_tasks, args.seed))
+            _emit(smt_rows[-1], args.json)
     if not args.json:
         met = sum(r.meets_target for r in rows)
         print(f"\nA* cells meeting 1/{TARGET_FACTOR} of the paper: {met}/{len(rows)}")
+    if rows or smt_rows:
+        bench_plot.write(args, "planner", rows + smt_rows)
     return 0
 
 
