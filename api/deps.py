@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Annotated
 
 from fastapi import Depends, HTTPException, Query, Request, status
@@ -15,6 +15,7 @@ from api.models import WorkspacePublic
 from api.settings import ApiSettings
 from api.store import Store
 from api.validation import MailChecker
+from api.watch import FleetWatch
 from drona_gcs.workspace import Workspace
 
 
@@ -32,6 +33,7 @@ class Service:
     gateway: FleetGateway
     dispatcher: Dispatcher
     ready: bool = False
+    watch: FleetWatch = field(kw_only=True)  #: what operators see of the fleet: last known states, alarms, log
 
 
 @dataclass(frozen=True)

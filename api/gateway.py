@@ -72,6 +72,21 @@ class Health:
 
 
 @dataclass(frozen=True)
+class VehicleInfo:
+    """What the vehicle itself last reported (None where it reports nothing)."""
+
+    status: str  #: ready, waiting_for_position, not_ready, lost
+    reason: str = ""  #: what keeps it from flying plans
+    mode: str | None = None  #: the autopilot's flight mode (GUIDED, LAND, ...)
+    armed: bool = False
+    landed: str = "undefined"  #: MAV_LANDED_STATE, lower case: on_ground, takeoff, in_air, landing
+    height_m: float | None = None  #: above home
+    gps_fix: int = 0  #: GPS_FIX_TYPE: 3 is a 3D fix
+    satellites: int = 0
+    battery_v: float | None = None
+
+
+@dataclass(frozen=True)
 class DroneView:
     """The latest state of one drone, as its agent publishes it."""
 
@@ -87,7 +102,10 @@ class DroneView:
     carrying: str | None  #: id of the mail on board
     health: Health
     step: int  #: the drone's step counter
-    alive: bool = True
+    alive: bool = True  #: False: the drone left (its last known state, kept by api.watch)
+    vehicle: VehicleInfo | None = None  #: None: the agent reports no vehicle (simulated, or an old agent)
+    coordination_ms: float | None = None  #: the last plan's coordination latency (task arrival to plan scheduled)
+    seen_at: float = 0.0  #: the service's wall clock when this state came (Unix seconds; 0: not stamped)
 
     def mentions(self, mail_id: str) -> bool:
         """Whether the drone shows ``mail_id`` as queued, on board or the goal of its task."""

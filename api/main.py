@@ -28,11 +28,12 @@ from api.fastlane import FastLane
 from api.gateway import FleetGateway
 from api.handlers import http_error, validation_error
 from api.headlimit import HeadLimit
-from api.models import MailCreate, MailPublic, WorkspacePublic
-from api.routes import dashboard, docs, events, fleet, health, mail
+from api.models import AlarmPublic, BaseMapPublic, LogEntryPublic, MailCreate, MailPublic, WorkspacePublic
+from api.routes import alarms, dashboard, docs, events, fleet, health, mail, stats
 from api.settings import ApiSettings
 from api.store import Change, Store
 from api.validation import MailChecker
+from api.watch import FleetWatch
 from drona_gcs.workspace import Workspace
 from drona_gcs.workspace_files import load_workspace
 from fleet.clock import periodic
@@ -64,10 +65,13 @@ def create_app(settings: ApiSettings, gateway: FleetGateway, workspace: Workspac
         bus = EventBus(settings.sse_queue)
         checker = MailChecker(ws)
         dispatcher = Dispatcher(store, gateway, checker.distance, bus, settings)
-        store.listeners += [dispatcher.on_commit, _publisher(bus)]
-        gateway.listen(dispatcher)
+        watch = FleetWatch(dispatcher, store, bus)  # between the gateway and the dispatcher: it passes all on
+        store.listeners += [dispatcher.on_commit, watch.on_commit, _publisher(bus)]
+        _publish_watch(watch, bus)
+        gateway.listen(watch)
         dispatcher.resume()
-        service = Service(settings, ws, WorkspacePublic.of(ws), tokens, checker, store, bus, gateway, dispatcher)
+        service = Service(settings, ws, WorkspacePublic.of(ws, _base_map(settings)), tokens, checker, store, bus,
+                          gateway, dispatcher, watch=watch)
         app.state.service = service
         try:
             async with asyncio.TaskGroup() as tasks:
@@ -75,6 +79,7 @@ def create_app(settings: ApiSettings, gateway: FleetGateway, workspace: Workspac
                 tasks.create_task(dispatcher.run(tasks), name="dispatcher")
                 tasks.create_task(gateway.run(), name="gateway")
                 tasks.create_task(_checkpointer(store, settings.checkpoint_s), name="checkpointer")
+                tasks.create_task(watch.alarms.run(), name="alarms")
                 service.ready = True
                 log.info("serving %s with %s", settings.db, type(gateway).__name__)
                 yield
@@ -87,7 +92,7 @@ def create_app(settings: ApiSettings, gateway: FleetGateway, workspace: Workspac
     app = FastAPI(title="drona-gcs", version="1", lifespan=lifespan, max_body_size=MAX_BODY_BYTES,
                   docs_url=None, redoc_url=None,
                   description="Mail requests for a DRONA drone fleet: submit, follow, cancel; the fleet's live state.")
-    for module in (mail, fleet, events, health, dashboard, docs):
+    for module in (mail, fleet, alarms, stats, events, health, dashboard, docs):
         app.include_router(module.router)
     app.mount("/static", StaticFiles(directory=dashboard.STATIC_DIR), name="static")
     app.mount(docs.ASSETS_URL, StaticFiles(directory=docs.ASSETS_DIR), name="docs-assets")
@@ -113,6 +118,16 @@ def _openapi(app: FastAPI) -> dict[str, Any]:
                     operation["security"] = [{"bearer": []}]
         app.openapi_schema = schema
     return app.openapi_schema
+
+
+def _publish_watch(watch: FleetWatch, bus: EventBus) -> None:
+    """The watch's log entries and alarm changes as server-sent events ``log`` and ``alarm``."""
+    watch.on_entry = lambda e: bus.publish("log", lambda: LogEntryPublic.of(e).model_dump_json())
+    watch.on_alarm = lambda a: bus.publish("alarm", lambda: AlarmPublic.of(a).model_dump_json())
+
+
+def _base_map(settings: ApiSettings) -> BaseMapPublic | None:
+    return BaseMapPublic(url=settings.tile_url, attribution=settings.tile_attribution) if settings.tile_url else None
 
 
 def _publisher(bus: EventBus) -> Callable[[Change], None]:

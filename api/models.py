@@ -11,9 +11,12 @@ from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, StrictStr
 
+from api.alarms import Alarm
 from api.gateway import DroneView
 from api.lifecycle import Status
 from api.store import AuditEntry, MailRecord
+from api.watch import LogEntry
+from drona_gcs.geo import GeoFrame, Ned
 from drona_gcs.workspace import Workspace
 
 CellIn = Annotated[list[StrictInt], Field(min_length=3, max_length=3, description="[x, y, z]", examples=[[1, 2, 0]])]
@@ -90,6 +93,8 @@ class MailPage(BaseModel):
 
 class FleetPublic(BaseModel):
     drones: list[DroneView]
+    lost: list[DroneView] = Field(default_factory=list, description="the last known state of each drone that "
+                                  "left (alive false; seen_at says when it was last heard)")
 
 
 class GeoOriginPublic(BaseModel):
@@ -98,6 +103,14 @@ class GeoOriginPublic(BaseModel):
     alt_m: float
     layer0_alt_m: float
     layer_height_m: float
+    cell_dlat: float = Field(description="degrees of latitude a cell spans: grid y grows north, so the corner "
+                             "(x, y) of the grid is at lat + y * cell_dlat")
+    cell_dlon: float = Field(description="degrees of longitude a cell spans: grid x grows east, lon + x * cell_dlon")
+
+
+class BaseMapPublic(BaseModel):
+    url: str = Field(description="a tile URL template ({z}, {x}, {y}) the dashboard draws under the grid")
+    attribution: str
 
 
 class WorkspacePublic(BaseModel):
@@ -113,17 +126,81 @@ class WorkspacePublic(BaseModel):
     tau_s: float
     delta: int
     geo_origin: GeoOriginPublic
+    base_map: BaseMapPublic | None = Field(None, description="none: the dashboard draws the grid alone")
 
     @classmethod
-    def of(cls, ws: Workspace) -> WorkspacePublic:
-        geo = ws.geo
+    def of(cls, ws: Workspace, base_map: BaseMapPublic | None = None) -> WorkspacePublic:
+        geo, frame = ws.geo, GeoFrame(ws)
+        far = frame.ned_to_global(Ned(ws.cell_size_m, ws.cell_size_m, 0.0))  # the grid's corner is the origin
         return cls(name=ws.name, size=list(ws.size), obstacles=[list(c) for c in sorted(ws.obstacles)],
                    charging_stations=[list(c) for c in ws.charging_stations], parking=[list(c) for c in ws.parking],
                    pickups=[list(c) for c in ws.pickups], dropoffs=[list(c) for c in ws.dropoffs],
                    drones={d: list(c) for d, c in ws.drones.items()}, cell_size_m=ws.cell_size_m, tau_s=ws.tau_s,
-                   delta=ws.delta, geo_origin=GeoOriginPublic(lat=geo.lat, lon=geo.lon, alt_m=geo.alt_m,
-                                                              layer0_alt_m=geo.layer0_alt_m,
-                                                              layer_height_m=ws.layer_height_m))
+                   delta=ws.delta, base_map=base_map,
+                   geo_origin=GeoOriginPublic(lat=geo.lat, lon=geo.lon, alt_m=geo.alt_m, layer0_alt_m=geo.layer0_alt_m,
+                                              layer_height_m=ws.layer_height_m, cell_dlat=far.lat - geo.lat,
+                                              cell_dlon=far.lon - geo.lon))
+
+
+class AlarmPublic(BaseModel):
+    n: int = Field(description="its number: POST /v1/alarms/{n}/ack acknowledges it")
+    drone: str
+    kind: str = Field(description="lag, down, vehicle, behind, vehicle_lost, placement, leg, clock, left, ...")
+    meaning: str = Field(description="what the kind means, for an operator")
+    text: str = Field(description="what the drone said when it was raised")
+    raised_at: datetime
+    cleared_at: datetime | None = Field(description="null while it holds")
+    acked_at: datetime | None
+    acked_by: str | None
+
+    @classmethod
+    def of(cls, a: Alarm) -> AlarmPublic:
+        return cls(n=a.n, drone=a.drone, kind=a.kind, meaning=a.meaning, text=a.text, raised_at=_time(a.raised_at),
+                   cleared_at=_maybe_time(a.cleared_at), acked_at=_maybe_time(a.acked_at), acked_by=a.acked_by)
+
+
+class AlarmPage(BaseModel):
+    items: list[AlarmPublic]
+
+
+class LogEntryPublic(BaseModel):
+    at: datetime
+    kind: str = Field(description="drone (joined, left), alarm (raised, cleared, acknowledged) or mail")
+    text: str
+    drone: str | None
+    mail_id: str | None
+
+    @classmethod
+    def of(cls, e: LogEntry) -> LogEntryPublic:
+        return cls(at=_time(e.at), kind=e.kind, text=e.text, drone=e.drone, mail_id=e.mail_id)
+
+
+class LogPage(BaseModel):
+    items: list[LogEntryPublic] = Field(description="newest first")
+
+
+class SamplePublic(BaseModel):
+    at: float = Field(description="Unix seconds")
+    drone: str
+    value: float
+
+
+class WaitingPublic(BaseModel):
+    priority: int
+    count: int
+    p50_s: float
+    p90_s: float
+    max_s: float
+
+
+class StatsPublic(BaseModel):
+    now: float = Field(description="Unix seconds: the last delivery bucket ends here")
+    bucket_s: float
+    deliveries: list[int] = Field(description="deliveries per bucket, oldest first")
+    waiting: list[WaitingPublic] = Field(description="from submitted to picked up, per priority (most urgent "
+                                                     "first), of mail picked up within the window")
+    coordination_ms: list[SamplePublic] = Field(description="each plan's coordination latency, as drones report it")
+    battery_pct: list[SamplePublic] = Field(description="each drone's battery, sampled every few seconds")
 
 
 class ErrorOut(BaseModel):
@@ -144,3 +221,7 @@ class ReadyOut(BaseModel):
 
 def _time(t: float) -> datetime:
     return datetime.fromtimestamp(t, UTC)
+
+
+def _maybe_time(t: float | None) -> datetime | None:
+    return None if t is None else _time(t)

@@ -44,6 +44,9 @@ class ApiSettings(BaseSettings):
     sse_ping_s: float = Field(15.0, gt=0, description="seconds between keep-alive comments on /v1/events")
     sse_queue: int = Field(10000, ge=1, description="events buffered for one slow /v1/events client before "
                                                     "it is dropped")
+    tile_url: str = Field("", max_length=500, description="the dashboard's base map: a tile URL template with "
+                          "{z}, {x} and {y} (a tile server the operators reach); empty: none, the grid alone")
+    tile_attribution: str = Field("", max_length=500, description="the base map's attribution, shown under it")
 
     @model_validator(mode="after")
     def _tokens_usable(self) -> ApiSettings:

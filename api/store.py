@@ -27,13 +27,14 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 from api.errors import ApiError, IdempotencyConflict, IllegalTransition, MailNotFound
 from api.lifecycle import Status, check_transition
 from drona_gcs.workspace import Cell
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS mail (
@@ -66,6 +67,25 @@ CREATE TABLE IF NOT EXISTS audit (
 );
 CREATE INDEX IF NOT EXISTS audit_mail ON audit(mail_seq, n);
 """
+#: Schema changes, in order: ``MIGRATIONS[i]`` takes a database from ``PRAGMA user_version`` i to i + 1.
+#: Run at start, each in one transaction; existing rows are kept.
+MIGRATIONS: tuple[str, ...] = (
+    # 1: the fleet's alarms and who acknowledged them (api.alarms); deliveries and pickups by time (api.stats).
+    """
+    CREATE TABLE IF NOT EXISTS alarm (
+        n INTEGER PRIMARY KEY,
+        drone TEXT NOT NULL,
+        kind TEXT NOT NULL,
+        text TEXT NOT NULL,
+        raised_at REAL NOT NULL,
+        cleared_at REAL,
+        acked_at REAL,
+        acked_by TEXT
+    );
+    CREATE INDEX IF NOT EXISTS alarm_open ON alarm(cleared_at, drone, kind);
+    CREATE INDEX IF NOT EXISTS audit_status_at ON audit(status, at);
+    """,
+)
 _COLUMNS = "seq, id, owner, px, py, pz, dx, dy, dz, priority, note, status, drone, reason, created_at, updated_at"
 
 
@@ -254,7 +274,17 @@ class Store:
                                  "checkpoint")
         return int(row[0]), int(row[1]), int(row[2])
 
+    async def write(self, apply: Callable[[sqlite3.Connection], T]) -> T:
+        """Run ``apply`` in the writer's next transaction (its own savepoint); its result once committed."""
+        result: T = await self._submit(apply)
+        return result
+
     # ------------------------------------------------------------- reads
+    @property
+    def reader(self) -> sqlite3.Connection:
+        """The read connection (the event loop's thread only): committed data, never waiting for the writer."""
+        return self._reader
+
     def get(self, mail_id: str) -> MailRecord | None:
         row = self._reader.execute(f"SELECT {_COLUMNS} FROM mail WHERE id = ?", (mail_id,)).fetchone()
         return MailRecord.from_row(row) if row else None
@@ -301,8 +331,27 @@ def _connect(path: Path, synchronous: str, writer: bool) -> sqlite3.Connection:
         if mode != "wal":
             raise ApiError(f"{path}: SQLite refused WAL mode (journal mode is {mode})")
         conn.executescript(SCHEMA)
+        migrate(conn)
     conn.execute(f"PRAGMA synchronous = {synchronous}")
     return conn
+
+
+def migrate(conn: sqlite3.Connection) -> int:
+    """Bring the schema up to date (see :data:`MIGRATIONS`); the version it is at now."""
+    version = int(conn.execute("PRAGMA user_version").fetchone()[0])
+    for target, script in enumerate(MIGRATIONS[version:], version + 1):
+        conn.execute("BEGIN IMMEDIATE")
+        try:
+            for statement in script.split(";"):
+                if statement.strip():
+                    conn.execute(statement)
+            conn.execute(f"PRAGMA user_version = {target}")
+        except sqlite3.Error:
+            conn.execute("ROLLBACK")
+            raise
+        conn.execute("COMMIT")
+        log.info("schema migrated to version %d", target)
+    return max(version, len(MIGRATIONS))
 
 
 def _insert(conn: sqlite3.Connection, new: NewMail, now: float) -> Change:

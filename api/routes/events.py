@@ -1,8 +1,10 @@
 """``/v1/events``: server-sent events of mail status changes and drone states.
 
 Events: ``mail`` (a mail as in ``GET /v1/mail/{id}`` without history), ``drone``
-(a drone as in ``GET /v1/fleet``), ``drone_lost`` (``{"id": ...}``). The stream
-starts with a ``drone`` event for every live drone. EventSource cannot set
+(a drone as in ``GET /v1/fleet``), ``drone_lost`` (``{"id": ...}``), ``alarm`` (an
+alarm as in ``GET /v1/alarms``, when raised, cleared or acknowledged), ``log`` (an
+entry as in ``GET /v1/log``). The stream starts with a ``drone`` event for every
+drone known: live, or (``alive`` false) the last state of one that left. EventSource cannot set
 headers, so this route (and only this one) also takes the token as
 ``?access_token=``.
 """
@@ -37,7 +39,7 @@ async def events(caller: StreamOperatorDep) -> StreamingResponse:
 async def _stream(service: Service) -> AsyncIterator[bytes]:
     with service.bus.subscribe() as sub:
         yield b": connected\n\n"
-        for view in list(service.gateway.drones().values()):
+        for view in service.watch.known():  # those that left too, alive false: shown where last seen
             yield ServerEvent("drone", _DRONE_JSON.dump_json(view).decode()).encode()
         while True:
             try:

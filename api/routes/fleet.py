@@ -13,12 +13,12 @@ router = APIRouter(prefix="/v1", tags=["fleet"], responses={
 
 @router.get("/fleet", response_model=FleetPublic)
 async def fleet(caller: OperatorDep) -> FleetPublic:
-    """The latest state of every live drone (operators only)."""
-    drones = caller.service.gateway.drones()
-    return FleetPublic(drones=[drones[d] for d in sorted(drones)])
+    """The latest state of every live drone, and the last known state of each that left (operators only)."""
+    known = caller.service.watch.known()
+    return FleetPublic(drones=[d for d in known if d.alive], lost=[d for d in known if not d.alive])
 
 
 @router.get("/workspace", response_model=WorkspacePublic)
 async def workspace(caller: CallerDep) -> WorkspacePublic:
-    """The grid the fleet flies in: size, obstacles as cells, chargers, timing."""
+    """The grid the fleet flies in: size, obstacles as cells, chargers, timing, and where it is on Earth."""
     return caller.service.workspace_public

@@ -17,7 +17,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from api.errors import AssignRefused
-from api.gateway import DroneView, FleetListener, Health, MailOrder, MailStatusReport, Position, TaskView
+from api.gateway import DroneView, FleetListener, Health, MailOrder, MailStatusReport, Position, TaskView, VehicleInfo
 from api.gateway import TrajectoryView as View
 from drona_gcs.geo import GeoFrame
 from drona_gcs.workspace import Cell, Workspace
@@ -25,7 +25,7 @@ from fleet.transport.fleet_client import QUERY_TIMEOUT_S, FleetClient, FleetUnav
 from fleet.transport.identity import SERVICE
 from fleet.transport.keys import FleetKeys
 from fleet.transport.node import ZenohNode, ZenohSettings, agent_endpoint
-from fleet.transport.wire import DroneState, MailCancel, MailStatus, WireError, decode, encode
+from fleet.transport.wire import DroneState, MailCancel, MailStatus, VehicleView, WireError, decode, encode
 from fleet.transport.wire import MailOrder as WireOrder
 from fleet.transport.wire import MailStatusReport as WireReport
 
@@ -159,7 +159,15 @@ class ZenohGateway:
             phase=state.phase, task=task, trajectory=trajectory,
             queue=tuple(m.id for m in state.mail if m.stage != "carrying"),
             carrying=next((m.id for m in state.mail if m.stage == "carrying"), None),
-            health=Health(state.health.ok, tuple(state.health.alarms)), step=state.step)
+            health=Health(state.health.ok, tuple(state.health.alarms)), step=state.step,
+            vehicle=_vehicle(state.vehicle), coordination_ms=state.coordination_ms)
+
+
+def _vehicle(v: VehicleView | None) -> VehicleInfo | None:
+    if v is None:
+        return None
+    return VehicleInfo(status=v.status, reason=v.reason, mode=v.mode, armed=v.armed, landed=v.landed,
+                       height_m=v.height_m, gps_fix=v.gps_fix, satellites=v.satellites, battery_v=v.battery_v)
 
 
 def _cell(values: list[int]) -> Cell:

@@ -4,7 +4,8 @@ Drones fly one cell per ``step_s`` along a static shortest path (no collision
 avoidance: this is not the fleet, only something that behaves like its gateway):
 to the pickup, then to the drop-off, reporting ``accepted``, ``started``,
 ``picked_up`` and ``delivered``, and publishing their state every step. Tests
-can lose a drone (:meth:`lose`), make one refuse mail (``refusing``) or take
+can lose a drone (:meth:`lose`), cut its link for a while (:meth:`freeze`, :meth:`thaw`), give
+its state alarms (``alarms``), make one refuse mail (``refusing``) or take
 mail and then never speak of it (``silent``), and inject any report (:meth:`report`).
 ``drona serve --gateway simulated`` runs it (dev and test mode only).
 """
@@ -28,6 +29,7 @@ from api.gateway import (
     ReportStatus,
     TaskView,
     TrajectoryView,
+    VehicleInfo,
 )
 from api.validation import MailChecker
 from drona_gcs.geo import GeoFrame
@@ -44,6 +46,7 @@ class _Drone:
     carrying: bool = False
     path: list[Cell] = field(default_factory=list)
     battery: float = 100.0
+    coordination_ms: float | None = None  #: how long its last path took to find
 
 
 class SimulatedGateway:
@@ -65,6 +68,8 @@ class SimulatedGateway:
         self.silent: set[str] = set()  #: drones that take mail and then never mention it
         self.assigned: list[tuple[str, str]] = []  #: (drone, mail id) as assigned
         self.cancelled: list[tuple[str, str]] = []
+        self.frozen: set[str] = set()  #: drones whose link is down: no state, and they stay put
+        self.alarms: dict[str, tuple[str, ...]] = {}  #: drone -> the alarm texts its state carries
         self._views = {d: self._view(sim) for d, sim in self._drones.items()}
         self.opened = asyncio.Event()  #: run() sets it; a test may clear it (the links to the fleet went down)
 
@@ -115,6 +120,17 @@ class SimulatedGateway:
         if self.listener is not None:
             self.listener.on_drone_lost(drone)
 
+    def freeze(self, drone: str) -> None:
+        """The drone's link goes down: it is announced lost, publishes nothing and stays put until thawed."""
+        self.frozen.add(drone)
+        self._views.pop(drone, None)
+        if self.listener is not None:
+            self.listener.on_drone_lost(drone)
+
+    def thaw(self, drone: str) -> None:
+        """The link is back: the drone publishes its state again from the next step."""
+        self.frozen.discard(drone)
+
     def report(self, report: MailStatusReport) -> None:
         if self.listener is not None:
             self.listener.on_mail_status(report)
@@ -123,11 +139,12 @@ class SimulatedGateway:
         """One step: every drone moves a cell and publishes its state."""
         self.step += 1
         for sim in list(self._drones.values()):
-            self._advance(sim)
+            if sim.id not in self.frozen:
+                self._advance(sim)
         self.publish()
 
     def publish(self) -> None:
-        for sim in list(self._drones.values()):
+        for sim in [s for s in self._drones.values() if s.id not in self.frozen]:
             view = self._view(sim)
             self._views[sim.id] = view
             if self.listener is not None:
@@ -137,7 +154,7 @@ class SimulatedGateway:
     def _advance(self, sim: _Drone) -> None:
         if sim.current is None and sim.queue:
             sim.current = sim.queue.popleft()
-            sim.path = self._path(sim.cell, sim.current.pickup)
+            sim.path = self._path(sim.cell, sim.current.pickup, sim)
             self._report(sim.current.id, sim.id, "started")
         if sim.path:
             sim.cell = sim.path.pop(0)
@@ -148,15 +165,19 @@ class SimulatedGateway:
             return
         if not sim.carrying:
             sim.carrying = True
-            sim.path = self._path(sim.cell, sim.current.dropoff)
+            sim.path = self._path(sim.cell, sim.current.dropoff, sim)
             self._report(sim.current.id, sim.id, "picked_up")
         else:
             self._report(sim.current.id, sim.id, "delivered")
             sim.current, sim.carrying = None, False
 
-    def _path(self, start: Cell, goal: Cell) -> list[Cell]:
-        """The cells after ``start`` on a shortest static path to ``goal``."""
-        return self._checker.path(start, goal)[1:]
+    def _path(self, start: Cell, goal: Cell, sim: _Drone | None = None) -> list[Cell]:
+        """The cells after ``start`` on a shortest static path to ``goal`` (timed: the drone's coordination)."""
+        began = time.perf_counter()
+        path = self._checker.path(start, goal)[1:]
+        if sim is not None:
+            sim.coordination_ms = round((time.perf_counter() - began) * 1000, 3)
+        return path
 
     def _view(self, sim: _Drone) -> DroneView:
         p = self.frame.cell_to_global(sim.cell)
@@ -167,9 +188,15 @@ class SimulatedGateway:
             task = TaskView(goal, "to_dropoff" if sim.carrying else "to_pickup", current.id)
         trajectory = TrajectoryView(self.step, (sim.cell, *sim.path)) if sim.path else None
         phase = task.purpose if task else "idle"
+        alarms = self.alarms.get(sim.id, ())
+        flying = bool(sim.path)
+        vehicle = VehicleInfo("ready", mode="GUIDED", armed=flying, landed="in_air" if flying else "on_ground",
+                              height_m=p.alt_m - self.frame.origin.alt_m if flying else 0.0, gps_fix=3, satellites=14,
+                              battery_v=round(13.2 + 3.6 * sim.battery / 100, 2))
         return DroneView(sim.id, sim.cell, Position(p.lat, p.lon, p.alt_m), round(sim.battery, 1), "GUIDED", phase,
                          task, trajectory, tuple(m.id for m in sim.queue),
-                         current.id if current is not None and sim.carrying else None, Health(True), self.step)
+                         current.id if current is not None and sim.carrying else None,
+                         Health(not alarms, alarms), self.step, vehicle=vehicle, coordination_ms=sim.coordination_ms)
 
     def _report(self, mail_id: str, drone: str, status: ReportStatus, reason: str = "") -> None:
         self.report(MailStatusReport(mail_id, drone, status, reason, self.step, time.time()))
