@@ -29,10 +29,15 @@ function frameAt(step) {
 function buildMap() {
   const map = L.map("map", { zoomSnap: 0.25, maxZoom: 24, attributionControl: false });
   state.map = map;
+  // Panes bottom up: the workspace, then the findings, then the drones (Leaflet's overlay pane, 400),
+  // so a marked cell never hides a drone and an obstacle never hides a mark.
+  map.createPane("ground").style.zIndex = "350";
+  map.createPane("findings").style.zIndex = "380";
   const ws = state.doc.workspace;
   const whole = [corner(0, 0), corner(ws.size[0], ws.size[1])];
-  L.rectangle(whole, { color: "#7a8391", weight: 1, fill: false, interactive: false }).addTo(map);
-  gridLines(ws).forEach((line) => L.polyline(line, { color: "#c3c9d1", weight: 0.5, interactive: false }).addTo(map));
+  L.rectangle(whole, { pane: "ground", color: "#7a8391", weight: 1, fill: false, interactive: false }).addTo(map);
+  gridLines(ws).forEach((line) => L.polyline(line, { pane: "ground", color: "#c3c9d1", weight: 0.5,
+    interactive: false }).addTo(map));
   drawObstacles(ws);
   drawPoints(ws.charging_stations, "charger", "#2e7d32", "charging station");
   drawPoints(ws.parking, "parking", "#7a8391", "parking");
@@ -66,7 +71,7 @@ function drawObstacles(ws) {
   for (const [key, layers] of columns) {
     const [x, y] = key.split(",").map(Number);
     const shade = 0.3 + 0.6 * layers.length / ws.size[2];
-    L.rectangle(cellBounds([x, y, 0]), { className: "obstacle", weight: 0, fillOpacity: shade })
+    L.rectangle(cellBounds([x, y, 0]), { pane: "ground", className: "obstacle", weight: 0, fillOpacity: shade })
       .bindTooltip(`obstacle [${x}, ${y}], layers ${layers.sort((a, b) => a - b).join(", ")}`)
       .addTo(state.map);
   }
@@ -74,7 +79,8 @@ function drawObstacles(ws) {
 
 function drawPoints(cells, kind, colour, name) {
   for (const c of cells) {
-    L.rectangle(cellBounds(c), { className: kind, color: colour, weight: 2, fill: false, dashArray: "4 3" })
+    L.rectangle(cellBounds(c), { pane: "ground", className: kind, color: colour, weight: 2, fill: false,
+      dashArray: "4 3" })
       .bindTooltip(`${name} ${cellText(c)}`).addTo(state.map);
   }
 }
@@ -107,8 +113,9 @@ function show(step) {
   state.step = step;
   $("#step").value = String(step);
   document.body.dataset.step = String(step);
-  const seconds = (step * doc.workspace.tau_s).toFixed(1);
-  $("#step-label").textContent = `step ${step} (${seconds} s) of ${doc.first_step}..${doc.last_step}`;
+  // Steps count from the fleet's epoch: time is shown from the record's first step.
+  const seconds = ((step - doc.first_step) * doc.workspace.tau_s).toFixed(1);
+  $("#step-label").textContent = `step ${step} (+${seconds} s) of ${doc.first_step}..${doc.last_step}`;
   const frame = frameAt(step);
   const offsets = spread(frame);
   for (const [id, d] of state.drones) moveDrone(id, d, frame.drones[id], step, offsets.get(id));
@@ -152,7 +159,8 @@ function markFindings(step) {
   state.doc.findings.forEach((f, i) => {
     if (f.step !== step) return;
     for (const c of f.cells) {
-      const mark = L.rectangle(cellBounds(c), { className: `violation ${f.family} ${f.kind}`, weight: 3 })
+      const mark = L.rectangle(cellBounds(c), { pane: "findings", className: `violation ${f.family} ${f.kind}`,
+        weight: 3 })
         .bindTooltip(f.text);
       state.marks.addLayer(mark);
       const el = mark.getElement();
@@ -199,8 +207,11 @@ function buildList() {
     button.dataset.index = String(i);
     const kind = document.createElement("span");
     kind.className = "kind";
-    kind.textContent = `step ${f.step} · ${f.kind}`;
-    button.append(kind, ` · ${f.drones.join(", ")}: ${f.text}`);
+    kind.textContent = `step ${f.step} · ${f.kind} · ${f.drones.join(", ")}`;
+    const text = document.createElement("span");
+    text.className = "text";
+    text.textContent = f.text;
+    button.append(kind, text);
     button.addEventListener("click", () => { pause(); show(f.step); });
     li.append(button);
     return li;
