@@ -8,6 +8,7 @@ from typing import Annotated
 from fastapi import Depends, HTTPException, Query, Request, status
 
 from api.auth import Principal, TokenTable
+from api.commands import FleetCommands
 from api.dispatcher import Dispatcher
 from api.events import EventBus
 from api.gateway import FleetGateway
@@ -32,6 +33,7 @@ class Service:
     bus: EventBus
     gateway: FleetGateway
     dispatcher: Dispatcher
+    commands: FleetCommands
     ready: bool = False
     watch: FleetWatch = field(kw_only=True)  #: what operators see of the fleet: last known states, alarms, log
 

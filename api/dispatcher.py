@@ -55,6 +55,8 @@ class Dispatcher:
         self._idle = asyncio.Event()  # set while asleep with nothing under way
         self._sending = 0  # exchanges with drones under way
         self._tasks: asyncio.TaskGroup | None = None
+        self.paused = False  #: the operator paused the fleet: no mail is handed out
+        self.held: set[str] = set()  #: drones the operator recalled or landed: handed nothing until resumed
 
     # ------------------------------------------------------- listeners
     def on_drone_state(self, view: DroneView) -> None:
@@ -136,13 +138,23 @@ class Dispatcher:
         self._wake.clear()
 
     # ------------------------------------------------------ assignment
+    def hold(self, *, paused: bool | None = None, drone: str | None = None, held: bool = True) -> None:
+        """The operator's commands, as far as handing out mail goes: the fleet paused or not, a drone
+        held or not."""
+        if paused is not None:
+            self.paused = paused
+        if drone is not None:
+            (self.held.add if held else self.held.discard)(drone)
+        self._poke()
+
     async def _assign_round(self) -> None:
-        if self.queued <= 0:
+        if self.queued <= 0 or self.paused:
             return
         load: dict[str, int] = {}
         for held in self.in_flight.values():
             load[held.drone] = load.get(held.drone, 0) + 1
-        free = dispatch.slots(self.gateway.drones(), load, self.settings.per_drone)
+        free = [s for s in dispatch.slots(self.gateway.drones(), load, self.settings.per_drone)
+                if s.drone not in self.held]
         if not free:
             return
         excluded = self._current_exclusions()

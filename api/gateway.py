@@ -135,6 +135,15 @@ class FleetListener(Protocol):
     def on_mail_status(self, report: MailStatusReport) -> None: ...
 
 
+@dataclass(frozen=True)
+class CommandAck:
+    """A drone's answer to an operator's command (api.commands)."""
+
+    drone: str
+    accepted: bool
+    reason: str = ""
+
+
 class FleetGateway(Protocol):
     def listen(self, listener: FleetListener) -> None:
         """Register the service's listener (called once, before :meth:`run`)."""
@@ -156,6 +165,11 @@ class FleetGateway(Protocol):
 
     async def cancel(self, drone: str, mail_id: str) -> None:
         """Ask ``drone`` to drop ``mail_id``: best effort, never raises for an unreachable drone."""
+        ...
+
+    async def command(self, drone: str | None, action: str, by: str) -> list[CommandAck]:
+        """Tell ``drone`` (None: every live drone) an operator's ``action`` (pause, resume, recall, land)
+        asked by ``by``; the answers that came in time (never raises for an unreachable drone)."""
         ...
 
     def drones(self) -> Mapping[str, DroneView]:

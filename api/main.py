@@ -20,6 +20,7 @@ from fastapi.openapi.utils import get_openapi
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from api.commands import FleetCommands
 from api.deps import BEARER_SCHEME, Service
 from api.dispatcher import Dispatcher
 from api.errors import ConfigError
@@ -30,6 +31,7 @@ from api.handlers import http_error, validation_error
 from api.headlimit import HeadLimit
 from api.models import AlarmPublic, BaseMapPublic, LogEntryPublic, MailCreate, MailPublic, WorkspacePublic
 from api.routes import alarms, dashboard, docs, events, fleet, health, mail, stats
+from api.routes import commands as command_routes
 from api.settings import ApiSettings
 from api.store import Change, Store
 from api.validation import MailChecker
@@ -70,8 +72,9 @@ def create_app(settings: ApiSettings, gateway: FleetGateway, workspace: Workspac
         _publish_watch(watch, bus)
         gateway.listen(watch)
         dispatcher.resume()
+        commands = FleetCommands(store, dispatcher, gateway)
         service = Service(settings, ws, WorkspacePublic.of(ws, _base_map(settings)), tokens, checker, store, bus,
-                          gateway, dispatcher, watch=watch)
+                          gateway, dispatcher, commands, watch=watch)
         app.state.service = service
         try:
             async with asyncio.TaskGroup() as tasks:
@@ -92,7 +95,7 @@ def create_app(settings: ApiSettings, gateway: FleetGateway, workspace: Workspac
     app = FastAPI(title="drona-gcs", version="1", lifespan=lifespan, max_body_size=MAX_BODY_BYTES,
                   docs_url=None, redoc_url=None,
                   description="Mail requests for a DRONA drone fleet: submit, follow, cancel; the fleet's live state.")
-    for module in (mail, fleet, alarms, stats, events, health, dashboard, docs):
+    for module in (mail, fleet, command_routes, alarms, stats, events, health, dashboard, docs):
         app.include_router(module.router)
     app.mount("/static", StaticFiles(directory=dashboard.STATIC_DIR), name="static")
     app.mount(docs.ASSETS_URL, StaticFiles(directory=docs.ASSETS_DIR), name="docs-assets")

@@ -85,6 +85,17 @@ MIGRATIONS: tuple[str, ...] = (
     CREATE INDEX IF NOT EXISTS alarm_open ON alarm(cleared_at, drone, kind);
     CREATE INDEX IF NOT EXISTS audit_status_at ON audit(status, at);
     """,
+    # 2: the operator's fleet commands, who asked and what the drones answered (api.commands).
+    """
+    CREATE TABLE IF NOT EXISTS command (
+        n INTEGER PRIMARY KEY,
+        at REAL NOT NULL,
+        by TEXT NOT NULL,
+        action TEXT NOT NULL,
+        drone TEXT,
+        acks TEXT NOT NULL
+    );
+    """,
 )
 _COLUMNS = "seq, id, owner, px, py, pz, dx, dy, dz, priority, note, status, drone, reason, created_at, updated_at"
 

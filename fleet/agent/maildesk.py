@@ -109,6 +109,8 @@ class MailDesk:
             raise ProblemError(f"drone {self.me} is shutting down")
         if self.refusal is not None:
             raise ProblemError(f"drone {self.me} takes no mail: {self.refusal}")
+        if self.stack.commanded is not None:  # an order sent before the command may come after it
+            raise ProblemError(f"drone {self.me} takes no mail: the operator's {self.stack.commanded} is in force")
         if order.id in self.delivered or any(m.id == order.id for m in self.held()):
             return False
         pickup, dropoff = self._cell("pickup", order.pickup), self._cell("dropoff", order.dropoff)

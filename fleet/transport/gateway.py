@@ -13,10 +13,12 @@ import argparse
 import asyncio
 import contextlib
 import logging
+import time
 from collections.abc import Mapping
 from pathlib import Path
 
 from api.errors import AssignRefused
+from api.gateway import CommandAck as GatewayAck
 from api.gateway import DroneView, FleetListener, Health, MailOrder, MailStatusReport, Position, TaskView, VehicleInfo
 from api.gateway import TrajectoryView as View
 from drona_gcs.geo import GeoFrame
@@ -25,7 +27,18 @@ from fleet.transport.fleet_client import QUERY_TIMEOUT_S, FleetClient, FleetUnav
 from fleet.transport.identity import SERVICE
 from fleet.transport.keys import FleetKeys
 from fleet.transport.node import ZenohNode, ZenohSettings, agent_endpoint
-from fleet.transport.wire import DroneState, MailCancel, MailStatus, VehicleView, WireError, decode, encode
+from fleet.transport.wire import (
+    CommandAck,
+    CommandAction,
+    DroneState,
+    FleetCommand,
+    MailCancel,
+    MailStatus,
+    VehicleView,
+    WireError,
+    decode,
+    encode,
+)
 from fleet.transport.wire import MailOrder as WireOrder
 from fleet.transport.wire import MailStatusReport as WireReport
 
@@ -90,6 +103,22 @@ class ZenohGateway:
             node = (await self._client()).node
             await node.get(self.keys.cancel(drone), encode("drona-serve", 0.0, MailCancel(id=mail_id)),
                            QUERY_TIMEOUT_S)
+
+    async def command(self, drone: str | None, action: str, by: str) -> list[CommandAck]:
+        node = (await self._client()).node
+        order = encode(SERVICE, time.time(), FleetCommand(action=CommandAction(action), by=by))
+        replies = await node.get(self.keys.command(drone or "*"), order, QUERY_TIMEOUT_S, block=True)
+        acks = []
+        for reply in replies:
+            try:
+                envelope = decode(reply.payload)
+            except WireError as exc:
+                log.warning("dropped a command answer on %s: %s", reply.key, exc)
+                continue
+            body = envelope.body
+            if isinstance(body, CommandAck) and body.drone == envelope.sender == self.keys.writer(reply.key):
+                acks.append(GatewayAck(body.drone, body.accepted, body.reason))
+        return sorted(acks, key=lambda a: a.drone)
 
     def drones(self) -> Mapping[str, DroneView]:
         return dict(self.views)

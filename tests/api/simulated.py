@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 from api.errors import AssignRefused
 from api.gateway import (
+    CommandAck,
     DroneView,
     FleetListener,
     Health,
@@ -68,6 +69,8 @@ class SimulatedGateway:
         self.silent: set[str] = set()  #: drones that take mail and then never mention it
         self.assigned: list[tuple[str, str]] = []  #: (drone, mail id) as assigned
         self.cancelled: list[tuple[str, str]] = []
+        self.commands: list[tuple[str | None, str, str]] = []  #: (drone or None: all, action, by) as told
+        self.commanded: dict[str, str] = {}  #: drone -> the command in force (it takes no mail)
         self.frozen: set[str] = set()  #: drones whose link is down: no state, and they stay put
         self.alarms: dict[str, tuple[str, ...]] = {}  #: drone -> the alarm texts its state carries
         self._views = {d: self._view(sim) for d, sim in self._drones.items()}
@@ -94,6 +97,8 @@ class SimulatedGateway:
             raise AssignRefused(drone, mail.id, "unreachable: no such live drone")
         if drone in self.refusing:
             raise AssignRefused(drone, mail.id, self.refusing[drone])
+        if drone in self.commanded:
+            raise AssignRefused(drone, mail.id, f"the operator's {self.commanded[drone]} is in force")
         self.assigned.append((drone, mail.id))
         if drone in self.silent:
             return
@@ -107,6 +112,32 @@ class SimulatedGateway:
             return
         sim.queue = deque(m for m in sim.queue if m.id != mail_id)
         if sim.current is not None and sim.current.id == mail_id and not sim.carrying:
+            sim.current, sim.path = None, []
+
+    async def command(self, drone: str | None, action: str, by: str) -> list[CommandAck]:
+        """Live drones that are not silent answer; a recalled or landed one hands back its queue."""
+        self.commands.append((drone, action, by))
+        acks = []
+        for name in [drone] if drone is not None else sorted(self._views):
+            sim = self._drones.get(name)
+            if sim is None or name not in self._views or name in self.silent:
+                continue
+            if action in ("recall", "land"):
+                self._hand_back(sim, f"{action} by {by}")
+            if action == "resume":
+                self.commanded.pop(name, None)
+            else:
+                self.commanded[name] = action
+            acks.append(CommandAck(name, True))
+        return acks
+
+    def _hand_back(self, sim: _Drone, reason: str) -> None:
+        """Every mail not on board, as a real drone hands it back."""
+        waiting = [*sim.queue, *([sim.current] if sim.current is not None and not sim.carrying else [])]
+        for mail in waiting:
+            self._report(mail.id, sim.id, "rejected", reason)
+        sim.queue.clear()
+        if sim.current is not None and not sim.carrying:
             sim.current, sim.path = None, []
 
     def drones(self) -> Mapping[str, DroneView]:

@@ -47,6 +47,13 @@ async def deliver_all(fleet: FleetProcesses, orders: list[MailOrder], timeout: f
 
 
 def check_run(fleet: FleetProcesses, obs: Observer, orders: list[MailOrder]) -> None:
+    check_run_record(fleet)
+    assert obs.priority_violations({o.id: o for o in orders}) == []
+    assert min(obs.min_battery.values()) >= SAFE_THRESHOLD
+
+
+def check_run_record(fleet: FleetProcesses) -> Audit:
+    """Stop the agents (each exits 0) and audit the flight record: safe, no jumps, flown as planned."""
     codes = fleet.stop()
     assert all(code == 0 for code in codes.values()), f"agents exited {codes}\n{fleet.logs()}"
     result = fleet.audit()
@@ -57,8 +64,7 @@ def check_run(fleet: FleetProcesses, obs: Observer, orders: list[MailOrder]) -> 
     conformance = result.conformance
     assert conformance.planned_steps > 20 and conformance.fraction >= MIN_CONFORMANCE, (
         f"flown in the planned cell: {conformance.fraction:.1%}, worst {conformance.worst}")
-    assert obs.priority_violations({o.id: o for o in orders}) == []
-    assert min(obs.min_battery.values()) >= SAFE_THRESHOLD
+    return result
 
 
 def _unsafe(result: Audit, fleet: FleetProcesses) -> str:

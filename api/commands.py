@@ -1,0 +1,77 @@
+"""The operator's fleet commands: pause, resume, recall and land, each recorded with who asked.
+
+``pause`` and ``resume`` go to the whole fleet, ``recall``, ``land`` and ``resume`` to one drone too.
+The service stops handing out mail (the fleet paused, or a drone held) before it tells the drones,
+and records every command with the drones' answers in the audit trail (table ``command``, made by
+api.store.MIGRATIONS).
+What a drone does with each is :meth:`drona_gcs.stack.drone.DroneStack.command`'s: legs under way
+are flown, mail on board is delivered, and a landed drone stops only through the protocol.
+"""
+
+from __future__ import annotations
+
+import enum
+import json
+import sqlite3
+import time
+from dataclasses import dataclass
+
+from api.dispatcher import Dispatcher
+from api.gateway import CommandAck, FleetGateway
+from api.store import Store
+
+
+class Action(enum.Enum):
+    PAUSE = "pause"
+    RESUME = "resume"
+    RECALL = "recall"
+    LAND = "land"
+
+
+@dataclass(frozen=True)
+class CommandRecord:
+    """One command as the audit trail keeps it: ``drone`` None for the whole fleet."""
+
+    n: int
+    at: float  #: Unix seconds
+    by: str
+    action: Action
+    drone: str | None
+    acks: tuple[CommandAck, ...]
+
+
+class FleetCommands:
+    def __init__(self, store: Store, dispatcher: Dispatcher, fleet: FleetGateway) -> None:
+        self.store, self.dispatcher, self.fleet = store, dispatcher, fleet
+
+    async def run(self, action: Action, drone: str | None, by: str) -> CommandRecord:
+        """Stop or resume handing out mail, tell the drones, then record it all (durably)."""
+        if action is Action.PAUSE:
+            self.dispatcher.hold(paused=True)
+        elif action is not Action.RESUME:
+            self.dispatcher.hold(drone=drone)
+        acks = tuple(await self.fleet.command(drone, action.value, by))
+        if action is Action.RESUME and drone is None:  # once the drones heard it: mail handed out is taken up
+            self.dispatcher.held.clear()
+            self.dispatcher.hold(paused=False)
+        elif action is Action.RESUME:
+            self.dispatcher.hold(drone=drone, held=False)
+        at = time.time()
+        n = await self.store.write(lambda conn: _insert(conn, at, by, action, drone, acks))
+        return CommandRecord(n, at, by, action, drone, acks)
+
+    def history(self, limit: int) -> list[CommandRecord]:
+        """The newest ``limit`` commands, newest first."""
+        rows = self.store.reader.execute(
+            "SELECT n, at, by, action, drone, acks FROM command ORDER BY n DESC LIMIT ?", (limit,)).fetchall()
+        return [CommandRecord(n, at, by, Action(action), drone, tuple(CommandAck(**a) for a in json.loads(acks)))
+                for n, at, by, action, drone, acks in rows]
+
+
+def _insert(conn: sqlite3.Connection, at: float, by: str, action: Action, drone: str | None,
+            acks: tuple[CommandAck, ...]) -> int:
+    answers = json.dumps([{"drone": a.drone, "accepted": a.accepted, "reason": a.reason} for a in acks])
+    cur = conn.execute("INSERT INTO command (at, by, action, drone, acks) VALUES (?, ?, ?, ?, ?)",
+                       (at, by, action.value, drone, answers))
+    assert cur.lastrowid is not None
+    return cur.lastrowid

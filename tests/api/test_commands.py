@@ -1,0 +1,71 @@
+"""``/v1/fleet/...`` commands over the simulated fleet: what the service does, what it tells the drones,
+and the audit trail. (What the drones do: tests/test_drone_stack.py; over real agents:
+tests/integration/test_fleet_commands.py.)"""
+
+from __future__ import annotations
+
+from api.settings import ApiSettings
+from drona_gcs.workspace import Workspace
+from tests.api.conftest import SUBMITTER, auth, run, running
+
+
+def test_a_paused_fleet_is_handed_no_mail_until_resumed(settings: ApiSettings, workspace: Workspace) -> None:
+    async def body() -> None:
+        async with running(settings, workspace) as h:
+            res = await h.client.post("/v1/fleet/pause", headers=auth())
+            assert res.status_code == 200, res.text
+            record = res.json()
+            assert record["action"] == "pause" and record["by"] == "ops" and record["drone"] is None
+            assert {a["drone"] for a in record["acks"]} == {"d1", "d2", "d3"}
+            mail = await h.submit([1, 3, 0], [3, 6, 0])
+            await h.steps(3)
+            history = (await h.client.get(f"/v1/mail/{mail['id']}", headers=auth())).json()["history"]
+            assert [e["status"] for e in history] == ["queued"]  # never even offered
+            assert h.gateway.assigned == []
+            assert (await h.client.post("/v1/fleet/resume", headers=auth())).status_code == 200
+            await h.until(lambda: h.status(mail["id"]) != "queued")
+            assert h.gateway.commands == [(None, "pause", "ops"), (None, "resume", "ops")]
+
+    run(body())
+
+
+def test_a_recalled_drone_hands_its_mail_back_and_gets_none_until_resumed(
+        settings: ApiSettings, workspace: Workspace) -> None:
+    async def body() -> None:
+        async with running(settings, workspace) as h:
+            h.gateway.refusing.update({"d2": "busy", "d3": "busy"})  # only d1 takes the mail
+            mail = await h.submit([1, 3, 0], [3, 6, 0])
+            await h.until(lambda: h.status(mail["id"]) == "assigned")
+            await h.service.dispatcher.idle()  # d1 has it
+            assert h.gateway.assigned == [("d1", mail["id"])]
+            res = await h.client.post("/v1/fleet/drones/d1/recall", headers=auth())
+            assert res.status_code == 200 and res.json()["acks"] == [{"drone": "d1", "accepted": True, "reason": ""}]
+            await h.until(lambda: h.status(mail["id"]) == "queued")  # handed back by d1, and not to it again
+            history = (await h.client.get(f"/v1/mail/{mail['id']}", headers=auth())).json()["history"]
+            assert history[-1]["reason"] == "drone d1 rejected it: recall by ops"
+            assert "d1" in h.service.dispatcher.held
+            later = await h.submit([2, 3, 0], [3, 5, 0])
+            await h.steps(2)
+            history = (await h.client.get(f"/v1/mail/{later['id']}", headers=auth())).json()["history"]
+            assert all(e["drone"] != "d1" for e in history)  # never offered to the recalled drone
+            assert (await h.client.post("/v1/fleet/drones/d1/resume", headers=auth())).status_code == 200
+            assert "d1" not in h.service.dispatcher.held
+
+    run(body())
+
+
+def test_commands_are_recorded_with_who_asked_and_checked(settings: ApiSettings, workspace: Workspace) -> None:
+    async def body() -> None:
+        async with running(settings, workspace) as h:
+            assert (await h.client.post("/v1/fleet/drones/d9/land", headers=auth())).status_code == 404
+            assert (await h.client.post("/v1/fleet/pause", headers=auth(SUBMITTER))).status_code == 403
+            h.gateway.silent.add("d2")
+            late = await h.client.post("/v1/fleet/drones/d2/land", headers=auth())
+            assert late.status_code == 504 and "did not answer" in late.json()["detail"]
+            assert (await h.client.post("/v1/fleet/drones/d3/land", headers=auth())).status_code == 200
+            history = (await h.client.get("/v1/fleet/commands", headers=auth())).json()
+            assert [(c["action"], c["drone"], c["by"], len(c["acks"])) for c in history] == [
+                ("land", "d3", "ops", 1), ("land", "d2", "ops", 0)]
+            assert h.service.dispatcher.held == {"d2", "d3"}
+
+    run(body())
