@@ -1,75 +1,239 @@
-"""The dashboard in headless Chromium (Debian's ``chromium``, driven by Playwright): what the page shows.
+"""The dashboard in headless Chromium (Debian's ``chromium``, driven by Playwright), as an operator uses it.
 
+The service runs in this process (tests/api/served.py) so that the test can act on the simulated fleet
+while the page watches. Screenshots go to the folder each test prints, for a person to look at. Every
+request the page makes must go to the service itself, and no script may fail.
 Skipped, with the reason printed, when Chromium or Playwright is missing (``apt-get install chromium``).
 """
 
 from __future__ import annotations
 
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tests.api.conftest import OPERATOR, ServiceProcess
+import pytest
 
-#: Moves d3 to the map's last column, draws, and returns its label's extent and the map's width.
-LABEL_IN_LAST_COLUMN = """() => {
-  const d = state.drones.get("d3"), saved = d.cell;
-  d.cell = [state.ws.size[0] - 1, saved[1], saved[2]];
-  draw();
-  const box = document.querySelector("#map g.drone[data-id='d3'] text").getBBox();
-  d.cell = saved;
-  draw();
-  return [box.x, box.x + box.width, state.ws.size[0]];
+from api.settings import ApiSettings
+from drona_gcs.geo import GeoFrame
+from drona_gcs.workspace import Workspace
+from drona_gcs.workspace_files import workspace_from_mapping
+from tests.api.conftest import OPERATOR, WORKSPACE
+from tests.api.served import Served
+
+GEO = {"lat": 47.397742, "lon": 8.545594, "alt_m": 488.0, "layer0_alt_m": 10.0, "layer_height_m": 5.0}
+#: The API tests' grid, two layers high, 10 m cells, near Zurich: the wall blocks both layers, [7, 6] the upper only.
+BROWSER_WS = {**WORKSPACE, "size": [10, 8, 2], "cell_size_m": 10.0, "geo_origin": GEO,
+              "obstacles": [{"box": [[4, 2, 0], [5, 5, 1]]}, [9, 3, 0], [8, 4, 0], [9, 5, 0], [7, 6, 1]]}
+LAG = "lag: vehicle 3.2 m from its cell"
+NEW_TOKEN = "operator-token-after-restart-0123"
+
+#: Every visible drone label and the map's box, in page pixels.
+LABEL_BOXES = """() => {
+  const box = (el) => { const r = el.getBoundingClientRect(); return [r.left, r.top, r.right, r.bottom]; };
+  const labels = [...document.querySelectorAll('#map .labels .label')].filter((el) => !el.hidden);
+  const controls = [...document.querySelectorAll('#map .leaflet-control')].map((el) => [el.className, ...box(el)]);
+  return { map: box(document.getElementById('map')), labels: labels.map((el) => [el.dataset.id, ...box(el)]),
+           controls };
+}"""
+#: The page's scroll width if over its viewport's, and each element reaching past it (but Leaflet's panes and
+#: the mail table, which their boxes clip or scroll).
+WIDER_THAN_THE_PAGE = """() => {
+  const width = document.documentElement.clientWidth, over = [];
+  if (document.documentElement.scrollWidth > width) over.push(`page ${document.documentElement.scrollWidth}`);
+  for (const el of document.querySelectorAll('body *')) {
+    const right = el.getBoundingClientRect().right;
+    if (right > width && !el.closest('.leaflet-container, .table-wrap')) over.push(`${el.tagName}#${el.id} ${right}`);
+  }
+  return over;
+}"""
+#: Where the page draws a drone's dot, and where Leaflet puts the given latitude and longitude.
+DRAWN_AT = """([id, lat, lon]) => {
+  const dot = document.querySelector(`#map path.drone[data-id="${id}"]`).getBoundingClientRect();
+  const map = document.getElementById('map').getBoundingClientRect();
+  const p = drona.leaflet.latLngToContainerPoint([lat, lon]);
+  return [dot.left + dot.width / 2 - map.left, dot.top + dot.height / 2 - map.top, p.x, p.y];
 }"""
 
 
-def test_the_dashboard_shows_the_fleet_and_follows_a_mail(browser: Any, workspace_file: Path,
-                                                          tmp_path: Path) -> None:
-    service = ServiceProcess(workspace_file, tmp_path / "mail.db", sim_step=0.1)
+@dataclass
+class Watched:
+    """What a page did: its requests, failed responses, and errors."""
+
+    requests: list[str] = field(default_factory=list)
+    failed: list[tuple[int, str]] = field(default_factory=list)
+    errors: list[str] = field(default_factory=list)
+
+    def attach(self, page: Any) -> None:
+        page.on("request", lambda r: self.requests.append(r.url))
+        page.on("response", lambda r: self.failed.append((r.status, r.url)) if r.status >= 400 else None)
+        page.on("pageerror", lambda exc: self.errors.append(f"page error: {exc}"))
+        page.on("console", lambda m: self.errors.append(f"console: {m.text}") if m.type == "error" else None)
+
+    def check(self, origin: str, expected: frozenset[tuple[int, str]] = frozenset()) -> None:
+        """Nothing from elsewhere, no script error, and no failed response but the ``expected`` (status, path):
+        the browser logs each of those as a console error, "Failed to load resource"."""
+        foreign = [u for u in self.requests if not u.startswith(origin + "/")]
+        assert foreign == [], f"requests leaving the service: {foreign}"
+        assert [e for e in self.errors if "Failed to load resource" not in e] == [], self.errors
+        failed = {(status, url.removeprefix(origin).split("?")[0]) for status, url in self.failed}
+        assert failed <= expected, f"failed responses: {sorted(failed - expected)}"
+
+
+@pytest.fixture
+def geo_workspace() -> Workspace:
+    return workspace_from_mapping(BROWSER_WS, source="browser.yaml")
+
+
+@pytest.fixture
+def screenshots(tmp_path: Path) -> Path:
+    folder = tmp_path / "screenshots"
+    folder.mkdir()
+    print(f"screenshots of the dashboard: {folder}")
+    return folder
+
+
+@pytest.fixture
+def served(settings: ApiSettings, geo_workspace: Workspace) -> Iterator[Served]:
+    service = Served(settings, geo_workspace)
+    yield service
+    service.stop()
+
+
+def open_dashboard(browser: Any, served: Served, watched: Watched, width: int = 1400) -> Any:
+    page = browser.new_page(viewport={"width": width, "height": 900})
+    watched.attach(page)
+    page.goto(served.url + "/")
+    page.wait_for_selector("#token-panel:not([hidden])")
+    page.fill("#token", OPERATOR)
+    page.click("#token-form button")
+    page.wait_for_selector("#conn[data-state='live']", timeout=10_000)
+    page.wait_for_function("document.querySelectorAll('#map path.drone').length === 3", timeout=10_000)
+    return page
+
+
+def assert_labels_apart(page: Any, expect_all: bool = True) -> None:
+    boxes = page.evaluate(LABEL_BOXES)
+    left, top, right, bottom = boxes["map"]
+    labels = boxes["labels"]
+    if expect_all:
+        assert sorted(label[0] for label in labels) == ["d1", "d2", "d3"]
+    for name, x0, y0, x1, y1 in labels:
+        assert left <= x0 and x1 <= right and top <= y0 and y1 <= bottom, f"{name}'s label is clipped"
+    for i, a in enumerate(labels):
+        for b in labels[i + 1:] + boxes["controls"]:
+            apart = a[3] <= b[1] or b[3] <= a[1] or a[4] <= b[2] or b[4] <= a[2]
+            assert apart, f"the label of {a[0]} overlaps {b[0]}'s"
+
+
+def submit(page: Any, pickup: tuple[int, int, int], dropoff: tuple[int, int, int], priority: int) -> str:
+    for prefix, cell in (("p", pickup), ("d", dropoff)):
+        for axis, value in zip("xyz", cell, strict=True):
+            page.fill(f"#mail-form [name='{prefix}{axis}']", str(value))
+    page.fill("#mail-form [name='priority']", str(priority))
+    page.click("#mail-form button")
+    page.wait_for_selector("#form-msg[data-kind='ok'], #form-msg[data-kind='error']", timeout=10_000)
+    return str(page.locator("#form-msg").inner_text())
+
+
+def test_the_operator_sees_the_fleet_on_its_map_and_handles_alarms(browser: Any, served: Served,
+                                                                   geo_workspace: Workspace,
+                                                                   screenshots: Path) -> None:
+    watched = Watched()
+    page = open_dashboard(browser, served, watched)
+    # The map on geographic coordinates: each drone where GeoFrame puts its cell, with scale, north, lat/lon.
+    frame = GeoFrame(geo_workspace)
+    for drone, cell in geo_workspace.drones.items():
+        where = frame.cell_to_global(cell)
+        x, y, want_x, want_y = page.evaluate(DRAWN_AT, [drone, where.lat, where.lon])
+        assert abs(x - want_x) < 1.5 and abs(y - want_y) < 1.5, f"{drone} drawn at {x, y}, not {want_x, want_y}"
+    assert page.locator("#map path.obstacle:not(.other-layer)").count() == 11  # the wall and three cells
+    upper = page.locator("#map path.obstacle.other-layer")
+    assert upper.count() == 1 and upper.get_attribute("data-top") == "17.5"  # layer 1: 15 m, + half a layer
+    assert page.locator("#map path.charger").count() == 2 and page.locator("#map path.parking").count() == 2
+    assert page.locator(".leaflet-control-scale-line").inner_text().endswith("m")
+    assert page.locator("#map .north").count() == 1 and "47.397742° N" in page.locator("#origin").inner_text()
+    page.hover("#map", position={"x": 300, "y": 200})
+    assert re.fullmatch(r"47\.\d{6}° N 8\.\d{6}° E · cell \[\d, \d, 0\]", page.locator("#map .coords").inner_text())
+    assert_labels_apart(page)
+    # A mail flies: the plan and the flown track are drawn; once delivered its markers leave the map.
+    mail_id = submit(page, (1, 3, 0), (3, 6, 0), 8).split()[0]
+    page.wait_for_selector(f"#map path.marker.pickup[data-id='{mail_id}']", state="attached")
+    page.wait_for_selector("#map path.traj[data-drone='d1']", state="attached", timeout=10_000)
+    page.wait_for_function("Number(document.querySelector(\"#map path.track[data-drone='d1']\")"
+                           "?.dataset.points) >= 4", timeout=10_000)
+    page.screenshot(path=str(screenshots / "flying.png"))
+    page.wait_for_selector(f"#mail tr[data-id='{mail_id}'][data-status='delivered']", timeout=20_000)
+    assert page.locator(f"#map path.marker[data-id='{mail_id}']").count() == 0
+    assert "delivered by d1" in page.locator("#log").inner_text()
+    # d2's link goes: it stays where it was, stale with the time since, and is live again when it is back.
+    before = page.evaluate(DRAWN_AT, ["d2", 0, 0])[:2]
+    served.call(served.gateway.freeze, "d2")
+    page.wait_for_selector("#map path.drone.stale[data-id='d2']", timeout=10_000)
+    assert page.evaluate(DRAWN_AT, ["d2", 0, 0])[:2] == before
+    page.wait_for_function("/stale [0-9]+ s/.test(document.querySelector(\"#map .label[data-id='d2']\").textContent)")
+    assert page.locator("#drones li[data-id='d2']").get_attribute("data-stale") == "true"
+    page.wait_for_selector("#alarms li[data-active='true'] >> text=left", timeout=10_000)
+    assert_labels_apart(page, expect_all=False)
+    page.screenshot(path=str(screenshots / "stale.png"))
+    served.call(served.gateway.thaw, "d2")
+    page.wait_for_selector("#map path.drone[data-id='d2'][data-stale='false']", timeout=10_000)
+    # An alarm: raised with its meaning, acknowledged by the operator, and recorded as such.
+    served.call(served.gateway.alarms.__setitem__, "d1", (LAG,))
+    alarm = page.locator("#alarms li[data-active='true'][data-acked='false']", has_text="lag")
+    alarm.wait_for(timeout=10_000)
+    assert "trails the cell its plan puts it in" in alarm.inner_text()
+    page.screenshot(path=str(screenshots / "alarm.png"))
+    alarm.locator("button.ack").click()
+    page.wait_for_selector("#alarms li[data-acked='true'] >> text=acknowledged by ops", timeout=10_000)
+    page.wait_for_selector("#log li >> text=alarm lag acknowledged by ops", timeout=10_000)
+    # The charts have the delivery; "live" means the fleet is reachable, not only the page's stream.
+    page.evaluate("drona.charts.refresh()")
+    page.wait_for_function("Chart.getChart('c-deliveries').data.datasets[0].data.reduce((a, b) => a + b, 0) >= 1")
+    served.call(served.gateway.opened.clear)
+    page.wait_for_selector("#conn[data-state='degraded']", timeout=10_000)
+    assert page.locator("#conn").inner_text() == "fleet unreachable"
+    served.call(served.gateway.opened.set)
+    page.wait_for_selector("#conn[data-state='live']", timeout=10_000)
+    # An error gives way to the next answer.
+    assert "is on an obstacle" in submit(page, (4, 3, 0), (3, 6, 0), 5)
+    assert submit(page, (1, 3, 0), (3, 6, 0), 5).endswith("queued")
+    page.screenshot(path=str(screenshots / "desktop.png"), full_page=True)
+    watched.check(served.url, frozenset({(503, "/readyz"), (422, "/v1/mail")}))
+    page.close()
+
+
+def test_the_page_fits_a_phone_and_asks_for_the_token_after_a_restart(browser: Any, settings: ApiSettings,
+                                                                      geo_workspace: Workspace,
+                                                                      screenshots: Path) -> None:
+    served = Served(settings, geo_workspace)
+    watched = Watched()
     try:
-        page = browser.new_page(viewport={"width": 1400, "height": 900})
-        errors: list[str] = []
-        page.on("pageerror", lambda exc: errors.append(str(exc)))
-        page.goto(service.url + "/")
-        page.fill("#token", OPERATOR)
+        page = open_dashboard(browser, served, watched, width=390)
+        page.wait_for_selector("#charts-panel[data-updated]", timeout=10_000)
+        assert page.evaluate(WIDER_THAN_THE_PAGE) == [], "wider than the phone"
+        assert_labels_apart(page, expect_all=False)
+        page.screenshot(path=str(screenshots / "phone.png"), full_page=True)
+        watched.check(served.url)
+        # The service restarts with other tokens: the page asks for one instead of reconnecting forever.
+        served.stop()
+        new = settings.model_copy(update={"tokens": f"operator:{NEW_TOKEN}:night"})
+        served = Served(new, geo_workspace, port=served.port)
+        page.wait_for_selector("#token-panel:not([hidden])", timeout=15_000)
+        assert page.locator("#conn").inner_text() == "token refused"
+        assert "enter it again" in page.locator("#token-msg").inner_text()
+        page.screenshot(path=str(screenshots / "token-refused.png"))
+        page.fill("#token", NEW_TOKEN)
         page.click("#token-form button")
         page.wait_for_selector("#conn[data-state='live']", timeout=10_000)
-        # the map: grid, obstacles, chargers, and every drone with its battery
-        assert page.locator("#map .obstacles").get_attribute("d").count("M") == 11
-        assert page.locator("#map rect.charger").count() == 2
-        page.wait_for_function("document.querySelectorAll('#map g.drone').length === 3", timeout=10_000)
-        assert page.locator("#drones tbody tr").count() == 3
-        assert float(page.locator("#map g.drone[data-id='d1']").get_attribute("data-battery")) > 0
-        # a drone in the last column keeps its label on the map (drawn by the page's own code)
-        left, right, width = page.evaluate(LABEL_IN_LAST_COLUMN)
-        assert left >= 0 and right <= width, f"d3's label spans {left:.2f}..{right:.2f} of a map {width} wide"
-        # submit a mail through the form
-        for name, value in (("px", 1), ("py", 3), ("pz", 0), ("dx", 3), ("dy", 6), ("dz", 0), ("priority", 8)):
-            page.fill(f"#mail-form [name='{name}']", str(value))
-        page.click("#mail-form button")
-        page.wait_for_selector("#form-msg[data-kind='ok']", timeout=10_000)
-        mail_id = page.locator("#form-msg").inner_text().split()[0]
-        row = page.locator(f"#mail tbody tr[data-id='{mail_id}']")
-        assert row.count() == 1
-        pickup = f"#map .marker.pickup[data-id='{mail_id}']"
-        assert page.locator(pickup).count() == 1
-        page.wait_for_selector(f"{pickup}[data-status='picked_up']", timeout=20_000)
-        # A planned trajectory, drawn. "attached", not "visible": Playwright calls an element with an
-        # empty bounding box hidden, and a straight trajectory's polyline is zero wide or zero high.
-        traj = page.wait_for_selector("#map polyline.traj", state="attached", timeout=10_000)
-        assert traj is not None and len((traj.get_attribute("points") or "").split()) >= 2
-        page.screenshot(path=str(tmp_path / "flying.png"))
-        page.wait_for_selector(f"{pickup}[data-status='delivered']", timeout=20_000)
-        assert row.get_attribute("data-status") == "delivered"
-        assert page.locator(f"#map .marker.dropoff[data-id='{mail_id}']").get_attribute("data-status") == "delivered"
-        page.screenshot(path=str(tmp_path / "delivered.png"))
-        assert (tmp_path / "delivered.png").stat().st_size > 10_000
-        # a bad request shows the service's reason
-        page.fill("#mail-form [name='px']", "4")
-        page.fill("#mail-form [name='py']", "3")
-        page.click("#mail-form button")
-        page.wait_for_selector("#form-msg[data-kind='error']", timeout=10_000)
-        assert "pickup: cell [4, 3, 0] is on an obstacle" in page.locator("#form-msg").inner_text()
-        assert errors == []
+        page.wait_for_function("document.querySelectorAll('#map path.drone').length === 3", timeout=10_000)
+        assert page.locator("#token-panel").is_hidden()
+        page.screenshot(path=str(screenshots / "after-restart.png"))
+        # The old token's 401s failed, and the loads while the service was down (no response at all).
+        refused = frozenset((401, path) for path in ("/v1/events", "/v1/workspace", "/v1/fleet", "/v1/stats"))
+        watched.check(served.url, refused)
         page.close()
     finally:
-        assert service.stop() == 0
+        served.stop()

@@ -60,9 +60,10 @@ def test_health_readiness_openapi_and_dashboard(settings: ApiSettings, workspace
             assert post["security"] == [{"bearer": []}] and "422" in post["responses"]
             assert doc["components"]["schemas"]["MailCreate"]["additionalProperties"] is False
             page = await h.client.get("/")
-            assert page.status_code == 200 and "<svg id=\"map\"" in page.text
+            assert page.status_code == 200 and "<div id=\"map\"" in page.text
             assert "http" not in page.text.replace("http://www.w3.org", "")  # nothing from a CDN
-            for name in ("app.js", "style.css"):
+            for name in ("app.js", "map.js", "panels.js", "charts.js", "style.css", "favicon.svg",
+                         "vendor/leaflet/leaflet.js", "vendor/chartjs/chart.umd.min.js"):
                 assert (await h.client.get(f"/static/{name}")).status_code == 200
         assert not h.service.ready  # after shutdown
 
