@@ -1,6 +1,7 @@
 // drona-gcs dashboard: the connection (token, live events, readiness) and the page's state.
 // Plain JS on vendored Leaflet and Chart.js; nothing is fetched from outside the service.
-// map.js draws the map, panels.js the lists, charts.js the charts; this file runs them.
+// map.js draws the map, panels.js the lists, commands.js the fleet commands, charts.js the charts;
+// this file runs them.
 // Live updates come from /v1/events (server-sent events); EventSource cannot send headers,
 // so the token goes as ?access_token= there only.
 "use strict";
@@ -142,6 +143,7 @@ async function resync() {
     state.log = log.items;
     render();
     D.charts.refresh();
+    D.commands.refresh();
   } catch (err) {
     if (err.status !== 401) D.panels.notice(`could not load the fleet: ${err.message}`);
   }
@@ -209,12 +211,13 @@ function start() {
   });
   $("#token-show").addEventListener("click", () => askToken(""));
   D.panels.wire();
+  D.commands.wire();
   state.token = new URLSearchParams(location.hash.slice(1)).get("token") || localStorage.getItem("drona-token") || "";
   $("#token").value = state.token;
   pollReadiness();
   setInterval(pollReadiness, 3000);
   setInterval(render, 1000); // ages and staleness move on by themselves
-  setInterval(() => { if (state.conn.sse) D.charts.refresh(); }, 10000);
+  setInterval(() => { if (state.conn.sse) { D.charts.refresh(); D.commands.refresh(); } }, 10000);
   if (state.token) connect(); else { showConn(); askToken("Enter an operator token."); }
 }
 

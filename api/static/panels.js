@@ -49,6 +49,10 @@ function droneSummary(d) {
   return `${d.id}: ${facts(d).map(([k, v]) => `${k} ${v}`).join(" · ")}`;
 }
 
+// Each drone keeps its item while the page lives, and its command buttons (commands.js): only the facts
+// are redrawn, so that a click on a button is not lost to a redraw between the press and the release.
+const items = new Map();
+
 function droneItem(d) {
   const age = D.staleFor(d);
   const head = make("div", { className: "head" }, make("i", { className: "sw" }), make("b", {}, d.id),
@@ -56,12 +60,19 @@ function droneItem(d) {
   head.firstChild.style.background = age != null ? "#a0aec0" : D.colour(d.id);
   const list = make("div", { className: "facts" });
   for (const [k, v] of facts(d).slice(1)) list.append(make("span", { data: { k } }, make("i", {}, k), ` ${v}`));
-  return make("li", { data: { id: d.id, stale: String(age != null), alarm: String(!d.health.ok) } }, head, list);
+  let li = items.get(d.id);
+  if (!li) items.set(d.id, (li = make("li", { data: { id: d.id } }, make("div", { className: "info" }))));
+  Object.assign(li.dataset, { stale: String(age != null), alarm: String(!d.health.ok),
+                              command: D.commands.inForce(d.id) || "" });
+  li.firstChild.replaceChildren(head, list);
+  if (li.lastChild === li.firstChild) li.append(D.commands.controls(d)); else D.commands.controls(d);
+  return li;
 }
 
 function drawDrones() {
   const drones = [...state.drones.values()].sort((a, b) => (a.id < b.id ? -1 : 1));
-  $("#drones").replaceChildren(...drones.map(droneItem));
+  const ul = $("#drones"), lis = drones.map(droneItem);
+  if (lis.length !== ul.children.length || lis.some((li, i) => ul.children[i] !== li)) ul.replaceChildren(...lis);
   const stale = drones.filter((d) => D.staleFor(d) != null).length;
   $("#drone-count").textContent = `${drones.length - stale} live${stale ? `, ${stale} stale` : ""}`;
 }
@@ -198,5 +209,5 @@ function draw() {
   drawLog();
 }
 
-D.panels = { draw, wire, buildFilters, notice, droneSummary, altitude };
+D.panels = { draw, wire, buildFilters, notice, droneSummary, altitude, make };
 })();

@@ -14,13 +14,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import httpx
 import pytest
 
 from api.settings import ApiSettings
 from drona_gcs.geo import GeoFrame
 from drona_gcs.workspace import Workspace
 from drona_gcs.workspace_files import workspace_from_mapping
-from tests.api.conftest import OPERATOR, WORKSPACE
+from tests.api.conftest import OPERATOR, WORKSPACE, auth
 from tests.api.served import Served
 
 GEO = {"lat": 47.397742, "lon": 8.545594, "alt_m": 488.0, "layer0_alt_m": 10.0, "layer_height_m": 5.0}
@@ -237,3 +238,96 @@ def test_the_page_fits_a_phone_and_asks_for_the_token_after_a_restart(browser: A
         page.close()
     finally:
         served.stop()
+
+
+def command_outcome(page: Any, drone: str) -> Any:
+    """The outcome line in ``drone``'s item of the drone list, once a command's answer is in."""
+    outcome = page.locator(f"#drones li[data-id='{drone}'] .outcome[data-kind='ok'], "
+                           f"#drones li[data-id='{drone}'] .outcome[data-kind='error']")
+    outcome.wait_for(timeout=10_000)
+    return outcome
+
+
+def confirm_command(page: Any, served: Served, drone: str, action: str) -> None:
+    """``action`` on ``drone`` through its button: the first click only asks "sure?", the second sends."""
+    button = page.locator(f"#drones li[data-id='{drone}'] button[data-action='{action}']")
+    told = len(served.gateway.commands)
+    button.click()
+    assert button.get_attribute("data-armed") == "true" and f"sure? {action} {drone}" in button.inner_text()
+    page.wait_for_timeout(300)
+    assert len(served.gateway.commands) == told, f"one click sent {action} to {drone}"
+    button.click()  # enabled again after a moment: a double click is not a confirmation
+    page.wait_for_function("([d, a]) => !document.querySelector(`#drones li[data-id='${d}'] "
+                           "button[data-action='${a}']`).dataset.armed", arg=[drone, action])
+
+
+def test_the_operator_pauses_resumes_recalls_and_lands_through_the_page(browser: Any, served: Served,
+                                                                        screenshots: Path) -> None:
+    """Issue 27, item 4 in the page: the fleet bar, each drone's buttons (recall and land asked twice), what
+    the drones answered or a 504 naming the one that did not, and the commands list."""
+    watched = Watched()
+    page = open_dashboard(browser, served, watched)
+    dispatcher = served.app.state.service.dispatcher
+    page.wait_for_selector("#commands[data-loaded='true']", timeout=10_000)
+    assert page.locator("#commands li[data-n]").count() == 0
+    # Pause, then resume the fleet: the dispatcher stops handing out mail, every drone answers, the bar says so.
+    page.click("#fleet-pause")
+    page.wait_for_selector("#fleet-state[data-state='paused']", timeout=10_000)
+    assert served.gateway.commands == [(None, "pause", "ops")] and served.call(lambda: dispatcher.paused)
+    assert page.locator("#fleet-msg").get_attribute("data-kind") == "ok"
+    assert "pause: d1, d2, d3 acknowledged" in page.locator("#fleet-msg").inner_text()
+    page.wait_for_selector("#commands li[data-n='1'][data-action='pause']", timeout=10_000)
+    page.screenshot(path=str(screenshots / "paused.png"))
+    page.click("#fleet-resume")
+    page.wait_for_selector("#fleet-state[data-state='running']", timeout=10_000)
+    assert served.gateway.commands[-1] == (None, "resume", "ops") and not served.call(lambda: dispatcher.paused)
+    # Recall d1 and land d2, each confirmed: the drones are held and answer, the page shows it in their items.
+    land_d2 = page.locator("#drones li[data-id='d2'] button[data-action='land']")
+    land_d2.click()  # a slip, a double click as a hand makes one: it only asks (arming another gives it up)
+    page.wait_for_timeout(150)
+    land_d2.click(force=True)  # not waiting until the button takes clicks again
+    page.wait_for_timeout(300)
+    assert len(served.gateway.commands) == 2, f"a double click sent {served.gateway.commands[2:]}"
+    assert land_d2.get_attribute("data-armed") == "true"
+    confirm_command(page, served, "d1", "recall")
+    assert "recall: d1 acknowledged" in command_outcome(page, "d1").inner_text()
+    confirm_command(page, served, "d2", "land")
+    assert "land: d2 acknowledged" in command_outcome(page, "d2").inner_text()
+    assert served.gateway.commands[2:] == [("d1", "recall", "ops"), ("d2", "land", "ops")]
+    assert served.gateway.commanded == {"d1": "recall", "d2": "land"}
+    assert served.call(lambda: set(dispatcher.held)) == {"d1", "d2"}
+    page.wait_for_selector("#drones li[data-id='d1'][data-command='recall']", timeout=10_000)
+    page.wait_for_selector("#drones li[data-id='d2'][data-command='land']", timeout=10_000)
+    # Resume d1 (no question asked): it takes mail again; d2 stays landed.
+    page.click("#drones li[data-id='d1'] button[data-action='resume']")
+    page.wait_for_selector("#drones li[data-id='d1'][data-command=''] .outcome >> text=resume: d1 acknowledged",
+                           timeout=10_000)
+    assert served.gateway.commanded == {"d2": "land"} and served.call(lambda: set(dispatcher.held)) == {"d2"}
+    # A drone that does not answer: a 504, shown as an error naming it, and recorded with no answer.
+    served.call(served.gateway.silent.add, "d3")
+    confirm_command(page, served, "d3", "recall")
+    outcome = command_outcome(page, "d3")
+    assert outcome.get_attribute("data-kind") == "error"
+    assert "drone d3 did not answer 'recall'" in outcome.inner_text()
+    # The audit trail, newest first, as the service keeps it and as the page lists it.
+    trail = httpx.get(served.url + "/v1/fleet/commands", headers=auth()).json()
+    assert [(c["action"], c["drone"], c["by"]) for c in trail] == [
+        ("recall", "d3", "ops"), ("resume", "d1", "ops"), ("land", "d2", "ops"), ("recall", "d1", "ops"),
+        ("resume", None, "ops"), ("pause", None, "ops")]
+    assert trail[0]["acks"] == [] and trail[2]["acks"] == [{"drone": "d2", "accepted": True, "reason": ""}]
+    page.wait_for_selector("#commands li[data-n='6']", timeout=10_000)
+    rows = page.locator("#commands li[data-n]")
+    assert [rows.nth(i).get_attribute("data-action") for i in range(rows.count())] == [
+        "recall", "resume", "land", "recall", "resume", "pause"]
+    assert re.search(r"\d\d:\d\d:\d\d ops recall d3 no answer", rows.nth(0).inner_text())
+    assert re.search(r"ops land d2 d2 acknowledged", rows.nth(2).inner_text())
+    assert re.search(r"ops pause fleet d1, d2, d3 acknowledged", rows.nth(5).inner_text())
+    page.locator("#drones li[data-id='d3']").scroll_into_view_if_needed()
+    page.screenshot(path=str(screenshots / "commands.png"), full_page=True)
+    # At phone width the controls fit, with no horizontal scroll.
+    page.set_viewport_size({"width": 390, "height": 844})
+    page.wait_for_timeout(300)
+    assert page.evaluate(WIDER_THAN_THE_PAGE) == [], "wider than the phone"
+    page.screenshot(path=str(screenshots / "commands-phone.png"), full_page=True)
+    watched.check(served.url, frozenset({(504, "/v1/fleet/drones/d3/recall")}))
+    page.close()
