@@ -103,14 +103,16 @@ async def run_bench(agents: int, processes: int, seconds: float, steady_after: f
     workspace = load_workspace(ws_file)
     names = list(workspace.drones)[:agents]
     tls_dir = workdir / "tls" if secure else None
-    if tls_dir is not None:
-        make_certs(tls_dir, [*workspace.drones, SERVICE])
-    security = ["--tls-dir", str(tls_dir)] if tls_dir else ["--insecure", *(["--shared-session"] * shared_session)]
+    share = -(-agents // processes)
+    if tls_dir is not None:  # a host certificate for each process's session
+        hosts = {f"host-{names[first]}": names[first:first + share] for first in range(0, agents, share)}
+        make_certs(tls_dir, [*workspace.drones, SERVICE], hosts=hosts if shared_session else None)
+    security = [*(["--tls-dir", str(tls_dir)] if tls_dir else ["--insecure"]),
+                *(["--shared-session"] * shared_session)]
     base, port = free_udp_base(agents), free_port_block(agents, socket.SOCK_STREAM)
     fleet = f"bench-{port}"
     children = [_spawn(["sim-vehicle", "--workspace", str(ws_file), "--count", str(agents), "--base-port",
                         str(base), "--speedup", str(VEHICLE_SPEEDUP), "--ready-after", "0.5"])]
-    share = -(-agents // processes)
     for first in range(0, agents, share):
         count = min(share, agents - first)
         # Agent i listens on port + i and connects to agent 0's port; gossip meshes the rest.
@@ -355,7 +357,7 @@ def run(args: argparse.Namespace) -> int:
         print("drona bench coordination: --agents must be >= 2 and --seconds > 0", file=sys.stderr)
         return 2
     processes = max(1, min(args.processes or default_processes(), agents))
-    shared = not args.session_per_drone and args.insecure
+    shared = not args.session_per_drone
     if not args.json:
         links = "plain TCP" if args.insecure else "mutual TLS, access control"
         print(f"drona bench coordination: {agents} agents (a Zenoh session per "

@@ -40,13 +40,14 @@ def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
 #: Every test's fleet runs as `drona demo` and deploy/ do: mutual TLS and the fleet's access control, with
 #: certificates for these names, made once per test session (a test of --insecure says so itself).
 CERT_NAMES = [*(f"d{i}" for i in range(257)), SERVICE, ROUTER]
+SIM_HOST = "sim-host"  #: a host certificate that flies every drone above in one session (--shared-session)
 
 
 @pytest.fixture(scope="session", autouse=True)
 def fleet_certificates(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     """The fleet's CA and certificates, in ``DRONA_TLS_DIR`` for every process the tests start."""
     tls_dir = tmp_path_factory.mktemp("fleet-tls")
-    make_certs(tls_dir, CERT_NAMES)
+    make_certs(tls_dir, CERT_NAMES, hosts={SIM_HOST: CERT_NAMES[:-2]})
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("DRONA_TLS_DIR", str(tls_dir))
         patch.delenv("DRONA_INSECURE", raising=False)

@@ -31,7 +31,7 @@ from drona_gcs.workspace import Workspace
 from fleet.agent.drone import DroneAgent
 from fleet.sim.ports import free_port
 from fleet.transport.gateway import ZenohGateway
-from fleet.transport.identity import SERVICE, access_control, make_certs
+from fleet.transport.identity import SERVICE, IdentityError, access_control, identity_for, make_certs
 from fleet.transport.keys import FleetKeys
 from fleet.transport.node import ZenohNode, ZenohSettings
 from fleet.transport.wire import MailStatus, answers, encode
@@ -270,3 +270,21 @@ def test_the_service_takes_a_mail_status_only_from_the_drone_on_whose_key_it_cam
     assert heard == []
     gateway._on_report(KEYS.status("d1", "m1"), encode("d1", 1.0, report))
     assert [(r.mail_id, r.drone, r.status) for r in heard] == [("m1", "d1", "delivered")]
+
+
+# ------------------------------------------------------------------ hosts: several drones in one session
+def test_a_host_speaks_for_its_drones_and_no_other(tmp_path: Path) -> None:
+    """A process flying d2 and d3 in one session (--shared-session) presents its host's certificate: it
+    may write both drones' keys, and still not d1's."""
+    tls = tmp_path / "tls"
+    make_certs(tls, DRONES, hosts={"pair": ["d2", "d3"]})
+    assert identity_for(tls, ["d2", "d3"]) == "pair" and identity_for(tls, ["d2"]) == "d2"
+    with pytest.raises(IdentityError, match="no host certificate"):
+        identity_for(tls, ["d1", "d2"])
+    endpoint, inbox = _endpoint(), Inbox()
+    with session("d1", listen=endpoint, tls_dir=tls) as d1, session("pair", connect=endpoint, tls_dir=tls) as pair:
+        d1.subscribe(f"{KEYS.root}/**", inbox)
+        assert _until(lambda: pair.put(KEYS.plan("d2"), b"mine"), inbox, KEYS.plan("d2"))
+        pair.put(KEYS.plan("d1"), b"forged")
+        pair.put(KEYS.plan("d3"), b"mine too")
+        assert inbox.wait_for(KEYS.plan("d3")) and KEYS.plan("d1") not in inbox.keys

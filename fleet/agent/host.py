@@ -39,6 +39,7 @@ from fleet.agent.drone import BROADCAST, DroneAgent
 from fleet.agent.settings import AgentSettings
 from fleet.clock import cancel_all, periodic
 from fleet.executor import SetpointFleet, SetpointLoop, StepReport
+from fleet.transport.identity import identity_for
 from fleet.transport.keys import FleetKeys, check_name
 from fleet.transport.node import ZenohNode, ZenohSettings, agent_endpoint
 from fleet.vehicle.link import REOPEN_S, VehicleLink
@@ -104,7 +105,8 @@ def zenoh_settings(settings: AgentSettings, workspace: Workspace, names: Sequenc
         connect = tuple(agent_endpoint(i) for i, drone in enumerate(drones) if drone not in names)
     plain = ZenohSettings(listen=listen, connect=connect, config_file=settings.zenoh_config, lease_s=settings.lease_s,
                           max_frames=len(workspace.drones))
-    return plain.secured(settings.tls_dir, names[0], FleetKeys(settings.fleet), list(workspace.drones))
+    name = identity_for(settings.tls_dir, names) if settings.tls_dir is not None else names[0]
+    return plain.secured(settings.tls_dir, name, FleetKeys(settings.fleet), list(workspace.drones))
 
 
 def _shift_port(endpoint: str, offset: int) -> str:

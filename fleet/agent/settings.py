@@ -102,8 +102,6 @@ class AgentSettings(BaseSettings):
             check_security(self.tls_dir, self.insecure)
         except IdentityError as exc:
             raise ValueError(str(exc)) from exc
-        if self.tls_dir is not None and self.shared_session and self.count > 1:
-            raise ValueError("--shared-session with --tls-dir: each drone needs a session of its own identity")
 
     def signing_keys(self, drones: Sequence[str]) -> dict[str, bytes]:
         """Each of ``drones``' MAVLink 2 signing key; {} when signing is off. SigningKeyError if one is

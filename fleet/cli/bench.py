@@ -87,11 +87,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--processes", type=int,
                        help="agent processes the agents are spread over (default: one per CPU core available)")
     group.add_argument("--session-per-drone", action="store_true",
-                       help="with --insecure: each agent with its own Zenoh session, as on a real fleet (default: "
-                            "the agents of a process share one, `drona agent --shared-session`)")
+                       help="each agent with its own Zenoh session, as on a real fleet (default: the agents of a "
+                            "process share one, `drona agent --shared-session`, under a host certificate)")
     group.add_argument("--insecure", action="store_true",
                        help="plain TCP (default: mutual TLS and the fleet's access control, with certificates made "
-                            "for the run; then each agent has a session of its own identity)")
+                            "for the run)")
     from api import bench as api_bench  # its own group: --rate, --connections, --sim-drones, --url, --token
 
     api_bench.add_arguments(parser)

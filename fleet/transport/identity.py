@@ -9,7 +9,9 @@ keys (``proto/<to>/dX``, ``answers/dX``, ``plan/dX``, ``state/dX``, ``held/dX``,
 ``mail/status/dX/<mail>``), declares only the liveliness token ``alive/dX``, serves only its
 own queryables; only the service may ask (assign, cancel mail). Everything else is denied.
 A router relays what its clients may say, so what comes from a router is taken as its
-clients': the router enforces the same rules at its ingress.
+clients': the router enforces the same rules at its ingress. A *host* (a process flying several
+drones in one session, ``--shared-session``: a simulation, or a ground computer) has a certificate
+of its own, and ``hosts.json`` beside the certificates says which drones it speaks for.
 
 The CA's key signs; keep it off the drones (``drona certs`` makes everything in one
 directory: copy ``ca.pem`` and a node's own folder to each host).
@@ -19,7 +21,8 @@ from __future__ import annotations
 
 import datetime
 import ipaddress
-from collections.abc import Sequence
+import json
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,7 +37,7 @@ from fleet.transport.keys import FleetKeys, check_name
 
 SERVICE = "service"  #: the service's identity: the only one that may assign or cancel mail
 ROUTER = "router"  #: a Zenoh router's identity: relays its clients' messages
-CA_FILE, CA_KEY_FILE = "ca.pem", "ca-key.pem"
+CA_FILE, CA_KEY_FILE, HOSTS_FILE = "ca.pem", "ca-key.pem", "hosts.json"
 DAYS = 825
 
 #: Every kind of message Zenoh's access control knows.
@@ -93,9 +96,12 @@ def check_security(tls_dir: Path | None, insecure: bool) -> Path | None:
     return tls_dir
 
 
-def access_control(keys: FleetKeys, drones: Sequence[str]) -> dict[str, Any]:
-    """Zenoh's ``access_control``: each identity may write only its own keys (see the module's docstring)."""
-    root = keys.root
+def access_control(keys: FleetKeys, drones: Sequence[str],
+                   hosts: Mapping[str, Sequence[str]] | None = None) -> dict[str, Any]:
+    """Zenoh's ``access_control``: each identity may write only its own keys (see the module's docstring);
+    a host (``hosts``: name -> drones) those of the drones it flies, in one session."""
+    root, hosts = keys.root, {h: [d for d in ds if d in drones] for h, ds in (hosts or {}).items()}
+    fleet = [*drones, *hosts]
     rules: list[dict[str, Any]] = [
         _rule("listen", ["ingress"], _LISTENING, [f"{root}/**"]),
         _rule("ask-drones", ["ingress"], ["query"], [keys.clock(), keys.held(), keys.state()]),
@@ -103,17 +109,18 @@ def access_control(keys: FleetKeys, drones: Sequence[str]) -> dict[str, Any]:
         _rule("relay", ["ingress"], ALL_MESSAGES, [f"{root}/**"]),
         _rule("tell", ["egress"], ALL_MESSAGES, [f"{root}/**"]),
     ]
-    subjects = [{"id": name, "cert_common_names": [name]} for name in [*drones, SERVICE, ROUTER]]
+    subjects = [{"id": name, "cert_common_names": [name]} for name in [*fleet, SERVICE, ROUTER]]
     policies: list[dict[str, Any]] = [
-        {"id": "everyone", "rules": ["listen", "tell"], "subjects": [*drones, SERVICE, ROUTER]},
-        {"id": "drones", "rules": ["ask-drones"], "subjects": list(drones)},
+        {"id": "everyone", "rules": ["listen", "tell"], "subjects": [*fleet, SERVICE, ROUTER]},
+        {"id": "drones", "rules": ["ask-drones"], "subjects": fleet},
         {"id": "service", "rules": ["ask-all"], "subjects": [SERVICE]},
         {"id": "router", "rules": ["relay"], "subjects": [ROUTER]},
     ]
     for drone in drones:
         rules += _own_keys(keys, check_name("drone", drone))
+        speakers = [drone, *(host for host, flown in hosts.items() if drone in flown)]
         policies.append({"id": f"own-{drone}", "rules": [f"{drone}-{kind}" for kind in ("puts", "token", "serves")],
-                         "subjects": [drone]})
+                         "subjects": speakers})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
 
@@ -134,11 +141,47 @@ def _rule(rule_id: str, flows: Sequence[str], messages: Sequence[str], key_exprs
 
 
 # ------------------------------------------------------------------ certificates
-def make_certs(out: Path, names: Sequence[str], sans: Sequence[str] = (), days: int = DAYS) -> list[Path]:
+def read_hosts(tls_dir: Path) -> dict[str, list[str]]:
+    """The hosts of the fleet (name -> the drones each flies in one session), from ``hosts.json``."""
+    path = tls_dir / HOSTS_FILE
+    if not path.is_file():
+        return {}
+    try:
+        hosts = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise IdentityError(f"{path}: {exc}") from exc
+    if not isinstance(hosts, dict) or not all(isinstance(v, list) for v in hosts.values()):
+        raise IdentityError(f"{path}: expected {{host: [drone, ...]}}")
+    return {str(h): [str(d) for d in ds] for h, ds in hosts.items()}
+
+
+def identity_for(tls_dir: Path, drones: Sequence[str]) -> str:
+    """The identity a session flying ``drones`` presents: the drone's own, or the smallest host that flies
+    them all (``--shared-session``)."""
+    if len(drones) == 1:
+        return drones[0]
+    covering = sorted((len(ds), h) for h, ds in read_hosts(tls_dir).items() if set(drones) <= set(ds))
+    if not covering:
+        raise IdentityError(f"no host certificate in {tls_dir} speaks for {', '.join(drones)} in one session: "
+                            f"make one with `drona certs {tls_dir} --host NAME={','.join(drones)}`")
+    return covering[0][1]
+
+
+def make_certs(out: Path, names: Sequence[str], sans: Sequence[str] = (), days: int = DAYS,
+               hosts: Mapping[str, Sequence[str]] | None = None) -> list[Path]:
     """The fleet's CA (made once in ``out``, reused after) and a certificate per name, each good for both ends
-    of a link; the certificates made. ``sans``: more names and addresses (``DNS:x``, ``IP:a.b.c.d``) for all."""
+    of a link; the certificates made. ``sans``: more names and addresses (``DNS:x``, ``IP:a.b.c.d``) for all.
+    ``hosts``: name -> drones, a certificate each for a process flying those drones in one session (recorded
+    in ``hosts.json``, which every node reads for its access control)."""
     extra = [_san(entry) for entry in sans]
     out.mkdir(parents=True, exist_ok=True)
+    if hosts:
+        clash = set(hosts) & {*names, SERVICE, ROUTER}
+        if clash:
+            raise IdentityError(f"a host may not be called as a drone or service is: {', '.join(sorted(clash))}")
+        known = read_hosts(out) | {h: list(ds) for h, ds in hosts.items()}
+        _write(out / HOSTS_FILE, json.dumps(known, indent=1, sort_keys=True).encode())
+        names = [*names, *hosts]
     ca_cert, ca_key = _ca(out, days)
     made = []
     for name in names:

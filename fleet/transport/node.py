@@ -46,7 +46,7 @@ import zenoh
 
 from drona_gcs.errors import DronaError
 from fleet.logs import Throttled
-from fleet.transport.identity import Identity, access_control
+from fleet.transport.identity import Identity, access_control, read_hosts
 from fleet.transport.keys import FleetKeys
 
 log = logging.getLogger(__name__)
@@ -116,7 +116,7 @@ class ZenohSettings:
         Unchanged without ``tls_dir`` (a plain-TCP fleet, ``--insecure``)."""
         if tls_dir is None:
             return self
-        access = access_control(keys, drones) if drones is not None else None
+        access = access_control(keys, drones, read_hosts(tls_dir)) if drones is not None else None
         return replace(self, identity=Identity.of(tls_dir, name), access=access)
 
 

@@ -77,9 +77,9 @@ class FleetProcesses:
         self.ports = {d: base + i for i, d in enumerate(self.drones)}
 
     @property
-    def tls_dir(self) -> Path | None:
-        """The fleet's certificates; None for a hosted fleet: a shared session has no one drone's identity."""
-        return None if self.hosted else fleet_tls_dir()
+    def tls_dir(self) -> Path:
+        """The fleet's certificates (a hosted fleet's session presents the test session's host certificate)."""
+        return fleet_tls_dir()
 
     def endpoint(self, drone: str) -> str:
         return f"tcp/127.0.0.1:{self.ports[drone]}"
@@ -107,7 +107,7 @@ class FleetProcesses:
         return [*DRONA, "agent", "--workspace", str(self.workspace), "--drone", first,
                 "--count", str(len(self.drones)), "--shared-session", "--vehicle-base-port", str(self.vehicle_base),
                 "--fleet", self.fleet, "--listen", self.endpoint(first), "--record", str(self.record("host")),
-                "--lead-steps", str(LEAD_STEPS), "--insecure", *self.agent_options]
+                "--lead-steps", str(LEAD_STEPS), *self.agent_options]
 
     def agent_command(self, drone: str, index: int) -> list[str]:
         command = [*DRONA, "agent", "--workspace", str(self.workspace), "--drone", drone,
@@ -129,8 +129,6 @@ class FleetProcesses:
 
     def _spawn(self, name: str, command: list[str]) -> subprocess.Popen[bytes]:
         env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONFAULTHANDLER": "1"}
-        if self.tls_dir is None:
-            env.pop("DRONA_TLS_DIR", None)
         with (self.tmp / f"{name}.log").open("ab") as log:  # the child keeps its own handle
             return subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env)
 
