@@ -60,6 +60,17 @@ class FleetCommands:
         n = await self.store.write(lambda conn: _insert(conn, at, by, action, drone, acks))
         return CommandRecord(n, at, by, action, drone, acks)
 
+    def restore(self) -> None:
+        """After a restart: the fleet paused, and the drones held, as the recorded commands left them."""
+        for action, drone in self.store.reader.execute("SELECT action, drone FROM command ORDER BY n"):
+            if action == Action.PAUSE.value:
+                self.dispatcher.paused = True
+            elif action == Action.RESUME.value and drone is None:
+                self.dispatcher.paused = False
+                self.dispatcher.held.clear()
+            elif drone is not None:
+                (self.dispatcher.held.discard if action == Action.RESUME.value else self.dispatcher.held.add)(drone)
+
     def history(self, limit: int) -> list[CommandRecord]:
         """The newest ``limit`` commands, newest first."""
         rows = self.store.reader.execute(

@@ -73,6 +73,7 @@ def create_app(settings: ApiSettings, gateway: FleetGateway, workspace: Workspac
         gateway.listen(watch)
         dispatcher.resume()
         commands = FleetCommands(store, dispatcher, gateway)
+        commands.restore()
         service = Service(settings, ws, WorkspacePublic.of(ws, _base_map(settings)), tokens, checker, store, bus,
                           gateway, dispatcher, commands, watch=watch)
         app.state.service = service

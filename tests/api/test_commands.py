@@ -69,3 +69,19 @@ def test_commands_are_recorded_with_who_asked_and_checked(settings: ApiSettings,
             assert h.service.dispatcher.held == {"d2", "d3"}
 
     run(body())
+
+
+def test_a_restarted_service_keeps_the_fleet_paused_and_the_drones_held(
+        settings: ApiSettings, workspace: Workspace) -> None:
+    async def body() -> None:
+        async with running(settings, workspace) as h:
+            for path in ("/v1/fleet/pause", "/v1/fleet/drones/d2/land", "/v1/fleet/drones/d3/recall",
+                         "/v1/fleet/drones/d3/resume"):
+                assert (await h.client.post(path, headers=auth())).status_code == 200
+        async with running(settings, workspace) as h:  # the same database
+            assert h.service.dispatcher.paused and h.service.dispatcher.held == {"d2"}
+            assert (await h.client.post("/v1/fleet/resume", headers=auth())).status_code == 200
+        async with running(settings, workspace) as h:
+            assert not h.service.dispatcher.paused and h.service.dispatcher.held == set()
+
+    run(body())
