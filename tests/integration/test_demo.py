@@ -59,19 +59,19 @@ def test_the_demo_fleet_delivers_mail_shown_live_on_the_dashboard(tmp_path: Path
         page.fill("#token", TOKEN)
         page.click("#token-form button")
         page.wait_for_selector("#conn[data-state='live']", timeout=15_000)
-        page.wait_for_function("document.querySelectorAll('#map g.drone').length === 4", timeout=30_000)
+        page.wait_for_function("document.querySelectorAll('#map path.drone').length === 4", timeout=30_000)
         mails = []
         for pickup, dropoff, priority in (([2, 2, 0], [13, 9, 0], 5), ([8, 10, 0], [3, 6, 0], 9)):
             answer = httpx.post(f"{url}/v1/mail", headers=headers, timeout=10,
                                 json={"pickup": pickup, "dropoff": dropoff, "priority": priority})
             assert answer.status_code == 201, answer.text
             mails.append(answer.json()["id"])
-        first = f"#map .marker.pickup[data-id='{mails[0]}']"
-        page.wait_for_selector(f"{first}[data-status='picked_up']", timeout=90_000)
-        page.wait_for_selector("#map polyline.traj", timeout=10_000)  # a drone flying its plan
+        first = f"#map path.marker.pickup[data-id='{mails[0]}']"
+        page.wait_for_selector(f"{first}[data-status='picked_up']", state="attached", timeout=90_000)
+        page.wait_for_selector("#map path.traj", state="attached", timeout=10_000)  # a drone flying its plan
         page.screenshot(path=str(tmp_path / "flying.png"))
         for mail in mails:
-            page.wait_for_selector(f"#mail tbody tr[data-id='{mail}'][data-status='delivered']", timeout=120_000)
+            page.wait_for_selector(f"#mail tr[data-id='{mail}'][data-status='delivered']", timeout=120_000)
         for mail in mails:
             body = httpx.get(f"{url}/v1/mail/{mail}", headers=headers, timeout=10).json()
             assert body["status"] == "delivered"
