@@ -164,9 +164,8 @@ async def _serve(app: Any, host: str, port: int, log_level: str) -> int:
     bound = sock.getsockname()[1]
     from api.main import MAX_HEAD_BYTES
 
-    # h11, not httptools: httptools buffers a request head of any length (a 10 MB one was parsed); h11
-    # answers 400 and closes once an incomplete head outgrows the limit (a head that came whole: api.headlimit).
-    # `drona bench api --quick`, 1,000/s: p50 0.5-0.7 -> 0.75-1.0 ms, p99 1.9-2.5 -> 2.3-3.4 ms.
+    # h11, not httptools: httptools buffers a request head of any length; h11 closes once an incomplete head
+    # outgrows the limit (a head that came whole: api.headlimit).
     config = uvicorn.Config(app, http="h11", h11_max_incomplete_event_size=MAX_HEAD_BYTES, log_level=log_level,
                             timeout_graceful_shutdown=1, access_log=False)
     server = _AnnouncingServer(config, f"http://{host}:{bound}", lambda: _end_streams(app))
