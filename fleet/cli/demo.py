@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import functools
 import os
 import secrets
 import shutil
@@ -28,6 +29,7 @@ from drona_gcs.errors import DronaError
 from drona_gcs.geo import check_speed
 from drona_gcs.workspace import Workspace
 from drona_gcs.workspace_files import load_workspace
+from fleet.cli.lifeline import LEFTOVERS
 from fleet.cli.security import add_security_arguments, tls_dir_from
 from fleet.transport.identity import SERVICE, make_certs
 from fleet.transport.node import AGENT_BASE_PORT
@@ -153,7 +155,8 @@ async def _demo(args: argparse.Namespace, workspace: Path, drones: int, token: s
 async def _fly(args: argparse.Namespace, workspace: Path, drones: int, token: str, state: Path,
                lifeline: int, stop: asyncio.Event, security: list[str]) -> int:
     ws = ["--workspace", str(workspace)]
-    vehicles = await _start(lifeline, "sim-vehicle", *ws, "--count", str(drones), "--speedup", str(args.speedup),
+    start = functools.partial(_start, (lifeline, state))
+    vehicles = await start("sim-vehicle", *ws, "--count", str(drones), "--speedup", str(args.speedup),
                             "--autopilot", args.autopilot, "--base-port", str(args.vehicle_port),
                             "--ready-after", str(args.ready_after))
     zenoh = f"tcp/127.0.0.1:{args.zenoh_port}"
@@ -161,8 +164,8 @@ async def _fly(args: argparse.Namespace, workspace: Path, drones: int, token: st
                   "--listen", zenoh, "--connect", zenoh, *security]
     if args.record:
         agent_args += ["--record", str(args.record)]
-    agents = await _start(lifeline, "agent", *agent_args, stderr=asyncio.subprocess.PIPE)
-    service = await _start(lifeline, "serve", *ws, "--demo", "--token", token, "--db", str(args.db),
+    agents = await start("agent", *agent_args, stderr=asyncio.subprocess.PIPE)
+    service = await start("serve", *ws, "--demo", "--token", token, "--db", str(args.db),
                            "--host", args.host, "--port", str(args.port), "--connect", zenoh, *security,
                            stdout=asyncio.subprocess.PIPE)
     children = {"service": service, "agents": agents, "vehicles": vehicles}
@@ -189,14 +192,17 @@ async def _fly(args: argparse.Namespace, workspace: Path, drones: int, token: st
     return 1 if failed and not stop.is_set() else 0
 
 
-async def _start(lifeline: int, command: str, *arguments: str, stdout: int | None = None,
+async def _start(lifeline: tuple[int, Path], command: str, *arguments: str, stdout: int | None = None,
                  stderr: int | None = None) -> asyncio.subprocess.Process:
-    """``drona command arguments...``, dying with the demo (``lifeline``: the pipe's read end)."""
+    """``drona command arguments...``, dying with the demo (``lifeline``: the pipe's read end, and the
+    demo's state folder, which the children remove should the demo die without doing so)."""
+    fd, state = lifeline
     # Own session: a Ctrl-C in the terminal reaches the demo only, which stops the children in order;
     # and each child leads its own process group, which its lifeline kills whole.
-    return await asyncio.create_subprocess_exec(sys.executable, "-m", "fleet.cli.lifeline", str(lifeline), command,
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", LEFTOVERS: str(state)}
+    return await asyncio.create_subprocess_exec(sys.executable, "-m", "fleet.cli.lifeline", str(fd), command,
                                                 *arguments, stdout=stdout, stderr=stderr, start_new_session=True,
-                                                pass_fds=(lifeline,), env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                                                pass_fds=(fd,), env=env)
 
 
 async def _wait_for(stream: asyncio.StreamReader | None, marker: str, who: str) -> str | None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import signal
 import sys
 import threading
@@ -18,17 +19,22 @@ from collections.abc import Sequence
 
 from fleet.cli import main as drona
 
+#: A folder the launcher would have removed on its way out (``drona demo``'s state): removed at EOF.
+LEFTOVERS = "DRONA_LIFELINE_LEFTOVERS"
+
 
 def watch(fd: int) -> None:
     """From now on, die (with the process group this process leads) when ``fd`` reaches EOF."""
     os.set_inheritable(fd, False)  # what this process starts need not hold the launcher's pipe
-    threading.Thread(target=_die_at_eof, args=(fd,), name="lifeline", daemon=True).start()
+    threading.Thread(target=_die_at_eof, args=(fd, os.environ.get(LEFTOVERS)), name="lifeline", daemon=True).start()
 
 
-def _die_at_eof(fd: int) -> None:
+def _die_at_eof(fd: int, leftovers: str | None) -> None:
     with contextlib.suppress(OSError):
         while os.read(fd, 64):  # the launcher writes nothing; EOF is its end
             pass
+    if leftovers:  # every child may try: the first removes it
+        shutil.rmtree(leftovers, ignore_errors=True)
     # SIGKILL, not a graceful stop: the launcher that stops the pieces in order (agents land
     # before their vehicles stop) is gone, the pieces alone cannot, and the service's store
     # is built to lose nothing acknowledged on kill -9. Its ports must be free at once.

@@ -100,14 +100,17 @@ def load_workspace_of_demo(tmp_path: Path) -> Any:
 def test_kill_9_of_the_demo_takes_its_children_and_their_ports_along(tmp_path: Path) -> None:
     """Issue 26: the demo is one unit. Its vehicles, agents and service die with it, so a demo
     restarted on the same ports starts (rather than failing with "Address already in use")."""
-    ports = demo_ports(2)
-    demo, url = start_demo(tmp_path, drones=2, ports=ports)
+    ports, scratch = demo_ports(2), tmp_path / "tmp"
+    scratch.mkdir()
+    demo, url = start_demo(tmp_path, drones=2, ports=ports, env={"TMPDIR": str(scratch)})  # its state folder there
     children = child_pids(demo.pid)
     try:
         assert len(children) == 3, children  # vehicles, agents, service
+        assert len(list(scratch.iterdir())) == 1
         demo.kill()
         demo.wait(10)
         assert wait_gone(children, timeout=15.0) == [], "children outlived the demo's kill -9"
+        assert list(scratch.iterdir()) == [], "the demo's state folder outlived it"
         again, url_again = start_demo(tmp_path, drones=2, ports=ports)
         again.send_signal(signal.SIGINT)
         output, _ = again.communicate(timeout=150)
