@@ -16,7 +16,10 @@ import sqlite3
 import time
 from dataclasses import dataclass
 
+from pydantic import TypeAdapter
+
 from api.dispatcher import Dispatcher
+from api.events import EventBus
 from api.gateway import CommandAck, FleetGateway
 from api.store import Store
 
@@ -40,9 +43,12 @@ class CommandRecord:
     acks: tuple[CommandAck, ...]
 
 
+_RECORD_JSON = TypeAdapter(CommandRecord)
+
+
 class FleetCommands:
-    def __init__(self, store: Store, dispatcher: Dispatcher, fleet: FleetGateway) -> None:
-        self.store, self.dispatcher, self.fleet = store, dispatcher, fleet
+    def __init__(self, store: Store, dispatcher: Dispatcher, fleet: FleetGateway, bus: EventBus) -> None:
+        self.store, self.dispatcher, self.fleet, self.bus = store, dispatcher, fleet, bus
 
     async def run(self, action: Action, drone: str | None, by: str) -> CommandRecord:
         """Stop or resume handing out mail, tell the drones, then record it all (durably)."""
@@ -58,7 +64,9 @@ class FleetCommands:
             self.dispatcher.hold(drone=drone, held=False)
         at = time.time()
         n = await self.store.write(lambda conn: _insert(conn, at, by, action, drone, acks))
-        return CommandRecord(n, at, by, action, drone, acks)
+        record = CommandRecord(n, at, by, action, drone, acks)
+        self.bus.publish("command", lambda: _RECORD_JSON.dump_json(record).decode())  # other operators' pages
+        return record
 
     def restore(self) -> None:
         """After a restart: the fleet paused, and the drones held, as the recorded commands left them."""

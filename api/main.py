@@ -72,7 +72,7 @@ def create_app(settings: ApiSettings, gateway: FleetGateway, workspace: Workspac
         _publish_watch(watch, bus)
         gateway.listen(watch)
         dispatcher.resume()
-        commands = FleetCommands(store, dispatcher, gateway)
+        commands = FleetCommands(store, dispatcher, gateway, bus)
         commands.restore()
         service = Service(settings, ws, WorkspacePublic.of(ws, _base_map(settings)), tokens, checker, store, bus,
                           gateway, dispatcher, commands, watch=watch)

@@ -3,10 +3,10 @@
 Events: ``mail`` (a mail as in ``GET /v1/mail/{id}`` without history), ``drone``
 (a drone as in ``GET /v1/fleet``), ``drone_lost`` (``{"id": ...}``), ``alarm`` (an
 alarm as in ``GET /v1/alarms``, when raised, cleared or acknowledged), ``log`` (an
-entry as in ``GET /v1/log``). The stream starts with a ``drone`` event for every
-drone known: live, or (``alive`` false) the last state of one that left. EventSource cannot set
-headers, so this route (and only this one) also takes the token as
-``?access_token=``.
+entry as in ``GET /v1/log``), ``command`` (an operator's command as in
+``GET /v1/fleet/commands``). The stream starts with a ``drone`` event for every drone known:
+live, or (``alive`` false) the last state of one that left. EventSource cannot set headers, so
+this route (and only this one) also takes the token as ``?access_token=``.
 """
 
 from __future__ import annotations

@@ -96,6 +96,7 @@ function openStream() {
   source.addEventListener("mail", (ev) => { upsertMail(JSON.parse(ev.data)); render(); });
   source.addEventListener("alarm", (ev) => { upsertAlarm(JSON.parse(ev.data)); render(); });
   source.addEventListener("log", (ev) => { state.log.unshift(JSON.parse(ev.data)); render(); });
+  source.addEventListener("command", () => D.commands.refresh()); // another operator's, at once
 }
 
 // EventSource retries by itself after a network error, but gives up for good on an HTTP error

@@ -4,6 +4,8 @@ tests/integration/test_fleet_commands.py.)"""
 
 from __future__ import annotations
 
+import json
+
 from api.settings import ApiSettings
 from drona_gcs.workspace import Workspace
 from tests.api.conftest import SUBMITTER, auth, run, running
@@ -83,5 +85,18 @@ def test_a_restarted_service_keeps_the_fleet_paused_and_the_drones_held(
             assert (await h.client.post("/v1/fleet/resume", headers=auth())).status_code == 200
         async with running(settings, workspace) as h:
             assert not h.service.dispatcher.paused and h.service.dispatcher.held == set()
+
+    run(body())
+
+
+def test_every_command_goes_out_on_the_event_stream(settings: ApiSettings, workspace: Workspace) -> None:
+    """Other operators' pages learn of a command at once (``command`` events on /v1/events)."""
+    async def body() -> None:
+        async with running(settings, workspace) as h:
+            with h.service.bus.subscribe() as sub:
+                assert (await h.client.post("/v1/fleet/drones/d1/recall", headers=auth())).status_code == 200
+                events = [sub.queue.get_nowait() for _ in range(sub.queue.qsize())]
+            commands = [json.loads(e.data) for e in events if e is not None and e.kind == "command"]
+            assert [(c["action"], c["drone"], c["by"]) for c in commands] == [("recall", "d1", "ops")]
 
     run(body())
