@@ -51,17 +51,13 @@ class FleetCommands:
         self.store, self.dispatcher, self.fleet, self.bus = store, dispatcher, fleet, bus
 
     async def run(self, action: Action, drone: str | None, by: str) -> CommandRecord:
-        """Stop or resume handing out mail, tell the drones, then record it all (durably)."""
-        if action is Action.PAUSE:
-            self.dispatcher.hold(paused=True)
-        elif action is not Action.RESUME:
-            self.dispatcher.hold(drone=drone)
+        """Stop handing out mail, tell the drones, then record it all (durably); a resume takes effect
+        once the drones heard it, so that mail handed out then is taken up."""
+        if action is not Action.RESUME:
+            self._apply(action, drone)
         acks = tuple(await self.fleet.command(drone, action.value, by))
-        if action is Action.RESUME and drone is None:  # once the drones heard it: mail handed out is taken up
-            self.dispatcher.held.clear()
-            self.dispatcher.hold(paused=False)
-        elif action is Action.RESUME:
-            self.dispatcher.hold(drone=drone, held=False)
+        if action is Action.RESUME:
+            self._apply(action, drone)
         at = time.time()
         n = await self.store.write(lambda conn: _insert(conn, at, by, action, drone, acks))
         record = CommandRecord(n, at, by, action, drone, acks)
@@ -71,13 +67,17 @@ class FleetCommands:
     def restore(self) -> None:
         """After a restart: the fleet paused, and the drones held, as the recorded commands left them."""
         for action, drone in self.store.reader.execute("SELECT action, drone FROM command ORDER BY n"):
-            if action == Action.PAUSE.value:
-                self.dispatcher.paused = True
-            elif action == Action.RESUME.value and drone is None:
-                self.dispatcher.paused = False
-                self.dispatcher.held.clear()
-            elif drone is not None:
-                (self.dispatcher.held.discard if action == Action.RESUME.value else self.dispatcher.held.add)(drone)
+            self._apply(Action(action), drone)
+
+    def _apply(self, action: Action, drone: str | None) -> None:
+        """What ``action`` means for handing out mail."""
+        if action is Action.PAUSE:
+            self.dispatcher.hold(paused=True)
+        elif action is Action.RESUME and drone is None:
+            self.dispatcher.held.clear()
+            self.dispatcher.hold(paused=False)
+        else:
+            self.dispatcher.hold(drone=drone, held=action is not Action.RESUME)
 
     def history(self, limit: int) -> list[CommandRecord]:
         """The newest ``limit`` commands, newest first."""
