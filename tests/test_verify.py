@@ -376,3 +376,21 @@ def test_mail_on_board_flies_off_a_way_only_when_asked_to(asked: bool) -> None:
     else:
         with pytest.raises(Violation, match=r"\(f\) d0 carries mail m"):
             monitors.action("d0", leave)
+
+
+def test_mail_on_board_may_answer_any_way_asked_since_its_last_plan() -> None:
+    """(f): a drone asked by two peers, that leaves the first one's way for a cell on the second's,
+    still flies off a way it was asked to leave (sweep seed 5150, scenario 327244)."""
+    ws = Workspace.build(size=(5, 3, 1))
+    request = MailRequest("m", (0, 0, 0), (4, 2, 0), 5)
+    config = WorldConfig(ws, ("d0", "d1", "d2"), ((0, 0, 0), (4, 0, 0), (4, 2, 0)), (request,), ("d0",), delta=0)
+    monitors = Monitors(config)
+    monitors.action("d0", MailPickedUp(request))
+    monitors.asked_to_leave("d0", ((0, 0, 0), (0, 1, 0), (0, 2, 0)))
+    monitors.asked_to_leave("d0", ((2, 0, 0), (1, 0, 0), (0, 0, 0)))
+    off = Trajectory(3, ((0, 0, 0), (1, 0, 0)))
+    others = {"d1": Trajectory(0, ((4, 0, 0),)), "d2": Trajectory(0, ((4, 2, 0),))}
+    monitors.action("d0", StartExecuting(Task(TaskId(3, "d0", 2), (1, 0, 0)), off, others))
+    with pytest.raises(Violation, match=r"\(f\) d0 carries mail m"):  # the ways asked end with the plan
+        monitors.action("d0", StartExecuting(Task(TaskId(6, "d0", 3), (1, 1, 0)),
+                                             Trajectory(6, ((1, 0, 0), (1, 1, 0))), others))

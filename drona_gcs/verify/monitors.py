@@ -98,7 +98,7 @@ class Monitors:
     #: (a) what each drone down was committed to before, and who has heard it came down
     before_down: dict[str, Trajectory] = field(default_factory=dict)
     told_down: frozenset[tuple[str, str]] = frozenset()
-    #: (f) the way each drone was last asked to leave, since its last plan
+    #: (f) the ways each drone was asked to leave since its last plan
     asked_to_clear: tuple[tuple[str, frozenset[Cell]], ...] = ()
 
     def __post_init__(self) -> None:
@@ -319,11 +319,12 @@ class Monitors:
     def _carried_to_its_dropoff(self, drone: str, action: StartExecuting) -> None:
         """(f), and the one exception: a peer asked it to leave a way it rested on, for a cell off it."""
         mail = self.carrying.get(drone)
-        goal, way = action.trajectory.cells[-1], dict(self.asked_to_clear).get(drone, frozenset())
+        start, goal = action.trajectory.cells[0], action.trajectory.cells[-1]
+        ways = [w for d, w in self.asked_to_clear if d == drone]
         self.asked_to_clear = tuple((d, w) for d, w in self.asked_to_clear if d != drone)
         if mail is None or goal == mail.dropoff or goal in self.config.workspace.charging_stations:
             return
-        if action.trajectory.cells[0] in way and goal not in way:
+        if any(start in way and goal not in way for way in ways):
             return
         if self._stops_short(drone, action.trajectory):
             return
@@ -346,9 +347,11 @@ class Monitors:
         return bool(rest & held)
 
     def asked_to_leave(self, drone: str, way: tuple[Cell, ...]) -> None:
-        """A peer's request asked the drones resting on ``way`` to leave it, ``drone`` among them (the
-        latest such request is the one a drone answers)."""
-        self.asked_to_clear = (*((d, w) for d, w in self.asked_to_clear if d != drone), (drone, frozenset(way)))
+        """A peer's request asked the drones resting on ``way`` to leave it, ``drone`` among them: it may
+        answer any request since its last plan."""
+        asked = (drone, frozenset(way))
+        if asked not in self.asked_to_clear:
+            self.asked_to_clear = (*self.asked_to_clear, asked)
 
 
 def same_future(a: Trajectory, b: Trajectory, since: int) -> bool:
