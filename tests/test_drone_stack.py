@@ -14,12 +14,13 @@ from collections.abc import Callable, Mapping
 
 import pytest
 
+from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.battery import BatteryModel
 from drona_gcs.stack.drone import CONFIRM_STEPS, DroneAction, DroneStack, LegNotFlown, StackConfig, yield_spot
 from drona_gcs.stack.mail import MAX_MISSES, GoTo, MailDelivered, MailPickedUp, MailRejected, MailRequest, Phase
-from drona_gcs.stack.messages import Message
-from drona_gcs.stack.protocol import Broadcast, Send, State
+from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj
+from drona_gcs.stack.protocol import Braked, Broadcast, Send, State
 from drona_gcs.workspace import Cell, Workspace
 
 WS = Workspace.build(size=(6, 6, 1), drones={"d1": (0, 0, 0)})
@@ -356,3 +357,28 @@ def test_a_drone_landed_by_the_operator_mid_flight_stops_through_a_round_and_sta
         boundary()
     assert stack.executor.cell == stop != plan.last and stack.landed
     assert stack.protocol.state is State.WAIT_FOR_TASK and not of(GoTo, actions[-40:])
+
+
+def test_a_drone_that_brakes_short_of_a_vehicle_down_decides_its_leg_anew_from_there() -> None:
+    """The plan to the pickup is cut short of a vehicle down in its way: where it holds is no pickup,
+    and the leg is flown again from there, around the vehicle down."""
+    ws = Workspace.build(size=(6, 6, 1), drones={"d1": (0, 0, 0), "d2": (5, 5, 0)})
+    stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+    stack.assign(MAIL)
+    down: Cell | None = None
+    actions: list[DroneAction] = []
+    for step in range(60):
+        out = stack.step(step, 100.0, stack.executor.cell)
+        if down is None and stack.executor.cell == (1, 0, 0):
+            down = (2, 0, 0)
+            out += stack.peer_down("d2", down)
+        asks = [a.message for a in out if isinstance(a, Broadcast) and isinstance(a.message, ReqForCurrentTraj)]
+        for ask in asks:
+            where = Trajectory.stationary(down or ws.drones["d2"], step)
+            out += stack.receive(CurrentTraj("d2", where, ask.task_id))
+        actions += out
+        assert stack.executor.cell != (2, 0, 0)
+        assert not of(MailPickedUp, out) or stack.executor.cell == MAIL.pickup
+    braked = of(Braked, actions)
+    assert len(braked) == 1 and braked[0].trajectory.last == (1, 0, 0)  # type: ignore[union-attr]
+    assert of(MailPickedUp, actions) == [MailPickedUp(MAIL)] and of(MailDelivered, actions) == [MailDelivered(MAIL)]

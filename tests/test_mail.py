@@ -22,6 +22,7 @@ from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.battery import BatteryModel, BatteryMonitor, BatteryRecharged
 from drona_gcs.stack.drone import _distance_function
 from drona_gcs.stack.mail import (
+    NO_WAY,
     Distance,
     GoTo,
     MailAction,
@@ -467,7 +468,11 @@ def test_simulated_schedules_keep_the_battery_above_the_floor_and_lose_no_mail(d
     as the drone waits on the ground); charging adds charge_per_step a step."""
     rng = random.Random(seed)
     model = BatteryModel(drain_per_step=drain)
-    distance = _distance_function(SafePlanner(WALLS))
+    ways = _distance_function(SafePlanner(WALLS))
+
+    def distance(a: Cell, b: Cell) -> int:
+        return ways(a, b, frozenset(), frozenset())
+
     chargers = WALLS.charging_stations
     mp = MailPlanner(WALLS.parking[0], chargers, WALLS.parking, distance, model)
     monitor = BatteryMonitor(low=40, recharged=95)
@@ -681,15 +686,16 @@ def test_the_budgeted_way_goes_around_drones_resting_now_where_it_can() -> None:
     budget counted the way through it, the planner found no plan within what the battery afforded,
     and the drone with mail on board tried again for good instead of charging first."""
     ring = Workspace.build(size=(5, 3, 1), obstacles=frozenset({(1, 1, 0), (2, 1, 0), (3, 1, 0)}))
-    resting: set[Cell] = set()
-    distance = _distance_function(SafePlanner(ring), resting_now=lambda: frozenset(resting))
-    assert distance(c(0, 1), c(4, 1)) == 6
-    resting.add(c(2, 0))
-    assert distance(c(0, 1), c(4, 1)) == 6  # the other side of the ring is as short
-    resting.add(c(2, 2))
-    assert distance(c(0, 1), c(4, 1)) == 6  # walled in: through them, as before
-    resting.discard(c(2, 2))
-    assert distance(c(0, 0), c(3, 0)) == 9  # around by the top, not through (2, 0)
+    ways = _distance_function(SafePlanner(ring))
+    none: frozenset[Cell] = frozenset()
+    assert ways(c(0, 1), c(4, 1), none, none) == 6
+    assert ways(c(0, 1), c(4, 1), frozenset({c(2, 0)}), none) == 6  # the other side of the ring is as short
+    both = frozenset({c(2, 0), c(2, 2)})
+    assert ways(c(0, 1), c(4, 1), both, none) == 6  # walled in by drones at rest: through them, as before
+    assert ways(c(0, 0), c(3, 0), frozenset({c(2, 0)}), none) == 9  # around by the top, not through (2, 0)
+    # A vehicle down moves for nobody: walled in, the way is through the drone at rest, never through it.
+    assert ways(c(0, 0), c(3, 0), frozenset({c(2, 0)}), frozenset({c(2, 2)})) == 3
+    assert ways(c(0, 1), c(4, 1), none, both) == 10**6
 
 
 def test_a_drone_asked_to_make_way_that_cannot_afford_the_spot_goes_to_charge() -> None:
@@ -699,3 +705,51 @@ def test_a_drone_asked_to_make_way_that_cannot_afford_the_spot_goes_to_charge() 
     mp.make_way(c(8, 8))  # 4 steps off, 16 more to the charger second nearest it: 15 are left
     leg = goto(mp.decide(0, 35.0, set()))
     assert leg.purpose is Phase.TO_CHARGER and leg.goal in (Q1, Q2)
+
+
+def walled_off(*cells: Cell) -> Distance:
+    """Manhattan distance, but no way at all joins ``cells`` to anything (vehicles down wall them off)."""
+    def distance(a: Cell, b: Cell) -> int:
+        return NO_WAY if (a in cells) != (b in cells) else manhattan(a, b)
+    return distance
+
+
+def test_mail_whose_pickup_is_walled_off_is_handed_back_at_once() -> None:
+    """Found by a crash sweep (seed 101): a vehicle down walled a drone in, and it kept mail it
+    could not reach for good."""
+    mp = MailPlanner(P1, (Q1, Q2), (P1, P2), walled_off(c(2, 2)), MODEL)
+    mp.assign(mail("far", c(2, 2), c(3, 3), priority=9))
+    mp.assign(mail("near", c(1, 5), c(2, 5), priority=1))
+    actions = mp.decide(0, 100.0, set())
+    rejected = [a for a in actions if isinstance(a, MailRejected)]
+    assert [a.request.id for a in rejected] == ["far"] and "cut off" in rejected[0].reason  # not "needs 10**6 steps"
+    assert goto(actions).goal == c(1, 5)
+
+
+def test_a_drone_walled_off_from_every_charger_hands_its_mail_back() -> None:
+    """Found by the tester (test_clean_stack_stays_live_under_the_fields_faults[4-2-5] once vehicles
+    down were walls): low, with no charger in reach, it held four mails on the ground for good."""
+    mp = MailPlanner(P1, (Q1, Q2), (P1, P2), walled_off(Q1, Q2), MODEL)
+    mp.assign(mail("a", c(1, 5), c(2, 5)))
+    mp.assign(mail("b", c(3, 5), c(4, 5)))
+    mp.battery_low()
+    actions = mp.decide(0, 38.0, set())
+    assert sorted(a.request.id for a in actions if isinstance(a, MailRejected)) == ["a", "b"]
+    assert mp.queue == []
+
+
+def test_the_reserve_counts_only_the_chargers_a_way_joins() -> None:
+    """With one charger walled off for good, the reserve is the way to the other: counting the
+    second nearest left every mail unaffordable, and the drone charged at 100% for good."""
+    mp = MailPlanner(P1, (Q1, Q2), (P1, P2), walled_off(Q2), MODEL)
+    mp.assign(mail("m", c(1, 5), c(2, 3)))
+    assert goto(mp.decide(0, 100.0, set())).goal == c(1, 5)
+
+
+def test_a_parking_cell_walled_off_does_not_keep_a_charged_drone_charging() -> None:
+    """Found by the same test: its parking cell walled off, a charged drone went to park, found no
+    way, went to charge instead (at the charger it stood on), and started again, for good."""
+    mp = MailPlanner(Q1, (Q1, Q2), (P1,), walled_off(P1), MODEL)
+    mp.tried.add(c(4, 4))  # a leg found no plan: it would park first to clear the way
+    mp.assign(mail("m", c(1, 5), c(2, 3)))
+    assert goto(mp.decide(0, 100.0, set())).goal == c(1, 5)

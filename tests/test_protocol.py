@@ -24,11 +24,14 @@ from drona_gcs.stack.messages import CurrentTraj, HybridClock, ReqForCurrentTraj
 from drona_gcs.stack.protocol import (
     TRANSITIONS,
     Action,
+    Braked,
     Broadcast,
     CoordinationProtocol,
     Event,
     Grounded,
     NewTask,
+    NextStep,
+    PeerBraked,
     PeerDown,
     PeerJoined,
     PeerLeft,
@@ -93,7 +96,7 @@ def request(task_id: TaskId, sender: str, now: int = 0) -> ReqForCurrentTraj:
 
 # =========================================================== the state table
 EVENT_TYPES: tuple[type, ...] = (NewTask, PlanCompleted, PeerLeft, PeerJoined, ReqForCurrentTraj, CurrentTraj,
-                                 VehicleLost, Relocated, Reroute, VehicleDown, PeerDown)
+                                 VehicleLost, Relocated, Reroute, VehicleDown, PeerDown, PeerBraked, NextStep)
 #: What Protocol 1 takes in each state (paper section 3.1); the rest is a protocol violation. A vehicle
 #: found again is not placed while a round is under way (its request carried where it was). Only a
 #: drone flying a plan plans its rest anew (Reroute), and that round ends when the plan does.
@@ -129,6 +132,8 @@ def sample(event_type: type) -> Event:
         Reroute: Reroute(Task(TaskId(9, "a", 2), GOAL)),
         VehicleDown: VehicleDown((1, 0, 0)),
         PeerDown: PeerDown("b", (3, 3, 0)),
+        NextStep: NextStep(),
+        PeerBraked: PeerBraked("b", Trajectory(0, (B, B))),
     }
     return samples[event_type]
 
@@ -856,7 +861,7 @@ def test_a_drone_whose_vehicle_came_down_stays_there_and_tells_every_peer() -> N
 def test_a_peer_down_on_the_rest_of_my_plan_has_me_plan_it_anew_and_stays_an_obstacle() -> None:
     proto, plan = flying_past_b()
     assert proto.handle(PeerDown("c", plan.at(5)), 2) == [Threatened("c", (plan.at(5),))]
-    assert proto.handle(PeerDown("b", (2, 4, 0)), 2) == []  # off my plan
+    assert proto.handle(PeerDown("b", (2, 4, 0)), 2) == [Threatened("b", (plan.at(5),))]  # off my plan: c's stands
     proto.handle(Reroute(Task(TaskId(6, "a", 2), GOAL)), 2)
     late_answer = CurrentTraj("c", traj(0, (0, 4), (1, 4)), TaskId(6, "a", 2))  # sent before it came down
     new = started(proto.handle(CurrentTraj("b", location_of("b"), TaskId(6, "a", 2)), 2)
@@ -874,3 +879,65 @@ def test_a_reroute_with_no_peer_left_to_ask_plans_from_the_plan_flown() -> None:
     assert proto.handle(PeerLeft("b"), 2) == [Threatened("b", ((3, 0, 0),))]
     new = started(proto.handle(Reroute(Task(TaskId(6, "a", 2), GOAL)), 2)).trajectory
     assert all(new.at(s) == plan.at(s) for s in range(0, 5)) and (3, 0, 0) not in new.suffix_from(4).cells
+
+
+# ======================================================== braking short of a cell held for good
+def test_a_vehicle_down_too_close_to_plan_around_has_me_brake_short_of_it() -> None:
+    """Found by a sweep (seed 2027): a vehicle came down two steps ahead of a drone's plan, sooner than a
+    round can plan around it, and the drone flew into it. It now stops at the cell before, and says so."""
+    proto, plan = flying_past_b()
+    actions = proto.handle(PeerDown("c", plan.at(5)), 4)
+    cut = Trajectory(plan.start_step, (*(plan.at(t) for t in range(plan.start_step, 5)), plan.at(4)))
+    assert actions == [Braked(cut, plan.at(5))]
+    assert proto.trajectory == cut and proto.state is State.EXECUTING
+    assert [a.message.trajectory for a in proto.handle(request(ID_B_LOW, "b"), 4) if isinstance(a, Send)
+            and isinstance(a.message, CurrentTraj)] == [cut]
+
+
+def test_a_round_that_ends_too_late_to_plan_around_a_vehicle_down_brakes_at_the_last_step() -> None:
+    """Found by a crash sweep (seed 5151): the round to plan around it was still waiting for an answer
+    when the plan entered the cell. At the boundary before, the drone brakes and the round ends."""
+    proto, plan = flying_past_b()
+    assert proto.handle(PeerDown("c", plan.at(5)), 2) == [Threatened("c", (plan.at(5),))]
+    proto.handle(Reroute(Task(TaskId(6, "a", 2), GOAL)), 2)
+    assert proto.handle(NextStep(), 3) == []  # (3, 0) is two steps away: a plan may still come
+    actions = proto.handle(NextStep(), 4)
+    assert [type(a) for a in actions] == [Braked, RerouteFailed]
+    assert proto.state is State.EXECUTING and proto.trajectory is not None and proto.trajectory.last == plan.at(4)
+    assert plan.at(5) not in proto.trajectory.cells
+
+
+def test_a_peer_that_braked_overrides_its_older_answer_until_its_next_plan() -> None:
+    """Found by the tester once drones braked: a drone planned with a braked peer's answer, sent before
+    the brake and delivered after its news, and so planned through where the peer held."""
+    proto = machine()
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    cut = traj(0, (3, 0), (3, 0))
+    proto.handle(PeerBraked("b", cut), 0)
+    proto.handle(CurrentTraj("b", B_AWAY, ID_A), 0)  # sent before it braked
+    assert proto.received["b"] == cut
+    plan = started(proto.handle(CurrentTraj("c", location_of("c"), ID_A), 0)).trajectory
+    assert (3, 0, 0) not in plan.cells
+    later = traj(4, (3, 0), (3, 1))
+    proto.heard("b", later)
+    assert proto.known["b"] == later and "b" not in proto.braked
+
+
+def test_a_peer_that_braked_on_my_plan_has_me_brake_or_plan_anew() -> None:
+    """A brake holds a cell that plans made before it did not avoid: the plan flown steers clear of it."""
+    proto, plan = flying_past_b()
+    far = proto.handle(PeerBraked("b", traj(0, (3, 1), (3, 0), (3, 0))), 2)
+    assert far == [Threatened("b", (plan.at(5),))]
+    proto, plan = flying_past_b()
+    near = proto.handle(PeerBraked("b", traj(0, (3, 1), (3, 0), (3, 0))), 4)
+    assert [type(a) for a in near] == [Braked] and proto.trajectory is not None
+    assert proto.trajectory.last == plan.at(4)
+
+
+def test_a_drone_whose_vehicle_is_down_tells_a_peer_that_joins() -> None:
+    """Found by a crash sweep (seed 101): an agent that restarted had missed the news, took the vehicle
+    down for a drone at rest that would make way, and flew between two chargers for good."""
+    proto, plan = flying_past_b()
+    proto.handle(VehicleDown(plan.at(3)), 3)
+    proto.handle(PeerLeft("b"), 4)
+    assert proto.handle(PeerJoined("b", B), 5) == [Grounded(Trajectory.stationary(plan.at(3), 3))]

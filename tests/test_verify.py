@@ -394,3 +394,36 @@ def test_mail_on_board_may_answer_any_way_asked_since_its_last_plan() -> None:
     with pytest.raises(Violation, match=r"\(f\) d0 carries mail m"):  # the ways asked end with the plan
         monitors.action("d0", StartExecuting(Task(TaskId(6, "d0", 3), (1, 1, 0)),
                                              Trajectory(6, ((1, 0, 0), (1, 1, 0))), others))
+
+
+@pytest.mark.parametrize("told, collides", [(None, False), (1, False), (0, True)])
+def test_a_drone_may_not_enter_a_vehicle_downs_cell_once_told(told: int | None, collides: bool) -> None:
+    """(b): a vehicle that comes down where another drone's plan enters next is no protocol's to avoid
+    before the news comes; told at its step s, a drone must not be in that cell at s + 1."""
+    ws = Workspace.build(size=(5, 1, 1))
+    config = WorldConfig(ws, ("d0", "d1"), ((0, 0, 0), (2, 0, 0)), (), (), delta=0)
+    monitors = Monitors(config)
+    monitors.vehicle_down("d1", (2, 0, 0), 0)
+    if told is not None:
+        monitors.heard_news("d0", "d1", told)
+    flown = {"d0": [(1, 0, 0), (2, 0, 0), (2, 0, 0), (2, 0, 0)], "d1": [(2, 0, 0)] * 4}
+    steps = {"d0": 0, "d1": 0}
+    with pytest.raises(Violation, match=r"\(b\) d0 and d1: collision") if collides else contextlib.nullcontext():
+        for step in range(4):
+            for drone in ("d0", "d1"):
+                steps[drone] = step
+                monitors.position(drone, step, flown[drone][step], steps, flies=False)
+
+
+def test_a_clones_task_planner_measures_ways_with_the_clones_state() -> None:
+    """The exhaustive search clones worlds: a clone's task planner measured ways with the state of the
+    stack it was first made for, so dfs explored budgets that ignored every vehicle down since."""
+    world = Explorer(Scenario(drones=2, requests=1, delta=1, seed=0, obstacles=0.0)).world()
+    child = world.clone_for(world.enabled()[0])
+    drone = world.config.drones[0]
+    x, y, z = start = world.stacks[drone].executor.cell
+    way = 1 if x + 2 < world.config.workspace.nx else -1
+    ahead, beyond = (x + way, y, z), (x + 2 * way, y, z)
+    child.stacks[drone].protocol.peers_down["d9"] = ahead
+    assert world.stacks[drone].mail.distance(start, beyond) == 2
+    assert child.stacks[drone].mail.distance(start, beyond) == 4

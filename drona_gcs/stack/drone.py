@@ -26,6 +26,7 @@ gone around at the next try, and when no way is left every way is asked again.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -37,13 +38,16 @@ from drona_gcs.planner import SafePlanner
 from drona_gcs.planner.heuristic import UNREACHABLE, GoalDistance
 from drona_gcs.stack.battery import BatteryLow, BatteryModel, BatteryMonitor, BatteryRecharged
 from drona_gcs.stack.executor import Completed, PlanExecutor, Setpoint
-from drona_gcs.stack.mail import Distance, GoTo, MailAction, MailPlanner, MailRequest, Phase
+from drona_gcs.stack.mail import NO_WAY, GoTo, MailAction, MailPlanner, MailRequest, Phase
 from drona_gcs.stack.messages import HybridClock, Message, ReqForCurrentTraj, Task
 from drona_gcs.stack.protocol import Action as ProtocolAction
 from drona_gcs.stack.protocol import (
+    Braked,
     CoordinationProtocol,
     Event,
     NewTask,
+    NextStep,
+    PeerBraked,
     PeerDown,
     PeerJoined,
     PeerLeft,
@@ -135,8 +139,8 @@ class DroneStack:
         resting = {*ws.charging_stations, *(c for c in ws.parking if c not in mine)}  # others may rest there
         self.resting_now: frozenset[Cell] = frozenset()  #: cells other drones rest on, at the last decision
         self.level = 100.0  #: the battery level at the last step boundary
-        distance = _distance_function(planner, resting, lambda: self.resting_now)
-        self.mail = MailPlanner(start, ws.charging_stations, parking, distance,
+        self.ways = _distance_function(planner, resting)
+        self.mail = MailPlanner(start, ws.charging_stations, parking, self.distance,
                                 config.battery, recharged_level=config.recharged_mark, leg_overhead=leg_overhead(lead),
                                 spare_parking=[c for c in ws.parking if c not in parking])
         self.arrival: Arrival | None = None  #: a plan ended; waiting to see the vehicle at its goal
@@ -144,8 +148,21 @@ class DroneStack:
         self.asked_clear: frozenset[Cell] = frozenset()  #: resting cells the last leg asked to leave
         self.stuck: frozenset[Cell] = frozenset()  #: of those, cells still taken at the next failure
         self.stop_short: Cell | None = None  #: where a rerouted leg ends instead of its goal, held for good
+        self.braked: Cell | None = None  #: where the plan flown was cut short of a vehicle down
         self.threat: Threatened | None = None  #: what the reroute under way goes around
         self.commanded: str | None = None  #: the operator's command in force (see :meth:`command`)
+
+    def distance(self, a: Cell, b: Cell) -> int:
+        """Steps from ``a`` to ``b``, around the drones resting now and never through a vehicle down
+        (the task planner's distance; see :func:`_distance_function`)."""
+        return self.ways(a, b, self.resting_now, frozenset(self.protocol.peers_down.values()))
+
+    def copy(self) -> DroneStack:
+        """A copy whose task planner measures ways with the copy's state (the tester's clones)."""
+        new = copy.copy(self)
+        new.mail = copy.copy(self.mail)
+        new.mail.distance = new.distance
+        return new
 
     # ------------------------------------------------------------ inputs
     @property
@@ -242,6 +259,10 @@ class DroneStack:
         self.arrival = None
         return [*actions, *self._protocol(VehicleDown(cell))]
 
+    def peer_braked(self, drone: str, trajectory: Trajectory) -> list[DroneAction]:
+        """``drone`` announced it cut its plan short, to ``trajectory``: it holds at its end."""
+        return self._protocol(PeerBraked(drone, trajectory))
+
     def peer_down(self, drone: str, cell: Cell) -> list[DroneAction]:
         """``drone`` announced its vehicle came down in ``cell``: an obstacle for good, and a new plan
         for the rest of ours if that crosses it."""
@@ -280,7 +301,7 @@ class DroneStack:
         last step. With ``may_plan`` False (the runtime found the clock-skew bound broken, or the
         vehicle is not ready) no new task starts: the drone finishes what it flies and holds.
         """
-        actions: list[DroneAction] = []
+        actions: list[DroneAction] = self._protocol(NextStep()) if step > 0 else []
         for done in self.executor.tick(step):
             actions.append(done)
             if isinstance(done, Completed):
@@ -339,7 +360,8 @@ class DroneStack:
     def _stop_short_instead(self) -> list[DroneAction]:
         """The rerouted leg found no plan to its goal: stop short of the held cells instead (once)."""
         threat, self.threat = self.threat, None
-        if threat is None or self.stop_short is not None or self.protocol.state is not State.EXECUTING:
+        if (threat is None or self.stop_short is not None or self.braked is not None
+                or self.protocol.state is not State.EXECUTING):
             self.stop_short = None
             return []
         stop = self._short_of(threat)
@@ -371,8 +393,8 @@ class DroneStack:
             return []
         if flown == arrival.goal:
             self.arrival = None
-            if arrival.goal == self.stop_short:  # the leg stopped short: not done, decided anew from here
-                self.stop_short = None
+            if arrival.goal in (self.stop_short, self.braked):  # stopped short: not done, decided anew here
+                self.stop_short = self.braked = None
                 self.mail.relocate(arrival.goal, landed=True)
                 return []
             return list(self.mail.leg_done())
@@ -410,6 +432,8 @@ class DroneStack:
             actions.append(action)
             if isinstance(action, StartExecuting):
                 self.executor.start(action.trajectory)
+                if action.trajectory.last != self.braked:
+                    self.braked = None  # a rerouted rest replaced the cut plan
                 self.mail.took_off()
                 self.unreached, self.asked_clear, self.stuck = None, frozenset(), frozenset()
                 if self.mail.held and self.stop_short is None:
@@ -421,6 +445,9 @@ class DroneStack:
                 actions += self._protocol(Reroute(self._reroute_task(action)))
             elif isinstance(action, RerouteFailed):
                 actions += self._stop_short_instead()
+            elif isinstance(action, Braked):
+                self.executor.start(action.trajectory)
+                self.braked = action.trajectory.last
         return actions
 
 
@@ -447,15 +474,19 @@ def own_parking(parking: Sequence[Cell], drones: Sequence[str], me: str) -> Sequ
     return parking
 
 
-def _distance_function(planner: SafePlanner, resting: Collection[Cell] = (),
-                       resting_now: Callable[[], Collection[Cell]] = frozenset) -> Distance:
+#: ways(a, b, resting_now, walls): steps from a to b (see _distance_function)
+Ways = Callable[[Cell, Cell, frozenset[Cell], frozenset[Cell]], int]
+
+
+def _distance_function(planner: SafePlanner, resting: Collection[Cell] = ()) -> Ways:
     """Steps of the shortest static path between cells, one cached BFS per target cell.
 
     ``resting``: cells other drones may rest on for good (chargers, their parking cells), and
-    ``resting_now()`` those they rest on now (a vehicle down may rest there for good). The way
-    goes around them, where it can: a budget that counted the way through a parked drone left a
-    drone without the battery for the way around, stranded for good (found by the systematic
-    tester). Either end may be such a cell. Where they wall the goal in, the way is through them.
+    ``resting_now`` those they rest on now. The way goes around them, where it can: a budget
+    that counted the way through a parked drone left a drone without the battery for the way
+    around, stranded for good (found by the systematic tester). Either end may be such a cell.
+    Where they wall the goal in, the way is through them: a drone at rest makes way. It never is
+    through ``walls``, cells held for good (vehicles down), which nothing moves out of.
     """
     ws, graph, grid = planner.workspace, planner.graph, planner.grid
     always = frozenset(ws.cell_id(c) for c in resting)
@@ -465,20 +496,21 @@ def _distance_function(planner: SafePlanner, resting: Collection[Cell] = (),
         return graph.distances(ws.cell_id(goal), avoid)
 
     @lru_cache(maxsize=8)
-    def around_cells(now: frozenset[Cell]) -> frozenset[int]:
-        return always | frozenset(ws.cell_id(c) for c in now)
+    def ids(cells: frozenset[Cell]) -> frozenset[int]:
+        return frozenset(ws.cell_id(c) for c in cells)
 
-    def steps(a: Cell, b: Cell, around: bool) -> float:
-        avoid = around_cells(frozenset(resting_now())) if around else frozenset()
+    def steps(a: Cell, b: Cell, around: bool, resting_now: frozenset[Cell], walls_now: frozenset[Cell]) -> float:
+        walls = ids(walls_now)
+        avoid = always | ids(resting_now) | walls if around else walls
         tree, start = to(b, avoid), ws.cell_id(a)
         if around and start in avoid and a != b:  # out of a resting cell: by its first move
             return min((cost + tree.get(cell) for cell, cost in grid.moves_only[start]), default=UNREACHABLE)
         return tree.get(start)
 
-    def distance(a: Cell, b: Cell) -> int:
-        d = steps(a, b, around=True)
+    def distance(a: Cell, b: Cell, resting_now: frozenset[Cell], walls: frozenset[Cell]) -> int:
+        d = steps(a, b, True, resting_now, walls)
         if d >= UNREACHABLE:
-            d = steps(a, b, around=False)
-        return int(d) if d < UNREACHABLE else 10**6
+            d = steps(a, b, False, resting_now, walls)
+        return int(d) if d < UNREACHABLE else NO_WAY
 
     return distance

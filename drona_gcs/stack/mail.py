@@ -72,8 +72,9 @@ from drona_gcs.errors import ProblemError, ProtocolViolation
 from drona_gcs.stack.battery import BatteryModel
 from drona_gcs.workspace import Cell, Workspace
 
-#: distance(a, b): steps of the shortest static path from a to b (large if none).
+#: distance(a, b): steps of the shortest static path from a to b (NO_WAY if none).
 Distance = Callable[[Cell, Cell], int]
+NO_WAY = 10**6  #: the distance between cells no path joins (a vehicle down may wall a drone in for good)
 MAX_MISSES = 3  #: plans to a pickup that end with the vehicle not there, before the mail is handed back
 MAX_FAILURES = 4  #: rounds in a row that find no plan, before mail not on board is handed back (see leg_failed)
 MAX_STRIKES = 8  #: legs to a mail's pickup that found no plan, in a row or not, before it is handed back
@@ -460,10 +461,14 @@ class MailPlanner:
         """Where to park: our own parking cells (chargers when there are none); once each has found
         no plan since the last leg, any other drone's parking cell too (walled in by drones
         resting around it, ours may be out of reach for long; its owner then parks on ours)."""
-        spots = self.parking or self.chargers
+        spots = self._reachable(self.parking or self.chargers)
         if self.spare_parking and all(c in self.tried for c in spots):
-            return [*spots, *self.spare_parking]
+            return [*spots, *self._reachable(self.spare_parking)]
         return spots
+
+    def _reachable(self, cells: Sequence[Cell]) -> Sequence[Cell]:
+        """Those of ``cells`` a way joins to ours (vehicles down may wall some off for good)."""
+        return [c for c in cells if self.distance(self.cell, c) < NO_WAY]
 
     def _parked(self) -> bool:
         return self.cell in (self.parking or self.chargers) or self.cell in self.spare_parking
@@ -475,6 +480,10 @@ class MailPlanner:
     def _start_next_mail(self, budget: Budget, taken: Collection[Cell]) -> list[MailAction]:
         self.queue.sort(key=lambda r: (r.id in self.cut_off_mail, r.rank))
         best = self.queue[0]
+        if self.distance(self.cell, best.pickup) >= NO_WAY:
+            self.queue.pop(0)
+            why = f"its pickup {list(best.pickup)} is cut off from here (obstacles and vehicles down)"
+            return [MailRejected(best, why), *self.decide_again(budget, taken)]
         if budget.allows(self._need(self.cell, best)):
             self.queue.pop(0)
             self.current = best
@@ -485,12 +494,13 @@ class MailPlanner:
             return [MailStarted(best, tuple(self.queue)), *leg]
         # Not enough for this mail: charge first, at a charger from which a full battery will do.
         full = self.battery.steps_affordable(self.recharged_level)
-        staging = [c for c in self.chargers if self._need(c, best) <= full]
+        staging = [c for c in self.chargers if self._need(c, best) <= full and self.distance(self.cell, c) < NO_WAY]
         free = [c for c in staging if c not in taken or c == self.cell]
         if not free:  # hand it back rather than block the queue: another drone may be better placed
             self.queue.pop(0)
-            why = (f"needs {self._need(self.cell, best)} steps of flight; a full battery gives {full}" if not staging
-                   else f"the chargers it must charge at first ({', '.join(map(str, map(list, staging)))}) are taken")
+            why = (f"needs {self._need(self.cell, best)} steps of flight; a full battery gives {full}, at a charger "
+                   "it can reach" if not staging else
+                   f"the chargers it must charge at first ({', '.join(map(str, map(list, staging)))}) are taken")
             return [MailRejected(best, why), *self.decide_again(budget, taken)]
         self.low = True
         self.landed_here = True  # on the ground while it coordinates the way to the charger, or charges
@@ -514,6 +524,8 @@ class MailPlanner:
         if self.cell in self.chargers:
             self.phase = Phase.CHARGING
             return []
+        if self.queue and all(self.distance(self.cell, c) >= NO_WAY for c in self.chargers):
+            return self.release("no charger can be reached from here (obstacles and vehicles down wall it in)")
         return self._to_one_of(self.chargers, budget, taken, Phase.TO_CHARGER)
 
     def _to_one_of(self, candidates: Sequence[Cell], budget: Budget, taken: Collection[Cell],
@@ -560,10 +572,12 @@ class MailPlanner:
 
         The nearest charger may be taken by a drone charging there by then, so this is
         the leg to the second nearest when there are two or more. Chargers other drones
-        rest on now do not count, while one is free: one may be a vehicle down for good.
+        rest on now do not count, while one is free: one may be a vehicle down for good; nor do
+        chargers no way joins, while one can be reached (vehicles down may wall one off).
         """
         free = [c for c in self.chargers if c not in self.occupied] or self.chargers
-        ways = sorted(self._leg(cell, c) for c in free)
+        legs = [self._leg(cell, c) for c in free]
+        ways = sorted(w for w in legs if w < NO_WAY) or legs
         return ways[min(1, len(ways) - 1)] if ways else 0
 
 

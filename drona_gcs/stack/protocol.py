@@ -88,9 +88,20 @@ settled here, and one message it sends is saved (the second point):
   crossed within ``lead_steps`` cannot be helped this way (found by the tester).
 * **A vehicle that comes down by itself** (a failsafe, a pilot) stays where it came
   down. I then answer with that cell for good, tell every peer (``Grounded``), end a
-  round under way with no plan and plan nothing more. A peer told (``PeerDown``)
+  round under way with no plan and plan nothing more, and tell each peer that joins
+  (a restarted agent missed the news). A peer told (``PeerDown``)
   holds that cell for good in every plan, takes it over any answer of mine the news
   overtook, and plans anew the rest of the plan it flies if that crosses it.
+* **Too close to plan around it: brake.** If the plan I fly enters that cell (or one a
+  departed drone may hold) before a new
+  rest could start (within ``lead_steps``), or a round to plan around it has not ended when
+  the next step would enter it (``NextStep``), I cut my plan at the cell before and hold
+  there (``Braked``), announced as any new plan is; the leg is then decided anew from there.
+  A cell held for good is never entered once I know of it. The hold is not coordinated:
+  a peer whose plan enters my cell after the step I was to leave it meets me there unless
+  it hears of it first. Plans keep Delta steps between drones, and the news travels in
+  well under a period on a real link, so it does; with news slower than the window (the
+  tester's ``max_delay`` allows it), it may not, and the tester judges that flight.
 * **My vehicle can be lost** (its link closed or silent). It may then be anywhere on
   my trajectory from when it was last seen, or where it was seen: I keep answering with
   my trajectory and also name those cells (``holds``), which every peer holds for good
@@ -192,6 +203,20 @@ class PeerDown:
 
 
 @dataclass(frozen=True)
+class PeerBraked:
+    """``drone`` cut the plan it flies short (:class:`Braked`): ``trajectory`` holds at its end until
+    its next plan."""
+
+    drone: str
+    trajectory: Trajectory
+
+
+@dataclass(frozen=True)
+class NextStep:
+    """The executor is about to take the boundary after ``now``: a last look at the cell it enters."""
+
+
+@dataclass(frozen=True)
 class Reroute:
     """A new plan to the goal of the one I fly, asked for after :class:`Threatened`."""
 
@@ -199,7 +224,7 @@ class Reroute:
 
 
 Event = (NewTask | PlanCompleted | PeerLeft | PeerJoined | ReqForCurrentTraj | CurrentTraj | VehicleLost
-         | Relocated | Reroute | VehicleDown | PeerDown)
+         | Relocated | Reroute | VehicleDown | PeerDown | PeerBraked | NextStep)
 
 
 # ----------------------------------------------------------------- actions
@@ -252,7 +277,16 @@ class Grounded:
     trajectory: Trajectory
 
 
-Action = Send | Broadcast | StartExecuting | TaskFailed | Threatened | RerouteFailed | Grounded
+@dataclass(frozen=True)
+class Braked:
+    """I cut my plan short of a cell held for good (a vehicle down's, a departed drone's): ``trajectory``
+    is what I fly now, holding at its end; every peer is told as of a new plan."""
+
+    trajectory: Trajectory
+    held: Cell  #: the cell it stops short of
+
+
+Action = Send | Broadcast | StartExecuting | TaskFailed | Threatened | RerouteFailed | Grounded | Braked
 
 
 @dataclass
@@ -277,6 +311,8 @@ class CoordinationProtocol:
     peer_holds: dict[str, tuple[Cell, ...]] = field(default_factory=dict)  #: what this round's answers hold
     down: Cell | None = None  #: my vehicle came down here by itself: I plan nothing more
     peers_down: dict[str, Cell] = field(default_factory=dict)  #: peers whose vehicle came down, and where
+    #: peers that braked, with the plan cut short they hold at the end of, until their next plan
+    braked: dict[str, Trajectory] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.members = set(self.peers) - {self.me}
@@ -425,10 +461,17 @@ class CoordinationProtocol:
         return self._plan_if_ready(now)
 
     def _news(self, drone: str, trajectory: Trajectory) -> Trajectory:
-        """What ``drone`` sent, unless its vehicle came down since: then it stays where it came down
-        (its answer may have been overtaken by that news)."""
+        """What ``drone`` sent, unless its vehicle came down since (then it stays where it came down), or
+        it braked on that plan or an older one (then it holds where it braked): its answer may have been
+        overtaken by that news. A plan made after the brake starts later, and ends it."""
         down = self.peers_down.get(drone)
-        return trajectory if down is None else Trajectory.stationary(down, trajectory.start_step)
+        if down is not None:
+            return Trajectory.stationary(down, trajectory.start_step)
+        cut = self.braked.get(drone)
+        if cut is not None and trajectory.start_step <= cut.start_step:
+            return cut
+        self.braked.pop(drone, None)
+        return trajectory
 
     def _ignore(self, event: Event, now: int) -> list[Action]:
         return []  # a late reply to a round that is over
@@ -470,23 +513,80 @@ class CoordinationProtocol:
         self.known[event.drone] = stays
         if event.drone in self.received:
             self.received[event.drone] = stays
-        if self.state is not State.EXECUTING or self.trajectory is None:
+        return self._steer_clear(event.drone, now)
+
+    def _steer_clear(self, drone: str, now: int) -> list[Action]:
+        """News of ``drone`` holding cells for good, which plans made before did not avoid: if the plan
+        I fly enters one before a new rest could start, brake; if later, report ``Threatened`` to have
+        the rest planned anew (a round under way plans against it, and ``NextStep`` brakes should it
+        end too late)."""
+        if self.state not in (State.EXECUTING, State.REROUTING) or self.trajectory is None:
             return []
-        crossed = event.cell in self.trajectory.suffix_from(now + self.lead_steps).cells
-        return [Threatened(event.drone, (event.cell,))] if crossed else []
+        entry = self._entry(now)
+        if entry is not None and entry <= now + self.lead_steps:
+            return self._brake(entry)
+        if entry is None or self.state is State.REROUTING:
+            return []
+        crossed = self._held_on_plan(now)
+        return [Threatened(drone, tuple(dict.fromkeys(self.trajectory.at(t) for t in crossed)))]
+
+    def _entry(self, now: int) -> int | None:
+        """The first step after ``now`` at which the plan I fly enters a cell held for good (``None``
+        if already in one: stopping would not part us)."""
+        assert self.trajectory is not None
+        crossed = self._held_on_plan(now)
+        return None if not crossed or crossed[0] == now else next((t for t in crossed if t > now), None)
+
+    def _held_on_plan(self, now: int) -> list[int]:
+        """The steps from ``now`` on at which the plan I fly is in a cell held for good: a vehicle down's,
+        one a departed drone may hold, or one a braked peer holds from when it gets there (less my lead,
+        a margin for its clock)."""
+        assert self.trajectory is not None
+        trajectory = self.trajectory
+        held = {*self.peers_down.values(), *(t.last for t in self.ghost_obstacles(sparing=trajectory.at(now)).values())}
+
+        def taken(step: int) -> bool:
+            cell = trajectory.at(step)
+            return cell in held or any(cut.last == cell and step >= cut.end_step - self.lead_steps
+                                       for cut in self.braked.values())
+
+        return [t for t in range(now, max(now, trajectory.end_step) + 1) if taken(t)]
+
+    def _brake(self, entry: int) -> list[Action]:
+        """Cut the plan I fly at the cell before step ``entry``, and hold there (one step more, so that
+        the executor, at ``entry - 1`` at the latest, takes it as the plan it flies). A round to plan
+        its rest anew ends: the next plan starts from where I hold, later than this one, so that
+        peers can tell the cut from older answers and the next plan from the cut."""
+        assert self.trajectory is not None
+        flown, start = self.trajectory, self.trajectory.start_step
+        cells = tuple(flown.at(t) for t in range(start, max(entry, start + 1)))
+        self.trajectory = Trajectory(start, (*cells, cells[-1]))
+        actions: list[Action] = [Braked(self.trajectory, flown.at(entry))]
+        if self.state is State.REROUTING and self.task is not None:
+            actions += [*self._release_pending(self.trajectory), RerouteFailed(self.task, "braked")]
+            self.state = State.EXECUTING
+        return actions
+
+    def _on_next_step(self, event: NextStep, now: int) -> list[Action]:
+        if self.trajectory is None:
+            return []
+        entry = self._entry(now)
+        return self._brake(entry) if entry == now + 1 else []
+
+    def _on_peer_braked(self, event: PeerBraked, now: int) -> list[Action]:
+        """A peer holds where it braked, which plans made before (mine among them) did not avoid: it
+        overrides what it answered of that plan, and the plan I fly steers clear of it as of a vehicle
+        down (brake, or plan its rest anew)."""
+        drone, cut = event.drone, event.trajectory
+        if drone == self.me or drone not in self.members or cut.start_step < self.known[drone].start_step:
+            return []  # a plan of its made since ended the brake
+        self.braked[drone] = self.known[drone] = cut
+        if drone in self.received:
+            self.received[drone] = self._news(drone, self.received[drone])
+        return self._steer_clear(drone, now)
 
     def _on_reroute(self, event: Reroute, now: int) -> list[Action]:
         return self._begin_round(event.task, State.REROUTING, now)
-
-    def _threat(self, drone: str, now: int) -> list[Action]:
-        """Whether the rest of my plan, from when a new one could start, crosses cells ``drone``
-        (departed) may hold for good: plans made before its leave was noticed avoided only its plan."""
-        if self.state is not State.EXECUTING or self.trajectory is None:
-            return []
-        here = self.trajectory.at(now)
-        held = set(self.ghosts[drone].cells) - {here}
-        crossed = [c for c in self.trajectory.suffix_from(now + self.lead_steps).cells if c in held]
-        return [Threatened(drone, tuple(dict.fromkeys(crossed)))] if crossed else []
 
     def _on_peer_left(self, event: PeerLeft, now: int) -> list[Action]:
         if event.drone not in self.members:
@@ -501,7 +601,7 @@ class CoordinationProtocol:
         self.ghosts[event.drone] = last.suffix_from(silent - self.lead_steps)
         self.pending.pop(event.drone, None)
         self.peer_holds.pop(event.drone, None)
-        return self._plan_if_ready(now) if self.coordinating else self._threat(event.drone, now)
+        return self._plan_if_ready(now) if self.coordinating else self._steer_clear(event.drone, now)
 
     def _on_peer_joined(self, event: PeerJoined, now: int) -> list[Action]:
         if event.drone == self.me or event.drone in self.members:
@@ -509,9 +609,12 @@ class CoordinationProtocol:
         self.members.add(event.drone)
         self.ghosts.pop(event.drone, None)
         self.peers_down.pop(event.drone, None)  # its agent restarted: its vehicle is back in service
+        self.braked.pop(event.drone, None)
         self.newest.pop(event.drone, None)  # it may have restarted, and its clock with it
         # What it announces now is newer than anything we heard before it left.
         self.known[event.drone] = event.announced(now)
+        if self.down is not None and self.trajectory is not None:
+            return [Grounded(self.trajectory)]  # a restarted agent missed the news: it never moves
         if self.coordinating and self.task is not None:
             return [Send(event.drone, self._request(now))]
         return []
@@ -587,6 +690,8 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         Relocated: CoordinationProtocol._on_relocated,
         VehicleDown: CoordinationProtocol._on_vehicle_down,  # -> WAIT_FOR_TASK
         PeerDown: CoordinationProtocol._on_peer_down,
+        PeerBraked: CoordinationProtocol._on_peer_braked,
+        NextStep: CoordinationProtocol._ignore,
     },
     State.COORDINATING: {
         ReqForCurrentTraj: CoordinationProtocol._on_request_while_coordinating,
@@ -596,6 +701,8 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         VehicleLost: CoordinationProtocol._on_vehicle_lost,  # the round ends in no plan
         VehicleDown: CoordinationProtocol._on_vehicle_down,  # -> WAIT_FOR_TASK
         PeerDown: CoordinationProtocol._on_peer_down,
+        PeerBraked: CoordinationProtocol._on_peer_braked,
+        NextStep: CoordinationProtocol._ignore,  # nothing is flown yet
     },
     State.EXECUTING: {
         ReqForCurrentTraj: CoordinationProtocol._on_request,  # answered with my trajectory
@@ -607,7 +714,9 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         VehicleLost: CoordinationProtocol._on_vehicle_lost,
         Relocated: CoordinationProtocol._on_relocated,  # -> WAIT_FOR_TASK
         VehicleDown: CoordinationProtocol._on_vehicle_down,  # -> WAIT_FOR_TASK
-        PeerDown: CoordinationProtocol._on_peer_down,
+        PeerDown: CoordinationProtocol._on_peer_down,  # may brake, or report Threatened
+        PeerBraked: CoordinationProtocol._on_peer_braked,  # may brake, or report Threatened
+        NextStep: CoordinationProtocol._on_next_step,  # may brake
     },
     State.REROUTING: {  # a round as COORDINATING's, while the plan is flown on
         ReqForCurrentTraj: CoordinationProtocol._on_request_while_coordinating,
@@ -617,6 +726,8 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PeerJoined: CoordinationProtocol._on_peer_joined,
         VehicleLost: CoordinationProtocol._on_vehicle_lost,  # the round ends with the plan flown
         VehicleDown: CoordinationProtocol._on_vehicle_down,  # -> WAIT_FOR_TASK
-        PeerDown: CoordinationProtocol._on_peer_down,
+        PeerDown: CoordinationProtocol._on_peer_down,  # may brake
+        PeerBraked: CoordinationProtocol._on_peer_braked,  # may brake, or report Threatened
+        NextStep: CoordinationProtocol._on_next_step,  # may brake
     },
 }

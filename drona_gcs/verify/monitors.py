@@ -7,7 +7,10 @@ shares nothing with the code it judges: no production ranking, no protocol query
 (a) every plan avoided every other drone, and each with what that drone was
     committed to when the plan starts: the trajectory it last started executing
     (beyond its end, its last cell), or its start cell before any;
-(b) the cells the executors actually occupy pass the safety checker under Delta;
+(b) the cells the executors actually occupy pass the safety checker under Delta; a vehicle
+    down stays in its cell, and a drone that enters that cell after the vehicle came down
+    breaks (b) unless it entered before the news reached it (no protocol could know: the
+    stack's part is never to enter it once told);
 (c) each drone starts its mail in priority order: never one while a more urgent
     one (higher priority, or equal and sent by the environment earlier) waits, unstarted,
     with a path open to it (around obstacles, vehicles down and drones resting);
@@ -35,9 +38,10 @@ from typing import TYPE_CHECKING
 
 from drona_gcs.errors import DronaError
 from drona_gcs.motion import Trajectory
-from drona_gcs.safety import check_pair
+from drona_gcs.safety import Violation as SafetyViolation
+from drona_gcs.safety import ViolationKind, check_pair
 from drona_gcs.stack.mail import MailDelivered, MailLost, MailPickedUp, MailRejected, MailRequest, MailStarted
-from drona_gcs.stack.protocol import StartExecuting
+from drona_gcs.stack.protocol import Braked, StartExecuting
 from drona_gcs.workspace import Cell, Workspace
 
 if TYPE_CHECKING:
@@ -95,9 +99,12 @@ class Monitors:
     carrying: dict[str, MailRequest] = field(default_factory=dict)  #: (f) mail on board, per drone
     departed: dict[str, frozenset[str]] = field(default_factory=dict)  #: (a) peers each drone saw leave
     down: tuple[tuple[str, Cell], ...] = ()  #: (c) drones whose vehicle came down, and where
-    #: (a) what each drone down was committed to before, and who has heard it came down
-    before_down: dict[str, Trajectory] = field(default_factory=dict)
-    told_down: frozenset[tuple[str, str]] = frozenset()
+    #: (b) vehicles that stopped following their plan (down, or their agent crashed), from which step
+    stopped: dict[str, int] = field(default_factory=dict)
+    #: (a) what a drone down, or braked, was committed to before; (a, b) who has heard of it, at which
+    #: of its own steps: (observer, drone) -> step
+    before_news: dict[str, Trajectory] = field(default_factory=dict)
+    told: dict[tuple[str, str], int] = field(default_factory=dict)
     #: (f) the ways each drone was asked to leave since its last plan
     asked_to_clear: tuple[tuple[str, frozenset[Cell]], ...] = ()
 
@@ -112,8 +119,9 @@ class Monitors:
                 tuple(sorted((d, tuple(r.id for _, r in w)) for d, w in self.waiting.items())),
                 tuple(sorted((d, r.id) for d, r in self.carrying.items())),
                 tuple(sorted((d, tuple(sorted(p))) for d, p in self.departed.items())),
-                tuple(sorted((d, t.start_step, t.cells) for d, t in self.before_down.items())),
-                tuple(sorted(self.told_down)), tuple(sorted((d, tuple(sorted(w))) for d, w in self.asked_to_clear)))
+                tuple(sorted((d, t.start_step, t.cells) for d, t in self.before_news.items())),
+                tuple(sorted(self.told.items())), tuple(sorted(self.stopped.items())),
+                tuple(sorted((d, tuple(sorted(w))) for d, w in self.asked_to_clear)))
 
     def given_mail(self, drone: str, request: MailRequest) -> None:
         """The environment gave ``request`` to ``drone`` (again, if another handed it back)."""
@@ -125,6 +133,8 @@ class Monitors:
             self._consistent(drone, action)
             self._carried_to_its_dropoff(drone, action)
             self.committed[drone] = action.trajectory
+        elif isinstance(action, Braked):
+            self._news(drone, action.trajectory)
         elif isinstance(action, MailStarted):
             self._in_order(drone, action.request)
         elif isinstance(action, MailPickedUp):
@@ -162,15 +172,21 @@ class Monitors:
                                      f"{cells_text(self.committed[peer])}")
 
     def _not_told_yet(self, drone: str, peer: str, used: Trajectory, since: int) -> bool:
-        """``peer``'s vehicle came down, and ``drone`` used what it was committed to before: fine
-        until the news reached it (the plan it flies is then planned anew if it must be)."""
-        earlier = self.before_down.get(peer)
-        return (earlier is not None and (drone, peer) not in self.told_down
+        """``peer``'s vehicle came down, or it braked, and ``drone`` used what it was committed to
+        before: fine until the news reached it (the plan it flies is then planned anew if it must be)."""
+        earlier = self.before_news.get(peer)
+        return (earlier is not None and (drone, peer) not in self.told
                 and same_future(used, earlier, since))
 
-    def heard_down(self, observer: str, peer: str) -> None:
-        """``observer`` heard that ``peer``'s vehicle came down."""
-        self.told_down = self.told_down | {(observer, peer)}
+    def heard_news(self, observer: str, peer: str, step: int) -> None:
+        """``observer``, at its step ``step``, heard that ``peer``'s vehicle came down, or that it braked."""
+        self.told = {**self.told, (observer, peer): step}
+
+    def _news(self, drone: str, now: Trajectory) -> None:
+        """``drone`` flies ``now`` instead of what it was committed to, and nobody has heard yet."""
+        self.before_news[drone] = self.committed[drone]
+        self.committed[drone] = now
+        self.told = {k: v for k, v in self.told.items() if k[1] != drone}
 
     def _clear_of(self, drone: str, action: StartExecuting, peer: str, since: int) -> None:
         """A peer seen to leave may have stopped anywhere on what it was committed to: a plan made
@@ -182,9 +198,15 @@ class Monitors:
             raise Violation("a", f"{drone} planned task {action.task.id} through {sorted(crossed)}, where {peer}, "
                                  f"gone, may have stopped: it was committed to {cells_text(committed)}")
 
-    def left(self, observer: str, peer: str) -> None:
-        """``observer`` saw ``peer`` leave (its agent's liveliness went)."""
+    def left(self, observer: str, peer: str, step: int) -> None:
+        """``observer``, at its step ``step``, saw ``peer`` leave (its agent's liveliness went)."""
         self.departed[observer] = self.departed.get(observer, frozenset()) | {peer}
+        if peer in self.stopped:
+            self.heard_news(observer, peer, step)
+
+    def crashed(self, drone: str, step: int) -> None:
+        """``drone``'s agent crashed at its step ``step``: its vehicle holds where it is."""
+        self.stopped[drone] = step
 
     def heard_from(self, observer: str, peer: str) -> None:
         """``observer`` heard from ``peer`` (it joined, or a message of it came): alive."""
@@ -210,7 +232,26 @@ class Monitors:
         for i, a in enumerate(drones):
             for b in drones[i + 1:]:
                 for v in check_pair(flown[a], flown[b], self.config.delta, b, from_step=t, until=t):
-                    raise Violation("b", f"{a} and {b}: {v}")
+                    if not self._unforeseeable(v, a, b):
+                        raise Violation("b", f"{a} and {b}: {v}")
+
+    def _unforeseeable(self, v: SafetyViolation, a: str, b: str) -> bool:
+        """A collision with a vehicle that stopped following its plan (down, or its agent crashed), after
+        it stopped, by a drone that entered its cell before the news reached it (told at its step ``s``,
+        it must not be there at ``s + 1``)."""
+        if v.kind is not ViolationKind.COLLISION or v.other_step is None:
+            return False
+        for down, at, other, when in ((b, v.other_step, a, v.step), (a, v.step, b, v.other_step)):
+            since = self.stopped.get(down)
+            if since is None or at <= since or self.history[down][since] != v.cell:
+                continue
+            entered = when
+            while entered > 0 and self.history[other][entered - 1] == v.cell:
+                entered -= 1
+            told = self.told.get((other, down))
+            if told is None or told >= entered:
+                return True
+        return False
 
     # (c)
     def _in_order(self, drone: str, started: MailRequest) -> None:
@@ -237,15 +278,18 @@ class Monitors:
                 and request.pickup in self._distances(request.dropoff, walls))
 
     def restarted(self, drone: str, cell: Cell, step: int) -> None:
-        """``drone``'s agent started again, its vehicle holding ``cell``: its plan is to stay (a, g)."""
+        """``drone``'s agent started again, its vehicle holding ``cell``: its plan is to stay (a, g), and
+        it is judged as any drone in service again (b)."""
         self.committed[drone] = Trajectory.stationary(cell, step)
+        self.stopped.pop(drone, None)
+        self.told = {k: v for k, v in self.told.items() if k[1] != drone}
 
     def vehicle_down(self, drone: str, cell: Cell, step: int) -> None:
         """``drone``'s vehicle came down in ``cell`` at ``step``: it stays there, whatever its plan
         said, and plans must avoid it there (a)."""
         self.down = (*self.down, (drone, cell))
-        self.before_down[drone] = self.committed[drone]
-        self.committed[drone] = Trajectory.stationary(cell, step)
+        self.stopped[drone] = step
+        self._news(drone, Trajectory.stationary(cell, step))
 
     def _forget(self, drone: str, request: MailRequest) -> None:
         self.waiting[drone] = tuple((o, r) for o, r in self.waiting.get(drone, ()) if r.id != request.id)

@@ -45,7 +45,16 @@ from drona_gcs.stack.mail import (
     Phase,
 )
 from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj
-from drona_gcs.stack.protocol import Broadcast, Grounded, RerouteFailed, Send, StartExecuting, TaskFailed, Threatened
+from drona_gcs.stack.protocol import (
+    Braked,
+    Broadcast,
+    Grounded,
+    RerouteFailed,
+    Send,
+    StartExecuting,
+    TaskFailed,
+    Threatened,
+)
 from drona_gcs.verify.monitors import Flier, Monitors, cell_text, cells_text
 from drona_gcs.verify.mutants import planner_delta, plant
 from drona_gcs.workspace import Cell, Workspace
@@ -229,6 +238,7 @@ class Announce:
 
     trajectory: Trajectory
     grounded: bool = False  #: the sender's vehicle came down: it stays at the trajectory's end for good
+    braked: bool = False  #: the sender cut its plan short of a vehicle down (read as any plan)
 
 
 @dataclass(frozen=True)
@@ -389,12 +399,15 @@ class World:
         if not isinstance(notice, Left):
             self.monitors.heard_from(msg.to, msg.sender)
         if isinstance(notice, Announce) and notice.grounded:
-            self.monitors.heard_down(msg.to, msg.sender)
+            self.monitors.heard_news(msg.to, msg.sender, self.steps[msg.to])
             self._carry_out(msg.to, stack.peer_down(msg.sender, notice.trajectory.last))
+        elif isinstance(notice, Announce) and notice.braked:
+            self.monitors.heard_news(msg.to, msg.sender, self.steps[msg.to])
+            self._carry_out(msg.to, stack.peer_braked(msg.sender, notice.trajectory))
         elif isinstance(notice, Announce):
             stack.heard(msg.sender, notice.trajectory)
         elif isinstance(notice, Left):
-            self.monitors.left(msg.to, msg.sender)
+            self.monitors.left(msg.to, msg.sender, self.steps[msg.to])
             self._carry_out(msg.to, stack.peer_left(msg.sender, notice.since))
         elif isinstance(notice, Joined):
             # As the agent does: where it was last heard of (its start, if never).
@@ -476,6 +489,7 @@ class World:
         self.used = replace(self.used, crashes=self.used.crashes + 1)
         self.crashed.add(drone)
         stack, step = self.stacks[drone], self.steps[drone]
+        self.monitors.crashed(drone, max(step, 0))
         self.trace.append(f"{drone}: its agent crashed; its vehicle holds {cell_text(stack.executor.cell)}")
         # What was on its way to it is lost with its session (a new one never sees it).
         lost = [m for m in self.inflight if m.to == drone]
@@ -578,10 +592,11 @@ class World:
                 for peer in self.config.drones:
                     if peer != drone:
                         self._post(drone, peer, Announce(action.trajectory))
-            if isinstance(action, Grounded):  # as the agent does, announce or not
+            if isinstance(action, (Grounded, Braked)):  # as the agent does, announce or not
                 for peer in self.config.drones:
                     if peer != drone:
-                        self._post(drone, peer, Announce(action.trajectory, grounded=True))
+                        self._post(drone, peer, Announce(action.trajectory, grounded=isinstance(action, Grounded),
+                                                         braked=isinstance(action, Braked)))
             if isinstance(action, MailRejected):  # the service gives it to the next drone that flies
                 # As promptly as a message: a liveness bound needs the service to be fair.
                 deadline = max(self.steps[drone], 0) + self.config.max_delay
@@ -675,6 +690,9 @@ def _note(action: object) -> str:
         return f"{action.departed} may hold {cell_text(action.cells[0])} of my plan for good: plans its rest anew"
     if isinstance(action, RerouteFailed):
         return f"no new plan for the rest of mine (task {action.task.id}): {action.reason}"
+    if isinstance(action, Braked):
+        t = action.trajectory
+        return f"brakes short of {cell_text(action.held)}, held for good: holds {cell_text(t.last)} from {t.end_step}"
     if isinstance(action, GoTo):
         by = f" within {action.flight_steps} steps of flight" if action.flight_steps is not None else ""
         return f"task planner: go to {cell_text(action.goal)} for {action.purpose.value}{by}"
@@ -702,15 +720,16 @@ def _shallow(machine: _T) -> _T:
 
 
 def _clone_stack(stack: DroneStack) -> DroneStack:
-    new = copy.copy(stack)
+    new = stack.copy()
     for name in _MACHINES:
-        setattr(new, name, _shallow(getattr(stack, name)))
+        setattr(new, name, _shallow(getattr(new, name)))
     return new
 
 
 def _stack_key(stack: DroneStack) -> Hashable:
     # What the stack keeps besides its machines.
-    own = (stack.arrival, stack.unreached, stack.asked_clear, stack.stuck, stack.stop_short, stack.threat)
+    own = (stack.arrival, stack.unreached, stack.asked_clear, stack.stuck, stack.stop_short, stack.threat,
+           stack.braked, stack.resting_now)
     return (*(_machine_key(getattr(stack, name)) for name in _MACHINES), own)
 
 

@@ -38,6 +38,7 @@ from drona_gcs.stack.drone import DroneAction, DroneStack, LegNotFlown
 from drona_gcs.stack.mail import GoTo, MailDelivered, MailLost, MailPickedUp, MailRejected, MailStarted
 from drona_gcs.stack.messages import CurrentTraj
 from drona_gcs.stack.protocol import (
+    Braked,
     Broadcast,
     Grounded,
     RerouteFailed,
@@ -310,6 +311,11 @@ class DroneAgent:
             elif isinstance(action, Grounded):
                 grounded = PlanAnnounce(trajectory=WireTrajectory.of(action.trajectory), grounded=True)
                 self.node.put(self.keys.plan(self.me), encode(self.me, self.clock(), grounded))
+            elif isinstance(action, Braked):
+                log.warning("%s: braked short of %s, held for good: holding %s", self.me, list(action.held),
+                            list(action.trajectory.last))
+                cut = PlanAnnounce(trajectory=WireTrajectory.of(action.trajectory), braked=True)
+                self.node.put(self.keys.plan(self.me), encode(self.me, self.clock(), cut))
             elif isinstance(action, RerouteFailed):
                 log.warning("%s: no new plan for the rest of mine (task %s): %s", self.me, action.task.id,
                             action.reason)
@@ -388,6 +394,8 @@ class DroneAgent:
             self.heard_at[sender] = self.stack.now
             if body.grounded:
                 self._carry_out(self.stack.peer_down(sender, body.trajectory.core().last))
+            elif body.braked:
+                self._carry_out(self.stack.peer_braked(sender, body.trajectory.core()))
             else:
                 self.stack.heard(sender, body.trajectory.core())
 

@@ -58,7 +58,7 @@ from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj, Ta
 #: asks resting drones to leave; task ids carry the ``epoch`` (incarnation) of the agent that made them;
 #: ``plan`` says ``grounded`` when a vehicle came down by itself;
 #: 7: keys name their writer (``proto/<sender>/<to>``, ``answers/<sender>``, ``mail/status/<drone>/<mail>``).
-VERSION: Final = 7
+VERSION: Final = 8
 
 CellList = Annotated[list[int], msgspec.Meta(min_length=3, max_length=3)]
 #: A mail id is a Zenoh key chunk (mail/status/<id>); \Z, not $: "$" would let a final newline through.
@@ -137,10 +137,12 @@ class CurTrajTo(_Body, frozen=True, kw_only=True, tag="cur_traj_to"):
 
 class PlanAnnounce(_Body, frozen=True, kw_only=True, tag="plan"):
     """A drone's new plan, to everyone, once made (peers outside the round learn where it goes);
-    ``grounded``: its vehicle came down by itself, and stays at the trajectory's end for good."""
+    ``grounded``: its vehicle came down by itself, and stays at the trajectory's end for good;
+    ``braked``: it cut the plan it flies short, and holds at the trajectory's end until its next plan."""
 
     trajectory: WireTrajectory
     grounded: bool = False
+    braked: bool = False
 
 
 # ---------------------------------------------------------------- state
@@ -282,7 +284,7 @@ Body = (ReqTraj | CurTraj | CurTrajTo | PlanAnnounce | DroneState | HeldMail | M
 
 
 class Envelope(_Strict, frozen=True, kw_only=True):
-    v: Literal[7] = VERSION
+    v: Literal[8] = VERSION
     sender: Annotated[str, msgspec.Meta(min_length=1)]
     sent_at: float
     body: Body
