@@ -89,10 +89,12 @@ def bench_workspace(agents: int) -> str:
 
 
 def _rim(side: int) -> list[tuple[int, int]]:
-    """The grid's edge, the corners (the chargers) left out: room for 4 (side - 2) drones, so the
-    grid grows with the square root of the fleet, not with the fleet."""
-    rim = [(x, 0) for x in range(1, side - 1)] + [(x, side - 1) for x in range(1, side - 1)]
-    return rim + [(0, y) for y in range(1, side - 1)] + [(side - 1, y) for y in range(1, side - 1)]
+    """The grid's edge, less the corners (two are the chargers) and the cells beside them (drones
+    parked there would wall a corner off): room for 4 (side - 4) drones, so the grid grows with the
+    square root of the fleet, not with the fleet."""
+    edge = range(2, side - 2)
+    return ([(x, 0) for x in edge] + [(x, side - 1) for x in edge] + [(0, y) for y in edge]
+            + [(side - 1, y) for y in edge])
 
 
 async def run_bench(agents: int, processes: int, seconds: float, steady_after: float, workdir: Path,

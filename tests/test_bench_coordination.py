@@ -10,9 +10,11 @@ import subprocess
 import sys
 
 import pytest
+import yaml
 
 from drona_gcs.stack.protocol import State
-from fleet.bench_coordination import PlanLatencies, _between_rounds, default_processes
+from drona_gcs.workspace_files import workspace_from_mapping
+from fleet.bench_coordination import PlanLatencies, _between_rounds, bench_workspace, default_processes
 from fleet.transport.wire import DroneState
 
 
@@ -83,3 +85,10 @@ def test_only_plans_made_for_the_mail_count_each_once() -> None:
     latencies.observe(_state("d2", 2, None), now=6.0)  # no latency reported: nothing to count
     assert latencies.since() == [12.0, 30.0]
     assert latencies.since(4.0) == [30.0]  # when first seen, not when stated again
+
+
+@pytest.mark.parametrize("agents", [4, 32, 64, 128, 200])
+def test_the_bench_workspace_is_valid_at_every_size(agents: int) -> None:
+    """`drona bench coordination --agents 64` did not start: drones parked beside a charger walled it off."""
+    ws = workspace_from_mapping(yaml.safe_load(bench_workspace(agents)), name=f"bench-{agents}")
+    assert len(ws.drones) == agents and len(ws.parking) == agents
