@@ -33,8 +33,9 @@ class Configuration:
         s = self.scenario
         w, h, _ = s.grid
         crashes = f", {s.crashes} crash(es)" if s.crashes else ""
+        partitions = f", {s.partitions} partition(s)" if s.partitions else ""
         return (f"{s.drones} drones, {s.requests} requests, delta {s.delta}, {w}x{h} obstacles {s.obstacles:g}, "
-                f"{self.strategy.value}, seed {s.seed}{crashes}")
+                f"{self.strategy.value}, seed {s.seed}{crashes}{partitions}")
 
 
 @dataclass(frozen=True)
@@ -48,14 +49,15 @@ class SweepRow:
         return self.outcome.violation is None
 
 
-def configurations(seed: int, count: int, faults: bool = True, crashes: int = 0) -> Iterator[Configuration]:
+def configurations(seed: int, count: int, faults: bool = True, crashes: int = 0,
+                   partitions: int = 0) -> Iterator[Configuration]:
     """``count`` configurations drawn from ``seed``: uniform over every range above; ``crashes``
-    agents may crash and restart in each."""
+    agents may crash and restart in each, and ``partitions`` times a drone may be cut off."""
     rng = random.Random(f"sweep-{seed}")
     for _ in range(count):
         scenario = Scenario(drones=rng.choice(DRONES), requests=rng.choice(REQUESTS), delta=rng.choice(DELTAS),
                             seed=rng.randrange(1_000_000), grid=rng.choice(GRIDS), obstacles=rng.choice(OBSTACLES),
-                            faults=faults, crashes=crashes)
+                            faults=faults, crashes=crashes, partitions=partitions)
         yield Configuration(scenario, rng.choice(STRATEGIES))
 
 

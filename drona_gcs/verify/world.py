@@ -74,6 +74,9 @@ class Faults:
     #: see it leave) and may restart there later (its peers see it join); none unless asked for:
     #: the stack does not yet survive them (issue 25)
     crashes: int = 0
+    #: a drone cut off from the rest for a while (messages across the cut lost; each side sees the
+    #: other leave, and join again once it heals, within PARTITION_STEPS); none unless asked for
+    partitions: int = 0
     announce: bool = True  #: every new plan also reaches every peer (the fleet's answers, or plan/<me>)
 
     @classmethod
@@ -92,6 +95,7 @@ class Upgrade:
 
 
 UPGRADE = Upgrade()
+PARTITION_STEPS = 20  #: a partition heals within this many steps of the slowest clock
 MAX_DRAWS = 1000  #: random draws of a mail the service accepts, before giving up
 
 
@@ -297,6 +301,8 @@ class World:
         self.used = Faults.none()  #: faults so far
         self.down: dict[str, Cell] = {}  #: vehicles that came down by themselves, and where
         self.crashed: set[str] = set()  #: drones whose agent crashed (not restarted yet)
+        self.apart: frozenset[str] = frozenset()  #: drones cut off from the rest by a partition
+        self.heal_by: int | None = None  #: the step of the slowest clock by which the partition heals
         self.monitors = Monitors(config)
         self.trace: list[str] = []
 
@@ -306,7 +312,8 @@ class World:
         if self.injected < len(self.config.requests) or self.redispatch:
             moves.append(("inject", 0))
         moves += self._faults()
-        deadline = min([*(m.deadline for m in self.inflight), *(d for _, _, d in self.redispatch)], default=None)
+        deadlines = [*(m.deadline for m in self.inflight), *(d for _, _, d in self.redispatch)]
+        deadline = min([*deadlines, *([self.heal_by] if self.heal_by is not None else [])], default=None)
         if self.config.delta == 0:
             # Perfect synchrony: every executor takes the same step at once (one transition).
             nxt = min(self.steps.values()) + 1
@@ -339,6 +346,10 @@ class World:
             self._crash(self.config.drones[arg])
         elif kind == "restart":
             self._restart(self.config.drones[arg])
+        elif kind == "partition":
+            self._partition(self.config.drones[arg])
+        elif kind == "heal":
+            self._heal()
         elif arg < 0:
             for drone in self.config.drones:
                 self._step(drone)
@@ -354,6 +365,8 @@ class World:
             return ("env", "")
         if kind == "duplicate":
             return ("net", "dup")
+        if kind in ("partition", "heal"):
+            return ("net", "cut")
         if kind == "down":
             return ("vehicle", self.config.drones[arg])
         if kind in ("crash", "restart"):
@@ -368,7 +381,7 @@ class World:
             tuple(self.steps.values()), tuple(self.battery.values()),
             tuple(sorted((m.sender, m.to, repr(m.message), m.deadline) for m in self.inflight)),
             self.injected, tuple((d, r.id, t) for d, r, t in self.redispatch), self.used, frozenset(self.down.items()),
-            frozenset(self.crashed), frozenset(self.monitors.settled),
+            frozenset(self.crashed), self.apart, self.heal_by, frozenset(self.monitors.settled),
             tuple(tuple(h[-keep:]) for h in self.monitors.history.values()), self.monitors.key(),
         )
 
@@ -450,15 +463,21 @@ class World:
         # A process that dies closes its links at once: its peers see it leave before it can restart.
         leaving = {m.sender for m in self.inflight if isinstance(m.message, Left)}
         moves += [("restart", i) for i, d in enumerate(self.config.drones) if d in self.crashed and d not in leaving]
+        if self.apart:
+            moves.append(("heal", 0))
+        elif used.partitions < limit.partitions and len(in_service) > 1:
+            moves += [("partition", i) for i in in_service]
         return moves
 
     def _in_order(self, message: InFlight) -> bool:
         """Liveliness changes come in order, and a leave only once the lease outlasted every message
-        its agent sent before: after all that went earlier from the same sender to the same drone."""
+        its agent sent before: after all that went earlier from the same sender to the same drone.
+        A message sent after a leave comes after it: the lease ran out while nothing came through
+        (one sent after a join may come before it: the join is news of its own)."""
+        same_way = [m for m in self.inflight if m.sender == message.sender and m.to == message.to]
         if not isinstance(message.message, (Left, Joined)):
-            return True
-        return not any(m.sent_as < message.seq and m.sender == message.sender and m.to == message.to
-                       for m in self.inflight)
+            return not any(isinstance(m.message, Left) and m.seq < message.sent_as for m in same_way)
+        return not any(m.sent_as < message.seq for m in same_way)
 
     def _duplicate(self, seq: int) -> None:
         original = next(m for m in self.inflight if m.seq == seq)
@@ -513,6 +532,36 @@ class World:
         for peer in self.config.drones:
             if peer != drone:
                 self._post(drone, peer, Joined())
+
+    def _partition(self, drone: str) -> None:
+        """The network cuts ``drone`` off from the rest: what is in flight across the cut is lost, and
+        each side sees the other leave (its lease runs out), both alive and flying on."""
+        self.used = replace(self.used, partitions=self.used.partitions + 1)
+        self.apart = frozenset({drone})
+        self.heal_by = min(self.steps.values()) + PARTITION_STEPS
+        self.trace.append(f"net: {drone} is cut off from the rest")
+        lost = [m for m in self.inflight if self._across(m.sender, m.to) and not isinstance(m.message, (Left, Joined))]
+        self.inflight = [m for m in self.inflight if m not in lost]
+        if lost:
+            self.trace.append(f"net: {len(lost)} message(s) across the cut lost")
+        for a, b in self._pairs_across():
+            self._post(a, b, Left(self.steps[a]), liveliness=True)
+
+    def _heal(self) -> None:
+        """The partition heals: each side sees the other join again."""
+        pairs = self._pairs_across()
+        self.apart, self.heal_by = frozenset(), None
+        self.trace.append("net: the partition heals")
+        for a, b in pairs:
+            self._post(a, b, Joined(), liveliness=True)
+
+    def _across(self, a: str, b: str) -> bool:
+        return (a in self.apart) != (b in self.apart)
+
+    def _pairs_across(self) -> list[tuple[str, str]]:
+        """Ordered pairs of drones on either side of the cut, agents alive."""
+        return [(a, b) for a in self.config.drones for b in self.config.drones
+                if self._across(a, b) and a not in self.crashed and b not in self.crashed]
 
     def _vehicle_down(self, drone: str) -> None:
         self.used = replace(self.used, downs=self.used.downs + 1)
@@ -607,9 +656,13 @@ class World:
         later = [*drones[drones.index(drone) + 1:], *drones[:drones.index(drone) + 1]]
         return next((d for d in later if d not in self.down and d not in self.crashed), drone)
 
-    def _post(self, sender: str, to: str, message: Notice) -> None:
+    def _post(self, sender: str, to: str, message: Notice, liveliness: bool = False) -> None:
+        """``liveliness``: a leave or join each side's session sees by itself, across a cut too."""
         if to in self.crashed:
             self.trace.append(f"net: {_describe(message)} to {to} is lost (its agent crashed)")
+            return
+        if self._across(sender, to) and not liveliness:
+            self.trace.append(f"net: {_describe(message)} to {to} is lost (the partition)")
             return
         self.sent += 1
         # Within max_delay steps of the sender's clock: the bound is local to the sender,

@@ -24,6 +24,7 @@ from drona_gcs.verify.explore import (
 )
 from drona_gcs.verify.mutants import SEEDED_BUGS
 from drona_gcs.verify.sweep import SweepRow, configurations, run_sweep
+from drona_gcs.verify.world import PARTITION_STEPS
 
 _GRID = re.compile(r"^(\d+)x(\d+)(?:x(\d+))?$")
 
@@ -58,6 +59,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--crashes", type=int, default=0, metavar="N",
                         help="also let N agents crash (their vehicles hold in the air) and restart, in each run "
                              "(default 0)")
+    parser.add_argument("--partitions", type=int, default=0, metavar="N",
+                        help="also let the network cut a drone off from the rest N times in each run, each "
+                             f"healing within {PARTITION_STEPS} steps (default 0)")
     parser.add_argument("--sweep", type=int, metavar="N",
                         help="run N configurations drawn from --seed (2-6 drones, 2-10 requests, Delta 0-2, 8x8 "
                              "and 16x16, with and without obstacles, random and pct), --time-limit each; prints a "
@@ -130,7 +134,7 @@ def _scenario(args: argparse.Namespace) -> Scenario:
     max_delay = args.max_delay if args.max_delay is not None else (0 if args.strategy == "dfs" else 2)
     return Scenario(drones=args.drones, requests=args.requests, delta=args.delta, seed=args.seed, grid=grid,
                     obstacles=args.obstacles, workspace_path=args.workspace, bugs=tuple(args.seed_bug),
-                    max_delay=max_delay, faults=not args.no_faults, crashes=args.crashes)
+                    max_delay=max_delay, faults=not args.no_faults, crashes=args.crashes, partitions=args.partitions)
 
 
 def _sweep(args: argparse.Namespace) -> int:
@@ -148,7 +152,8 @@ def _sweep(args: argparse.Namespace) -> int:
         if row.token is not None:
             print(f"       {o.violation}\n       replay: drona verify --replay {row.token}", flush=True)
 
-    configs = configurations(args.seed, args.sweep, faults=not args.no_faults, crashes=args.crashes)
+    configs = configurations(args.seed, args.sweep, faults=not args.no_faults, crashes=args.crashes,
+                             partitions=args.partitions)
     rows = run_sweep(configs, args.schedules, args.max_depth, stop_after, on_row)
     failed = [row for row in rows if not row.clean]
     by_monitor = sorted({row.outcome.violation.monitor for row in failed if row.outcome.violation is not None})
