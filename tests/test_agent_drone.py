@@ -12,7 +12,7 @@ from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.drone import DroneStack, StackConfig
 from drona_gcs.stack.messages import CurrentTraj, ReqForCurrentTraj, TaskId
-from drona_gcs.stack.protocol import State
+from drona_gcs.stack.protocol import Braked, State
 from drona_gcs.workspace import Workspace
 from fleet.agent.drone import DroneAgent
 from fleet.executor import StepReport
@@ -450,3 +450,24 @@ def test_an_operators_command_reaches_the_stack_and_is_acknowledged() -> None:
     [(key, payload)] = replies
     ack = decode(payload).body
     assert key == KEYS.command("d1") and isinstance(ack, CommandAck) and ack.accepted and ack.drone == "d1"
+
+
+def test_a_brake_goes_out_as_a_plan_that_says_braked_and_peers_take_it_so() -> None:
+    """The agent publishes its cut plan on ``plan`` with ``braked``; a peer reading it holds the
+    sender where it braked, over the older answer of that plan."""
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0, drones={"d1": (0, 0, 0), "d2": (7, 0, 0)})
+    cut = Trajectory(3, ((7, 0, 0), (6, 0, 0), (6, 0, 0)))
+
+    async def scenario() -> tuple[RecordingNode, DroneStack]:
+        node, stack = RecordingNode(), DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+        agent = DroneAgent(stack, node, KEYS, ScriptedVehicle(), GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
+        agent._on_plan(KEYS.plan("d2"), encode("d2", 1000.0, PlanAnnounce(trajectory=WireTrajectory.of(cut),
+                                                                           braked=True)))
+        agent._carry_out([Braked(Trajectory(0, ((0, 0, 0), (1, 0, 0), (1, 0, 0))), (2, 0, 0))])
+        return node, stack
+
+    node, stack = asyncio.run(scenario())
+    assert stack.protocol.braked == {"d2": cut} and stack.protocol.known["d2"] == cut
+    told = [decode(p).body for k, p in node.puts if k == KEYS.plan("d1")]
+    assert [(b.braked, b.trajectory.cells) for b in told if isinstance(b, PlanAnnounce)] == [
+        (True, ((0, 0, 0), (1, 0, 0), (1, 0, 0)))]
