@@ -99,7 +99,7 @@ class Monitors:
     carrying: dict[str, MailRequest] = field(default_factory=dict)  #: (f) mail on board, per drone
     departed: dict[str, frozenset[str]] = field(default_factory=dict)  #: (a) peers each drone saw leave
     down: tuple[tuple[str, Cell], ...] = ()  #: (c) drones whose vehicle came down, and where
-    #: (b) vehicles that stopped following their plan (down, or their agent crashed), from which step
+    #: (b) vehicles that came down, from which step
     stopped: dict[str, int] = field(default_factory=dict)
     #: (a) what a drone down, or braked, was committed to before; (a, b) who has heard of it, at which
     #: of its own steps: (observer, drone) -> step
@@ -198,15 +198,9 @@ class Monitors:
             raise Violation("a", f"{drone} planned task {action.task.id} through {sorted(crossed)}, where {peer}, "
                                  f"gone, may have stopped: it was committed to {cells_text(committed)}")
 
-    def left(self, observer: str, peer: str, step: int) -> None:
-        """``observer``, at its step ``step``, saw ``peer`` leave (its agent's liveliness went)."""
+    def left(self, observer: str, peer: str) -> None:
+        """``observer`` saw ``peer`` leave (its agent's liveliness went)."""
         self.departed[observer] = self.departed.get(observer, frozenset()) | {peer}
-        if peer in self.stopped:
-            self.heard_news(observer, peer, step)
-
-    def crashed(self, drone: str, step: int) -> None:
-        """``drone``'s agent crashed at its step ``step``: its vehicle holds where it is."""
-        self.stopped[drone] = step
 
     def heard_from(self, observer: str, peer: str) -> None:
         """``observer`` heard from ``peer`` (it joined, or a message of it came): alive."""
@@ -236,9 +230,10 @@ class Monitors:
                         raise Violation("b", f"{a} and {b}: {v}")
 
     def _unforeseeable(self, v: SafetyViolation, a: str, b: str) -> bool:
-        """A collision with a vehicle that stopped following its plan (down, or its agent crashed), after
-        it stopped, by a drone that entered its cell before the news reached it (told at its step ``s``,
-        it must not be there at ``s + 1``)."""
+        """A collision with a vehicle down, after it came down, by a drone that entered its cell before
+        the news reached it (told at its step ``s``, it must not be there at ``s + 1``). Not so for a
+        crashed agent's vehicle, which holds where its plan said it would leave: that is the product's
+        to prevent (issue 25), not the network's news."""
         if v.kind is not ViolationKind.COLLISION or v.other_step is None:
             return False
         for down, at, other, when in ((b, v.other_step, a, v.step), (a, v.step, b, v.other_step)):
@@ -278,11 +273,8 @@ class Monitors:
                 and request.pickup in self._distances(request.dropoff, walls))
 
     def restarted(self, drone: str, cell: Cell, step: int) -> None:
-        """``drone``'s agent started again, its vehicle holding ``cell``: its plan is to stay (a, g), and
-        it is judged as any drone in service again (b)."""
+        """``drone``'s agent started again, its vehicle holding ``cell``: its plan is to stay (a, g)."""
         self.committed[drone] = Trajectory.stationary(cell, step)
-        self.stopped.pop(drone, None)
-        self.told = {k: v for k, v in self.told.items() if k[1] != drone}
 
     def vehicle_down(self, drone: str, cell: Cell, step: int) -> None:
         """``drone``'s vehicle came down in ``cell`` at ``step``: it stays there, whatever its plan

@@ -420,7 +420,7 @@ class World:
         elif isinstance(notice, Announce):
             stack.heard(msg.sender, notice.trajectory)
         elif isinstance(notice, Left):
-            self.monitors.left(msg.to, msg.sender, self.steps[msg.to])
+            self.monitors.left(msg.to, msg.sender)
             self._carry_out(msg.to, stack.peer_left(msg.sender, notice.since))
         elif isinstance(notice, Joined):
             # As the agent does: where it was last heard of (its start, if never).
@@ -508,7 +508,6 @@ class World:
         self.used = replace(self.used, crashes=self.used.crashes + 1)
         self.crashed.add(drone)
         stack, step = self.stacks[drone], self.steps[drone]
-        self.monitors.crashed(drone, max(step, 0))
         self.trace.append(f"{drone}: its agent crashed; its vehicle holds {cell_text(stack.executor.cell)}")
         # What was on its way to it is lost with its session (a new one never sees it).
         lost = [m for m in self.inflight if m.to == drone]
