@@ -1,6 +1,7 @@
-"""The operator's fleet commands: pause, resume, recall and land, each recorded with who asked.
+"""The operator's fleet commands: pause, resume, recall, land and release, each recorded with who asked.
 
-``pause`` and ``resume`` go to the whole fleet, ``recall``, ``land`` and ``resume`` to one drone too.
+``pause`` and ``resume`` go to the whole fleet, ``recall``, ``land`` and ``resume`` to one drone too;
+``release`` goes to every live drone, about one that is gone (its vehicle seen out of the air).
 The service stops handing out mail (the fleet paused, or a drone held) before it tells the drones,
 and records every command with the drones' answers in the audit trail (table ``command``, made by
 api.store.MIGRATIONS).
@@ -29,6 +30,7 @@ class Action(enum.Enum):
     RESUME = "resume"
     RECALL = "recall"
     LAND = "land"
+    RELEASE = "release"
 
 
 @dataclass(frozen=True)
@@ -55,7 +57,10 @@ class FleetCommands:
         once the drones heard it, so that mail handed out then is taken up."""
         if action is not Action.RESUME:
             self._apply(action, drone)
-        acks = tuple(await self.fleet.command(drone, action.value, by))
+        if action is Action.RELEASE:
+            acks = tuple(await self.fleet.command(None, action.value, by, about=drone))
+        else:
+            acks = tuple(await self.fleet.command(drone, action.value, by))
         if action is Action.RESUME:
             self._apply(action, drone)
         at = time.time()
@@ -71,6 +76,8 @@ class FleetCommands:
 
     def _apply(self, action: Action, drone: str | None) -> None:
         """What ``action`` means for handing out mail."""
+        if action is Action.RELEASE:
+            return  # about a drone gone: it is handed nothing while it is gone anyway
         if action is Action.PAUSE:
             self.dispatcher.hold(paused=True)
         elif action is Action.RESUME and drone is None:

@@ -167,9 +167,10 @@ class FleetGateway(Protocol):
         """Ask ``drone`` to drop ``mail_id``: best effort, never raises for an unreachable drone."""
         ...
 
-    async def command(self, drone: str | None, action: str, by: str) -> list[CommandAck]:
-        """Tell ``drone`` (None: every live drone) an operator's ``action`` (pause, resume, recall, land)
-        asked by ``by``; the answers that came in time (never raises for an unreachable drone)."""
+    async def command(self, drone: str | None, action: str, by: str, about: str | None = None) -> list[CommandAck]:
+        """Tell ``drone`` (None: every live drone) an operator's ``action`` (pause, resume, recall, land,
+        release ``about`` a drone gone) asked by ``by``; the answers that came in time (never raises for
+        an unreachable drone)."""
         ...
 
     def drones(self) -> Mapping[str, DroneView]:

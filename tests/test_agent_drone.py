@@ -13,7 +13,7 @@ from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.drone import DroneStack, StackConfig
 from drona_gcs.stack.messages import CurrentTraj, ReqForCurrentTraj, TaskId
 from drona_gcs.stack.protocol import Braked, State
-from drona_gcs.workspace import Workspace
+from drona_gcs.workspace import Cell, Workspace
 from fleet.agent.drone import DroneAgent
 from fleet.executor import StepReport
 from fleet.transport.keys import FleetKeys
@@ -471,3 +471,34 @@ def test_a_brake_goes_out_as_a_plan_that_says_braked_and_peers_take_it_so() -> N
     told = [decode(p).body for k, p in node.puts if k == KEYS.plan("d1")]
     assert [(b.braked, b.trajectory.cells) for b in told if isinstance(b, PlanAnnounce)] == [
         (True, ((0, 0, 0), (1, 0, 0), (1, 0, 0)))]
+
+
+def test_a_release_command_frees_a_departed_drones_cells_and_is_refused_for_a_member() -> None:
+    """``release`` about a drone gone: the agent holds none of its cells; about a drone still in the
+    fleet (as this agent sees it) it answers no, with the reason."""
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0,
+                         drones={"d1": (0, 0, 0), "d2": (7, 0, 0), "d3": (7, 7, 0)})
+    replies: list[CommandAck] = []
+
+    class Query:
+        payload = None
+
+        def reply(self, key: str, payload: bytes) -> None:
+            body = decode(payload).body
+            assert isinstance(body, CommandAck)
+            replies.append(body)
+
+    async def scenario() -> tuple[set[Cell], DroneStack]:
+        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+        agent = DroneAgent(stack, RecordingNode(), KEYS, ScriptedVehicle(), GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
+        stack.peer_left("d2")
+        held = stack.taken_cells()
+        for about in ("d2", "d3"):
+            order = FleetCommand(action=CommandAction.RELEASE, by="operator ops", about=about)
+            agent._on_command(KEYS.command("d1"), encode("service", 1000.0, order), Query())  # type: ignore[arg-type]
+        return held, stack
+
+    held, stack = asyncio.run(scenario())
+    assert (7, 0, 0) in held and "d2" not in stack.protocol.ghosts and (7, 0, 0) not in stack.taken_cells()
+    assert [(a.accepted, a.reason) for a in replies] == [
+        (True, ""), (False, "d3 is not a drone gone from the fleet: nothing to release")]

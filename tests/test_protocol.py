@@ -16,7 +16,7 @@ from collections.abc import Mapping
 
 import pytest
 
-from drona_gcs.errors import ProtocolViolation
+from drona_gcs.errors import ProblemError, ProtocolViolation
 from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.safety import check_fleet, check_trajectory
@@ -36,6 +36,7 @@ from drona_gcs.stack.protocol import (
     PeerJoined,
     PeerLeft,
     PlanCompleted,
+    Released,
     Relocated,
     Reroute,
     RerouteFailed,
@@ -96,7 +97,8 @@ def request(task_id: TaskId, sender: str, now: int = 0) -> ReqForCurrentTraj:
 
 # =========================================================== the state table
 EVENT_TYPES: tuple[type, ...] = (NewTask, PlanCompleted, PeerLeft, PeerJoined, ReqForCurrentTraj, CurrentTraj,
-                                 VehicleLost, Relocated, Reroute, VehicleDown, PeerDown, PeerBraked, NextStep)
+                                 VehicleLost, Relocated, Reroute, VehicleDown, PeerDown, PeerBraked, Released,
+                                 NextStep)
 #: What Protocol 1 takes in each state (paper section 3.1); the rest is a protocol violation. A vehicle
 #: found again is not placed while a round is under way (its request carried where it was). Only a
 #: drone flying a plan plans its rest anew (Reroute), and that round ends when the plan does.
@@ -134,6 +136,7 @@ def sample(event_type: type) -> Event:
         PeerDown: PeerDown("b", (3, 3, 0)),
         NextStep: NextStep(),
         PeerBraked: PeerBraked("b", Trajectory(0, (B, B))),
+        Released: Released("b"),  # in_state's peer, once it left (see test_every_state_event_pair)
     }
     return samples[event_type]
 
@@ -149,6 +152,8 @@ def test_the_transition_table_is_the_papers() -> None:
 def test_every_state_event_pair(state: State, event_type: type) -> None:
     proto = in_state(state)
     event = sample(event_type)
+    if event_type is Released:
+        proto.handle(PeerLeft("b"), 1)
     if (state, event_type) in REJECTED:
         with pytest.raises(ProtocolViolation) as info:
             proto.handle(event, 1)
@@ -941,3 +946,18 @@ def test_a_drone_whose_vehicle_is_down_tells_a_peer_that_joins() -> None:
     proto.handle(VehicleDown(plan.at(3)), 3)
     proto.handle(PeerLeft("b"), 4)
     assert proto.handle(PeerJoined("b", B), 5) == [Grounded(Trajectory.stationary(plan.at(3), 3))]
+
+
+def test_the_operator_releases_a_departed_drones_cells_and_nothing_else() -> None:
+    """A killed drone's whole remaining path stayed blocked for good (issue 25: 37 refusals in one
+    run). Once the operator saw its vehicle out of the air, no cell is held for it; a drone in the
+    fleet cannot be released."""
+    proto, _ = flying_past_b()
+    proto.handle(PeerLeft("c"), 2)
+    assert proto.ghosts["c"].last == C
+    with pytest.raises(ProblemError, match="b is not a drone gone"):
+        proto.handle(Released("b"), 3)
+    assert proto.handle(Released("c"), 3) == [] and "c" not in proto.ghosts and "c" not in proto.known
+    assert proto.ghost_obstacles() == {}
+    proto.handle(PeerJoined("c", (2, 2, 0)), 4)
+    assert proto.known["c"] == Trajectory.stationary((2, 2, 0), 4) and "c" in proto.members

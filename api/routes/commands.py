@@ -1,4 +1,5 @@
-"""``/v1/fleet/...`` commands: pause and resume the fleet, recall, land or resume one drone (operators).
+"""``/v1/fleet/...`` commands: pause and resume the fleet, recall, land or resume one drone, release one
+that is gone (operators).
 
 Each is recorded with who asked and the drones' answers (``GET /v1/fleet/commands``); see
 :mod:`api.commands` for what the service and the drones do.
@@ -53,6 +54,18 @@ async def resume_drone(caller: OperatorDep, drone: DroneId) -> CommandRecord:
     return await _run(caller, Action.RESUME, drone)
 
 
+@router.post("/drones/{drone}/release", response_model=CommandRecord, responses={
+    404: {"model": ErrorOut, "description": "no such drone in the workspace"},
+    409: {"model": ErrorOut, "description": "the drone is in the fleet: there is nothing to release"}})
+async def release(caller: OperatorDep, drone: DroneId) -> CommandRecord:
+    """The operator has seen the vehicle of this drone, gone from the fleet, out of the air for good
+    (landed, or taken away): every live drone stops holding the cells it may have stopped on. Recorded
+    in the audit trail; the drone is held nowhere until it joins again and says where it is."""
+    if drone in caller.service.gateway.drones():
+        raise HTTPException(status.HTTP_409_CONFLICT, f"drone {drone} is in the fleet: there is nothing to release")
+    return await _run(caller, Action.RELEASE, drone)
+
+
 @router.get("/commands", response_model=list[CommandRecord])
 async def commands(caller: OperatorDep,
                    limit: Annotated[int, Query(ge=1, le=500)] = 100) -> list[CommandRecord]:
@@ -65,7 +78,8 @@ async def _run(caller: Caller, action: Action, drone: str | None) -> CommandReco
     if drone is not None and drone not in service.workspace.drones:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no drone {drone!r} in the workspace")
     record = await service.commands.run(action, drone, caller.principal.name)
-    if drone is not None and not any(a.drone == drone and a.accepted for a in record.acks):
+    if action is not Action.RELEASE and drone is not None and not any(a.drone == drone and a.accepted
+                                                                       for a in record.acks):
         raise HTTPException(status.HTTP_504_GATEWAY_TIMEOUT,
                             f"drone {drone} did not answer {action.value!r} (recorded as command {record.n}; "
                             f"the service hands it no mail until resumed)" if action is not Action.RESUME

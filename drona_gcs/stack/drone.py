@@ -52,6 +52,7 @@ from drona_gcs.stack.protocol import (
     PeerJoined,
     PeerLeft,
     PlanCompleted,
+    Released,
     Relocated,
     Reroute,
     RerouteFailed,
@@ -258,6 +259,11 @@ class DroneStack:
         self.executor.relocate(cell)
         self.arrival = None
         return [*actions, *self._protocol(VehicleDown(cell))]
+
+    def release(self, drone: str) -> list[DroneAction]:
+        """The operator saw ``drone``, gone from the fleet, out of the air for good: hold none of its
+        cells (ProblemError if it is no departed drone)."""
+        return self._protocol(Released(drone))
 
     def peer_braked(self, drone: str, trajectory: Trajectory) -> list[DroneAction]:
         """``drone`` announced it cut its plan short, to ``trajectory``: it holds at its end."""

@@ -102,6 +102,8 @@ settled here, and one message it sends is saved (the second point):
   it hears of it first. Plans keep Delta steps between drones, and the news travels in
   well under a period on a real link, so it does; with news slower than the window (the
   tester's ``max_delay`` allows it), it may not, and the tester judges that flight.
+* **The operator may release a departed drone** (``Released``): having seen its vehicle
+  out of the air for good, it tells every drone to hold none of its cells.
 * **My vehicle can be lost** (its link closed or silent). It may then be anywhere on
   my trajectory from when it was last seen, or where it was seen: I keep answering with
   my trajectory and also name those cells (``holds``), which every peer holds for good
@@ -126,7 +128,7 @@ import enum
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
-from drona_gcs.errors import GoalCutOff, NoPlanFound, ProtocolViolation
+from drona_gcs.errors import GoalCutOff, NoPlanFound, ProblemError, ProtocolViolation
 from drona_gcs.motion import Trajectory
 from drona_gcs.planner import Plan
 from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj, Task, TaskId
@@ -212,6 +214,14 @@ class PeerBraked:
 
 
 @dataclass(frozen=True)
+class Released:
+    """The operator saw ``drone``, gone, out of the air for good (landed, or taken away): no cell is
+    held for it any more, until it joins again."""
+
+    drone: str
+
+
+@dataclass(frozen=True)
 class NextStep:
     """The executor is about to take the boundary after ``now``: a last look at the cell it enters."""
 
@@ -224,7 +234,7 @@ class Reroute:
 
 
 Event = (NewTask | PlanCompleted | PeerLeft | PeerJoined | ReqForCurrentTraj | CurrentTraj | VehicleLost
-         | Relocated | Reroute | VehicleDown | PeerDown | PeerBraked | NextStep)
+         | Relocated | Reroute | VehicleDown | PeerDown | PeerBraked | Released | NextStep)
 
 
 # ----------------------------------------------------------------- actions
@@ -585,6 +595,14 @@ class CoordinationProtocol:
             self.received[drone] = self._news(drone, self.received[drone])
         return self._steer_clear(drone, now)
 
+    def _on_released(self, event: Released, now: int) -> list[Action]:
+        """Forget where a departed drone may be: its ghost, its vehicle down, its brake."""
+        if event.drone == self.me or event.drone in self.members or event.drone not in self.peers:
+            raise ProblemError(f"{event.drone} is not a drone gone from the fleet: nothing to release")
+        for held in (self.ghosts, self.peers_down, self.braked, self.known):
+            held.pop(event.drone, None)
+        return []
+
     def _on_reroute(self, event: Reroute, now: int) -> list[Action]:
         return self._begin_round(event.task, State.REROUTING, now)
 
@@ -691,6 +709,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         VehicleDown: CoordinationProtocol._on_vehicle_down,  # -> WAIT_FOR_TASK
         PeerDown: CoordinationProtocol._on_peer_down,
         PeerBraked: CoordinationProtocol._on_peer_braked,
+        Released: CoordinationProtocol._on_released,
         NextStep: CoordinationProtocol._ignore,
     },
     State.COORDINATING: {
@@ -702,6 +721,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         VehicleDown: CoordinationProtocol._on_vehicle_down,  # -> WAIT_FOR_TASK
         PeerDown: CoordinationProtocol._on_peer_down,
         PeerBraked: CoordinationProtocol._on_peer_braked,
+        Released: CoordinationProtocol._on_released,
         NextStep: CoordinationProtocol._ignore,  # nothing is flown yet
     },
     State.EXECUTING: {
@@ -716,6 +736,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         VehicleDown: CoordinationProtocol._on_vehicle_down,  # -> WAIT_FOR_TASK
         PeerDown: CoordinationProtocol._on_peer_down,  # may brake, or report Threatened
         PeerBraked: CoordinationProtocol._on_peer_braked,  # may brake, or report Threatened
+        Released: CoordinationProtocol._on_released,
         NextStep: CoordinationProtocol._on_next_step,  # may brake
     },
     State.REROUTING: {  # a round as COORDINATING's, while the plan is flown on
@@ -728,6 +749,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         VehicleDown: CoordinationProtocol._on_vehicle_down,  # -> WAIT_FOR_TASK
         PeerDown: CoordinationProtocol._on_peer_down,  # may brake
         PeerBraked: CoordinationProtocol._on_peer_braked,  # may brake, or report Threatened
+        Released: CoordinationProtocol._on_released,
         NextStep: CoordinationProtocol._on_next_step,  # may brake
     },
 }

@@ -32,6 +32,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TextIO
 
+from drona_gcs.errors import ProblemError
 from drona_gcs.geo import GeoFrame
 from drona_gcs.stack.battery import BatteryLow, BatteryRecharged
 from drona_gcs.stack.drone import DroneAction, DroneStack, LegNotFlown
@@ -62,6 +63,7 @@ from fleet.transport.wire import (
     ClockPing,
     ClockPong,
     CommandAck,
+    CommandAction,
     CurTraj,
     CurTrajTo,
     DroneState,
@@ -486,10 +488,17 @@ class DroneAgent:
         except WireError as exc:
             self.dropped.warning(key, "%s: dropped a command on %s: %s", self.me, key, exc)
             return
-        log.warning("%s: %s, by %s", self.me, body.action.value, body.by)
-        self._carry_out(self.stack.command(body.action.value, f"{body.action.value} by {body.by}"))
+        log.warning("%s: %s%s, by %s", self.me, body.action.value, f" {body.about}" if body.about else "", body.by)
+        try:
+            if body.action is CommandAction.RELEASE:
+                self._carry_out(self.stack.release(body.about or ""))
+            else:
+                self._carry_out(self.stack.command(body.action.value, f"{body.action.value} by {body.by}"))
+        except ProblemError as exc:
+            ack = CommandAck(drone=self.me, action=body.action, accepted=False, reason=str(exc))
+        else:
+            ack = CommandAck(drone=self.me, action=body.action, accepted=True)
         self.publish_state_soon()
-        ack = CommandAck(drone=self.me, action=body.action, accepted=True)
         query.reply(self.keys.command(self.me), encode(self.me, self.clock(), ack))
 
     # ----------------------------------------------------------------- clock

@@ -104,9 +104,9 @@ class ZenohGateway:
             await node.get(self.keys.cancel(drone), encode("drona-serve", 0.0, MailCancel(id=mail_id)),
                            QUERY_TIMEOUT_S)
 
-    async def command(self, drone: str | None, action: str, by: str) -> list[CommandAck]:
+    async def command(self, drone: str | None, action: str, by: str, about: str | None = None) -> list[CommandAck]:
         node = (await self._client()).node
-        order = encode(SERVICE, time.time(), FleetCommand(action=CommandAction(action), by=by))
+        order = encode(SERVICE, time.time(), FleetCommand(action=CommandAction(action), by=by, about=about))
         replies = await node.get(self.keys.command(drone or "*"), order, QUERY_TIMEOUT_S, block=True)
         acks = []
         for reply in replies:

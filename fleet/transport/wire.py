@@ -263,6 +263,7 @@ class CommandAction(enum.Enum):
     RESUME = "resume"  #: undo every command below
     RECALL = "recall"  #: as pause, and hand back every mail not on board
     LAND = "land"  #: as recall, and stop where the drone is (through the protocol), until resumed
+    RELEASE = "release"  #: the drone ``about``, gone, is out of the air for good: hold none of its cells
 
 
 class FleetCommand(_Body, frozen=True, kw_only=True, tag="command"):
@@ -270,6 +271,7 @@ class FleetCommand(_Body, frozen=True, kw_only=True, tag="command"):
 
     action: CommandAction
     by: Annotated[str, msgspec.Meta(max_length=200)]  #: who asked, for the drone's log
+    about: Annotated[str, msgspec.Meta(max_length=64)] | None = None  #: the drone a release is about
 
 
 class CommandAck(_Body, frozen=True, kw_only=True, tag="command_ack"):

@@ -114,13 +114,16 @@ class SimulatedGateway:
         if sim.current is not None and sim.current.id == mail_id and not sim.carrying:
             sim.current, sim.path = None, []
 
-    async def command(self, drone: str | None, action: str, by: str) -> list[CommandAck]:
+    async def command(self, drone: str | None, action: str, by: str, about: str | None = None) -> list[CommandAck]:
         """Live drones that are not silent answer; a recalled or landed one hands back its queue."""
-        self.commands.append((drone, action, by))
+        self.commands.append((drone, action, by) if about is None else (drone, action, by, about))
         acks = []
         for name in [drone] if drone is not None else sorted(self._views):
             sim = self._drones.get(name)
             if sim is None or name not in self._views or name in self.silent:
+                continue
+            if action == "release":
+                acks.append(CommandAck(name, True))
                 continue
             if action in ("recall", "land"):
                 self._hand_back(sim, f"{action} by {by}")

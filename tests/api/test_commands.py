@@ -100,3 +100,25 @@ def test_every_command_goes_out_on_the_event_stream(settings: ApiSettings, works
             assert [(c["action"], c["drone"], c["by"]) for c in commands] == [("recall", "d1", "ops")]
 
     run(body())
+
+
+def test_a_drone_gone_from_the_fleet_is_released_only_while_it_is_gone(
+        settings: ApiSettings, workspace: Workspace) -> None:
+    """``release`` tells every live drone to stop holding the cells a departed drone may have stopped
+    on, once the operator saw its vehicle out of the air; refused for a drone in the fleet."""
+    async def body() -> None:
+        async with running(settings, workspace) as h:
+            res = await h.client.post("/v1/fleet/drones/d2/release", headers=auth())
+            assert res.status_code == 409 and "in the fleet" in res.json()["detail"]
+            assert h.gateway.commands == []
+            h.gateway.lose("d2")
+            res = await h.client.post("/v1/fleet/drones/d2/release", headers=auth())
+            assert res.status_code == 200, res.text
+            assert res.json()["action"] == "release" and res.json()["drone"] == "d2"
+            assert {a["drone"] for a in res.json()["acks"]} == {"d1", "d3"}
+            assert h.gateway.commands == [(None, "release", "ops", "d2")]
+            history = (await h.client.get("/v1/fleet/commands", headers=auth())).json()
+            assert [(c["action"], c["drone"], c["by"]) for c in history] == [("release", "d2", "ops")]
+            assert (await h.client.post("/v1/fleet/drones/d9/release", headers=auth())).status_code == 404
+
+    run(body())
