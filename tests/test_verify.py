@@ -461,3 +461,18 @@ def test_the_tester_finds_that_a_partition_can_put_drones_on_one_cell() -> None:
         outcome = Explorer(scenario).run(Strategy.RANDOM, schedules=200, max_depth=3000, seed=seed)
         found.append(outcome.violation is not None and outcome.violation.monitor in {"a", "b"})
     assert any(found), found
+
+
+def test_the_liveness_bound_runs_from_the_fields_last_change() -> None:
+    """Found by a crash sweep (seed 8003): a crashed agent's vehicle held a drop-off, and its restart
+    came after (d)'s bound had run out, counted from the last request: the mail was owed at once."""
+    world = Explorer(Scenario(drones=3, requests=0, delta=1, seed=2, crashes=1, partitions=1)).world()
+    world.apply(("crash", 0))
+    world.inflight = [m for m in world.inflight if not isinstance(m.message, Left)]  # as if every peer saw it
+    world.steps = dict.fromkeys(world.config.drones, 40)
+    world.apply(("restart", 0))
+    assert world.last_injection_step == 40
+    world.steps = dict.fromkeys(world.config.drones, 55)
+    world.apply(("partition", 1))
+    world.apply(("heal", 0))
+    assert world.last_injection_step == 55

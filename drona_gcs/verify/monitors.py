@@ -14,7 +14,8 @@ shares nothing with the code it judges: no production ranking, no protocol query
 (c) each drone starts its mail in priority order: never one while a more urgent
     one (higher priority, or equal and sent by the environment earlier) waits, unstarted,
     with a path open to it (around obstacles, vehicles down and drones resting);
-(d) every request is delivered within a bound once the environment stops sending (but one
+(d) every request is delivered within a bound once the environment stops (its last request, an
+    agent's restart or a partition's heal; but one
     cancelled, lost on board a vehicle that came down, or cut off from its drop-off by
     obstacles and the vehicles down: no path from the drone carrying it, or from any drone in
     service through its pickup);

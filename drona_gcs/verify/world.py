@@ -527,6 +527,7 @@ class World:
         self.stacks[drone] = DroneStack(drone, old.config, peers, epoch=old.clock.epoch + 1)
         plant(self.stacks[drone], self.config.bugs)
         self.trace.append(f"{drone}: its agent restarts at {cell_text(old.executor.cell)}")
+        self.last_injection_step = min(self.steps.values())  # (d)'s bound runs from the field's last change
         self.monitors.restarted(drone, old.executor.cell, self.steps[drone])
         for peer in self.config.drones:
             if peer != drone:
@@ -551,6 +552,7 @@ class World:
         pairs = self._pairs_across()
         self.apart, self.heal_by = frozenset(), None
         self.trace.append("net: the partition heals")
+        self.last_injection_step = min(self.steps.values())  # (d)'s bound runs from the field's last change
         for a, b in pairs:
             self._post(a, b, Joined(), liveliness=True)
 
