@@ -375,15 +375,7 @@ class World:
 
     def state_key(self) -> Hashable:
         """The state, less what does not change the future (trace, message numbers, old history)."""
-        keep = self.config.delta + 2
-        return (
-            tuple(_stack_key(stack) for stack in self.stacks.values()),
-            tuple(self.steps.values()), tuple(self.battery.values()),
-            tuple(sorted((m.sender, m.to, repr(m.message), m.deadline) for m in self.inflight)),
-            self.injected, tuple((d, r.id, t) for d, r, t in self.redispatch), self.used, frozenset(self.down.items()),
-            frozenset(self.crashed), self.apart, self.heal_by, frozenset(self.monitors.settled),
-            tuple(tuple(h[-keep:]) for h in self.monitors.history.values()), self.monitors.key(),
-        )
+        return self.state_key_with(tuple(self.stack_key(d) for d in self.config.drones))
 
     def clone(self) -> World:
         """An independent copy for the DFS: machines copied one level deep, values shared
@@ -712,7 +704,7 @@ class World:
             tuple(self.steps.values()), tuple(self.battery.values()),
             tuple(sorted((m.sender, m.to, repr(m.message), m.deadline) for m in self.inflight)),
             self.injected, tuple((d, r.id, t) for d, r, t in self.redispatch), self.used, frozenset(self.down.items()),
-            frozenset(self.crashed), frozenset(self.monitors.settled),
+            frozenset(self.crashed), self.apart, self.heal_by, frozenset(self.monitors.settled),
             # In drone order, not in the order the drones first stepped, which is no part of the state.
             tuple(tuple(history[d][-keep:]) for d in self.config.drones if d in history),
             self.monitors.key(),
