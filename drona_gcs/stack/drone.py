@@ -117,6 +117,8 @@ class StackConfig:
     low_mark: float = 40.0
     recharged_mark: float = 95.0
     lead_steps: int | None = None  #: steps between planning and a plan's start; default Delta + 1
+    #: the same for a drone already in the air (nothing to climb); default: ``lead_steps``
+    air_lead_steps: int | None = None
 
     def __deepcopy__(self, memo: dict[int, object]) -> StackConfig:
         return self
@@ -132,7 +134,8 @@ class DroneStack:
         self.clock = HybridClock(me, epoch)
         planner = config.planner
         lead = config.lead_steps if config.lead_steps is not None else config.planner.delta + 1
-        self.protocol = CoordinationProtocol(me, start, dict(peers), planner.plan, lead)
+        air = config.air_lead_steps if config.air_lead_steps is not None else lead
+        self.protocol = CoordinationProtocol(me, start, dict(peers), planner.plan, lead, air_lead_steps=air)
         self.executor = PlanExecutor(start)
         self.monitor = BatteryMonitor(config.low_mark, config.recharged_mark)
         parking = own_parking(ws.parking, list(peers), me)
@@ -244,7 +247,7 @@ class DroneStack:
         trajectory = self.protocol.trajectory
         if self.protocol.state is not State.EXECUTING or trajectory is None:
             return []
-        stop = trajectory.at(self.now + self.protocol.lead_steps)
+        stop = trajectory.at(self.now + self.protocol.air_lead_steps)
         if stop == trajectory.last:
             return []
         self.stop_short, self.threat = stop, None
@@ -359,7 +362,7 @@ class DroneStack:
         where a new plan would start (that cell itself, if it can be held); None if there is none."""
         trajectory = self.protocol.trajectory
         assert trajectory is not None
-        start = trajectory.at(self.now + self.protocol.lead_steps)
+        start = trajectory.at(self.now + self.protocol.air_lead_steps)
         self.stop_short = yield_spot(self.config.workspace, start, frozenset(threat.cells), self.taken_cells())
         return self.stop_short
 
@@ -417,7 +420,7 @@ class DroneStack:
         task = self.protocol.task
         if self.protocol.state is not State.COORDINATING or task is None or self.landed:
             return
-        left = task.max_length(step + self.protocol.lead_steps)
+        left = task.max_length(step + self.protocol.lead_for(task))
         if left is not None and left < self.mail.distance(self.protocol.location, task.goal):
             self.mail.land()
 
