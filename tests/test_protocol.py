@@ -961,15 +961,3 @@ def test_the_operator_releases_a_departed_drones_cells_and_nothing_else() -> Non
     assert proto.ghost_obstacles() == {}
     proto.handle(PeerJoined("c", (2, 2, 0)), 4)
     assert proto.known["c"] == Trajectory.stationary((2, 2, 0), 4) and "c" in proto.members
-
-
-def test_a_drone_in_the_air_starts_its_plan_after_the_air_lead_not_the_climb() -> None:
-    """Issue 25's 16_4 run delivered 3 of 44 mails in 8 minutes: every leg waited 14 steps of lead,
-    the climb of a landed drone, even for a drone hovering at its pickup."""
-    proto = CoordinationProtocol("a", A, {"a": A}, SafePlanner(OPEN, 0).plan, lead_steps=5, air_lead_steps=1)
-    hovering = started(proto.handle(NewTask(Task(ID_A, GOAL, hovering_since=3)), 3)).trajectory
-    assert hovering.start_step == 4
-    proto.handle(PlanCompleted(), hovering.end_step)
-    landed = started(proto.handle(NewTask(Task(TaskId(20, "a", 2), A)), 20)).trajectory
-    assert landed.start_step == 25
-    assert CoordinationProtocol("b", B, {"b": B}, SafePlanner(OPEN, 0).plan, lead_steps=3).air_lead_steps == 3

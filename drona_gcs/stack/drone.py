@@ -117,8 +117,6 @@ class StackConfig:
     low_mark: float = 40.0
     recharged_mark: float = 95.0
     lead_steps: int | None = None  #: steps between planning and a plan's start; default Delta + 1
-    #: the same for a drone already in the air (nothing to climb); default: ``lead_steps``
-    air_lead_steps: int | None = None
 
     def __deepcopy__(self, memo: dict[int, object]) -> StackConfig:
         return self
@@ -134,8 +132,7 @@ class DroneStack:
         self.clock = HybridClock(me, epoch)
         planner = config.planner
         lead = config.lead_steps if config.lead_steps is not None else config.planner.delta + 1
-        air = config.air_lead_steps if config.air_lead_steps is not None else lead
-        self.protocol = CoordinationProtocol(me, start, dict(peers), planner.plan, lead, air_lead_steps=air)
+        self.protocol = CoordinationProtocol(me, start, dict(peers), planner.plan, lead)
         self.executor = PlanExecutor(start)
         self.monitor = BatteryMonitor(config.low_mark, config.recharged_mark)
         parking = own_parking(ws.parking, list(peers), me)
@@ -152,7 +149,7 @@ class DroneStack:
         self.asked_clear: frozenset[Cell] = frozenset()  #: resting cells the last leg asked to leave
         self.stuck: frozenset[Cell] = frozenset()  #: of those, cells still taken at the next failure
         self.stop_short: Cell | None = None  #: where a rerouted leg ends instead of its goal, held for good
-        self.braked: Cell | None = None  #: where the plan flown was cut short of a cell held for good
+        self.braked: Cell | None = None  #: where the plan flown was cut short of a vehicle down
         self.threat: Threatened | None = None  #: what the reroute under way goes around
         self.commanded: str | None = None  #: the operator's command in force (see :meth:`command`)
 
@@ -247,7 +244,7 @@ class DroneStack:
         trajectory = self.protocol.trajectory
         if self.protocol.state is not State.EXECUTING or trajectory is None:
             return []
-        stop = trajectory.at(self.now + self.protocol.air_lead_steps)
+        stop = trajectory.at(self.now + self.protocol.lead_steps)
         if stop == trajectory.last:
             return []
         self.stop_short, self.threat = stop, None
@@ -362,7 +359,7 @@ class DroneStack:
         where a new plan would start (that cell itself, if it can be held); None if there is none."""
         trajectory = self.protocol.trajectory
         assert trajectory is not None
-        start = trajectory.at(self.now + self.protocol.air_lead_steps)
+        start = trajectory.at(self.now + self.protocol.lead_steps)
         self.stop_short = yield_spot(self.config.workspace, start, frozenset(threat.cells), self.taken_cells())
         return self.stop_short
 
@@ -420,7 +417,7 @@ class DroneStack:
         task = self.protocol.task
         if self.protocol.state is not State.COORDINATING or task is None or self.landed:
             return
-        left = task.max_length(step + self.protocol.lead_for(task))
+        left = task.max_length(step + self.protocol.lead_steps)
         if left is not None and left < self.mail.distance(self.protocol.location, task.goal):
             self.mail.land()
 

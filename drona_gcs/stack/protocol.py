@@ -67,9 +67,8 @@ settled here, and one message it sends is saved (the second point):
   plans that may have been replaced since; planning with them is the race the
   paper's model checker found (the tester seeds this bug).
 * **A plan starts ``lead_steps`` after now**, because planning, messaging and
-  the executor's hand-over take time, and a drone on the ground climbs; one in the
-  air has nothing to climb and starts ``air_lead_steps`` after now. The executor
-  refuses a trajectory whose start it has already passed. Other drones' executors may be up to Delta
+  the executor's hand-over take time; the executor refuses a trajectory whose
+  start it has already passed. Other drones' executors may be up to Delta
   steps ahead or behind; the planner's skew window covers exactly that.
 * **Membership can change.** ``PeerLeft`` means the drone's liveliness was
   lost: it is no longer waited for, and it stays in Psi as an obstacle:
@@ -309,9 +308,6 @@ class CoordinationProtocol:
     peers: Mapping[str, Cell]
     plan: PlanFunction
     lead_steps: int = 1
-    #: the lead of a drone in the air (a task ``hovering_since`` a step), which has nothing to climb;
-    #: by default ``lead_steps``
-    air_lead_steps: int = -1
     state: State = State.WAIT_FOR_TASK
     task: Task | None = None
     trajectory: Trajectory | None = None
@@ -329,8 +325,6 @@ class CoordinationProtocol:
     braked: dict[str, Trajectory] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if self.air_lead_steps < 0:
-            self.air_lead_steps = self.lead_steps
         self.members = set(self.peers) - {self.me}
         self.known = {p: Trajectory.stationary(c, 0) for p, c in self.peers.items() if p != self.me}
 
@@ -539,7 +533,7 @@ class CoordinationProtocol:
         if self.state not in (State.EXECUTING, State.REROUTING) or self.trajectory is None:
             return []
         entry = self._entry(now)
-        if entry is not None and entry <= now + self.air_lead_steps:
+        if entry is not None and entry <= now + self.lead_steps:
             return self._brake(entry)
         if entry is None or self.state is State.REROUTING:
             return []
@@ -658,7 +652,7 @@ class CoordinationProtocol:
             return []
         assert self.task is not None
         task = self.task
-        start_step = now + self.lead_for(task)
+        start_step = now + self.lead_steps
         flying = self.trajectory if self.state is State.REROUTING else None
         here = flying.at(now) if flying is not None else self.location
         start = flying.at(start_step) if flying is not None else self.location
@@ -686,10 +680,6 @@ class CoordinationProtocol:
         trajectory = flying.spliced(plan.trajectory) if flying is not None else plan.trajectory
         self.trajectory, self.state = trajectory, State.EXECUTING
         return [StartExecuting(task, trajectory, psi), *self._release_pending(trajectory)]
-
-    def lead_for(self, task: Task) -> int:
-        """Steps from planning ``task`` to its plan's start: a drone in the air has nothing to climb."""
-        return self.air_lead_steps if task.hovering_since is not None else self.lead_steps
 
     def _held_by_peers(self, now: int) -> dict[str, Trajectory]:
         """The cells this round's answers hold besides their trajectories, as obstacles for good."""

@@ -130,7 +130,7 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
     planner = SafePlanner(ws, delta=ws.delta)
     battery = BatteryModel.for_period(ws.tau_s, settings.drain_per_step, settings.safe_threshold)
     lead = settings.lead_steps or default_lead_steps(ws)
-    config = StackConfig(ws, planner, battery, lead_steps=lead, air_lead_steps=min(lead, ws.delta + 1))
+    config = StackConfig(ws, planner, battery, lead_steps=lead)
     keys = FleetKeys(settings.fleet)
     signing = settings.signing_keys(host.names)  # before any network: a missing key stops the process here
     groups = session_groups(settings, host.names)
