@@ -149,7 +149,7 @@ class DroneStack:
         self.asked_clear: frozenset[Cell] = frozenset()  #: resting cells the last leg asked to leave
         self.stuck: frozenset[Cell] = frozenset()  #: of those, cells still taken at the next failure
         self.stop_short: Cell | None = None  #: where a rerouted leg ends instead of its goal, held for good
-        self.braked: Cell | None = None  #: where the plan flown was cut short of a vehicle down
+        self.braked: Cell | None = None  #: where the plan flown was cut short of a cell held for good
         self.threat: Threatened | None = None  #: what the reroute under way goes around
         self.commanded: str | None = None  #: the operator's command in force (see :meth:`command`)
 
