@@ -696,6 +696,7 @@ def test_the_budgeted_way_goes_around_drones_resting_now_where_it_can() -> None:
     # A vehicle down moves for nobody: walled in, the way is through the drone at rest, never through it.
     assert ways(c(0, 0), c(3, 0), frozenset({c(2, 0)}), frozenset({c(2, 2)})) == 3
     assert ways(c(0, 1), c(4, 1), none, both) == 10**6
+    assert ways(c(0, 1), c(2, 0), none, frozenset({c(2, 0)})) == 10**6  # nor to it: a pickup it sits on
 
 
 def test_a_drone_asked_to_make_way_that_cannot_afford_the_spot_goes_to_charge() -> None:

@@ -492,7 +492,7 @@ def _distance_function(planner: SafePlanner, resting: Collection[Cell] = ()) -> 
     that counted the way through a parked drone left a drone without the battery for the way
     around, stranded for good (found by the systematic tester). Either end may be such a cell.
     Where they wall the goal in, the way is through them: a drone at rest makes way. It never is
-    through ``walls``, cells held for good (vehicles down), which nothing moves out of.
+    through ``walls``, cells held for good (vehicles down), which nothing moves out of, nor to one.
     """
     ws, graph, grid = planner.workspace, planner.graph, planner.grid
     always = frozenset(ws.cell_id(c) for c in resting)
@@ -514,6 +514,8 @@ def _distance_function(planner: SafePlanner, resting: Collection[Cell] = ()) -> 
         return tree.get(start)
 
     def distance(a: Cell, b: Cell, resting_now: frozenset[Cell], walls: frozenset[Cell]) -> int:
+        if a in walls or b in walls:
+            return NO_WAY  # nothing gets into a vehicle down's cell (a pickup it sits on, a charger)
         d = steps(a, b, True, resting_now, walls)
         if d >= UNREACHABLE:
             d = steps(a, b, False, resting_now, walls)
