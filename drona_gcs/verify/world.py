@@ -242,7 +242,7 @@ class Announce:
 
     trajectory: Trajectory
     grounded: bool = False  #: the sender's vehicle came down: it stays at the trajectory's end for good
-    braked: bool = False  #: the sender cut its plan short of a vehicle down (read as any plan)
+    braked: bool = False  #: the sender cut its plan short of a cell held for good (read as any plan)
 
 
 @dataclass(frozen=True)
