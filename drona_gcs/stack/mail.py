@@ -480,7 +480,7 @@ class MailPlanner:
     def _start_next_mail(self, budget: Budget, taken: Collection[Cell]) -> list[MailAction]:
         self.queue.sort(key=lambda r: (r.id in self.cut_off_mail, r.rank))
         best = self.queue[0]
-        if self.distance(self.cell, best.pickup) >= NO_WAY:
+        if not self._reachable([best.pickup]):
             self.queue.pop(0)
             why = f"its pickup {list(best.pickup)} is cut off from here (obstacles and vehicles down)"
             return [MailRejected(best, why), *self.decide_again(budget, taken)]
@@ -494,7 +494,7 @@ class MailPlanner:
             return [MailStarted(best, tuple(self.queue)), *leg]
         # Not enough for this mail: charge first, at a charger from which a full battery will do.
         full = self.battery.steps_affordable(self.recharged_level)
-        staging = [c for c in self.chargers if self._need(c, best) <= full and self.distance(self.cell, c) < NO_WAY]
+        staging = [c for c in self._reachable(self.chargers) if self._need(c, best) <= full]
         free = [c for c in staging if c not in taken or c == self.cell]
         if not free:  # hand it back rather than block the queue: another drone may be better placed
             self.queue.pop(0)
@@ -524,7 +524,7 @@ class MailPlanner:
         if self.cell in self.chargers:
             self.phase = Phase.CHARGING
             return []
-        if self.queue and all(self.distance(self.cell, c) >= NO_WAY for c in self.chargers):
+        if self.queue and not self._reachable(self.chargers):
             return self.release("no charger can be reached from here (obstacles and vehicles down wall it in)")
         return self._to_one_of(self.chargers, budget, taken, Phase.TO_CHARGER)
 
