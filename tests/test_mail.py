@@ -754,3 +754,16 @@ def test_a_parking_cell_walled_off_does_not_keep_a_charged_drone_charging() -> N
     mp.tried.add(c(4, 4))  # a leg found no plan: it would park first to clear the way
     mp.assign(mail("m", c(1, 5), c(2, 3)))
     assert goto(mp.decide(0, 100.0, set())).goal == c(1, 5)
+
+
+def test_mail_on_board_whose_drop_off_is_walled_off_hands_the_queue_back() -> None:
+    """Found by sweep seed 8007 once no way led into a vehicle down's cell: one came down on the
+    drop-off of the mail on board, and the drone charged at 100% for good, the queue behind it held."""
+    carried = mail("on board", c(1, 5), c(3, 3))
+    mp = MailPlanner(c(1, 5), (Q1, Q2), (P1, P2), walled_off(c(3, 3)), MODEL)
+    mp.assign(carried)
+    mp.assign(mail("next", c(2, 5), c(4, 5)))
+    mp.current, mp.queue, mp.carrying = carried, [r for r in mp.queue if r.id == "next"], True
+    actions = mp.decide(0, 100.0, set())
+    assert [(a.request.id, "cut off" in a.reason) for a in actions if isinstance(a, MailRejected)] == [("next", True)]
+    assert mp.current == carried and mp.queue == [] and mp.decide(1, 100.0, set()) == []

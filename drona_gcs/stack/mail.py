@@ -420,6 +420,9 @@ class MailPlanner:
             # Mail on board goes to its drop-off, or to a charger on the way, and nowhere else:
             # after a failed leg it waits on the ground where it is (see leg_failed).
             dropoff, after = self.current.dropoff, self._after(self.current.dropoff)
+            if not self._reachable([dropoff]):  # held or walled off by vehicles down: the rest goes back
+                self.landed_here = True
+                return self.release(f"the drop-off {list(dropoff)} of the mail on board is cut off from here")
             if budget.allows(self._leg(self.cell, dropoff) + after + self.battery.margin_steps // 2):
                 return self._go(dropoff, budget, after, Phase.TO_DROPOFF, taken)
             return self._to_charger(budget, taken)  # charge with the mail on board, then deliver
