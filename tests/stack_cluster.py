@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
-from drona_gcs.stack.messages import HybridClock, Message, ReqForCurrentTraj, Task
+from drona_gcs.stack.messages import HybridClock, Message, Task, task_of
 from drona_gcs.stack.protocol import (
     Broadcast,
     CoordinationProtocol,
@@ -57,7 +57,7 @@ class ProtocolCluster:
         self.planner = SafePlanner(workspace, delta)
         self.delta = self.planner.delta
         self.lead_steps = self.delta + 1 if lead_steps is None else lead_steps  # as DroneStack does
-        self.protocols = {d: CoordinationProtocol(d, cell, dict(starts), self.planner.plan, self.lead_steps)
+        self.protocols = {d: CoordinationProtocol(d, cell, dict(starts), self.planner.plan, self.lead_steps, self.delta)
                           for d, cell in starts.items()}
         self.clocks = {d: HybridClock(d) for d in starts}
         self.network: list[tuple[str, str, Message]] = []
@@ -75,8 +75,7 @@ class ProtocolCluster:
     def deliver(self, index: int = 0) -> tuple[str, str, Message]:
         """Deliver the in-flight message at ``index`` (0: the oldest) and queue what it causes."""
         _sender, to, message = entry = self.network.pop(index)
-        stamp = message.task_id if isinstance(message, ReqForCurrentTraj) else message.in_reply_to
-        self.clocks[to].observe(stamp.stamp)
+        self.clocks[to].observe(task_of(message).stamp)
         self._handle(to, message)
         return entry
 

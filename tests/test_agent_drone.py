@@ -11,7 +11,7 @@ from drona_gcs.geo import GeoFrame, GeoPoint
 from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.drone import DroneStack, StackConfig
-from drona_gcs.stack.messages import CurrentTraj, ReqForCurrentTraj, TaskId
+from drona_gcs.stack.messages import CurrentTraj, Message, PlanAck, ReqForCurrentTraj, TaskId
 from drona_gcs.stack.protocol import Braked, State
 from drona_gcs.workspace import Cell, Workspace
 from fleet.agent.drone import DroneAgent
@@ -21,6 +21,7 @@ from fleet.transport.wire import (
     CommandAck,
     CommandAction,
     CurTrajTo,
+    Decide,
     DroneState,
     Envelope,
     FleetCommand,
@@ -28,6 +29,7 @@ from fleet.transport.wire import (
     MailStatus,
     MailStatusReport,
     PlanAnnounce,
+    Propose,
     ReqTraj,
     WireTrajectory,
     answers,
@@ -179,19 +181,24 @@ def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_ever
             asked = tuple(sorted(set(ws.drones) - {peer}))
             request = ReqForCurrentTraj(TaskId(mine.stamp + 5, peer, 1), peer, where, asked)
             agent._on_protocol(KEYS.proto("all", peer), encode(peer, 1000.0, from_core(request)))
-        node.puts.clear()
         for peer in sorted({"d2", "d3", "d4"} - set(waiting)):
             answer = CurrentTraj(peer, Trajectory.stationary(ws.drones[peer], 0), mine)
             agent._on_protocol(KEYS.proto("d1", peer), encode(peer, 1000.0, from_core(answer)))
+        assert stack.protocol.state is State.CONFIRMING  # flown once every peer holds it
+        node.puts.clear()
+        for peer in ("d2", "d3", "d4"):
+            ack = PlanAck(peer, mine, Trajectory.stationary(ws.drones[peer], 0))
+            agent._on_protocol(KEYS.proto("d1", peer), encode(peer, 1000.0, from_core(ack)))
         assert stack.protocol.state is State.EXECUTING
         await asyncio.sleep(0)  # the plan's announcement, if any, goes out once the answers have
         protocol = (f"{KEYS.root}/proto/", f"{KEYS.root}/answers/", KEYS.plan("d1"))
         return [(k, decode(p)) for k, p in node.puts if k.startswith(protocol)]
 
     sent = asyncio.run(scenario(["d2", "d3"]))
-    # Every drone reads the answers: they are the plan's announcement too, and no other goes out.
-    assert [key for key, _ in sent] == [KEYS.answers("d1")]
-    envelope = sent[0][1]
+    # Every drone is told the plan is flown (one put to all), then the waiting ones get their answers.
+    assert [key for key, _ in sent] == [KEYS.proto("all", "d1"), KEYS.answers("d1")]
+    assert isinstance(sent[0][1].body, Decide) and sent[0][1].body.flown
+    envelope = sent[1][1]
     assert isinstance(envelope, Envelope) and isinstance(envelope.body, CurTrajTo)
     assert set(envelope.body.replies) == {"d2", "d3"}
     for peer in ("d2", "d3"):
@@ -201,8 +208,8 @@ def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_ever
     assert to_core(envelope, "d4") is None  # d4 did not wait: nothing in it for d4
     # A single drone waiting gets its answer on its own key, as ever.
     alone = asyncio.run(scenario(["d2"]))
-    assert [(key, type(e.body).__name__) for key, e in alone] == [(KEYS.proto("d2", "d1"), "CurTraj"),
-                                                                  (KEYS.plan("d1"), "PlanAnnounce")]
+    assert [(key, type(e.body).__name__) for key, e in alone] == [(KEYS.proto("all", "d1"), "Decide"),
+                                                                  (KEYS.proto("d2", "d1"), "CurTraj")]
 
 
 def test_an_answer_to_other_drones_tells_this_one_the_senders_new_plan() -> None:
@@ -296,17 +303,24 @@ def test_a_lost_vehicle_is_its_drones_problem_and_back_in_a_held_cell_the_drone_
         stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
         agent = DroneAgent(stack, node, KEYS, vehicle, GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
         agent.mail.take(MailOrder(id="m", pickup=[4, 0, 0], dropoff=[6, 3, 0], priority=5))
-        step = 0
-        while not stack.executor.flying:  # coordinate (d2 answers), then fly the first steps
+        d2 = Trajectory.stationary((7, 7, 0), 0)
+        for step in range(30):  # coordinate (d2 answers, then holds the plan), then fly the first steps
+            if stack.executor.flying:
+                break
             agent.tick(step)
-            for k, p in list(node.puts):
-                body = decode(p).body
-                if isinstance(body, ReqTraj) and k == KEYS.proto("all", "d1"):
-                    reply = CurrentTraj("d2", Trajectory.stationary((7, 7, 0), 0), body.task_id.core())
+            for _ in range(2):  # d2 answers the request, then holds the plan it brings
+                for k, p in list(node.puts):
+                    body = decode(p).body
+                    if isinstance(body, ReqTraj) and k == KEYS.proto("all", "d1"):
+                        reply: Message = CurrentTraj("d2", d2, body.task_id.core())
+                    elif isinstance(body, Propose):
+                        reply = PlanAck("d2", body.task_id.core(), d2)
+                    else:
+                        continue
                     agent._on_protocol(KEYS.proto("d1", "d2"), encode("d2", 1000.0, from_core(reply)))
                     node.puts.remove((k, p))
             vehicle.cell = stack.executor.cell
-            step += 1
+        assert stack.executor.flying
         agent.tick(step)
         plan = stack.protocol.trajectory
         assert plan is not None

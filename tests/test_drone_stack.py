@@ -19,7 +19,7 @@ from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.battery import BatteryModel
 from drona_gcs.stack.drone import CONFIRM_STEPS, DroneAction, DroneStack, LegNotFlown, StackConfig, yield_spot
 from drona_gcs.stack.mail import MAX_MISSES, GoTo, MailDelivered, MailPickedUp, MailRejected, MailRequest, Phase
-from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj
+from drona_gcs.stack.messages import CurrentTraj, Message, PlanAck, PlanProposal, ReqForCurrentTraj
 from drona_gcs.stack.protocol import Braked, Broadcast, Send, State
 from drona_gcs.workspace import Cell, Workspace
 
@@ -376,6 +376,8 @@ def test_a_drone_that_brakes_short_of_a_vehicle_down_decides_its_leg_anew_from_t
         for ask in asks:
             where = Trajectory.stationary(down or ws.drones["d2"], step)
             out += stack.receive(CurrentTraj("d2", where, ask.task_id))
+        for proposal in [a.message for a in out if isinstance(a, Broadcast) and isinstance(a.message, PlanProposal)]:
+            out += stack.receive(PlanAck("d2", proposal.task_id, Trajectory.stationary(down or ws.drones["d2"], step)))
         actions += out
         assert stack.executor.cell != (2, 0, 0)
         assert not of(MailPickedUp, out) or stack.executor.cell == MAIL.pickup

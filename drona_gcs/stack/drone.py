@@ -39,7 +39,7 @@ from drona_gcs.planner.heuristic import UNREACHABLE, GoalDistance
 from drona_gcs.stack.battery import BatteryLow, BatteryModel, BatteryMonitor, BatteryRecharged
 from drona_gcs.stack.executor import Completed, PlanExecutor, Setpoint
 from drona_gcs.stack.mail import NO_WAY, GoTo, MailAction, MailPlanner, MailRequest, Phase
-from drona_gcs.stack.messages import HybridClock, Message, ReqForCurrentTraj, Task
+from drona_gcs.stack.messages import HybridClock, Message, ReqForCurrentTraj, Task, task_of
 from drona_gcs.stack.protocol import Action as ProtocolAction
 from drona_gcs.stack.protocol import (
     Braked,
@@ -132,7 +132,7 @@ class DroneStack:
         self.clock = HybridClock(me, epoch)
         planner = config.planner
         lead = config.lead_steps if config.lead_steps is not None else config.planner.delta + 1
-        self.protocol = CoordinationProtocol(me, start, dict(peers), planner.plan, lead)
+        self.protocol = CoordinationProtocol(me, start, dict(peers), planner.plan, lead, planner.delta)
         self.executor = PlanExecutor(start)
         self.monitor = BatteryMonitor(config.low_mark, config.recharged_mark)
         parking = own_parking(ws.parking, list(peers), me)
@@ -171,8 +171,7 @@ class DroneStack:
         return max(self.executor.step, 0)
 
     def receive(self, message: Message) -> list[DroneAction]:
-        stamp = message.task_id if isinstance(message, ReqForCurrentTraj) else message.in_reply_to
-        self.clock.observe(stamp.stamp)
+        self.clock.observe(task_of(message).stamp)
         if isinstance(message, ReqForCurrentTraj) and message.clear:
             self._make_way(message.clear)
         return self._protocol(message)

@@ -116,4 +116,44 @@ class CurrentTraj:
             raise ProtocolViolation(f"CurrentTraj from {self.sender!r} carries no cells")
 
 
-Message = ReqForCurrentTraj | CurrentTraj
+@dataclass(frozen=True)
+class PlanProposal:
+    """Our addition: ``sender`` planned ``trajectory`` for task ``task_id``, and flies it only once every
+    member holds it (:class:`PlanAck`); until its :class:`PlanDecision`, a peer holds it as well as what
+    it knew the sender to fly (see :mod:`drona_gcs.stack.protocol`)."""
+
+    sender: str
+    task_id: TaskId
+    trajectory: Trajectory
+    #: the members that must hold it: the plan avoided the others as gone, where it last knew them
+    members: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class PlanAck:
+    """``sender`` holds the proposal of task ``task_id``, and flies ``trajectory`` (its vehicle, lost, may
+    be in ``holds`` too): the proposal is flown only if it keeps clear of that, whatever it avoided."""
+
+    sender: str
+    task_id: TaskId
+    trajectory: Trajectory
+    holds: tuple[Cell, ...] = ()
+
+
+@dataclass(frozen=True)
+class PlanDecision:
+    """``sender`` flies ``trajectory`` from now: its proposal of task ``task_id`` if ``flown``, else the
+    trajectory it flew before (the proposal is dropped)."""
+
+    sender: str
+    task_id: TaskId
+    trajectory: Trajectory
+    flown: bool
+
+
+Message = ReqForCurrentTraj | CurrentTraj | PlanProposal | PlanAck | PlanDecision
+
+
+def task_of(message: Message) -> TaskId:
+    """The task id a message names (the request it answers, for a reply): its stamp is a clock reading."""
+    return message.in_reply_to if isinstance(message, CurrentTraj) else message.task_id

@@ -70,6 +70,28 @@ settled here, and one message it sends is saved (the second point):
   the executor's hand-over take time; the executor refuses a trajectory whose
   start it has already passed. Other drones' executors may be up to Delta
   steps ahead or behind; the planner's skew window covers exactly that.
+* **A plan is flown only once every member holds it** (``CONFIRMING``). Planned, I send it to
+  everyone (``PlanProposal``); each member holds it besides what it knew of me and says so
+  (``PlanAck``, with what it flies now); once every member has, I fly it and tell everyone
+  (``PlanDecision``), then answer the peers that waited. If the boundary before its start comes
+  first, or the fleet changes meanwhile (a peer leaves, comes back, comes down, brakes), I drop it,
+  say so, and the task fails (it is tried again). Why: a peer that left before it heard of my plan
+  holds me, for good, on the cells of what it last knew I fly; had I flown a plan it never heard of,
+  it planned into my cells (found by the tester's partitions, and in the field). A peer that held my
+  proposal when I left holds its cells too (``maybe_flown``). The same holds for requests: until
+  decided, I answer nobody.
+* **Only a majority plans.** A partition's two sides each see the other leave; each planning around
+  where it last knew the other, both could plan into one cell. I plan only in touch with a strict
+  majority of the fleet, or half of it with its first drone by name (``in_quorum``): at most one side
+  can. The other side flies only plans every member held, whose cells are held for good here. A
+  drone the operator released counts no more (its vehicle is out of the air), until it joins again.
+* **A plan is checked where views meet.** Views of the fleet may differ (a leave seen here, not
+  there). A member acks a proposal only if it keeps clear of what it flies, and of what it knows a
+  drone flies or proposed that the proposer held as gone (``_clashes``); the proposer, in turn, flies
+  it only if it keeps clear of what each ack says the member flies. Two majorities overlap in a drone
+  that sees both plans. Confirming, I ack no proposal: mine was made without it. A message that
+  says what a drone I held as gone flies (an answer, an ack, a decision, a request) proves it alive:
+  a member again, there.
 * **Membership can change.** ``PeerLeft`` means the drone's liveliness was
   lost: it is no longer waited for, and it stays in Psi as an obstacle:
   safety first. Since it may have stopped anywhere along the rest of its
@@ -131,7 +153,17 @@ from dataclasses import dataclass, field
 from drona_gcs.errors import GoalCutOff, NoPlanFound, ProblemError, ProtocolViolation
 from drona_gcs.motion import Trajectory
 from drona_gcs.planner import Plan
-from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj, Task, TaskId
+from drona_gcs.safety import check_pair
+from drona_gcs.stack.messages import (
+    CurrentTraj,
+    Message,
+    PlanAck,
+    PlanDecision,
+    PlanProposal,
+    ReqForCurrentTraj,
+    Task,
+    TaskId,
+)
 from drona_gcs.workspace import Cell
 
 #: plan(start, goal, start_step, others, max_length) -> Plan, e.g. SafePlanner.plan
@@ -143,6 +175,7 @@ class State(enum.Enum):
     COORDINATING = "CoordinateAndGeneratePlan"  #: collecting every peer's trajectory
     EXECUTING = "WaitForPlanCompletion"  #: flying its plan, answering with it
     REROUTING = "RerouteWhileExecuting"  #: flying its plan, collecting trajectories to plan its rest anew
+    CONFIRMING = "ConfirmPlan"  #: planned; flies the plan once every member holds it
 
 
 # ------------------------------------------------------------------ events
@@ -234,7 +267,8 @@ class Reroute:
 
 
 Event = (NewTask | PlanCompleted | PeerLeft | PeerJoined | ReqForCurrentTraj | CurrentTraj | VehicleLost
-         | Relocated | Reroute | VehicleDown | PeerDown | PeerBraked | Released | NextStep)
+         | Relocated | Reroute | VehicleDown | PeerDown | PeerBraked | Released | NextStep | PlanProposal
+         | PlanAck | PlanDecision)
 
 
 # ----------------------------------------------------------------- actions
@@ -299,6 +333,16 @@ class Braked:
 Action = Send | Broadcast | StartExecuting | TaskFailed | Threatened | RerouteFailed | Grounded | Braked
 
 
+@dataclass(frozen=True)
+class Proposed:
+    """My plan, made and waiting for every member to hold it (state CONFIRMING)."""
+
+    proposal: PlanProposal
+    psi: tuple[tuple[str, Trajectory], ...]  #: what it avoided
+    starts: int  #: the step its new part starts: it is flown only if every member holds it before
+    rerouting: bool  #: a new rest of the plan I fly (which I fly on meanwhile)
+
+
 @dataclass
 class CoordinationProtocol:
     """Protocol 1 for drone ``me``. ``peers`` maps each peer to where it starts."""
@@ -308,6 +352,7 @@ class CoordinationProtocol:
     peers: Mapping[str, Cell]
     plan: PlanFunction
     lead_steps: int = 1
+    delta: int = 0  #: the planner's skew window, in steps: a plan keeps that clear of every other drone
     state: State = State.WAIT_FOR_TASK
     task: Task | None = None
     trajectory: Trajectory | None = None
@@ -323,6 +368,13 @@ class CoordinationProtocol:
     peers_down: dict[str, Cell] = field(default_factory=dict)  #: peers whose vehicle came down, and where
     #: peers that braked, with the plan cut short they hold at the end of, until their next plan
     braked: dict[str, Trajectory] = field(default_factory=dict)
+    proposed: Proposed | None = None  #: my plan, until every member holds it (CONFIRMING)
+    acked: set[str] = field(default_factory=set)  #: the members that hold it
+    proposals: dict[str, PlanProposal] = field(default_factory=dict)  #: peers' plans not yet decided
+    decided: dict[str, TaskId] = field(default_factory=dict)  #: each peer's newest decided proposal
+    #: departed drones' proposals, undecided when they left: each may fly it, so its rest is held for good
+    maybe_flown: dict[str, Trajectory] = field(default_factory=dict)
+    released: set[str] = field(default_factory=set)  #: departed drones the operator took out of the fleet
 
     def __post_init__(self) -> None:
         self.members = set(self.peers) - {self.me}
@@ -331,11 +383,22 @@ class CoordinationProtocol:
     # ------------------------------------------------------------- driver
     def handle(self, event: Event, now: int) -> list[Action]:
         """Take one event at local step ``now``; return what to do."""
+        admitted = self._alive(event, now)
         handler = TRANSITIONS[self.state].get(type(event))
         if handler is None:
             raise ProtocolViolation(f"drone {self.me!r}: state {self.state.value} does not take "
                                     f"{type(event).__name__}")
-        return handler(self, event, now)
+        return [*admitted, *handler(self, event, now)]
+
+    def _alive(self, event: Event, now: int) -> list[Action]:
+        """A message that says what a drone I hold as gone flies proves it alive (its lease outlasts what
+        it sent before): a member again, there. (A request does so in :meth:`_admit`.)"""
+        if not isinstance(event, (CurrentTraj, PlanAck, PlanDecision)):
+            return []
+        sender = event.sender
+        if sender in self.members or sender == self.me or sender not in self.peers:
+            return []
+        return self.handle(PeerJoined(sender, event.trajectory.last, event.trajectory), now)
 
     def heard(self, drone: str, trajectory: Trajectory) -> None:
         """A peer announced the plan it now flies (outside any round of mine): known for where
@@ -380,13 +443,21 @@ class CoordinationProtocol:
         not hold us in place for good (we may have come in after it flew through).
         """
         held: dict[str, Trajectory] = {}
-        for drone, trajectory in self.ghosts.items():
+        departed = [*self.ghosts.items(), *((f"{d}?", t) for d, t in self.maybe_flown.items())]
+        for drone, trajectory in departed:
             for i, cell in enumerate(dict.fromkeys(trajectory.cells)):
                 if cell == sparing:
                     continue
                 name = drone if cell == trajectory.last else f"{drone}#{i}"
                 held[name] = Trajectory.stationary(cell, trajectory.start_step)
         return held
+
+    def in_quorum(self) -> bool:
+        """In touch with a strict majority of the fleet, or half of it with its first drone (by name):
+        two sides of a partition cannot both be (the operator's releases aside)."""
+        fleet = ({self.me} | set(self.peers)) - self.released
+        touch = (self.members | {self.me}) & fleet
+        return 2 * len(touch) > len(fleet) or (2 * len(touch) == len(fleet) and min(fleet) in touch)
 
     # ----------------------------------------------------------- handlers
     def _on_new_task(self, event: NewTask, now: int) -> list[Action]:
@@ -396,8 +467,13 @@ class CoordinationProtocol:
         self.task, self.state = task, state
         self._forget_answers()
         self.pending = {}
+        if not self.in_quorum():  # nothing to ask: no plan could be flown
+            return self._no_plan(NoPlanFound(self._no_majority()), now)
         actions: list[Action] = [Broadcast(self._request(now))]
         return actions + self._plan_if_ready(now)
+
+    def _no_majority(self) -> str:
+        return f"in touch with {len(self.members) + 1} of the fleet's drones: no majority"
 
     def _forget_answers(self) -> None:
         """A new round starts from no answers: last round's trajectories may have changed since."""
@@ -519,6 +595,7 @@ class CoordinationProtocol:
         if event.drone == self.me or event.drone not in self.peers:
             return []
         self.peers_down[event.drone] = event.cell
+        self.proposals.pop(event.drone, None)
         stays = Trajectory.stationary(event.cell, now)
         self.known[event.drone] = stays
         if event.drone in self.received:
@@ -599,8 +676,9 @@ class CoordinationProtocol:
         """Forget where a departed drone may be: its ghost, its vehicle down, its brake."""
         if event.drone == self.me or event.drone in self.members or event.drone not in self.peers:
             raise ProblemError(f"{event.drone} is not a drone gone from the fleet: nothing to release")
-        for held in (self.ghosts, self.peers_down, self.braked, self.known):
+        for held in (self.ghosts, self.maybe_flown, self.peers_down, self.braked, self.known):
             held.pop(event.drone, None)
+        self.released.add(event.drone)
         return []
 
     def _on_reroute(self, event: Reroute, now: int) -> list[Action]:
@@ -617,6 +695,9 @@ class CoordinationProtocol:
         # behind it: only the rest of its plan is where it may have stopped.
         silent = now if event.silent_since is None else min(now, event.silent_since)
         self.ghosts[event.drone] = last.suffix_from(silent - self.lead_steps)
+        proposal = self.proposals.pop(event.drone, None)
+        if proposal is not None:
+            self.maybe_flown[event.drone] = proposal.trajectory.suffix_from(silent - self.lead_steps)
         self.pending.pop(event.drone, None)
         self.peer_holds.pop(event.drone, None)
         return self._plan_if_ready(now) if self.coordinating else self._steer_clear(event.drone, now)
@@ -625,7 +706,9 @@ class CoordinationProtocol:
         if event.drone == self.me or event.drone in self.members:
             return []
         self.members.add(event.drone)
-        self.ghosts.pop(event.drone, None)
+        self.released.discard(event.drone)
+        for gone in (self.ghosts, self.maybe_flown, self.proposals):  # what it announces now is the truth
+            gone.pop(event.drone, None)
         self.peers_down.pop(event.drone, None)  # its agent restarted: its vehicle is back in service
         self.braked.pop(event.drone, None)
         self.newest.pop(event.drone, None)  # it may have restarted, and its clock with it
@@ -658,9 +741,12 @@ class CoordinationProtocol:
         start = flying.at(start_step) if flying is not None else self.location
         psi = {**self.ghost_obstacles(sparing=here), **self._held_by_peers(now),
                **{p: self.received[p] for p in sorted(self.members)},
+               **self._undecided(),
                **{f"{p}!": Trajectory.stationary(c, now) for p, c in sorted(self.peers_down.items())}}
         max_length = task.max_length(start_step)
         try:
+            if not self.in_quorum():
+                raise NoPlanFound(self._no_majority())
             if self.lost is not None:
                 raise NoPlanFound("my vehicle is lost")
             if self.down is not None:
@@ -669,17 +755,157 @@ class CoordinationProtocol:
                 raise NoPlanFound("the battery no longer affords the task")
             plan = self.plan(start, task.goal, start_step, psi, max_length)
         except NoPlanFound as exc:
-            # I stay: my last plan (or my location) is still the truth, including the recent
-            # steps a peer up to Delta behind me still needs.
-            if flying is not None:
-                self.state = State.EXECUTING
-                return [*self._release_pending(flying), RerouteFailed(task, str(exc))]
-            self.state, self.task = State.WAIT_FOR_TASK, None
-            failed = TaskFailed(task, str(exc), isinstance(exc, GoalCutOff))
-            return [*self._release_pending(self.current_trajectory(now)), failed]
+            return self._no_plan(exc, now)
         trajectory = flying.spliced(plan.trajectory) if flying is not None else plan.trajectory
-        self.trajectory, self.state = trajectory, State.EXECUTING
-        return [StartExecuting(task, trajectory, psi), *self._release_pending(trajectory)]
+        proposal = PlanProposal(self.me, task.id, trajectory, tuple(sorted(self.members)))
+        self.proposed = Proposed(proposal, tuple(psi.items()), plan.trajectory.start_step, flying is not None)
+        self.state, self.acked = State.CONFIRMING, set()
+        return [Broadcast(proposal), *self._go_if_held(now)]
+
+    def _no_plan(self, exc: NoPlanFound, now: int) -> list[Action]:
+        """I stay: my last plan (or my location) is still the truth, including the recent steps a peer up
+        to Delta behind me still needs."""
+        task = self.task
+        assert task is not None
+        if self.state is State.REROUTING and self.trajectory is not None:
+            self.state = State.EXECUTING
+            return [*self._release_pending(self.trajectory), RerouteFailed(task, str(exc))]
+        self.state, self.task = State.WAIT_FOR_TASK, None
+        failed = TaskFailed(task, str(exc), isinstance(exc, GoalCutOff))
+        return [*self._release_pending(self.current_trajectory(now)), failed]
+
+    # ------------------------------------------------------ confirming
+    def _go_if_held(self, now: int) -> list[Action]:
+        """Every member holds my plan: fly it, tell them so, and answer the peers that waited for it."""
+        proposed = self.proposed
+        if proposed is None or not self.members <= self.acked:
+            return []
+        assert self.task is not None
+        trajectory = proposed.proposal.trajectory
+        self.proposed, self.trajectory, self.state = None, trajectory, State.EXECUTING
+        return [StartExecuting(self.task, trajectory, dict(proposed.psi)),
+                Broadcast(PlanDecision(self.me, self.task.id, trajectory, flown=True)),
+                *self._release_pending(trajectory)]
+
+    def _abandon(self, reason: str, now: int) -> list[Action]:
+        """Not every member held my plan in time (or the fleet changed since it was made): I fly what I
+        flew before, as every peer still thinks I might, and tell them so."""
+        proposed, task = self.proposed, self.task
+        assert proposed is not None and task is not None
+        self.proposed = None
+        if proposed.rerouting:
+            self.state = State.EXECUTING
+            failed: Action = RerouteFailed(task, reason)
+        else:
+            self.state, self.task = State.WAIT_FOR_TASK, None
+            failed = TaskFailed(task, reason)
+        flown = self.current_trajectory(now)
+        return [Broadcast(PlanDecision(self.me, task.id, flown, flown=False)), *self._release_pending(flown), failed]
+
+    def _on_ack(self, event: PlanAck, now: int) -> list[Action]:
+        """A member holds my plan (it checked it against what it flies: see :meth:`_clashes`)."""
+        if self.proposed is None or event.task_id != self.proposed.proposal.task_id:
+            return []
+        self.acked.add(event.sender)
+        return self._go_if_held(now)
+
+    def _on_request_while_confirming(self, event: ReqForCurrentTraj, now: int) -> list[Action]:
+        """My plan is made: every requester gets it once decided (within the lead). One from a drone I hold
+        as gone is news of the fleet (see :meth:`_on_news_while_confirming`)."""
+        if event.sender not in self.members and event.sender != self.me:
+            return self._on_news_while_confirming(event, now)
+        if event.sender == self.me or not self._current(event):
+            return []
+        self.pending[event.sender] = event.task_id
+        return []
+
+    def _on_next_step_while_confirming(self, event: NextStep, now: int) -> list[Action]:
+        """The next boundary would pass my plan's start: too late to fly it."""
+        assert self.proposed is not None
+        rerouting = self.proposed.rerouting
+        if self.proposed.starts <= now + 1:
+            actions = self._abandon("not every peer held my plan in time", now)
+        elif rerouting and self._entry(now) == now + 1:
+            actions = self._abandon("braked", now)
+        else:
+            return []
+        return [*actions, *(self._on_next_step(event, now) if rerouting else [])]
+
+    def _on_completed_while_confirming(self, event: PlanCompleted, now: int) -> list[Action]:
+        """The plan flown ended before its new rest could be: I rest at its end (no plan flown: nothing)."""
+        assert self.proposed is not None
+        if not self.proposed.rerouting:
+            return []
+        return [*self._abandon("the plan ended first", now), *self._on_completed(event, now)]
+
+    def _on_news_while_confirming(self, event: Event, now: int) -> list[Action]:
+        """The fleet changed under my plan (a peer left, came back, came down, braked; my vehicle is lost or
+        down): it avoided what no longer holds. I drop it, then take the news as I would flying."""
+        if not self._changes_fleet(event):
+            return []  # a peer I hold as gone already, or old news: nothing my plan did not avoid
+        actions = self._abandon(f"{type(event).__name__} came before every peer held my plan", now)
+        return [*actions, *self.handle(event, now)]
+
+    def _changes_fleet(self, event: Event) -> bool:
+        if isinstance(event, PeerJoined):  # it may fly a plan that I held it as gone through
+            return event.drone not in self.members and event.drone != self.me
+        if isinstance(event, ReqForCurrentTraj):
+            return True
+        if isinstance(event, PeerLeft):
+            return event.drone in self.members
+        if isinstance(event, PeerDown):
+            return event.drone in self.peers and event.drone != self.me
+        if isinstance(event, PeerBraked):
+            return event.drone in self.members and event.trajectory.start_step >= self.known[event.drone].start_step
+        return True
+
+    # -------------------------------------------------- peers' proposals
+    def _on_proposal(self, event: PlanProposal, now: int) -> list[Action]:
+        """A member's plan, not flown yet: I hold it besides what I knew, until decided, and say so."""
+        sender = event.sender
+        decided = self.decided.get(sender)
+        if sender == self.me or sender not in self.members or (
+                decided is not None and not event.task_id.newer_than(decided)):
+            return []  # decided already, or from a drone I hold as departed (it will not fly it)
+        held = self.proposals.get(sender)
+        if held is None or not held.task_id.newer_than(event.task_id):
+            self.proposals[sender] = event
+        if self.state is State.CONFIRMING or self._clashes(event, now):
+            return []  # not flown: it runs out of time
+        return [Send(sender, PlanAck(self.me, event.task_id, self.current_trajectory(now), self.holds()))]
+
+    def _clashes(self, proposal: PlanProposal, now: int) -> bool:
+        """Whether ``proposal`` comes within the window of what I fly, or of what I know a member of mine
+        to fly or to have proposed that its sender held as gone, where it last knew it: a partition
+        leaves views apart, and two plans made by majorities that overlap meet at a drone that holds both,
+        here. (Confirming, I hold none: mine was made without it.)"""
+        sender, theirs = proposal.sender, proposal.trajectory
+        gone_there = self.members - set(proposal.members) - {sender}
+        flown = [self.current_trajectory(now), *(Trajectory.stationary(c, now) for c in self.holds()),
+                 *(self.known[p] for p in gone_there),
+                 *(held.trajectory for p, held in self.proposals.items() if p in gone_there)]
+        since = max(now, theirs.start_step)  # what it flew already was held before
+        return any(check_pair(theirs, other, self.delta, from_step=since) for other in flown)
+
+    def _on_decision(self, event: PlanDecision, now: int) -> list[Action]:
+        sender = event.sender
+        decided = self.decided.get(sender)
+        if sender == self.me or (decided is not None and not event.task_id.newer_than(decided)):
+            return []
+        self.decided[sender] = event.task_id
+        held = self.proposals.get(sender)
+        if held is not None and not held.task_id.newer_than(event.task_id):
+            del self.proposals[sender]
+        if event.flown:
+            self.heard(sender, event.trajectory)
+            if sender in self.received:  # what it answered this round, or its request carried, is old
+                self.received[sender] = self._news(sender, event.trajectory)
+        return []
+
+    def _undecided(self) -> dict[str, Trajectory]:
+        """Members' plans not decided yet (but the one a member answered with), which they may fly."""
+        return {f"{p}?": proposal.trajectory for p, proposal in sorted(self.proposals.items())
+                if p in self.members and proposal.trajectory != self.received.get(p)}
 
     def _held_by_peers(self, now: int) -> dict[str, Trajectory]:
         """The cells this round's answers hold besides their trajectories, as obstacles for good."""
@@ -710,11 +936,14 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PeerDown: CoordinationProtocol._on_peer_down,
         PeerBraked: CoordinationProtocol._on_peer_braked,
         Released: CoordinationProtocol._on_released,
+        PlanProposal: CoordinationProtocol._on_proposal,  # held, and acknowledged
+        PlanAck: CoordinationProtocol._ignore,  # a late one
+        PlanDecision: CoordinationProtocol._on_decision,
         NextStep: CoordinationProtocol._ignore,
     },
     State.COORDINATING: {
         ReqForCurrentTraj: CoordinationProtocol._on_request_while_coordinating,
-        CurrentTraj: CoordinationProtocol._on_reply,  # -> EXECUTING, or WAIT_FOR_TASK if no plan
+        CurrentTraj: CoordinationProtocol._on_reply,  # -> CONFIRMING, or WAIT_FOR_TASK if no plan
         PeerLeft: CoordinationProtocol._on_peer_left,
         PeerJoined: CoordinationProtocol._on_peer_joined,
         VehicleLost: CoordinationProtocol._on_vehicle_lost,  # the round ends in no plan
@@ -722,6 +951,9 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PeerDown: CoordinationProtocol._on_peer_down,
         PeerBraked: CoordinationProtocol._on_peer_braked,
         Released: CoordinationProtocol._on_released,
+        PlanProposal: CoordinationProtocol._on_proposal,  # held, and acknowledged
+        PlanAck: CoordinationProtocol._ignore,  # a late one
+        PlanDecision: CoordinationProtocol._on_decision,
         NextStep: CoordinationProtocol._ignore,  # nothing is flown yet
     },
     State.EXECUTING: {
@@ -737,11 +969,14 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PeerDown: CoordinationProtocol._on_peer_down,  # may brake, or report Threatened
         PeerBraked: CoordinationProtocol._on_peer_braked,  # may brake, or report Threatened
         Released: CoordinationProtocol._on_released,
+        PlanProposal: CoordinationProtocol._on_proposal,  # held, and acknowledged
+        PlanAck: CoordinationProtocol._ignore,  # a late one
+        PlanDecision: CoordinationProtocol._on_decision,
         NextStep: CoordinationProtocol._on_next_step,  # may brake
     },
     State.REROUTING: {  # a round as COORDINATING's, while the plan is flown on
         ReqForCurrentTraj: CoordinationProtocol._on_request_while_coordinating,
-        CurrentTraj: CoordinationProtocol._on_reply,  # -> EXECUTING, with the new rest or the old one
+        CurrentTraj: CoordinationProtocol._on_reply,  # -> CONFIRMING the new rest, or EXECUTING the old one
         PlanCompleted: CoordinationProtocol._on_completed_while_rerouting,  # -> WAIT_FOR_TASK
         PeerLeft: CoordinationProtocol._on_peer_left,
         PeerJoined: CoordinationProtocol._on_peer_joined,
@@ -750,6 +985,26 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PeerDown: CoordinationProtocol._on_peer_down,  # may brake
         PeerBraked: CoordinationProtocol._on_peer_braked,  # may brake, or report Threatened
         Released: CoordinationProtocol._on_released,
+        PlanProposal: CoordinationProtocol._on_proposal,  # held, and acknowledged
+        PlanAck: CoordinationProtocol._ignore,  # a late one
+        PlanDecision: CoordinationProtocol._on_decision,
         NextStep: CoordinationProtocol._on_next_step,  # may brake
+    },
+    State.CONFIRMING: {  # planned: the plan is flown once every member holds it, or dropped
+        PlanAck: CoordinationProtocol._on_ack,  # -> EXECUTING once every member's came
+        NextStep: CoordinationProtocol._on_next_step_while_confirming,  # too late: -> WAIT_FOR_TASK (or EXECUTING)
+        ReqForCurrentTraj: CoordinationProtocol._on_request_while_confirming,  # answered once decided
+        CurrentTraj: CoordinationProtocol._ignore,
+        PlanCompleted: CoordinationProtocol._on_completed_while_confirming,  # -> WAIT_FOR_TASK
+        # The plan avoided what these change: it is dropped, and the news taken as flying.
+        PeerJoined: CoordinationProtocol._on_news_while_confirming,
+        PeerLeft: CoordinationProtocol._on_news_while_confirming,
+        PeerDown: CoordinationProtocol._on_news_while_confirming,
+        PeerBraked: CoordinationProtocol._on_news_while_confirming,
+        VehicleLost: CoordinationProtocol._on_news_while_confirming,
+        VehicleDown: CoordinationProtocol._on_news_while_confirming,
+        Released: CoordinationProtocol._on_released,
+        PlanProposal: CoordinationProtocol._on_proposal,
+        PlanDecision: CoordinationProtocol._on_decision,
     },
 }

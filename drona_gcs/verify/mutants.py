@@ -24,6 +24,7 @@ SEEDED_BUGS = {
     "no-battery-check": "the task planner starts legs without checking the battery",
     "skip-delta": "the planner ignores the clock-skew window (plans with Delta 0)",
     "executor-early": "the executor flies each cell of its plan one step early",
+    "fly-unheld": "a drone flies a plan at once, held by its peers or not, with a majority of the fleet or not",
 }
 
 
@@ -44,6 +45,15 @@ class AnswerWhileCoordinating(CoordinationProtocol):
         return super().handle(event, now)
 
 
+class FlyUnheld(CoordinationProtocol):
+    def in_quorum(self) -> bool:
+        return True
+
+    def _go_if_held(self, now: int) -> list[Action]:
+        self.acked = set(self.members)
+        return super()._go_if_held(now)
+
+
 class ExecutorEarly(PlanExecutor):
     def tick(self, step: int) -> list[ExecutorAction]:
         actions = super().tick(step)
@@ -59,7 +69,7 @@ class NoBatteryCheck(MailPlanner):
 
 _PROTOCOLS: dict[str, type[CoordinationProtocol]] = {
     "stale-trajectory": StaleTrajectory, "tie-break-reversed": TieBreakReversed,
-    "answer-while-coordinating": AnswerWhileCoordinating,
+    "answer-while-coordinating": AnswerWhileCoordinating, "fly-unheld": FlyUnheld,
 }
 _MAIL_PLANNERS: dict[str, type[MailPlanner]] = {"no-battery-check": NoBatteryCheck}
 _EXECUTORS: dict[str, type[PlanExecutor]] = {"executor-early": ExecutorEarly}

@@ -44,7 +44,7 @@ from drona_gcs.stack.mail import (
     MailStarted,
     Phase,
 )
-from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj
+from drona_gcs.stack.messages import CurrentTraj, Message, PlanDecision, PlanProposal, ReqForCurrentTraj
 from drona_gcs.stack.protocol import (
     Braked,
     Broadcast,
@@ -77,24 +77,30 @@ class Faults:
     #: a drone cut off from the rest for a while (messages across the cut lost; each side sees the
     #: other leave, and join again once it heals, within PARTITION_STEPS); none unless asked for
     partitions: int = 0
-    announce: bool = True  #: every new plan also reaches every peer (the fleet's answers, or plan/<me>)
 
     @classmethod
     def none(cls) -> Faults:
-        """The paper's model: none of the field's faults, and plans known only through rounds."""
-        return cls(0, 0, 0, 0, announce=False)
+        """The paper's model: none of the field's faults."""
+        return cls(0, 0, 0, 0)
 
 
 @dataclass(frozen=True)
 class Upgrade:
     """The configuration of the mixed fleet's last drone, as during a rolling upgrade."""
 
-    extra_lead: int = 3  #: lead steps Delta + this (the others: Delta + 1)
+    extra_lead: int = 2  #: lead steps more than the others' (see :func:`model_lead`)
     low_mark: float = 35.0
     recharged_mark: float = 90.0
 
 
 UPGRADE = Upgrade()
+
+
+def model_lead(delta: int, max_delay: int) -> int:
+    """Lead steps of the model's drones: the stack's default (Delta + 1), and at least a plan's round
+    trip to be held by every peer (its proposal and the acks, ``max_delay`` steps each) and a step, so
+    that a plan is never dropped for the model's network alone."""
+    return max(delta + 1, 2 * max_delay + 1)
 PARTITION_STEPS = 20  #: a partition heals within this many steps of the slowest clock
 MAX_DRAWS = 1000  #: random draws of a mail the service accepts, before giving up
 
@@ -141,7 +147,9 @@ def make_world_config(workspace: Workspace, drones: int, requests: int, delta: i
     model = options.get("battery") or _battery_for(workspace)
     assert isinstance(model, BatteryModel)
     options = {**options, "battery": model}
-    accepts = _service_check(workspace, model, delta)
+    max_delay = options.get("max_delay", WorldConfig.max_delay)
+    assert isinstance(max_delay, int)
+    accepts = _service_check(workspace, model, model_lead(delta, max_delay))
     mail = []
     for i in range(requests):
         for _ in range(MAX_DRAWS):
@@ -177,7 +185,7 @@ def _battery_for(workspace: Workspace) -> BatteryModel:
     return BatteryModel(drain_per_step=default.drain_per_step * affordable / need)
 
 
-def _service_check(workspace: Workspace, model: BatteryModel, delta: int) -> Callable[[MailRequest], bool]:
+def _service_check(workspace: Workspace, model: BatteryModel, lead: int) -> Callable[[MailRequest], bool]:
     """The service's energy check: it takes only mail that a drone charged at a station can fly,
     whichever configuration it runs (see :data:`UPGRADE`)."""
     chargers = workspace.charging_stations
@@ -187,9 +195,9 @@ def _service_check(workspace: Workspace, model: BatteryModel, delta: int) -> Cal
         return to(b).get(a, 10**6)
 
     def accepts(request: MailRequest) -> bool:
-        for recharged, lead in ((95.0, delta + 1), (UPGRADE.recharged_mark, delta + UPGRADE.extra_lead)):
+        for recharged, steps in ((95.0, lead), (UPGRADE.recharged_mark, lead + UPGRADE.extra_lead)):
             planner = MailPlanner(chargers[0], chargers, workspace.parking, distance, model,
-                                  recharged_level=recharged, leg_overhead=leg_overhead(lead))
+                                  recharged_level=recharged, leg_overhead=leg_overhead(steps))
             planner.assign(request)
             if any(isinstance(a, MailRejected) for a in planner.decide(0, recharged, ())):
                 return False
@@ -280,9 +288,10 @@ class World:
         needed = planner_delta(config.delta, config.bugs)
         if planner.delta != needed:
             raise ValueError(f"planner has delta {planner.delta}, the world needs {needed}")
-        stack = StackConfig(config.workspace, planner, config.battery)
+        lead = model_lead(config.delta, config.max_delay)
+        stack = StackConfig(config.workspace, planner, config.battery, lead_steps=lead)
         # A rolling upgrade: the last drone runs another configuration (a longer lead, other marks).
-        upgraded = replace(stack, lead_steps=config.delta + UPGRADE.extra_lead, low_mark=UPGRADE.low_mark,
+        upgraded = replace(stack, lead_steps=lead + UPGRADE.extra_lead, low_mark=UPGRADE.low_mark,
                            recharged_mark=UPGRADE.recharged_mark)
         peers = dict(zip(config.drones, config.starts, strict=True))
         self.stacks = {d: DroneStack(d, upgraded if config.mixed and d == config.drones[-1] else stack, peers)
@@ -401,7 +410,7 @@ class World:
         msg = self.inflight.pop(index)
         self.trace.append(f"{msg.to} <- {msg.sender}: {_describe(msg.message)}")
         stack, notice = self.stacks[msg.to], msg.message
-        if not isinstance(notice, Left):
+        if not isinstance(notice, (Left, PlanProposal)):  # a proposal says nothing of what it flies now
             self.monitors.heard_from(msg.to, msg.sender)
         if isinstance(notice, Announce) and notice.grounded:
             self.monitors.heard_news(msg.to, msg.sender, self.steps[msg.to])
@@ -630,11 +639,7 @@ class World:
             if note:
                 self.trace.append(f"{drone}: {note}")
             self.monitors.action(drone, action)
-            if isinstance(action, StartExecuting) and self.config.faults.announce:
-                for peer in self.config.drones:
-                    if peer != drone:
-                        self._post(drone, peer, Announce(action.trajectory))
-            if isinstance(action, (Grounded, Braked)):  # as the agent does, announce or not
+            if isinstance(action, (Grounded, Braked)):  # as the agent does
                 for peer in self.config.drones:
                     if peer != drone:
                         self._post(drone, peer, Announce(action.trajectory, grounded=isinstance(action, Grounded),
@@ -722,6 +727,8 @@ def _describe(message: Notice) -> str:
         return f"{name}(silent since step {message.since})"
     if isinstance(message, Joined):
         return name
+    if isinstance(message, PlanDecision):
+        return f"{name}(task {message.task_id} of {message.sender}: {'flown' if message.flown else 'dropped'})"
     return f"{name}(task {message.task_id} of {message.sender})"
 
 

@@ -4,9 +4,9 @@ Everything the stack decides comes back as actions, carried out here:
 protocol messages go out on ``proto/<peer>``, requests to everyone on
 ``proto/all`` (one put that Zenoh fans out; a round is 2(N-1) messages,
 fewer when drones coordinate at once: a request is its sender's answer to
-those before it in line), a new plan's answers to the drones that waited for it on
-``answers`` (one put, each of them takes its own; every drone reads it, so
-the plan needs no announcement on ``plan/<me>``), mail progress on
+those before it in line), a plan made to everyone (``propose``), each member's ``ack``, whether
+it is flown to everyone (``decide``), then its answers to the drones that waited for it on
+``answers`` (one put, each of them takes its own), mail progress on
 ``mail/status/<id>``, the mail held on ``held/<me>`` when it changes, the
 drone's state on ``state/<me>`` at every step boundary. What comes in — peers' messages, mail orders, membership
 changes — is handed to the stack on the event loop, one event at a time,
@@ -64,14 +64,13 @@ from fleet.transport.wire import (
     ClockPong,
     CommandAck,
     CommandAction,
-    CurTraj,
     CurTrajTo,
     DroneState,
     FleetCommand,
     Health,
     PeerBounds,
     PlanAnnounce,
-    ReqTraj,
+    ProtocolBody,
     TaskView,
     WireError,
     WireTrajectory,
@@ -288,7 +287,6 @@ class DroneAgent:
         # other drones send their requests first.
         # Mostly one answer, or nothing: a process hands every request of a burst to each of its drones.
         ordered = coalesced(sorted(actions, key=urgency)) if len(actions) > 1 else actions
-        told_everyone = False  # a new plan went to every drone with its answers: no announcement needed
         for action in ordered:
             if isinstance(action, Send):
                 self._send(self.keys.proto(action.to, self.me), from_core(action.message))
@@ -299,12 +297,11 @@ class DroneAgent:
             elif isinstance(action, Answers):
                 self._send(self.keys.answers(self.me), answers(action.trajectory, action.replies, action.holds),
                            copies=len(action.replies))
-                told_everyone = True
             elif isinstance(action, GoTo):
                 self.task_since = self.clock()
             elif isinstance(action, StartExecuting):
                 self._alarm("leg", None)  # trying again (or a new leg)
-                self._started(action, announce=not told_everyone)
+                self._started(action)
             elif isinstance(action, TaskFailed):
                 log.warning("%s: no plan for task %s: %s", self.me, action.task.id, action.reason)
             elif isinstance(action, Threatened):
@@ -331,24 +328,19 @@ class DroneAgent:
             elif isinstance(action, (BatteryLow, BatteryRecharged)):
                 log.info("%s: battery %s", self.me, type(action).__name__)
 
-    def _send(self, key: str, body: ReqTraj | CurTraj | CurTrajTo, copies: int = 1) -> None:
+    def _send(self, key: str, body: ProtocolBody | CurTrajTo, copies: int = 1) -> None:
         payload = encode(self.me, self.clock(), body)
         self.node.put(key, payload)
         self.metrics.messages_sent += copies
 
-    def _started(self, action: StartExecuting, announce: bool = True) -> None:
-        """A new plan. ``announce``: tell every drone where it goes (not if its answers, on the answers
-        key, already did: all drones read those, which saves a message per drone and plan when the
-        whole fleet coordinates at once)."""
+    def _started(self, action: StartExecuting) -> None:
+        """A new plan, flown: every drone is told by its ``decide``."""
         if self.task_since is not None:
             self.metrics.latencies_s.append(self.clock() - self.task_since)
             self.task_since = None
         self.metrics.plans += 1
         self.vehicle.want_airborne(True)
         self.publish_state_soon()  # after the answers to the peers that waited for this plan
-        if announce:
-            message = encode(self.me, self.clock(), PlanAnnounce(trajectory=WireTrajectory.of(action.trajectory)))
-            asyncio.get_running_loop().call_soon(self.node.put, self.keys.plan(self.me), message)
         if not log.isEnabledFor(logging.INFO):
             return  # the line below formats every trajectory avoided
         t = action.trajectory

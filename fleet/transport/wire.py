@@ -12,12 +12,13 @@ The bodies, by key (see :mod:`fleet.transport.keys`):
 
 * ``proto/<sender>/<drone>``: ``req_traj`` and ``cur_traj``, Protocol 1's two messages
   (``req_traj`` carries the requester's trajectory: see :mod:`drona_gcs.stack.protocol`).
-* ``proto/<sender>/all``: a ``req_traj`` to everyone.
+* ``proto/<sender>/all``: a ``req_traj`` to everyone; ``propose``, a plan made, and ``decide``, whether
+  it is flown (``proto/<sender>/<drone>``: ``ack``, the drone holds the proposal).
 * ``answers/<sender>``: ``cur_traj_to``, one trajectory answering the requests of
   several drones at once (a new plan, to every drone that waited for it),
   which each drone named in ``replies`` takes as its ``cur_traj`` and the
   others ignore.
-* ``plan/<drone>``: ``plan``, a drone's new trajectory once planned.
+* ``plan/<drone>``: ``plan``, a drone's vehicle down, or its plan cut short.
 * ``state/<drone>``: ``state``, what a drone publishes at every step boundary
   and answers queries with (cell, trajectory, battery, task, queue, health).
 * ``held/<drone>``: ``held``, the mail a drone holds, when it changes (and
@@ -48,7 +49,15 @@ import msgspec
 
 from drona_gcs.errors import DronaError
 from drona_gcs.motion import Trajectory
-from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj, TaskId
+from drona_gcs.stack.messages import (
+    CurrentTraj,
+    Message,
+    PlanAck,
+    PlanDecision,
+    PlanProposal,
+    ReqForCurrentTraj,
+    TaskId,
+)
 
 #: 2: a Zenoh message may carry several envelopes, one per line (fleet.transport.node);
 #: 3: ``cur_traj_to``, one answer to several drones;
@@ -58,7 +67,9 @@ from drona_gcs.stack.messages import CurrentTraj, Message, ReqForCurrentTraj, Ta
 #: asks resting drones to leave; task ids carry the ``epoch`` (incarnation) of the agent that made them;
 #: ``plan`` says ``grounded`` when a vehicle came down by itself;
 #: 7: keys name their writer (``proto/<sender>/<to>``, ``answers/<sender>``, ``mail/status/<drone>/<mail>``).
-VERSION: Final = 8
+#: 8: ``plan`` says ``braked``;
+#: 9: ``propose``, ``ack`` and ``decide``: a plan is flown once every member holds it.
+VERSION: Final = 9
 
 CellList = Annotated[list[int], msgspec.Meta(min_length=3, max_length=3)]
 #: A mail id is a Zenoh key chunk (mail/status/<id>); \Z, not $: "$" would let a final newline through.
@@ -133,6 +144,28 @@ class CurTrajTo(_Body, frozen=True, kw_only=True, tag="cur_traj_to"):
     replies: Annotated[dict[str, WireTaskId], msgspec.Meta(min_length=1)]
     trajectory: WireTrajectory
     holds: Holds = ()
+
+
+class Propose(_Body, frozen=True, kw_only=True, tag="propose"):
+    """A plan made, flown once every member holds it (acknowledged with ``ack``)."""
+
+    task_id: WireTaskId
+    trajectory: WireTrajectory
+    members: tuple[str, ...]  #: the drones that must hold it
+
+
+class Ack(_Body, frozen=True, kw_only=True, tag="ack"):
+    task_id: WireTaskId  #: the proposal held
+    trajectory: WireTrajectory  #: what the sender flies
+    holds: Holds = ()  #: cells its lost vehicle may be in, besides the trajectory
+
+
+class Decide(_Body, frozen=True, kw_only=True, tag="decide"):
+    """What the proposer flies from now: the proposal (``flown``), or what it flew before."""
+
+    task_id: WireTaskId
+    trajectory: WireTrajectory
+    flown: bool
 
 
 class PlanAnnounce(_Body, frozen=True, kw_only=True, tag="plan"):
@@ -281,12 +314,12 @@ class CommandAck(_Body, frozen=True, kw_only=True, tag="command_ack"):
     reason: str = ""
 
 
-Body = (ReqTraj | CurTraj | CurTrajTo | PlanAnnounce | DroneState | HeldMail | MailOrder | MailCancel | MailAck
-        | MailStatusReport | ClockPing | ClockPong | FleetCommand | CommandAck)
+Body = (ReqTraj | CurTraj | CurTrajTo | Propose | Ack | Decide | PlanAnnounce | DroneState | HeldMail | MailOrder
+        | MailCancel | MailAck | MailStatusReport | ClockPing | ClockPong | FleetCommand | CommandAck)
 
 
 class Envelope(_Strict, frozen=True, kw_only=True):
-    v: Literal[8] = VERSION
+    v: Literal[9] = VERSION
     sender: Annotated[str, msgspec.Meta(min_length=1)]
     sent_at: float
     body: Body
@@ -335,7 +368,7 @@ class PeerBounds:
 
 
 def _task_ids(body: Body) -> list[WireTaskId]:
-    if isinstance(body, ReqTraj):
+    if isinstance(body, (ReqTraj, Propose, Ack, Decide)):
         return [body.task_id]
     if isinstance(body, CurTraj):
         return [body.in_reply_to]
@@ -385,10 +418,22 @@ def to_json(message: _Strict) -> dict[str, Any]:
 
 
 # ------------------------------------------------------ core <-> wire
-def from_core(message: Message) -> ReqTraj | CurTraj:
+ProtocolBody = ReqTraj | CurTraj | Propose | Ack | Decide
+
+
+def from_core(message: Message) -> ProtocolBody:
     if isinstance(message, ReqForCurrentTraj):
         return ReqTraj(task_id=WireTaskId.of(message.task_id), trajectory=WireTrajectory.of(message.trajectory),
                        asked=message.asked, holds=message.holds, clear=message.clear)
+    if isinstance(message, PlanProposal):
+        return Propose(task_id=WireTaskId.of(message.task_id), trajectory=WireTrajectory.of(message.trajectory),
+                       members=message.members)
+    if isinstance(message, PlanAck):
+        return Ack(task_id=WireTaskId.of(message.task_id), trajectory=WireTrajectory.of(message.trajectory),
+                   holds=message.holds)
+    if isinstance(message, PlanDecision):
+        return Decide(task_id=WireTaskId.of(message.task_id), trajectory=WireTrajectory.of(message.trajectory),
+                      flown=message.flown)
     return CurTraj(in_reply_to=WireTaskId.of(message.in_reply_to), trajectory=WireTrajectory.of(message.trajectory),
                    holds=message.holds)
 
@@ -407,6 +452,12 @@ def to_core(envelope: Envelope, me: str) -> Message | None:
     if isinstance(body, ReqTraj):
         return ReqForCurrentTraj(body.task_id.core(), envelope.sender, body.trajectory.core(), body.asked,
                                  body.holds, body.clear)
+    if isinstance(body, Propose):
+        return PlanProposal(envelope.sender, body.task_id.core(), body.trajectory.core(), body.members)
+    if isinstance(body, Ack):
+        return PlanAck(envelope.sender, body.task_id.core(), body.trajectory.core(), body.holds)
+    if isinstance(body, Decide):
+        return PlanDecision(envelope.sender, body.task_id.core(), body.trajectory.core(), body.flown)
     if isinstance(body, CurTraj):
         request = body.in_reply_to
     elif isinstance(body, CurTrajTo):
