@@ -35,6 +35,7 @@ from drona_gcs.stack.protocol import (
     Action,
     Braked,
     Broadcast,
+    ClockBound,
     CoordinationProtocol,
     Event,
     Grounded,
@@ -118,7 +119,7 @@ def request(task_id: TaskId, sender: str, now: int = 0) -> ReqForCurrentTraj:
 # =========================================================== the state table
 EVENT_TYPES: tuple[type, ...] = (NewTask, PlanCompleted, PeerLeft, PeerJoined, ReqForCurrentTraj, CurrentTraj,
                                  VehicleLost, Relocated, Reroute, VehicleDown, PeerDown, PeerBraked, Released,
-                                 NextStep, PlanProposal, PlanAck, PlanDecision)
+                                 NextStep, PlanProposal, PlanAck, PlanDecision, ClockBound)
 #: What Protocol 1 takes in each state (paper section 3.1); the rest is a protocol violation. A vehicle
 #: found again is not placed while a round is under way (its request carried where it was). Only a
 #: drone flying a plan plans its rest anew (Reroute), and that round ends when the plan does.
@@ -163,6 +164,7 @@ def sample(event_type: type) -> Event:
         PlanProposal: PlanProposal("b", ID_B_LOW, Trajectory(3, (B, B))),
         PlanAck: PlanAck("b", ID_A, location_of("b")),
         PlanDecision: PlanDecision("b", ID_B_LOW, Trajectory(3, (B, B)), flown=True),
+        ClockBound: ClockBound(mine_off=False, outliers=frozenset({"b"})),
     }
     return samples[event_type]
 
@@ -1129,3 +1131,37 @@ def test_a_proposal_far_along_the_fleets_clock_is_checked_from_its_start() -> No
     far = 10**9
     proposal = PlanProposal("b", ID_B_LOW, Trajectory(far, (B, (3, 4, 0))), ("a", "c"))
     assert proto.handle(proposal, 0) == [Send("b", PlanAck("a", ID_B_LOW, location_of("a")))]
+
+
+# ====================================================== a clock beyond the fleet's bound
+def test_a_drone_whose_clock_is_off_holds_where_its_plan_ends_and_plans_nothing() -> None:
+    """Its steps are not the fleet's: every cell of the rest of its plan is held for good in its answers,
+    and it plans nothing; the others plan around that and go on (they do not wait for it)."""
+    proto = machine()
+    plan = started(confirmed(proto, proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+                             + proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0)
+                             + proto.handle(CurrentTraj("c", location_of("c"), ID_A), 0))).trajectory
+    assert proto.handle(ClockBound(mine_off=True), 3) == []
+    assert set(plan.suffix_from(3).cells) <= set(proto.holds())
+    [answer] = proto.handle(request(ID_B_LOW, "b", 4), 4)
+    assert isinstance(answer, Send) and isinstance(answer.message, CurrentTraj)
+    assert set(answer.message.holds) == set(proto.holds())
+    proto.handle(PlanCompleted(), plan.end_step)
+    failed = proto.handle(NewTask(Task(TaskId(9, "a", 2), A)), plan.end_step)
+    failed += proto.handle(CurrentTraj("b", location_of("b"), TaskId(9, "a", 2)), plan.end_step)
+    failed += proto.handle(CurrentTraj("c", location_of("c"), TaskId(9, "a", 2)), plan.end_step)
+    assert [a.reason for a in failed if isinstance(a, TaskFailed)] == ["my clock is beyond the fleet's bound"]
+    proto.handle(ClockBound(mine_off=False), plan.end_step + 1)
+    assert proto.holds() == ()
+
+
+def test_a_peer_whose_clock_is_off_gets_no_ack_and_is_held_where_it_flies_for_good() -> None:
+    proto = machine()
+    proto.handle(ClockBound(mine_off=False, outliers=frozenset({"b"})), 0)
+    assert proto.handle(PlanProposal("b", ID_B_LOW, traj(3, (4, 4), (3, 4)), ("a", "c")), 0) == []
+    b_way = traj(0, (2, 1), (2, 0), (2, 1))  # across a's way, long before a gets there: in b's steps, not ours
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    proto.handle(CurrentTraj("b", b_way, ID_A), 0)
+    action = started(confirmed(proto, proto.handle(CurrentTraj("c", location_of("c"), ID_A), 0)))
+    held = {t.last for name, t in action.psi.items() if name.startswith("b@")}
+    assert held == set(b_way.cells) and (2, 0, 0) not in action.trajectory.cells

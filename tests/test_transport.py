@@ -177,6 +177,22 @@ def test_skew_is_an_alarm_only_when_provably_beyond_beta() -> None:
     assert check.alarm() is None
 
 
+def test_the_clock_off_is_the_one_most_peers_disagree_with() -> None:
+    """One skewed clock must not stall the fleet: the drones whose clocks agree plan on around it, and
+    it alone holds. With two drones neither can tell which clock is off: both hold."""
+    others = ClockCheck(beta_s=0.2)
+    others.observe("d2", OffsetSample(0.01, 0.001))
+    others.observe("d3", OffsetSample(2.0, 0.001))
+    assert not others.mine_is_off() and "d3 out of the fleet's bound" in (others.alarm() or "")
+    skewed = ClockCheck(beta_s=0.2)
+    skewed.observe("d1", OffsetSample(-2.0, 0.001))
+    skewed.observe("d2", OffsetSample(-1.99, 0.001))
+    assert skewed.mine_is_off() and "mine is off" in (skewed.alarm() or "")
+    pair = ClockCheck(beta_s=0.2)
+    pair.observe("d2", OffsetSample(2.0, 0.001))
+    assert pair.mine_is_off()
+
+
 def test_beta_zero_does_not_alarm_on_loopback_noise() -> None:
     check = ClockCheck(beta_s=0.0)
     check.observe("d2", OffsetSample(0.00004, 0.0001))

@@ -43,6 +43,7 @@ from drona_gcs.stack.messages import HybridClock, Message, ReqForCurrentTraj, Ta
 from drona_gcs.stack.protocol import Action as ProtocolAction
 from drona_gcs.stack.protocol import (
     Braked,
+    ClockBound,
     CoordinationProtocol,
     Event,
     NewTask,
@@ -278,6 +279,13 @@ class DroneStack:
         every cell it may be in (see CoordinationProtocol.holds), and the mail not on board is handed
         back for other drones to fly. The runtime starts no task meanwhile."""
         return [*self._protocol(VehicleLost(since, seen)), *self.mail.release(reason)]
+
+    def clock_bound(self, mine_off: bool, outliers: frozenset[str], reason: str) -> list[DroneAction]:
+        """The clock check's verdict (see ClockBound): my clock off, I hold where my plan ends and hand the
+        mail not on board back; the runtime starts no task meanwhile (``may_plan`` False)."""
+        newly_off = mine_off and self.protocol.off_since is None
+        actions = self._protocol(ClockBound(mine_off, outliers))
+        return [*actions, *(self.mail.release(reason) if newly_off else ())]
 
     def vehicle_back(self, cell: Cell, landed: bool) -> list[DroneAction]:
         """The lost vehicle is back, seen in ``cell`` (``landed``: on the ground below it): the drone

@@ -124,6 +124,11 @@ settled here, and one message it sends is saved (the second point):
   it hears of it first. Plans keep Delta steps between drones, and the news travels in
   well under a period on a real link, so it does; with news slower than the window (the
   tester's ``max_delay`` allows it), it may not, and the tester judges that flight.
+* **A clock beyond the fleet's bound** (``ClockBound``, from the runtime's clock check). Mine off
+  (most peers' clocks disagree with it), my steps are not the fleet's: I fly the plan I have to its
+  end and hold there, plan nothing, and name every cell of that in my answers (``holds``), which
+  peers hold for good. A peer's off: its proposals get no ack of mine, and every cell of what it
+  answers is held for good. Nobody waits for it: it answers as ever.
 * **The operator may release a departed drone** (``Released``): having seen its vehicle
   out of the air for good, it tells every drone to hold none of its cells.
 * **My vehicle can be lost** (its link closed or silent). It may then be anywhere on
@@ -255,6 +260,15 @@ class Released:
 
 
 @dataclass(frozen=True)
+class ClockBound:
+    """The clock check's verdict: my clock is beyond the fleet's bound (``mine_off``: I hold where my plan
+    ends, plan nothing, and every peer holds that for good), or these peers' are (``outliers``)."""
+
+    mine_off: bool
+    outliers: frozenset[str] = frozenset()
+
+
+@dataclass(frozen=True)
 class NextStep:
     """The executor is about to take the boundary after ``now``: a last look at the cell it enters."""
 
@@ -268,7 +282,7 @@ class Reroute:
 
 Event = (NewTask | PlanCompleted | PeerLeft | PeerJoined | ReqForCurrentTraj | CurrentTraj | VehicleLost
          | Relocated | Reroute | VehicleDown | PeerDown | PeerBraked | Released | NextStep | PlanProposal
-         | PlanAck | PlanDecision)
+         | PlanAck | PlanDecision | ClockBound)
 
 
 # ----------------------------------------------------------------- actions
@@ -375,6 +389,8 @@ class CoordinationProtocol:
     #: departed drones' proposals, undecided when they left: each may fly it, so its rest is held for good
     maybe_flown: dict[str, Trajectory] = field(default_factory=dict)
     released: set[str] = field(default_factory=set)  #: departed drones the operator took out of the fleet
+    off_since: int | None = None  #: my clock is beyond the fleet's bound, since this step
+    outliers: frozenset[str] = frozenset()  #: peers whose clock is beyond the fleet's bound
 
     def __post_init__(self) -> None:
         self.members = set(self.peers) - {self.me}
@@ -426,11 +442,14 @@ class CoordinationProtocol:
     def holds(self) -> tuple[Cell, ...]:
         """Cells my lost vehicle may be in, besides my trajectory: the rest of my plan from when it
         was last seen, where it was seen, and where I rest (none while my vehicle answers)."""
-        if self.lost is None:
-            return ()
-        cells = [self.lost.seen, self.location]
-        if self.trajectory is not None:
-            cells += self.trajectory.suffix_from(self.lost.since).cells
+        cells: list[Cell] = []
+        for since, seen in ((self.lost.since, self.lost.seen) if self.lost else (None, None),
+                            (self.off_since, self.location)):
+            if since is None or seen is None:
+                continue
+            cells += [seen, self.location]
+            if self.trajectory is not None:
+                cells += self.trajectory.suffix_from(since).cells
         return tuple(dict.fromkeys(cells))
 
     def ghost_obstacles(self, sparing: Cell | None = None) -> dict[str, Trajectory]:
@@ -720,6 +739,16 @@ class CoordinationProtocol:
             return [Send(event.drone, self._request(now))]
         return []
 
+    def _on_clock_bound(self, event: ClockBound, now: int) -> list[Action]:
+        """My clock is off (every cell of the rest of my plan is held for good in my answers), or back
+        within; ``outliers``' proposals get no ack of mine, and their plans are held for good."""
+        if event.mine_off and self.off_since is None:
+            self.off_since = now
+        elif not event.mine_off:
+            self.off_since = None
+        self.outliers = event.outliers
+        return []
+
     def _on_vehicle_lost(self, event: VehicleLost, now: int) -> list[Action]:
         self.lost = event
         return []
@@ -741,7 +770,7 @@ class CoordinationProtocol:
         start = flying.at(start_step) if flying is not None else self.location
         psi = {**self.ghost_obstacles(sparing=here), **self._held_by_peers(now),
                **{p: self.received[p] for p in sorted(self.members)},
-               **self._undecided(),
+               **self._undecided(), **self._held_for_outliers(sparing=here),
                **{f"{p}!": Trajectory.stationary(c, now) for p, c in sorted(self.peers_down.items())}}
         max_length = task.max_length(start_step)
         try:
@@ -749,6 +778,8 @@ class CoordinationProtocol:
                 raise NoPlanFound(self._no_majority())
             if self.lost is not None:
                 raise NoPlanFound("my vehicle is lost")
+            if self.off_since is not None:
+                raise NoPlanFound("my clock is beyond the fleet's bound")
             if self.down is not None:
                 raise NoPlanFound("my vehicle is down")
             if max_length is not None and max_length < 0:
@@ -841,8 +872,8 @@ class CoordinationProtocol:
     def _on_news_while_confirming(self, event: Event, now: int) -> list[Action]:
         """The fleet changed under my plan (a peer left, came back, came down, braked; my vehicle is lost or
         down): it avoided what no longer holds. I drop it, then take the news as I would flying."""
-        if not self._changes_fleet(event):
-            return []  # a peer I hold as gone already, or old news: nothing my plan did not avoid
+        if not self._changes_fleet(event):  # a peer I hold as gone already, or old news: nothing my plan did not avoid
+            return self._on_clock_bound(event, now) if isinstance(event, ClockBound) else []
         actions = self._abandon(f"{type(event).__name__} came before every peer held my plan", now)
         return [*actions, *self.handle(event, now)]
 
@@ -857,6 +888,8 @@ class CoordinationProtocol:
             return event.drone in self.peers and event.drone != self.me
         if isinstance(event, PeerBraked):
             return event.drone in self.members and event.trajectory.start_step >= self.known[event.drone].start_step
+        if isinstance(event, ClockBound):
+            return event.mine_off or bool(event.outliers - self.outliers)
         return True
 
     # -------------------------------------------------- peers' proposals
@@ -870,8 +903,8 @@ class CoordinationProtocol:
         held = self.proposals.get(sender)
         if held is None or not held.task_id.newer_than(event.task_id):
             self.proposals[sender] = event
-        if self.state is State.CONFIRMING or self._clashes(event, now):
-            return []  # not flown: it runs out of time
+        if self.state is State.CONFIRMING or sender in self.outliers or self._clashes(event, now):
+            return []  # not flown: it runs out of time (an outlier's steps are not ours)
         return [Send(sender, PlanAck(self.me, event.task_id, self.current_trajectory(now), self.holds()))]
 
     def _clashes(self, proposal: PlanProposal, now: int) -> bool:
@@ -901,6 +934,12 @@ class CoordinationProtocol:
             if sender in self.received:  # what it answered this round, or its request carried, is old
                 self.received[sender] = self._news(sender, event.trajectory)
         return []
+
+    def _held_for_outliers(self, sparing: Cell) -> dict[str, Trajectory]:
+        """Every cell of what a peer whose clock is off answered, for good (its steps are not ours), but the
+        one I am in (were it there, we would have met)."""
+        return {f"{p}@{i}": Trajectory.stationary(cell, 0) for p in sorted(self.outliers & set(self.received))
+                for i, cell in enumerate(dict.fromkeys(self.received[p].cells)) if cell != sparing}
 
     def _undecided(self) -> dict[str, Trajectory]:
         """Members' plans not decided yet (but the one a member answered with), which they may fly."""
@@ -939,6 +978,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PlanProposal: CoordinationProtocol._on_proposal,  # held, and acknowledged
         PlanAck: CoordinationProtocol._ignore,  # a late one
         PlanDecision: CoordinationProtocol._on_decision,
+        ClockBound: CoordinationProtocol._on_clock_bound,
         NextStep: CoordinationProtocol._ignore,
     },
     State.COORDINATING: {
@@ -954,6 +994,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PlanProposal: CoordinationProtocol._on_proposal,  # held, and acknowledged
         PlanAck: CoordinationProtocol._ignore,  # a late one
         PlanDecision: CoordinationProtocol._on_decision,
+        ClockBound: CoordinationProtocol._on_clock_bound,
         NextStep: CoordinationProtocol._ignore,  # nothing is flown yet
     },
     State.EXECUTING: {
@@ -972,6 +1013,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PlanProposal: CoordinationProtocol._on_proposal,  # held, and acknowledged
         PlanAck: CoordinationProtocol._ignore,  # a late one
         PlanDecision: CoordinationProtocol._on_decision,
+        ClockBound: CoordinationProtocol._on_clock_bound,
         NextStep: CoordinationProtocol._on_next_step,  # may brake
     },
     State.REROUTING: {  # a round as COORDINATING's, while the plan is flown on
@@ -988,6 +1030,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PlanProposal: CoordinationProtocol._on_proposal,  # held, and acknowledged
         PlanAck: CoordinationProtocol._ignore,  # a late one
         PlanDecision: CoordinationProtocol._on_decision,
+        ClockBound: CoordinationProtocol._on_clock_bound,
         NextStep: CoordinationProtocol._on_next_step,  # may brake
     },
     State.CONFIRMING: {  # planned: the plan is flown once every member holds it, or dropped
@@ -1006,5 +1049,6 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         Released: CoordinationProtocol._on_released,
         PlanProposal: CoordinationProtocol._on_proposal,
         PlanDecision: CoordinationProtocol._on_decision,
+        ClockBound: CoordinationProtocol._on_news_while_confirming,
     },
 }

@@ -187,6 +187,8 @@ class DroneAgent:
             return "its vehicle came down by itself"
         if self.out_of_service is not None:
             return self.out_of_service
+        if not self.may_plan:
+            return "its clock is beyond the fleet's bound"
         readiness = self.watch.readiness()
         if readiness is Readiness.LOST:
             return "its vehicle is lost"
@@ -517,10 +519,13 @@ class DroneAgent:
             if peer != self.me and peer in self.alive:
                 self.clocks.observe(peer, sample)
                 self.heard_at[peer] = self.stack.now
-        alarm = self.clocks.alarm()
-        if (alarm is None) != self.may_plan:
-            log.warning("%s: %s", self.me, alarm or "clock skew back within beta: planning again")
-        self.may_plan = alarm is None
+        alarm, mine_off = self.clocks.alarm(), self.clocks.mine_is_off()
+        if alarm != self.alarms.get("clock"):
+            log.warning("%s: %s", self.me, alarm or "clock skew back within beta")
+        self.may_plan = not mine_off
+        outliers = frozenset() if mine_off else frozenset(self.clocks.violations())
+        reason = f"drone {self.me}'s clock is beyond the fleet's bound"
+        self._carry_out(self.stack.clock_bound(mine_off, outliers, reason))
         self._alarm("clock", alarm)
 
     def _alarm(self, kind: str, text: str | None) -> None:

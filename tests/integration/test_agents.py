@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from drona_gcs.audit import Audit
-from fleet.transport.wire import DroneState, MailOrder, MailStatus
+from fleet.transport.wire import DroneState, MailAck, MailOrder, MailStatus
 from tests.integration.harness import DRONA, FleetProcesses, Observer
 
 pytestmark = pytest.mark.slow
@@ -158,11 +158,16 @@ def test_clock_offsets_within_beta_stay_safe(tmp_path: Path) -> None:
         fleet.kill_all()
 
 
-def test_a_clock_offset_beyond_beta_is_detected_and_stops_planning(tmp_path: Path) -> None:
+def test_a_clock_offset_beyond_beta_excludes_that_drone_and_the_others_deliver(tmp_path: Path) -> None:
+    """Issue 25: one skewed clock stalled the fleet (every drone alarmed, none planned). The drone whose
+    clock most peers disagree with holds where its plan ends and takes no mail; the others hold its
+    cells for good and deliver; the flight record audits clean."""
     fleet = FleetProcesses(tmp_path, ["d1", "d2", "d3"], offsets={"d3": 0.6})
+    orders = [MailOrder(id="m1", pickup=[2, 2, 0], dropoff=[7, 7, 0], priority=9),
+              MailOrder(id="m2", pickup=[6, 2, 0], dropoff=[2, 7, 0], priority=4)]
     fleet.start()
     try:
-        async def scenario() -> Observer:
+        async def scenario() -> tuple[Observer, MailAck]:
             async with Observer(fleet) as obs:
                 await obs.until(lambda: obs.alive >= set(fleet.drones), 60, "every agent to join")
                 # The clock alarm itself, not any alarm: a vehicle lagging on its first flight
@@ -170,14 +175,18 @@ def test_a_clock_offset_beyond_beta_is_detected_and_stops_planning(tmp_path: Pat
                 await obs.until(lambda: len(obs.states) == 3 and all(
                     any("clock skew" in a for a in s.health.alarms) for s in obs.states.values()),
                     30, "every drone to raise the clock alarm")
-                await obs.give(MailOrder(id="held", pickup=[2, 2, 0], dropoff=[7, 7, 0], priority=9), "d1")
-                await asyncio.sleep(3.0)  # a window in which d1 would have started the mail
-                return obs
+                refused = await obs.client.assign("d3", MailOrder(id="m3", pickup=[3, 3, 0], dropoff=[5, 5, 0],
+                                                                  priority=1))
+                await obs.give(orders[0], "d1")
+                await obs.give(orders[1], "d2")
+                await obs.until(lambda: obs.delivered(["m1", "m2"]), 120, "d1 and d2 to deliver")
+                return obs, refused
 
-        obs = asyncio.run(scenario())
-        assert obs.statuses("held") == [MailStatus.ACCEPTED]
-        assert all(any("clock skew" in a for a in s.health.alarms) for s in obs.states.values())
-        assert "d3" in " ".join(obs.states["d1"].health.alarms)
+        obs, refused = asyncio.run(scenario())
+        assert not refused.accepted and "clock" in refused.reason
+        assert "mine is off" in " ".join(obs.states["d3"].health.alarms)
+        assert "d3 out of the fleet's bound" in " ".join(obs.states["d1"].health.alarms)
+        check_run_record(fleet)
     finally:
         fleet.kill_all()
 
