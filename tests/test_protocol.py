@@ -1165,3 +1165,18 @@ def test_a_peer_whose_clock_is_off_gets_no_ack_and_is_held_where_it_flies_for_go
     action = started(confirmed(proto, proto.handle(CurrentTraj("c", location_of("c"), ID_A), 0)))
     held = {t.last for name, t in action.psi.items() if name.startswith("b@")}
     assert held == set(b_way.cells) and (2, 0, 0) not in action.trajectory.cells
+
+
+def test_a_request_of_a_round_whose_plan_was_decided_is_late_even_after_a_rejoin() -> None:
+    """Found by a partition sweep (seed 9201): b's decision made it a member again (and forgot its newest
+    request, as a join does); b's request of that same round came after, was taken as current, and
+    put where b was before that plan in my Psi."""
+    proto = machine()
+    proto.handle(PeerLeft("b"), 0)
+    b_plan = traj(3, (4, 4), (3, 4), (2, 4))
+    proto.handle(PlanDecision("b", ID_B_LOW, b_plan, flown=True), 1)
+    assert "b" in proto.members and proto.known["b"] == b_plan
+    proto.handle(NewTask(Task(ID_A, GOAL)), 1)
+    proto.handle(CurrentTraj("b", b_plan, ID_A), 1)
+    assert proto.handle(request(ID_B_LOW, "b"), 1) == []  # late: its plan is decided
+    assert proto.received["b"] == b_plan and "b" not in proto.pending

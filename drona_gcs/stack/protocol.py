@@ -504,9 +504,12 @@ class CoordinationProtocol:
                                  self.holds(), self.task.clear)
 
     def _current(self, event: ReqForCurrentTraj) -> bool:
-        """Note ``event`` as its sender's newest request; False if a newer one came first (its round is over)."""
-        newest = self.newest.get(event.sender)
+        """Note ``event`` as its sender's newest request; False if a newer one came first, or its plan was
+        decided already (its round is over)."""
+        newest, decided = self.newest.get(event.sender), self.decided.get(event.sender)
         if newest is not None and newest.newer_than(event.task_id):
+            return False
+        if decided is not None and not event.task_id.newer_than(decided):
             return False
         self.newest[event.sender] = event.task_id
         return True
@@ -908,15 +911,18 @@ class CoordinationProtocol:
         return [Send(sender, PlanAck(self.me, event.task_id, self.current_trajectory(now), self.holds()))]
 
     def _clashes(self, proposal: PlanProposal, now: int) -> bool:
-        """Whether ``proposal`` comes within the window of what I fly, or of what I know a member of mine
-        to fly or to have proposed that its sender held as gone, where it last knew it: a partition
-        leaves views apart, and two plans made by majorities that overlap meet at a drone that holds both,
-        here. (Confirming, I hold none: mine was made without it.)"""
+        """Whether ``proposal`` comes within the window of what I fly, or enters a cell where a drone its
+        sender held as gone may be for good, as I know it: a member of mine may stop anywhere on the rest
+        of what it flies or proposed (were it gone), a departed drone anywhere on its rest. A partition
+        leaves views apart, and two plans made by majorities that overlap meet at a drone that holds
+        both, here. (Confirming, I hold none: mine was made without it.)"""
         sender, theirs = proposal.sender, proposal.trajectory
-        gone_there = self.members - set(proposal.members) - {sender}
-        flown = [self.current_trajectory(now), *(Trajectory.stationary(c, now) for c in self.holds()),
-                 *(self.known[p] for p in gone_there),
-                 *(held.trajectory for p, held in self.proposals.items() if p in gone_there)]
+        gone_there = (self.members | set(self.ghosts)) - set(proposal.members) - {sender, self.me}
+        rests = [self.ghosts.get(p) or self.known[p].suffix_from(now - self.lead_steps) for p in gone_there]
+        rests += [t for p, t in self.maybe_flown.items() if p in gone_there]
+        rests += [held.trajectory for p, held in self.proposals.items() if p in gone_there]
+        cells = {c for rest in rests for c in rest.cells} - {theirs.first}
+        flown = [self.current_trajectory(now), *(Trajectory.stationary(c, 0) for c in {*self.holds(), *cells})]
         since = max(now, theirs.start_step)  # what it flew already was held before
         return any(check_pair(theirs, other, self.delta, from_step=since) for other in flown)
 

@@ -183,8 +183,9 @@ class FleetProcesses:
 class Observer:
     """An outside session on the fleet: gives mail, keeps every status report and the latest states."""
 
-    def __init__(self, fleet: FleetProcesses) -> None:
-        self.fleet = fleet
+    def __init__(self, fleet: FleetProcesses, lease_s: float | None = None) -> None:
+        """``lease_s``: the session's Zenoh lease (the fleet's, when its agents run another)."""
+        self.fleet, self.lease_s = fleet, lease_s
         self.keys = FleetKeys(fleet.fleet)
         self.reports: list[MailStatusReport] = []
         self.states: dict[str, DroneState] = {}
@@ -194,7 +195,8 @@ class Observer:
 
     async def __aenter__(self) -> Observer:
         connect = tuple(self.fleet.endpoint(d) for d in self.fleet.drones)
-        settings = ZenohSettings(connect=connect).secured(self.fleet.tls_dir, SERVICE, self.keys, self.fleet.drones)
+        settings = ZenohSettings(connect=connect, lease_s=self.lease_s).secured(self.fleet.tls_dir, SERVICE, self.keys,
+                                                                                self.fleet.drones)
         self.node = await ZenohNode.open(settings, "observer")
         self.node.subscribe(self.keys.status(), self._on_report)
         self.node.subscribe(self.keys.state(), self._on_state)
