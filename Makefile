@@ -8,12 +8,13 @@ STAMP := $(VENV)/.installed
 
 # System packages the project needs (installed only when missing, and only as root):
 # python3-venv for the environment, chromium for the dashboard's browser test, gcc and
-# python3-dev to compile the planner's hot modules (setup.py; without them it stays pure Python).
-SYSTEM_PACKAGES := python3-venv chromium gcc python3-dev
+# python3-dev to compile the planner's hot modules (setup.py; without them it stays pure Python),
+# iproute2 for the network namespaces of the partition test.
+SYSTEM_PACKAGES := python3-venv chromium gcc python3-dev iproute2
 
 $(STAMP): pyproject.toml setup.py
 	@{ $(PY) -c 'import venv, ensurepip' 2>/dev/null && command -v chromium >/dev/null \
-	   && command -v gcc >/dev/null \
+	   && command -v gcc >/dev/null && command -v ip >/dev/null \
 	   && $(PY) -c 'import os, sysconfig; assert os.path.exists(sysconfig.get_path("include") + "/Python.h")' 2>/dev/null; } || { \
 	  [ "$$(id -u)" = 0 ] && apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
 	    --no-install-recommends $(SYSTEM_PACKAGES) >/dev/null; } || echo "make: could not install $(SYSTEM_PACKAGES) (not root?)"

@@ -482,3 +482,22 @@ def test_the_liveness_bound_runs_from_the_fields_last_change() -> None:
     world.apply(("partition", 1))
     world.apply(("heal", 0))
     assert world.last_injection_step == 55
+
+
+def test_an_agent_restarted_across_a_cut_holds_its_peers_as_gone_until_it_heals() -> None:
+    """Found by a sweep with a crash and a partition (seed 9301): d0, cut off, crashed and restarted
+    knowing every peer as a member; its request was lost across the cut, and the heal's join of a peer
+    it never saw leave asked nothing again: it waited for good. As the agent does, a restarted drone
+    holds the peers it cannot see as gone; the heal makes them members, and its round asks them."""
+    world = Explorer(Scenario(drones=3, requests=0, delta=1, seed=2, crashes=1, partitions=1)).world()
+    d0 = world.config.drones[0]
+    world.apply(("partition", 0))
+    world.apply(("crash", 0))
+    world.inflight = [m for m in world.inflight if not isinstance(m.message, Left)]  # as if every peer saw it
+    world.apply(("restart", 0))
+    assert world.stacks[d0].protocol.members == set()
+    world.inflight = []
+    world.apply(("heal", 0))
+    for message in [m for m in world.inflight if m.to == d0]:
+        world.apply(("deliver", message.seq))
+    assert world.stacks[d0].protocol.members == set(world.config.drones[1:])

@@ -531,8 +531,12 @@ class World:
         self.last_injection_step = min(self.steps.values())  # (d)'s bound runs from the field's last change
         self.monitors.restarted(drone, old.executor.cell, self.steps[drone])
         for peer in self.config.drones:
-            if peer != drone:
-                self._post(drone, peer, Joined())
+            if peer == drone:
+                continue
+            self._post(drone, peer, Joined())
+            if self._across(drone, peer) or peer in self.crashed:  # as the agent does: no token, no member
+                self.monitors.left(drone, peer)
+                self._carry_out(drone, self.stacks[drone].peer_left(peer))
 
     def _partition(self, drone: str) -> None:
         """The network cuts ``drone`` off from the rest: what is in flight across the cut is lost, and
