@@ -6,6 +6,8 @@ import asyncio
 import io
 import json
 
+import pytest
+
 from drona_gcs.errors import ProblemError
 from drona_gcs.geo import GeoFrame, GeoPoint
 from drona_gcs.motion import Trajectory
@@ -25,9 +27,11 @@ from fleet.transport.wire import (
     DroneState,
     Envelope,
     FleetCommand,
+    HeldMail,
     MailOrder,
     MailStatus,
     MailStatusReport,
+    MailView,
     PlanAnnounce,
     Propose,
     ReqTraj,
@@ -516,3 +520,38 @@ def test_a_release_command_frees_a_departed_drones_cells_and_is_refused_for_a_me
     assert (7, 0, 0) in held and "d2" not in stack.protocol.ghosts and (7, 0, 0) not in stack.taken_cells()
     assert [(a.accepted, a.reason) for a in replies] == [
         (True, ""), (False, "d3 is not a drone gone from the fleet: nothing to release")]
+
+
+@pytest.mark.parametrize("in_touch", [True, False], ids=["majority", "cut-off"])
+def test_the_heir_adopts_a_gone_drones_mail_a_lease_later_and_only_with_a_majority(in_touch: bool) -> None:
+    """Issue 25: one owner per mail. A drone that left may only be cut off, flying on: the heir waits a
+    lease (by then that drone has handed back what it had not picked up) and adopts only in touch with
+    most of the fleet (the other side cannot be). What it carried stays its own, never failed and then
+    delivered, until the operator releases it."""
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0,
+                         drones={"d1": (0, 0, 0), "d2": (7, 0, 0), "d3": (7, 7, 0)})
+
+    async def scenario() -> RecordingNode:
+        node = RecordingNode()
+        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+        agent = DroneAgent(stack, node, KEYS, ScriptedVehicle(), GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
+        agent.lease_steps = 4
+        agent.alive = {"d2", "d3"}
+        held = HeldMail(drone="d2", mail=[
+            MailView(id="q", pickup=[3, 3, 0], dropoff=[5, 5, 0], priority=5, stage="queued"),
+            MailView(id="c", pickup=[6, 0, 0], dropoff=[6, 6, 0], priority=5, stage="carrying")])
+        agent.mail._on_peer_mail(KEYS.held("d2"), encode("d2", 1000.0, held))
+        if not in_touch:
+            agent._on_liveliness(KEYS.alive("d3"), False)
+        agent._on_liveliness(KEYS.alive("d2"), False)
+        for step in range(4):
+            agent.tick(step)
+            assert node.statuses("q") == []  # within the lease: d2 may be cut off, handing it back
+        agent.tick(4)
+        agent.mail.released("d2")
+        return node
+
+    node = asyncio.run(scenario())
+    assert node.statuses("q") == ([(MailStatus.ACCEPTED, ""), (MailStatus.REASSIGNED, "drone d2 left")]
+                                  if in_touch else [])
+    assert node.statuses("c") == [(MailStatus.FAILED, "on board drone d2, released by the operator")]

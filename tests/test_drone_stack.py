@@ -91,7 +91,7 @@ def test_a_lost_vehicle_plans_nothing_and_back_in_a_held_cell_the_drone_rests_th
     assert trajectory is not None
     seen = stack.executor.cell
     handed = stack.vehicle_lost(stack.now, seen, "its vehicle is lost")
-    assert handed == [MailRejected(MAIL, "its vehicle is lost")]  # another drone may fly it
+    assert of(MailRejected, handed) == [MailRejected(MAIL, "its vehicle is lost")]  # another drone may fly it
     assert set(stack.protocol.holds()) >= {seen, *trajectory.suffix_from(stack.now).cells}
     stack, actions = fly(lambda s, k: None, 30, stack)  # nothing seen while lost: nothing reported
     assert of(MailPickedUp, actions) == []
@@ -384,3 +384,19 @@ def test_a_drone_that_brakes_short_of_a_vehicle_down_decides_its_leg_anew_from_t
     braked = of(Braked, actions)
     assert len(braked) == 1 and braked[0].trajectory.last == (1, 0, 0)  # type: ignore[union-attr]
     assert of(MailPickedUp, actions) == [MailPickedUp(MAIL)] and of(MailDelivered, actions) == [MailDelivered(MAIL)]
+
+
+def test_a_drone_cut_off_from_most_of_the_fleet_hands_back_its_mail_not_on_board_once() -> None:
+    """Issue 25: under a partition the other side takes a gone drone's mail over; the drone cut off must
+    not fly it too (two owners). Out of touch with a majority, it hands back what is not on board."""
+    ws = Workspace.build(size=(6, 6, 1), drones={"d1": (0, 0, 0), "d2": (5, 5, 0), "d3": (0, 5, 0)})
+    stack = DroneStack("d3", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+    stack.assign(MAIL)
+    stack.peer_left("d1")
+    assert stack.step(0, 100.0, (0, 5, 0)) and stack.in_touch  # 2 of 3: still a majority
+    assert of(MailRejected, stack.step(1, 100.0, (0, 5, 0))) == []
+    stack.peer_left("d2")
+    handed = stack.step(2, 100.0, (0, 5, 0))
+    assert of(MailRejected, handed) == [MailRejected(MAIL, "cut off from most of the fleet")]
+    assert not stack.in_touch and stack.mail.queue == [] and stack.mail.current is None
+    assert of(MailRejected, stack.step(3, 100.0, (0, 5, 0))) == []  # once

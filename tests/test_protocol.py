@@ -39,12 +39,14 @@ from drona_gcs.stack.protocol import (
     CoordinationProtocol,
     Event,
     Grounded,
+    Holding,
     NewTask,
     NextStep,
     PeerBraked,
     PeerDown,
     PeerJoined,
     PeerLeft,
+    PeerLost,
     PlanCompleted,
     Released,
     Relocated,
@@ -119,7 +121,7 @@ def request(task_id: TaskId, sender: str, now: int = 0) -> ReqForCurrentTraj:
 # =========================================================== the state table
 EVENT_TYPES: tuple[type, ...] = (NewTask, PlanCompleted, PeerLeft, PeerJoined, ReqForCurrentTraj, CurrentTraj,
                                  VehicleLost, Relocated, Reroute, VehicleDown, PeerDown, PeerBraked, Released,
-                                 NextStep, PlanProposal, PlanAck, PlanDecision, ClockBound)
+                                 NextStep, PlanProposal, PlanAck, PlanDecision, ClockBound, PeerLost)
 #: What Protocol 1 takes in each state (paper section 3.1); the rest is a protocol violation. A vehicle
 #: found again is not placed while a round is under way (its request carried where it was). Only a
 #: drone flying a plan plans its rest anew (Reroute), and that round ends when the plan does.
@@ -165,6 +167,7 @@ def sample(event_type: type) -> Event:
         PlanAck: PlanAck("b", ID_A, location_of("b")),
         PlanDecision: PlanDecision("b", ID_B_LOW, Trajectory(3, (B, B)), flown=True),
         ClockBound: ClockBound(mine_off=False, outliers=frozenset({"b"})),
+        PeerLost: PeerLost("b", ((3, 3, 0),)),
     }
     return samples[event_type]
 
@@ -828,7 +831,7 @@ def test_a_drone_whose_vehicle_is_lost_holds_the_rest_of_its_plan_and_plans_noth
     proto = machine({"a": A, "b": B})
     proto.handle(NewTask(Task(ID_A, GOAL)), 0)
     plan = started(confirmed(proto, proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0))).trajectory
-    assert proto.handle(VehicleLost(4, (1, 0, 0)), 4) == []
+    assert proto.handle(VehicleLost(4, (1, 0, 0)), 4) == [Holding(proto.holds())]  # every peer is told at once
     answer = proto.handle(request(ID_B_LOW, "b", 4), 4)
     assert answer == [Send("b", CurrentTraj("a", plan, ID_B_LOW, ((1, 0, 0), A, *plan.suffix_from(4).cells)))]
     assert set(answer[0].message.holds) == {A, (1, 0, 0), (2, 0, 0), (3, 0, 0), (4, 0, 0)}  # type: ignore[union-attr]
@@ -839,7 +842,7 @@ def test_a_drone_whose_vehicle_is_lost_holds_the_rest_of_its_plan_and_plans_noth
     failed = proto.handle(CurrentTraj("b", location_of("b", 10), TaskId(20, "a", 2)), 10)
     assert [type(a) for a in failed] == [TaskFailed] and "vehicle is lost" in failed[0].reason  # type: ignore[union-attr]
 
-    proto.handle(Relocated((2, 0, 0)), 11)
+    assert proto.handle(Relocated((2, 0, 0)), 11) == [Holding(())]
     assert proto.holds() == () and proto.current_trajectory(11) == Trajectory.stationary((2, 0, 0), 11)
 
 
@@ -1180,3 +1183,16 @@ def test_a_request_of_a_round_whose_plan_was_decided_is_late_even_after_a_rejoin
     proto.handle(CurrentTraj("b", b_plan, ID_A), 1)
     assert proto.handle(request(ID_B_LOW, "b"), 1) == []  # late: its plan is decided
     assert proto.received["b"] == b_plan and "b" not in proto.pending
+
+
+def test_a_peers_lost_vehicle_on_the_rest_of_my_plan_has_me_plan_it_anew_and_stays_an_obstacle() -> None:
+    """Found over real processes: b's vehicle was lost where my plan was to pass later; b's answers said
+    so, but only in my next round. Told at once (PeerLost), I steer clear as of a vehicle down."""
+    proto, plan = flying_past_b()
+    assert proto.handle(PeerLost("b", (plan.at(5), (4, 4, 0))), 2) == [Threatened("b", (plan.at(5),))]
+    proto.handle(Reroute(Task(TaskId(6, "a", 2), GOAL)), 2)
+    new = started(confirmed(proto, proto.handle(CurrentTraj("b", location_of("b"), TaskId(6, "a", 2)), 2)
+                            + proto.handle(CurrentTraj("c", location_of("c"), TaskId(6, "a", 2)), 2))).trajectory
+    assert plan.at(5) not in new.suffix_from(4).cells
+    proto.handle(PeerLost("b", ()), 3)  # back
+    assert proto.peers_lost == {}

@@ -52,6 +52,7 @@ from drona_gcs.stack.protocol import (
     PeerDown,
     PeerJoined,
     PeerLeft,
+    PeerLost,
     PlanCompleted,
     Released,
     Relocated,
@@ -153,6 +154,7 @@ class DroneStack:
         self.braked: Cell | None = None  #: where the plan flown was cut short of a cell held for good
         self.threat: Threatened | None = None  #: what the reroute under way goes around
         self.commanded: str | None = None  #: the operator's command in force (see :meth:`command`)
+        self.in_touch = True  #: in touch with most of the fleet at the last boundary (CoordinationProtocol.in_quorum)
 
     def distance(self, a: Cell, b: Cell) -> int:
         """Steps from ``a`` to ``b``, around the drones resting now and never through a vehicle down
@@ -269,6 +271,10 @@ class DroneStack:
         """``drone`` announced it cut its plan short, to ``trajectory``: it holds at its end."""
         return self._protocol(PeerBraked(drone, trajectory))
 
+    def peer_lost(self, drone: str, cells: tuple[Cell, ...]) -> list[DroneAction]:
+        """``drone`` announced its vehicle is lost and may be in ``cells`` for good (none: it is back)."""
+        return self._protocol(PeerLost(drone, cells))
+
     def peer_down(self, drone: str, cell: Cell) -> list[DroneAction]:
         """``drone`` announced its vehicle came down in ``cell``: an obstacle for good, and a new plan
         for the rest of ours if that crosses it."""
@@ -328,6 +334,7 @@ class DroneStack:
             else:
                 self.mail.battery_recharged()
         self.level = battery_level
+        actions += self._cut_off()
         self._land_if_spent(step)
         if may_plan and self.protocol.state is State.WAIT_FOR_TASK:
             taken = self.taken_cells()
@@ -337,6 +344,12 @@ class DroneStack:
                 if isinstance(decided, GoTo):
                     actions += self._protocol(NewTask(self._task(decided, step, physical_time)))
         return actions
+
+    def _cut_off(self) -> list[DroneAction]:
+        """Out of touch with most of the fleet, a drone plans nothing, and the other side may take its mail
+        over: it hands back every mail not on board, once, so that no mail has two owners."""
+        was, self.in_touch = self.in_touch, self.protocol.in_quorum()
+        return list(self.mail.release(CUT_OFF)) if was and not self.in_touch else []
 
     def _task(self, leg: GoTo, step: int, physical_time: int) -> Task:
         """The motion task of a leg. The leg's flight budget pays for more than the plan's moves:
@@ -463,6 +476,8 @@ class DroneStack:
                 self.braked = action.trajectory.last
         return actions
 
+
+CUT_OFF = "cut off from most of the fleet"  #: why a drone out of touch with a majority hands its mail back
 
 #: Legs that ask drones resting on their way to leave it; a drone going to park waits instead.
 ASKING = frozenset({Phase.TO_PICKUP, Phase.TO_DROPOFF, Phase.TO_CHARGER})

@@ -243,6 +243,14 @@ class PeerDown:
 
 
 @dataclass(frozen=True)
+class PeerLost:
+    """``drone``'s vehicle is lost: it may be in any of ``cells`` for good (none: it is back)."""
+
+    drone: str
+    cells: tuple[Cell, ...]
+
+
+@dataclass(frozen=True)
 class PeerBraked:
     """``drone`` cut the plan it flies short (:class:`Braked`): ``trajectory`` holds at its end until
     its next plan."""
@@ -282,7 +290,7 @@ class Reroute:
 
 Event = (NewTask | PlanCompleted | PeerLeft | PeerJoined | ReqForCurrentTraj | CurrentTraj | VehicleLost
          | Relocated | Reroute | VehicleDown | PeerDown | PeerBraked | Released | NextStep | PlanProposal
-         | PlanAck | PlanDecision | ClockBound)
+         | PlanAck | PlanDecision | ClockBound | PeerLost)
 
 
 # ----------------------------------------------------------------- actions
@@ -344,7 +352,14 @@ class Braked:
     held: Cell  #: the cell it stops short of
 
 
-Action = Send | Broadcast | StartExecuting | TaskFailed | Threatened | RerouteFailed | Grounded | Braked
+@dataclass(frozen=True)
+class Holding:
+    """Tell every peer the cells my lost vehicle may be in, for good (none: it is back, see ``Relocated``)."""
+
+    cells: tuple[Cell, ...]
+
+
+Action = Send | Broadcast | StartExecuting | TaskFailed | Threatened | RerouteFailed | Grounded | Braked | Holding
 
 
 @dataclass(frozen=True)
@@ -391,6 +406,7 @@ class CoordinationProtocol:
     released: set[str] = field(default_factory=set)  #: departed drones the operator took out of the fleet
     off_since: int | None = None  #: my clock is beyond the fleet's bound, since this step
     outliers: frozenset[str] = frozenset()  #: peers whose clock is beyond the fleet's bound
+    peers_lost: dict[str, tuple[Cell, ...]] = field(default_factory=dict)  #: peers' lost vehicles, where they may be
 
     def __post_init__(self) -> None:
         self.members = set(self.peers) - {self.me}
@@ -652,7 +668,8 @@ class CoordinationProtocol:
         a margin for its clock)."""
         assert self.trajectory is not None
         trajectory = self.trajectory
-        held = {*self.peers_down.values(), *(t.last for t in self.ghost_obstacles(sparing=trajectory.at(now)).values())}
+        held = {*self.peers_down.values(), *(t.last for t in self.ghost_obstacles(sparing=trajectory.at(now)).values()),
+                *(c for cells in self.peers_lost.values() for c in cells if c != trajectory.at(now))}
 
         def taken(step: int) -> bool:
             cell = trajectory.at(step)
@@ -698,7 +715,7 @@ class CoordinationProtocol:
         """Forget where a departed drone may be: its ghost, its vehicle down, its brake."""
         if event.drone == self.me or event.drone in self.members or event.drone not in self.peers:
             raise ProblemError(f"{event.drone} is not a drone gone from the fleet: nothing to release")
-        for held in (self.ghosts, self.maybe_flown, self.peers_down, self.braked, self.known):
+        for held in (self.ghosts, self.maybe_flown, self.peers_down, self.braked, self.known, self.peers_lost):
             held.pop(event.drone, None)
         self.released.add(event.drone)
         return []
@@ -732,6 +749,7 @@ class CoordinationProtocol:
         for gone in (self.ghosts, self.maybe_flown, self.proposals):  # what it announces now is the truth
             gone.pop(event.drone, None)
         self.peers_down.pop(event.drone, None)  # its agent restarted: its vehicle is back in service
+        self.peers_lost.pop(event.drone, None)  # where it announces itself now is the truth
         self.braked.pop(event.drone, None)
         self.newest.pop(event.drone, None)  # it may have restarted, and its clock with it
         # What it announces now is newer than anything we heard before it left.
@@ -753,13 +771,26 @@ class CoordinationProtocol:
         return []
 
     def _on_vehicle_lost(self, event: VehicleLost, now: int) -> list[Action]:
+        """Every peer is told at once where my vehicle may be: plans made before avoided only my plan."""
         self.lost = event
-        return []
+        return [Holding(self.holds())]
 
     def _on_relocated(self, event: Relocated, now: int) -> list[Action]:
+        back: list[Action] = [Holding(())] if self.lost is not None else []
         self.location, self.trajectory, self.task, self.lost = event.cell, None, None, None
         self.state = State.WAIT_FOR_TASK
-        return []
+        return back
+
+    def _on_peer_lost(self, event: PeerLost, now: int) -> list[Action]:
+        """A peer's vehicle is lost, and may be in these cells for good: the plan I fly steers clear of
+        them as of a vehicle down (brake, or plan its rest anew); every plan from now avoids them."""
+        if event.drone == self.me or event.drone not in self.peers:
+            return []
+        if not event.cells:
+            self.peers_lost.pop(event.drone, None)
+            return []
+        self.peers_lost[event.drone] = event.cells
+        return self._steer_clear(event.drone, now)
 
     # ------------------------------------------------------------- planning
     def _plan_if_ready(self, now: int) -> list[Action]:
@@ -774,7 +805,9 @@ class CoordinationProtocol:
         psi = {**self.ghost_obstacles(sparing=here), **self._held_by_peers(now),
                **{p: self.received[p] for p in sorted(self.members)},
                **self._undecided(), **self._held_for_outliers(sparing=here),
-               **{f"{p}!": Trajectory.stationary(c, now) for p, c in sorted(self.peers_down.items())}}
+               **{f"{p}!": Trajectory.stationary(c, now) for p, c in sorted(self.peers_down.items())},
+               **{f"{p}~lost{i}": Trajectory.stationary(c, now) for p, cells in sorted(self.peers_lost.items())
+                  for i, c in enumerate(cells) if c != here}}
         max_length = task.max_length(start_step)
         try:
             if not self.in_quorum():
@@ -876,7 +909,9 @@ class CoordinationProtocol:
         """The fleet changed under my plan (a peer left, came back, came down, braked; my vehicle is lost or
         down): it avoided what no longer holds. I drop it, then take the news as I would flying."""
         if not self._changes_fleet(event):  # a peer I hold as gone already, or old news: nothing my plan did not avoid
-            return self._on_clock_bound(event, now) if isinstance(event, ClockBound) else []
+            if isinstance(event, ClockBound):
+                return self._on_clock_bound(event, now)
+            return self._on_peer_lost(event, now) if isinstance(event, PeerLost) else []
         actions = self._abandon(f"{type(event).__name__} came before every peer held my plan", now)
         return [*actions, *self.handle(event, now)]
 
@@ -893,6 +928,8 @@ class CoordinationProtocol:
             return event.drone in self.members and event.trajectory.start_step >= self.known[event.drone].start_step
         if isinstance(event, ClockBound):
             return event.mine_off or bool(event.outliers - self.outliers)
+        if isinstance(event, PeerLost):
+            return event.drone in self.peers and event.drone != self.me and bool(event.cells)
         return True
 
     # -------------------------------------------------- peers' proposals
@@ -985,6 +1022,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PlanAck: CoordinationProtocol._ignore,  # a late one
         PlanDecision: CoordinationProtocol._on_decision,
         ClockBound: CoordinationProtocol._on_clock_bound,
+        PeerLost: CoordinationProtocol._on_peer_lost,
         NextStep: CoordinationProtocol._ignore,
     },
     State.COORDINATING: {
@@ -1001,6 +1039,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PlanAck: CoordinationProtocol._ignore,  # a late one
         PlanDecision: CoordinationProtocol._on_decision,
         ClockBound: CoordinationProtocol._on_clock_bound,
+        PeerLost: CoordinationProtocol._on_peer_lost,
         NextStep: CoordinationProtocol._ignore,  # nothing is flown yet
     },
     State.EXECUTING: {
@@ -1020,6 +1059,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PlanAck: CoordinationProtocol._ignore,  # a late one
         PlanDecision: CoordinationProtocol._on_decision,
         ClockBound: CoordinationProtocol._on_clock_bound,
+        PeerLost: CoordinationProtocol._on_peer_lost,
         NextStep: CoordinationProtocol._on_next_step,  # may brake
     },
     State.REROUTING: {  # a round as COORDINATING's, while the plan is flown on
@@ -1037,6 +1077,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PlanAck: CoordinationProtocol._ignore,  # a late one
         PlanDecision: CoordinationProtocol._on_decision,
         ClockBound: CoordinationProtocol._on_clock_bound,
+        PeerLost: CoordinationProtocol._on_peer_lost,
         NextStep: CoordinationProtocol._on_next_step,  # may brake
     },
     State.CONFIRMING: {  # planned: the plan is flown once every member holds it, or dropped
@@ -1056,5 +1097,6 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PlanProposal: CoordinationProtocol._on_proposal,
         PlanDecision: CoordinationProtocol._on_decision,
         ClockBound: CoordinationProtocol._on_news_while_confirming,
+        PeerLost: CoordinationProtocol._on_news_while_confirming,
     },
 }

@@ -786,7 +786,7 @@ def _clone_stack(stack: DroneStack) -> DroneStack:
 def _stack_key(stack: DroneStack) -> Hashable:
     # What the stack keeps besides its machines.
     own = (stack.arrival, stack.unreached, stack.asked_clear, stack.stuck, stack.stop_short, stack.threat,
-           stack.braked, stack.resting_now)
+           stack.braked, stack.resting_now, stack.in_touch)
     return (*(_machine_key(getattr(stack, name)) for name in _MACHINES), own)
 
 

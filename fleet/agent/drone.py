@@ -35,13 +35,14 @@ from typing import TextIO
 from drona_gcs.errors import ProblemError
 from drona_gcs.geo import GeoFrame
 from drona_gcs.stack.battery import BatteryLow, BatteryRecharged
-from drona_gcs.stack.drone import DroneAction, DroneStack, LegNotFlown
+from drona_gcs.stack.drone import CUT_OFF, DroneAction, DroneStack, LegNotFlown
 from drona_gcs.stack.mail import GoTo, MailDelivered, MailLost, MailPickedUp, MailRejected, MailStarted
 from drona_gcs.stack.messages import CurrentTraj
 from drona_gcs.stack.protocol import (
     Braked,
     Broadcast,
     Grounded,
+    Holding,
     RerouteFailed,
     Send,
     StartExecuting,
@@ -175,6 +176,8 @@ class DroneAgent:
         level = self._battery()
         actions = self.stack.step(step, level, self.watch.flown(), may_plan=self._may_plan())
         self._carry_out(actions)
+        # A lease of grace: a drone cut off (not gone) has seen it too by then, and handed its mail back.
+        self.mail.adopt_due(step, self.alive, self.stack.in_touch, self.lease_steps)
         return actions
 
     def _may_plan(self) -> bool:
@@ -189,6 +192,8 @@ class DroneAgent:
             return self.out_of_service
         if not self.may_plan:
             return "its clock is beyond the fleet's bound"
+        if not self.stack.in_touch:
+            return CUT_OFF
         readiness = self.watch.readiness()
         if readiness is Readiness.LOST:
             return "its vehicle is lost"
@@ -312,6 +317,10 @@ class DroneAgent:
             elif isinstance(action, Grounded):
                 grounded = PlanAnnounce(trajectory=WireTrajectory.of(action.trajectory), grounded=True)
                 self.node.put(self.keys.plan(self.me), encode(self.me, self.clock(), grounded))
+            elif isinstance(action, Holding):
+                flies = self.stack.protocol.current_trajectory(self.stack.now)
+                told = PlanAnnounce(trajectory=WireTrajectory.of(flies), lost=True, holds=action.cells)
+                self.node.put(self.keys.plan(self.me), encode(self.me, self.clock(), told))
             elif isinstance(action, Braked):
                 log.warning("%s: braked short of %s, held for good: holding %s", self.me, list(action.held),
                             list(action.trajectory.last))
@@ -390,6 +399,8 @@ class DroneAgent:
             self.heard_at[sender] = self.stack.now
             if body.grounded:
                 self._carry_out(self.stack.peer_down(sender, body.trajectory.core().last))
+            elif body.lost:
+                self._carry_out(self.stack.peer_lost(sender, body.holds))
             elif body.braked:
                 self._carry_out(self.stack.peer_braked(sender, body.trajectory.core()))
             else:
@@ -420,7 +431,7 @@ class DroneAgent:
             self.alive.discard(peer)
             self.clocks.forget(peer)
             self._carry_out(self.stack.peer_left(peer, self._silent_since(peer)))
-            self.mail.adopt_from(peer, self.alive)
+            self.mail.orphan(peer, self.stack.now)
 
     def _silent_since(self, peer: str) -> int:
         """The earliest step ``peer`` may have gone silent at. A lost link is noticed only when the
@@ -486,6 +497,7 @@ class DroneAgent:
         try:
             if body.action is CommandAction.RELEASE:
                 self._carry_out(self.stack.release(body.about or ""))
+                self.mail.released(body.about or "")
             else:
                 self._carry_out(self.stack.command(body.action.value, f"{body.action.value} by {body.by}"))
         except ProblemError as exc:

@@ -6,7 +6,11 @@ order too: it is not a second mail) or refused with the reason; cancellations
 on ``mail/cancel/<me>`` drop a mail still waiting. What the drone holds goes out
 on ``held/<me>`` whenever it changes, so that when a drone leaves, the live
 drone with the smallest name (its *heir*) can take over what it had not picked
-up and report what it carried as failed: mail is never silently lost.
+up. One owner per mail: the heir adopts only in touch with most of the fleet, and a
+lease after the leave, by when a drone that was cut off (not gone) has handed back
+all it had not picked up (see DroneStack). What it carried stays its own: cut off,
+it may yet deliver it; once the operator releases it (out of the air), that mail is
+reported failed. Never failed and then delivered.
 """
 
 from __future__ import annotations
@@ -59,7 +63,9 @@ class MailDesk:
         self.seq = 0
         self.delivered: set[str] = set()  #: a repeated order for one of these is acknowledged, not flown again
         self.peer_mail: dict[str, list[MailView]] = {}  #: what each peer last said it holds
-        self.orphans: dict[str, tuple[str, MailView]] = {}  #: mail of departed drones nobody took over yet
+        #: mail of departed drones nobody took over yet, with the step its drone left at
+        self.orphans: dict[str, tuple[str, MailView, int]] = {}
+        self.stranded: dict[str, tuple[str, MailView]] = {}  #: mail on board departed drones
         self.published: list[MailView] | None = None
 
     def declare(self) -> None:
@@ -169,23 +175,38 @@ class MailDesk:
         writer = self.keys.writer(key)
         if isinstance(body, HeldMail) and body.drone == writer != self.me and writer in self.stack.protocol.peers:
             self.peer_mail[body.drone] = body.mail
-            for mail in body.mail:  # taken over by that drone
+            for mail in body.mail:  # taken over by that drone (or its own again)
                 self.orphans.pop(mail.id, None)
+                self.stranded.pop(mail.id, None)
 
     # ---------------------------------------------------------- adoption
-    def adopt_from(self, peer: str, alive: Collection[str]) -> None:
-        """``peer`` left: its mail is orphaned until a drone takes it over; if I am the heir (the
-        smallest live name) I take over every orphan. Orphans stay known until some drone says it
-        holds them, so drones leaving together, heirs first, lose nothing."""
+    def orphan(self, peer: str, step: int) -> None:
+        """``peer`` left at ``step``: what it had not picked up is orphaned until a drone takes it over
+        (see :meth:`adopt_due`); what it carried stays its own."""
         for mail in self.peer_mail.pop(peer, []):
-            self.orphans[mail.id] = (peer, mail)
-        if not self.orphans or not self.adopt or min({*alive, self.me}) != self.me:
-            return
-        orphans, self.orphans = self.orphans, {}
-        for departed, mail in orphans.values():
             if mail.stage == "carrying":
-                self.report(mail.id, MailStatus.FAILED, f"drone {departed} left carrying it", drone=departed)
-                continue
+                self.stranded[mail.id] = (peer, mail)
+            else:
+                self.orphans[mail.id] = (peer, mail, step)
+
+    def released(self, drone: str) -> None:
+        """The operator took ``drone``, gone, out of the fleet: what it carried is lost with it."""
+        for mail_id, (peer, _) in list(self.stranded.items()):
+            if peer == drone:
+                del self.stranded[mail_id]
+                self.report(mail_id, MailStatus.FAILED, f"on board drone {drone}, released by the operator",
+                            drone=drone)
+
+    def adopt_due(self, step: int, alive: Collection[str], in_touch: bool, grace_steps: int) -> None:
+        """If I am the heir (the smallest live name), in touch with most of the fleet, I take over every
+        orphan whose drone left ``grace_steps`` ago or more. Orphans stay known until some drone says it
+        holds them, so drones leaving together, heirs first, lose nothing."""
+        due = {k: v for k, v in self.orphans.items() if v[2] + grace_steps <= step}
+        if not due or not self.adopt or not in_touch or min({*alive, self.me}) != self.me:
+            return
+        for mail_id in due:
+            del self.orphans[mail_id]
+        for departed, mail, _ in due.values():
             order = MailOrder(id=mail.id, pickup=mail.pickup, dropoff=mail.dropoff, priority=mail.priority)
             try:
                 if self.take(order):

@@ -68,7 +68,7 @@ from drona_gcs.stack.messages import (
 #: ``plan`` says ``grounded`` when a vehicle came down by itself;
 #: 7: keys name their writer (``proto/<sender>/<to>``, ``answers/<sender>``, ``mail/status/<drone>/<mail>``).
 #: 8: ``plan`` says ``braked``;
-#: 9: ``propose``, ``ack`` and ``decide``: a plan is flown once every member holds it.
+#: 9: ``propose``, ``ack`` and ``decide``: a plan is flown once every member holds it; ``plan`` says ``lost``.
 VERSION: Final = 9
 
 CellList = Annotated[list[int], msgspec.Meta(min_length=3, max_length=3)]
@@ -171,11 +171,14 @@ class Decide(_Body, frozen=True, kw_only=True, tag="decide"):
 class PlanAnnounce(_Body, frozen=True, kw_only=True, tag="plan"):
     """A drone's new plan, to everyone, once made (peers outside the round learn where it goes);
     ``grounded``: its vehicle came down by itself, and stays at the trajectory's end for good;
-    ``braked``: it cut the plan it flies short, and holds at the trajectory's end until its next plan."""
+    ``braked``: it cut the plan it flies short, and holds at the trajectory's end until its next plan;
+    ``lost``: its vehicle is lost, and may be in any of ``holds`` for good (none: it is back)."""
 
     trajectory: WireTrajectory
     grounded: bool = False
     braked: bool = False
+    lost: bool = False
+    holds: Holds = ()
 
 
 # ---------------------------------------------------------------- state
