@@ -548,10 +548,34 @@ def test_the_heir_adopts_a_gone_drones_mail_a_lease_later_and_only_with_a_majori
             agent.tick(step)
             assert node.statuses("q") == []  # within the lease: d2 may be cut off, handing it back
         agent.tick(4)
-        agent.mail.released("d2")
+        agent.mail.released("d2", agent.alive)
         return node
 
     node = asyncio.run(scenario())
     assert node.statuses("q") == ([(MailStatus.ACCEPTED, ""), (MailStatus.REASSIGNED, "drone d2 left")]
                                   if in_touch else [])
     assert node.statuses("c") == [(MailStatus.FAILED, "on board drone d2, released by the operator")]
+
+
+def test_a_gone_drone_back_within_the_lease_keeps_its_mail() -> None:
+    """Found in review: back before the heir's lease ran out, a drone still held its mail, and the heir
+    adopted it all the same (two owners). Its return ends the orphans it held."""
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0,
+                         drones={"d1": (0, 0, 0), "d2": (7, 0, 0), "d3": (7, 7, 0)})
+
+    async def scenario() -> RecordingNode:
+        node = RecordingNode()
+        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+        agent = DroneAgent(stack, node, KEYS, ScriptedVehicle(), GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
+        agent.lease_steps, agent.alive = 4, {"d2", "d3"}
+        held = HeldMail(drone="d2", mail=[MailView(id="q", pickup=[3, 3, 0], dropoff=[5, 5, 0], priority=5,
+                                                   stage="queued")])
+        agent.mail._on_peer_mail(KEYS.held("d2"), encode("d2", 1000.0, held))
+        agent._on_liveliness(KEYS.alive("d2"), False)
+        agent.tick(0)
+        agent._on_liveliness(KEYS.alive("d2"), True)
+        for step in range(1, 8):
+            agent.tick(step)
+        return node
+
+    assert asyncio.run(scenario()).statuses("q") == []

@@ -1196,3 +1196,19 @@ def test_a_peers_lost_vehicle_on_the_rest_of_my_plan_has_me_plan_it_anew_and_sta
     assert plan.at(5) not in new.suffix_from(4).cells
     proto.handle(PeerLost("b", ()), 3)  # back
     assert proto.peers_lost == {}
+
+
+def test_an_ack_that_says_the_member_holds_my_way_drops_my_plan() -> None:
+    """Found in review: a member whose clock is off checked my plan on its own steps, which said nothing,
+    and acked. Its ack says what it flies and holds: a plan across that is not flown."""
+    proto, proposal = confirming()
+    held = tuple(proposal.trajectory.cells[1:3])
+    actions = proto.handle(PlanAck("b", ID_A, location_of("b"), held), 0)
+    assert [type(a) for a in actions] == [Broadcast, Send, TaskFailed] and proto.state is State.WAIT_FOR_TASK
+    assert actions[-1].reason == "b flies or holds across it"  # type: ignore[union-attr]
+
+
+def test_a_drone_whose_clock_is_off_acks_nothing() -> None:
+    proto = machine()
+    proto.handle(ClockBound(mine_off=True), 0)
+    assert proto.handle(PlanProposal("b", ID_B_LOW, traj(3, (4, 4), (4, 3)), ("a", "c")), 0) == []

@@ -154,7 +154,9 @@ class DroneStack:
         self.braked: Cell | None = None  #: where the plan flown was cut short of a cell held for good
         self.threat: Threatened | None = None  #: what the reroute under way goes around
         self.commanded: str | None = None  #: the operator's command in force (see :meth:`command`)
-        self.in_touch = True  #: in touch with most of the fleet at the last boundary (CoordinationProtocol.in_quorum)
+        #: in touch with most of the fleet at the last boundary (CoordinationProtocol.in_quorum); not before the
+        #: first: a drone starting up meets its peers one by one, and hands back no mail meanwhile
+        self.in_touch = False
 
     def distance(self, a: Cell, b: Cell) -> int:
         """Steps from ``a`` to ``b``, around the drones resting now and never through a vehicle down

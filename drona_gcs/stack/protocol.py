@@ -870,9 +870,15 @@ class CoordinationProtocol:
         return [Broadcast(PlanDecision(self.me, task.id, flown, flown=False)), *self._release_pending(flown), failed]
 
     def _on_ack(self, event: PlanAck, now: int) -> list[Action]:
-        """A member holds my plan (it checked it against what it flies: see :meth:`_clashes`)."""
-        if self.proposed is None or event.task_id != self.proposed.proposal.task_id:
+        """A member holds my plan (it checked it against what it knows: see :meth:`_clashes`), and says what
+        it flies and holds: a plan across that is dropped (the acker's check runs on its clock)."""
+        proposed = self.proposed
+        if proposed is None or event.task_id != proposed.proposal.task_id:
             return []
+        mine, since = proposed.proposal.trajectory, max(now, proposed.starts)
+        theirs = [event.trajectory, *(Trajectory.stationary(c, 0) for c in event.holds)]
+        if any(check_pair(mine, other, self.delta, from_step=since) for other in theirs):
+            return self._abandon(f"{event.sender} flies or holds across it", now)
         self.acked.add(event.sender)
         return self._go_if_held(now)
 
@@ -896,14 +902,14 @@ class CoordinationProtocol:
             actions = self._abandon("braked", now)
         else:
             return []
-        return [*actions, *(self._on_next_step(event, now) if rerouting else [])]
+        return _failure_last(actions, self._on_next_step(event, now) if rerouting else [])
 
     def _on_completed_while_confirming(self, event: PlanCompleted, now: int) -> list[Action]:
         """The plan flown ended before its new rest could be: I rest at its end (no plan flown: nothing)."""
         assert self.proposed is not None
         if not self.proposed.rerouting:
             return []
-        return [*self._abandon("the plan ended first", now), *self._on_completed(event, now)]
+        return _failure_last(self._abandon("the plan ended first", now), self._on_completed(event, now))
 
     def _on_news_while_confirming(self, event: Event, now: int) -> list[Action]:
         """The fleet changed under my plan (a peer left, came back, came down, braked; my vehicle is lost or
@@ -913,7 +919,7 @@ class CoordinationProtocol:
                 return self._on_clock_bound(event, now)
             return self._on_peer_lost(event, now) if isinstance(event, PeerLost) else []
         actions = self._abandon(f"{type(event).__name__} came before every peer held my plan", now)
-        return [*actions, *self.handle(event, now)]
+        return _failure_last(actions, self.handle(event, now))
 
     def _changes_fleet(self, event: Event) -> bool:
         if isinstance(event, PeerJoined):  # it may fly a plan that I held it as gone through
@@ -943,7 +949,8 @@ class CoordinationProtocol:
         held = self.proposals.get(sender)
         if held is None or not held.task_id.newer_than(event.task_id):
             self.proposals[sender] = event
-        if self.state is State.CONFIRMING or sender in self.outliers or self._clashes(event, now):
+        if (self.state is State.CONFIRMING or self.off_since is not None or sender in self.outliers
+                or self._clashes(event, now)):
             return []  # not flown: it runs out of time (an outlier's steps are not ours)
         return [Send(sender, PlanAck(self.me, event.task_id, self.current_trajectory(now), self.holds()))]
 
@@ -958,7 +965,7 @@ class CoordinationProtocol:
         rests = [self.ghosts.get(p) or self.known[p].suffix_from(now - self.lead_steps) for p in gone_there]
         rests += [t for p, t in self.maybe_flown.items() if p in gone_there]
         rests += [held.trajectory for p, held in self.proposals.items() if p in gone_there]
-        cells = {c for rest in rests for c in rest.cells} - {theirs.first}
+        cells = {c for rest in rests for c in rest.cells} - {theirs.at(now)}  # where it is: we would have met
         flown = [self.current_trajectory(now), *(Trajectory.stationary(c, 0) for c in {*self.holds(), *cells})]
         since = max(now, theirs.start_step)  # what it flew already was held before
         return any(check_pair(theirs, other, self.delta, from_step=since) for other in flown)
@@ -998,6 +1005,13 @@ class CoordinationProtocol:
         pending, self.pending = self.pending, {}
         holds = self.holds()
         return [Send(peer, CurrentTraj(self.me, trajectory, task_id, holds)) for peer, task_id in pending.items()]
+
+
+def _failure_last(abandoned: list[Action], then: list[Action]) -> list[Action]:
+    """A dropped plan's actions, then what the news did (a brake, a threat), then the failure: the task
+    planner decides what next knowing all of it (a reroute asked twice in one batch was refused)."""
+    failed = [a for a in abandoned if isinstance(a, (TaskFailed, RerouteFailed))]
+    return [*(a for a in abandoned if a not in failed), *then, *failed]
 
 
 # Handlers take (protocol, event of the row's type, now); Callable[..., ...] since each takes its own type.

@@ -35,7 +35,7 @@ from typing import TextIO
 from drona_gcs.errors import ProblemError
 from drona_gcs.geo import GeoFrame
 from drona_gcs.stack.battery import BatteryLow, BatteryRecharged
-from drona_gcs.stack.drone import CUT_OFF, DroneAction, DroneStack, LegNotFlown
+from drona_gcs.stack.drone import DroneAction, DroneStack, LegNotFlown
 from drona_gcs.stack.mail import GoTo, MailDelivered, MailLost, MailPickedUp, MailRejected, MailStarted
 from drona_gcs.stack.messages import CurrentTraj
 from drona_gcs.stack.protocol import (
@@ -192,8 +192,6 @@ class DroneAgent:
             return self.out_of_service
         if not self.may_plan:
             return "its clock is beyond the fleet's bound"
-        if not self.stack.in_touch:
-            return CUT_OFF
         readiness = self.watch.readiness()
         if readiness is Readiness.LOST:
             return "its vehicle is lost"
@@ -447,6 +445,7 @@ class DroneAgent:
         last = self.stack.protocol.known.get(peer)
         cell = last.last if last is not None else self.stack.protocol.peers[peer]
         self._carry_out(self.stack.peer_joined(peer, cell, last))
+        self.mail.rejoined(peer)
 
     # ----------------------------------------------------------------- state
     def state(self) -> DroneState:
@@ -497,7 +496,7 @@ class DroneAgent:
         try:
             if body.action is CommandAction.RELEASE:
                 self._carry_out(self.stack.release(body.about or ""))
-                self.mail.released(body.about or "")
+                self.mail.released(body.about or "", self.alive)
             else:
                 self._carry_out(self.stack.command(body.action.value, f"{body.action.value} by {body.by}"))
         except ProblemError as exc:

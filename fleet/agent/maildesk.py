@@ -189,8 +189,22 @@ class MailDesk:
             else:
                 self.orphans[mail.id] = (peer, mail, step)
 
-    def released(self, drone: str) -> None:
-        """The operator took ``drone``, gone, out of the fleet: what it carried is lost with it."""
+    def rejoined(self, peer: str) -> None:
+        """``peer`` is back: what it held is its own again (it says what, see :meth:`publish_held`), and
+        what I hold goes to it too (it may have missed what changed)."""
+        for mail_id in [m for m, v in self.orphans.items() if v[0] == peer]:
+            del self.orphans[mail_id]
+        for mail_id in [m for m, v in self.stranded.items() if v[0] == peer]:
+            del self.stranded[mail_id]
+        self.published = None
+        self.publish_held()
+
+    def released(self, drone: str, alive: Collection[str]) -> None:
+        """The operator took ``drone``, gone, out of the fleet: what it carried is lost with it (said by
+        its heir, once)."""
+        if min({*alive, self.me}) != self.me:
+            self.stranded = {m: v for m, v in self.stranded.items() if v[0] != drone}
+            return
         for mail_id, (peer, _) in list(self.stranded.items()):
             if peer == drone:
                 del self.stranded[mail_id]
