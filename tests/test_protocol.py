@@ -1208,7 +1208,11 @@ def test_an_ack_that_says_the_member_holds_my_way_drops_my_plan() -> None:
     assert actions[-1].reason == "b flies or holds across it"  # type: ignore[union-attr]
 
 
-def test_a_drone_whose_clock_is_off_acks_nothing() -> None:
+def test_a_drone_whose_clock_is_off_acks_with_the_cells_it_holds_for_good() -> None:
+    """Its own check runs on steps that are not the fleet's: the proposer judges its plan against the cells
+    the ack holds. Acking nothing stalled every plan of the fleet (found over real processes)."""
     proto = machine()
     proto.handle(ClockBound(mine_off=True), 0)
-    assert proto.handle(PlanProposal("b", ID_B_LOW, traj(3, (4, 4), (4, 3)), ("a", "c")), 0) == []
+    proposal = PlanProposal("b", ID_B_LOW, traj(3, (4, 4), (4, 3)), ("a", "c"))
+    assert proto.handle(proposal, 0) == [Send("b", PlanAck("a", ID_B_LOW, location_of("a"), proto.holds()))]
+    assert A in proto.holds()

@@ -190,7 +190,10 @@ def test_the_clock_off_is_the_one_most_peers_disagree_with() -> None:
     assert skewed.mine_is_off() and "mine is off" in (skewed.alarm() or "")
     pair = ClockCheck(beta_s=0.2)
     pair.observe("d2", OffsetSample(2.0, 0.001))
-    assert pair.mine_is_off()
+    assert pair.mine_is_off(fleet=1)
+    first = ClockCheck(beta_s=0.2)  # only the skewed peer answered yet, of two
+    first.observe("d3", OffsetSample(2.0, 0.001))
+    assert not first.mine_is_off(fleet=2)
 
 
 def test_beta_zero_does_not_alarm_on_loopback_noise() -> None:

@@ -134,7 +134,8 @@ settled here, and one message it sends is saved (the second point):
 * **My vehicle can be lost** (its link closed or silent). It may then be anywhere on
   my trajectory from when it was last seen, or where it was seen: I keep answering with
   my trajectory and also name those cells (``holds``), which every peer holds for good
-  in the Psi of its next plans; I plan nothing meanwhile (a task fails at once). Once
+  in the Psi of its next plans; I plan nothing meanwhile (a task fails at once). Every peer is
+  told at once (``Holding``; ``PeerLost`` there), and steers clear of them as of a vehicle down. Once
   the vehicle is back and seen in a cell, I rest there with no plan (``Relocated``):
   the holds end with the next answers I give. Plans made before the loss avoided only my
   trajectory: what a vehicle does while nobody hears it is beyond any protocol.
@@ -949,9 +950,10 @@ class CoordinationProtocol:
         held = self.proposals.get(sender)
         if held is None or not held.task_id.newer_than(event.task_id):
             self.proposals[sender] = event
-        if (self.state is State.CONFIRMING or self.off_since is not None or sender in self.outliers
-                or self._clashes(event, now)):
+        if self.state is State.CONFIRMING or sender in self.outliers:
             return []  # not flown: it runs out of time (an outlier's steps are not ours)
+        if self.off_since is None and self._clashes(event, now):
+            return []  # (my clock off, my steps say nothing: the cells my ack holds for good do)
         return [Send(sender, PlanAck(self.me, event.task_id, self.current_trajectory(now), self.holds()))]
 
     def _clashes(self, proposal: PlanProposal, now: int) -> bool:

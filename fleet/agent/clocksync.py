@@ -61,19 +61,20 @@ class ClockCheck:
         """The peers whose clock is provably more than beta from mine."""
         return {p: s for p, s in self.peers.items() if s.exceeds(self.beta_s)}
 
-    def mine_is_off(self) -> bool:
-        """Whether my clock is the one off: beyond beta from most of the peers measured (from the only
-        one, with two drones: either may be, so both hold)."""
-        return 2 * len(self.violations()) > len(self.peers)
+    def mine_is_off(self, fleet: int = 0) -> bool:
+        """Whether my clock is the one off: beyond beta from most of the ``fleet``'s other drones (or of
+        those measured, if more), not just from the first to answer (from the only one, with two drones:
+        either may be, so both hold)."""
+        return 2 * len(self.violations()) > max(len(self.peers), fleet)
 
-    def alarm(self) -> str | None:
+    def alarm(self, fleet: int = 0) -> str | None:
         bad = self.violations()
         if not bad:
             return None
         worst = max(bad.items(), key=lambda item: abs(item[1].offset_s))
         skew = (f"clock skew: {worst[0]}'s clock is {worst[1].offset_s * 1000:+.1f} ms "
                 f"(+/- {worst[1].error_s * 1000:.1f}) from mine, beyond beta {self.beta_s * 1000:.0f} ms")
-        if self.mine_is_off():
+        if self.mine_is_off(fleet):
             return (f"{skew}, and {len(bad)} of {len(self.peers)} peers' are: mine is off, so I hold where my "
                     "plan ends and take no task until it is back within")
         return f"{skew}: {', '.join(sorted(bad))} out of the fleet's bound, held as an obstacle where it flies"

@@ -530,7 +530,8 @@ class DroneAgent:
             if peer != self.me and peer in self.alive:
                 self.clocks.observe(peer, sample)
                 self.heard_at[peer] = self.stack.now
-        alarm, mine_off = self.clocks.alarm(), self.clocks.mine_is_off()
+        fleet = len(set(self.stack.protocol.peers) - {self.me})  # not just who answered first
+        alarm, mine_off = self.clocks.alarm(fleet), self.clocks.mine_is_off(fleet)
         if alarm != self.alarms.get("clock"):
             log.warning("%s: %s", self.me, alarm or "clock skew back within beta")
         self.may_plan = not mine_off
