@@ -522,25 +522,28 @@ def test_a_release_command_frees_a_departed_drones_cells_and_is_refused_for_a_me
         (True, ""), (False, "d3 is not a drone gone from the fleet: nothing to release")]
 
 
+def _heir_of_d2(*more: MailView) -> tuple[RecordingNode, DroneAgent]:
+    """d1's agent (d2's heir: the smallest name), d2 and d3 alive, a lease of 4 steps, d2 holding mail
+    ``q`` queued and ``more``."""
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0,
+                         drones={"d1": (0, 0, 0), "d2": (7, 0, 0), "d3": (7, 7, 0)})
+    node = RecordingNode()
+    stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+    agent = DroneAgent(stack, node, KEYS, ScriptedVehicle(), GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
+    agent.lease_steps, agent.alive = 4, {"d2", "d3"}
+    queued = MailView(id="q", pickup=[3, 3, 0], dropoff=[5, 5, 0], priority=5, stage="queued")
+    agent.mail._on_peer_mail(KEYS.held("d2"), encode("d2", 1000.0, HeldMail(drone="d2", mail=[queued, *more])))
+    return node, agent
+
+
 @pytest.mark.parametrize("in_touch", [True, False], ids=["majority", "cut-off"])
 def test_the_heir_adopts_a_gone_drones_mail_a_lease_later_and_only_with_a_majority(in_touch: bool) -> None:
     """Issue 25: one owner per mail. A drone that left may only be cut off, flying on: the heir waits a
     lease (by then that drone has handed back what it had not picked up) and adopts only in touch with
     most of the fleet (the other side cannot be). What it carried stays its own, never failed and then
     delivered, until the operator releases it."""
-    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0,
-                         drones={"d1": (0, 0, 0), "d2": (7, 0, 0), "d3": (7, 7, 0)})
-
     async def scenario() -> RecordingNode:
-        node = RecordingNode()
-        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
-        agent = DroneAgent(stack, node, KEYS, ScriptedVehicle(), GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
-        agent.lease_steps = 4
-        agent.alive = {"d2", "d3"}
-        held = HeldMail(drone="d2", mail=[
-            MailView(id="q", pickup=[3, 3, 0], dropoff=[5, 5, 0], priority=5, stage="queued"),
-            MailView(id="c", pickup=[6, 0, 0], dropoff=[6, 6, 0], priority=5, stage="carrying")])
-        agent.mail._on_peer_mail(KEYS.held("d2"), encode("d2", 1000.0, held))
+        node, agent = _heir_of_d2(MailView(id="c", pickup=[6, 0, 0], dropoff=[6, 6, 0], priority=5, stage="carrying"))
         if not in_touch:
             agent._on_liveliness(KEYS.alive("d3"), False)
         agent._on_liveliness(KEYS.alive("d2"), False)
@@ -560,17 +563,8 @@ def test_the_heir_adopts_a_gone_drones_mail_a_lease_later_and_only_with_a_majori
 def test_a_gone_drone_back_within_the_lease_keeps_its_mail() -> None:
     """Found in review: back before the heir's lease ran out, a drone still held its mail, and the heir
     adopted it all the same (two owners). Its return ends the orphans it held."""
-    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0,
-                         drones={"d1": (0, 0, 0), "d2": (7, 0, 0), "d3": (7, 7, 0)})
-
     async def scenario() -> RecordingNode:
-        node = RecordingNode()
-        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
-        agent = DroneAgent(stack, node, KEYS, ScriptedVehicle(), GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
-        agent.lease_steps, agent.alive = 4, {"d2", "d3"}
-        held = HeldMail(drone="d2", mail=[MailView(id="q", pickup=[3, 3, 0], dropoff=[5, 5, 0], priority=5,
-                                                   stage="queued")])
-        agent.mail._on_peer_mail(KEYS.held("d2"), encode("d2", 1000.0, held))
+        node, agent = _heir_of_d2()
         agent._on_liveliness(KEYS.alive("d2"), False)
         agent.tick(0)
         agent._on_liveliness(KEYS.alive("d2"), True)
