@@ -124,7 +124,9 @@ class WorkspacePublic(BaseModel):
     drones: dict[str, CellOut] = Field(description="start cell of each drone")
     cell_size_m: float
     tau_s: float
-    delta: int
+    beta_s: float = Field(description="the fleet's bound on clock skew")
+    lambda_s: float = Field(description="how late a vehicle may enter its step's cell (set or derived)")
+    delta: int = Field(description="ceil((beta_s + lambda_s) / tau_s): the separation window in steps")
     geo_origin: GeoOriginPublic
     base_map: BaseMapPublic | None = Field(None, description="none: the dashboard draws the grid alone")
 
@@ -136,7 +138,7 @@ class WorkspacePublic(BaseModel):
                    charging_stations=[list(c) for c in ws.charging_stations], parking=[list(c) for c in ws.parking],
                    pickups=[list(c) for c in ws.pickups], dropoffs=[list(c) for c in ws.dropoffs],
                    drones={d: list(c) for d, c in ws.drones.items()}, cell_size_m=ws.cell_size_m, tau_s=ws.tau_s,
-                   delta=ws.delta, base_map=base_map,
+                   beta_s=ws.beta_s, lambda_s=ws.lateness_s, delta=ws.delta, base_map=base_map,
                    geo_origin=GeoOriginPublic(lat=geo.lat, lon=geo.lon, alt_m=geo.alt_m, layer0_alt_m=geo.layer0_alt_m,
                                               layer_height_m=ws.layer_height_m, cell_dlat=far.lat - geo.lat,
                                               cell_dlon=far.lon - geo.lon))

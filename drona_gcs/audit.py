@@ -2,7 +2,10 @@
 
 Input is what ``drona agent --record`` (and ``drona demo --record``) write:
 records ``{"step": k, "drone": id, "cell": [x, y, z], "planned": [x, y, z] | null,
-"delta": D}``. Three things are judged, each on its own:
+"delta": D}``, D = ceil((beta + lambda) / tau). A record is taken lambda after its step
+begins: the step's cell if telemetry saw the vehicle there by then (all the separation
+window assumes of a vehicle), else where telemetry puts it. Three things are judged, each
+on its own:
 
 * **Separation**: each drone's cells become a timed trajectory; a step with no
   record (telemetry gave no fix) counts as the cell of the step before it, and is

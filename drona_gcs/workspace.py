@@ -30,6 +30,56 @@ DEFAULT_LAYER0_ALT_M = 10.0
 
 
 @dataclass(frozen=True)
+class VehicleLimits:
+    """How fast a vehicle can get going; the defaults are ArduCopter's (WPNAV_SPEED, WPNAV_ACCEL,
+    PSC_JERK_XY; WPNAV_SPEED_UP, WPNAV_SPEED_DN, WPNAV_ACCEL_Z, PSC_JERK_Z)."""
+
+    speed: float = 10.0  #: m/s, horizontal
+    accel: float = 2.5  #: m/s²
+    jerk: float = 5.0  #: m/s³
+    climb: float = 2.5  #: m/s
+    descent: float = 1.5  #: m/s
+    accel_z: float = 1.0  #: m/s²
+    jerk_z: float = 5.0  #: m/s³
+
+
+ARDUCOPTER = VehicleLimits()
+
+
+def time_to_cover(distance_m: float, speed: float, accel: float, jerk: float) -> float:
+    """Seconds a vehicle at rest needs to cover ``distance_m``: at ``accel`` up to ``speed``, its
+    acceleration ramped up at ``jerk`` first (which delays it by at most accel / (2 jerk))."""
+    ramp = accel / (2 * jerk)
+    if distance_m <= speed * speed / (2 * accel):
+        return ramp + math.sqrt(2 * distance_m / accel)
+    return ramp + speed / accel + (distance_m - speed * speed / (2 * accel)) / speed
+
+
+def shaping_lag_s(accel: float, jerk: float) -> float:
+    """How far behind a position setpoint ArduCopter's shaped target runs: the inverse of the
+    shaping's position gain, jerk / (2 accel) (``AP_Math/control.cpp``)."""
+    return 2 * accel / jerk
+
+
+def tracking_lateness_s(cell_size_m: float, layer_height_m: float, layers: int,
+                        limits: VehicleLimits = ARDUCOPTER) -> float:
+    """Lambda's default: how late after a boundary a vehicle enters its step's cell.
+
+    The autopilot shapes each position setpoint into a target that trails it (see
+    :func:`shaping_lag_s`), and a vehicle waiting at a cell's centre crosses half a cell from rest
+    before it is in the next one. Vertical moves count only when the grid has layers, at the slower
+    vertical limits.
+    """
+    across = shaping_lag_s(limits.accel, limits.jerk) + time_to_cover(
+        cell_size_m / 2, limits.speed, limits.accel, limits.jerk)
+    if layers < 2:
+        return across
+    up_down = shaping_lag_s(limits.accel_z, limits.jerk_z) + time_to_cover(
+        layer_height_m / 2, min(limits.climb, limits.descent), limits.accel_z, limits.jerk_z)
+    return max(across, up_down)
+
+
+@dataclass(frozen=True)
 class GeoOrigin:
     """Where the grid sits on Earth.
 
@@ -56,6 +106,7 @@ class Workspace:
     cell_size_m: float = 1.0
     tau_s: float = 1.0
     beta_s: float = 0.0
+    lambda_s: float | None = None  #: None: derived (see :func:`tracking_lateness_s`)
     max_plan_length: int | None = None
     geo: GeoOrigin = field(default_factory=GeoOrigin)
     pickups: tuple[Cell, ...] = ()
@@ -81,6 +132,8 @@ class Workspace:
         _positive(self.tau_s, "tau_s", src)
         if not (self.beta_s >= 0 and math.isfinite(self.beta_s)):
             raise WorkspaceError(f"must be a finite number >= 0, got {self.beta_s}", field="beta_s", source=src)
+        if self.lambda_s is not None and not (self.lambda_s >= 0 and math.isfinite(self.lambda_s)):
+            raise WorkspaceError(f"must be a finite number >= 0, got {self.lambda_s}", field="lambda_s", source=src)
         if self.max_plan_length is not None and self.max_plan_length < 1:
             raise WorkspaceError(f"must be >= 1, got {self.max_plan_length}",
                                  field="max_plan_length", source=src)
@@ -169,11 +222,21 @@ class Workspace:
         return self.nx * self.ny * self.nz
 
     @property
+    def lateness_s(self) -> float:
+        """Lambda: how late a vehicle may enter its step's cell, set or derived from the geometry."""
+        if self.lambda_s is not None:
+            return self.lambda_s
+        return round(tracking_lateness_s(self.cell_size_m, self.layer_height_m, self.nz), 3)
+
+    @property
     def delta(self) -> int:
-        """Delta = ceil(beta / tau): the clock-skew window in steps (Theorem 3.1)."""
-        # Divide the decimal values, not their binary approximations: 0.3 / 0.1 is
+        """Delta = ceil((beta + lambda) / tau): the window in steps that covers clock skew (Theorem
+        3.1) and a vehicle's lateness; a drone may be in a step's cell from beta before the step
+        until beta + lambda after it."""
+        # Add and divide the decimal values, not their binary approximations: 0.3 / 0.1 is
         # 2.9999999999999996 in floats, but exactly 3, and a tiny beta still gives 1.
-        return max(0, math.ceil(Fraction(str(self.beta_s)) / Fraction(str(self.tau_s))))
+        spread = Fraction(str(self.beta_s)) + Fraction(str(self.lateness_s))
+        return max(0, math.ceil(spread / Fraction(str(self.tau_s))))
 
     @property
     def plan_length_limit(self) -> int:

@@ -19,7 +19,7 @@ from drona_gcs.errors import WorkspaceError
 from drona_gcs.workspace import Cell, GeoOrigin, Workspace, box_cells
 
 _CELL_LISTS = ("charging_stations", "pickups", "dropoffs", "parking")
-_NUMBERS = {"cell_size_m": float, "tau_s": float, "beta_s": float, "max_plan_length": int}
+_NUMBERS = {"cell_size_m": float, "tau_s": float, "beta_s": float, "lambda_s": float, "max_plan_length": int}
 _KNOWN = {"name", "size", "obstacles", "drones", "geo_origin", *_CELL_LISTS, *_NUMBERS}
 _GEO_FIELDS = {"lat", "lon", "alt_m", "layer0_alt_m", "layer_height_m"}
 

@@ -34,6 +34,7 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from drona_gcs.audit import audit
 from drona_gcs.stack.protocol import State
 from drona_gcs.workspace import Cell, Workspace
 from drona_gcs.workspace_files import load_workspace
@@ -98,8 +99,10 @@ def _rim(side: int) -> list[tuple[int, int]]:
 
 
 async def run_bench(agents: int, processes: int, seconds: float, steady_after: float, workdir: Path,
-                    seed: int = 1, shared_session: bool = True, secure: bool = True) -> CoordinationResult:
-    """``secure``: mutual TLS and access control (certificates made in ``workdir``), a session per drone."""
+                    seed: int = 1, shared_session: bool = True, secure: bool = True,
+                    record: Path | None = None) -> CoordinationResult:
+    """``secure``: mutual TLS and access control (certificates made in ``workdir``), a session per drone;
+    ``record``: each agent process records its drones' flights there (``record.<first drone>``)."""
     ws_file = workdir / f"bench-{agents}.yaml"
     ws_file.write_text(bench_workspace(agents))
     workspace = load_workspace(ws_file)
@@ -121,8 +124,9 @@ async def run_bench(agents: int, processes: int, seconds: float, steady_after: f
         children.append(_spawn(["agent", "--workspace", str(ws_file), "--drone", names[first], "--count", str(count),
                                 "--fleet", fleet, "--listen", f"tcp/127.0.0.1:{port + first}",
                                 "--connect", f"tcp/127.0.0.1:{port}", "--vehicle-base-port", str(base),
-                                "--lead-steps", "4", "--telemetry-hz", str(TELEMETRY_HZ), "--log-level", "WARNING",
-                                *security]))
+                                "--lead-steps", str(max(4, workspace.delta + 1)), "--telemetry-hz", str(TELEMETRY_HZ),
+                                "--log-level", "WARNING",
+                                *security, *_recording(record, names[first])]))
     try:
         return await _measure(children, workspace, names, fleet, port, seconds, steady_after, seed, tls_dir)
     finally:
@@ -222,6 +226,27 @@ class PlanLatencies:
 
 class BenchError(RuntimeError):
     """The fleet under test did not come up, or lost a process."""
+
+
+def _recording(record: Path | None, first: str) -> list[str]:
+    return [] if record is None else ["--record", f"{record}.{first}"]
+
+
+def audit_records(record: Path, workspace_text: str) -> str:
+    """Gather the agents' flight records into ``record`` (the workspace beside it) and audit them."""
+    parts = sorted(record.parent.glob(f"{record.name}.*"))
+    lines = [line for part in parts for line in part.read_text(encoding="utf-8").splitlines() if line]
+    record.write_text("".join(f"{line}\n" for line in lines), encoding="utf-8")
+    for part in parts:
+        part.unlink()
+    ws_file = record.with_name(f"{record.name}.workspace.yaml")
+    ws_file.write_text(workspace_text, encoding="utf-8")
+    verdict = audit(load_workspace(ws_file), [json.loads(line) for line in lines])
+    worst = verdict.conformance.worst
+    return (f"flight record {record} ({len(lines)} records, workspace {ws_file.name}): delta {verdict.delta}, "
+            f"{'safe' if verdict.safe else f'{len(verdict.violations)} separation violations'}, "
+            f"{len(verdict.jumps)} jumps, conformance {verdict.conformance.fraction:.1%}"
+            + (f" (worst {worst})" if worst is not None else ""))
 
 
 def _spawn(arguments: list[str]) -> subprocess.Popen[bytes]:
@@ -368,11 +393,14 @@ def run(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory() as workdir:
         try:
             result = asyncio.run(run_bench(agents, processes, seconds, args.steady_after, Path(workdir),
-                                           shared_session=shared, secure=not args.insecure))
+                                           shared_session=shared, secure=not args.insecure,
+                                           record=args.record.resolve() if args.record else None))
         except BenchError as exc:
             print(f"drona bench coordination: {exc}", file=sys.stderr)
             return 1
     if args.json:
+        if args.record is not None:
+            print(audit_records(args.record, bench_workspace(agents)), file=sys.stderr)
         # A figure with nothing to go on (no plan after the opening) is null: strict JSON parsers refuse NaN.
         row = {"processes": processes, **asdict(result)}
         print(json.dumps({k: None if isinstance(v, float) and math.isnan(v) else v for k, v in row.items()}))
@@ -390,4 +418,6 @@ def run(args: argparse.Namespace) -> int:
           f"CPU per agent {result.cpu_ms_per_s_per_agent:.1f} ms/s (the agent processes / agents; the vehicles' "
           f"process {result.vehicles_cpu_s_per_s:.2f} s/s)")
     bench_plot.write(args, "coordination", result)
+    if args.record is not None:
+        print(audit_records(args.record, bench_workspace(agents)))
     return 0

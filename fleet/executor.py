@@ -13,7 +13,10 @@ timed trajectory, so a lagging drone is an alarm, not a detail. A process
 that stalls past a boundary takes the missed ones back to back, and a slow
 vehicle is still short of its cell when the next one comes; either way the
 vehicle flies the plan's cells in order (:meth:`SetpointLoop.take`), never
-straight across a turn to the newest one. A vehicle whose link is down is one
+straight across a turn to the newest one, and never more than one cell ahead of where it is.
+Lambda after each boundary, when a vehicle within its bound must be in the step's cell, the loop
+samples where it is (:class:`Sample`): that is what a flight record holds, with how late the vehicle
+entered the cell, measured from telemetry. A vehicle whose link is down is one
 drone's problem: its loop sends nothing (:attr:`SetpointLoop.suspended`, set by
 its agent, which decides what it flies once the vehicle is back), and a send that
 fails is dropped, never the end of the process's other loops.
@@ -30,7 +33,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from drona_gcs.errors import VehicleError
-from drona_gcs.geo import GeoFrame
+from drona_gcs.geo import GeoFrame, Ned
 from drona_gcs.stack.executor import PlanExecutor, Setpoint
 from drona_gcs.workspace import Cell
 from fleet.vehicle.link import SetpointSink
@@ -48,7 +51,34 @@ class StepReport:
     planned: Cell | None = None  #: the cell the plan put the drone in for the step that just ended
 
 
+@dataclass(frozen=True)
+class Sample:
+    """Lambda after boundary ``step``: whether telemetry saw the vehicle in the step's cell by then.
+
+    Within its bound, a vehicle enters each cell by lambda after its step begins and leaves it no
+    sooner than the next step (it is never sent further): that is what the separation window
+    assumes, and what a flight record keeps, step by step, as a sighting of the step's cell. A
+    vehicle that was not seen there is recorded where it is when its time ran out.
+    """
+
+    step: int
+    planned: Cell  #: the cell of the step
+    actual: Cell | None  #: ``planned`` if seen there in time, else where it is (None: no cell)
+    late_s: float | None  #: how long after the boundary it was first seen in ``planned`` (None: not by lambda)
+
+
+@dataclass
+class _Arrival:
+    """A step awaiting its sample: its cell, its boundary, and when the vehicle was first seen there."""
+
+    step: int
+    cell: Cell
+    boundary: float
+    seen_at: float | None = None
+
+
 ROUTE_LIMIT = 64  #: cells kept for a vehicle that does not follow at all (it is flagged lagging anyway)
+LEAD_FRACTION = 0.3  #: of a cell: how far past its centre a vehicle going straight on is aimed
 
 
 class SetpointLoop:
@@ -57,15 +87,19 @@ class SetpointLoop:
 
     def __init__(self, sink: SetpointSink, frame: GeoFrame, executor: PlanExecutor, epoch: float, tau: float,
                  clock: Callable[[], float], check_hz: float = 10.0, lag_tolerance_m: float | None = None,
-                 tick: Callable[[int], Sequence[object]] | None = None) -> None:
-        if tau <= 0 or check_hz <= 0:
-            raise ValueError("tau and check_hz must be > 0")
+                 tick: Callable[[int], Sequence[object]] | None = None, lateness_s: float = 0.0) -> None:
+        if tau <= 0 or check_hz <= 0 or lateness_s < 0:
+            raise ValueError("tau and check_hz must be > 0, lateness_s >= 0")
+        self.lateness = lateness_s
+        #: steps taken whose sample is not yet due, oldest first
+        self.arrivals: collections.deque[_Arrival] = collections.deque()
         self.sink, self.frame, self.executor = sink, frame, executor
         self.epoch, self.tau, self.clock = epoch, tau, clock
         self.check_period = 1.0 / check_hz
         # By default a drone may trail by a cell: it is between two cells for most of a step.
         self.tolerance = lag_tolerance_m if lag_tolerance_m is not None else frame.ws.cell_size_m
         self.target = executor.cell
+        self.before_target: Cell | None = None  #: the target before this one
         #: Cells the vehicle must still fly through, in order, before ``target`` (see :meth:`take`).
         self.route: collections.deque[Cell] = collections.deque()
         self.changed_at = -math.inf  #: when the target last moved
@@ -77,10 +111,11 @@ class SetpointLoop:
         """The step under way at local time ``t``."""
         return math.floor((t - self.epoch) / self.tau)
 
-    async def run(self, on_step: Callable[[StepReport, Sequence[object]], None],
-                  stop: asyncio.Event) -> None:
+    async def run(self, on_step: Callable[[StepReport, Sequence[object]], None], stop: asyncio.Event,
+                  on_sample: Callable[[Sample], None] | None = None) -> None:
         """Until ``stop`` is set: take every boundary (and fly a route after a stall)."""
-        await SetpointFleet([self]).run(lambda _, report, actions: on_step(report, actions), stop)
+        sampled = (lambda _, sample: on_sample(sample)) if on_sample is not None else None
+        await SetpointFleet([self]).run(lambda _, report, actions: on_step(report, actions), stop, sampled)
 
     # ------------------------------------------------- used by SetpointFleet
     @property
@@ -88,11 +123,35 @@ class SetpointLoop:
         """The cell the vehicle is sent to: the next one of its route, or the target."""
         return self.route[0] if self.route else self.target
 
+    def aim_point(self) -> Ned:
+        """Where in the aimed cell the vehicle is sent: its centre, or past it towards the next cell when
+        the way goes straight on (still inside the cell: never more than a cell ahead). An autopilot
+        slows down as it closes in on its setpoint: aimed at each centre, an ArduCopter at its default
+        gains falls ever further behind one cell per tau (1 m cells, tau 1 s)."""
+        aim, here = self.aim, self._here()
+        centre = self.frame.cell_to_ned(aim)
+        before = self.before_target if here in (None, aim) else here
+        after = self._after(aim)
+        if after is None or before is None or _offset(before, aim) != _offset(aim, after) or after == aim:
+            return centre
+        ahead = self.frame.cell_to_ned(after)
+        lead = LEAD_FRACTION
+        return Ned(centre.north + lead * (ahead.north - centre.north), centre.east + lead * (ahead.east - centre.east),
+                   centre.down + lead * (ahead.down - centre.down))
+
+    def _after(self, aim: Cell) -> Cell | None:
+        """The cell of the way after ``aim``: the route's next, the target, or the plan's next step."""
+        way = [*self.route, self.target]
+        if aim != way[-1]:
+            return way[way.index(aim) + 1]
+        plan, step = self.executor.trajectory, self.executor.step
+        return plan.at(step + 1) if plan is not None and step < plan.end_step else None
+
     async def send(self) -> None:
         if self.suspended:
             return
         try:
-            await self.sink.send_position_target(self.frame.cell_to_ned(self.aim))
+            await self.sink.send_position_target(self.aim_point())
         except VehicleError:
             return  # the link just went down: its agent sees it at the next boundary
 
@@ -108,18 +167,20 @@ class SetpointLoop:
         across a turn that cuts the corner, through a cell that was never reserved for it. This
         happens when boundaries are taken back to back (the process stalled past one: the vehicle
         had no time) and when the vehicle is too slow (wind, a low speed limit). So the last target
-        stays on the route when the vehicle is in neither it nor the new target and either it had
-        no time (the target moved again within tau/2) or the plan turns there (the vehicle, the
-        last target and the new one are not in a line); so does every target that comes while a
-        route is pending. The vehicle flies the plan's cells in order, each as soon as it is in
-        the last, late (and flagged lagging) rather than off the path. Where telemetry puts the
-        vehicle in no cell (no position yet, or still below the grid on its climb) only a stall
-        counts: it is flagged lagging, and a route it could never be seen to fly would only grow.
+        stays on the route when the vehicle is in neither it nor the new target; so does every
+        target that comes while a route is pending. The vehicle flies the plan's cells in order,
+        each as soon as it is in the last, late (and flagged lagging) rather than off the path, and
+        on a straight line too: sent further, it would reach its cells earlier than a peer behind
+        it was told. Where telemetry puts the vehicle in no cell (no position yet, or still below
+        the grid on its climb) only a stall counts: it is flagged lagging, and a route it could
+        never be seen to fly would only grow.
         """
         now = self.clock()
         previous = self.target
         actions = self.tick(step)
         self.target = next(a.cell for a in actions if isinstance(a, Setpoint))
+        if self.target != previous:
+            self.before_target = previous
         if self.target != previous and not self.suspended:
             # A target never aimed at (a route was pending) must be flown through too.
             if self.route or self._short_of(previous, now):
@@ -127,15 +188,40 @@ class SetpointLoop:
                 if len(self.route) > ROUTE_LIMIT:  # it is not following at all: keep the newest cells
                     del self.route[1]
             self.changed_at = now
+        self.arrivals.append(_Arrival(step, self.target, boundary))
+        self.look(now)
         return self._report(step, previous, self.target, now - boundary), actions
 
+    def look(self, now: float) -> None:
+        """Note the steps whose cell the vehicle is in now, for the first time."""
+        here = self._here() if self.arrivals and not self.suspended else None
+        for arrival in self.arrivals:
+            if arrival.seen_at is None and here == arrival.cell:
+                arrival.seen_at = now
+
+    @property
+    def arriving(self) -> bool:
+        """Whether a step awaiting its sample has not yet seen the vehicle in its cell."""
+        return any(a.seen_at is None for a in self.arrivals)
+
+    def sample(self, step: int) -> Sample | None:
+        """Boundary ``step``'s sample, due lambda after it (None: the loop never took that step)."""
+        while self.arrivals and self.arrivals[0].step < step:
+            self.arrivals.popleft()
+        if not self.arrivals or self.arrivals[0].step != step:
+            return None
+        arrival = self.arrivals.popleft()
+        if arrival.seen_at is None:
+            return Sample(step, arrival.cell, self._here(), None)
+        return Sample(step, arrival.cell, arrival.cell, max(0.0, arrival.seen_at - arrival.boundary))
+
     def _short_of(self, previous: Cell, now: float) -> bool:
-        """Whether the vehicle, not yet in ``previous``, must fly through it before the new target."""
+        """Whether the vehicle, not yet in ``previous``, must fly through it before the new target: it
+        is never sent more than one cell ahead of where it is. Where no cell is known only a stall counts."""
         here = self._here()
-        if here in (previous, self.target):
-            return False
-        stalled = now - self.changed_at < self.tau / 2
-        return stalled or (here is not None and not _in_line(here, previous, self.target))
+        if here is None:
+            return now - self.changed_at < self.tau / 2
+        return here not in (previous, self.target)
 
     def advance(self) -> bool:
         """Drop the route's cells up to the one the vehicle is in (it got that far); whether the aim
@@ -166,17 +252,6 @@ class SetpointLoop:
         return StepReport(step, target, fix.cell, error, error > self.tolerance, late, len(self.route), previous)
 
 
-def _in_line(here: Cell, previous: Cell, target: Cell) -> bool:
-    """Whether ``previous`` lies on the straight way along one axis from ``here`` to ``target`` (a
-    vehicle flying straight from ``here`` to ``target`` passes it and no cell beside the line)."""
-    ahead = [b - a for a, b in zip(previous, target, strict=True)]
-    behind = [b - a for a, b in zip(here, previous, strict=True)]
-    if sum(map(abs, ahead)) != 1:
-        return False
-    axis = next(i for i, d in enumerate(ahead) if d)
-    return all(d == 0 for i, d in enumerate(behind) if i != axis) and behind[axis] * ahead[axis] > 0
-
-
 class SetpointFleet:
     """The setpoint loops of every drone a process hosts, on one timer.
 
@@ -194,22 +269,22 @@ class SetpointFleet:
             raise ValueError("the loops of one process share the fleet epoch and tau")
         self.loops, self.clock, self.epoch, self.tau = list(loops), first.clock, first.epoch, first.tau
 
-    async def run(self, on_step: Callable[[int, StepReport, Sequence[object]], None],
-                  stop: asyncio.Event) -> None:
-        """Until ``stop`` is set; ``on_step(i, report, actions)`` for loop ``i`` at each boundary."""
+    async def run(self, on_step: Callable[[int, StepReport, Sequence[object]], None], stop: asyncio.Event,
+                  on_sample: Callable[[int, Sample], None] | None = None) -> None:
+        """Until ``stop`` is set; ``on_step(i, report, actions)`` for loop ``i`` at each boundary, and
+        ``on_sample(i, sample)`` lambda after it."""
         step = max(self.loops[0].step_at(self.clock()), *(loop.executor.step + 1 for loop in self.loops))
+        sampled = step  #: the next step to sample
+        lateness = max(loop.lateness for loop in self.loops)
         for loop in self.loops:  # the link streams from the first setpoint on
             await loop.send()
         while not stop.is_set():
             boundary = self.epoch + step * self.tau
             while self.clock() < boundary and not stop.is_set():
-                for loop in self.loops:
-                    if loop.advance():
-                        await loop.send()
-                # Nothing to do until the boundary but fly a route (catching up on a stall or a turn).
-                routed = [loop.check_period for loop in self.loops if loop.route]
-                wake = self.clock() + min(routed) if routed else boundary
-                await _sleep_or_stop(stop, min(wake, boundary) - self.clock())
+                await self._between(stop, min(boundary, self._sample_at(sampled, lateness)))
+                while sampled < step and self.clock() >= self._sample_at(sampled, lateness):
+                    self._sample(sampled, on_sample)
+                    sampled += 1
             if stop.is_set():
                 return
             taken = [loop.take(step, boundary) for loop in self.loops]
@@ -218,6 +293,30 @@ class SetpointFleet:
             for i, (report, actions) in enumerate(taken):
                 on_step(i, report, actions)
             step += 1
+
+    def _sample_at(self, step: int, lateness: float) -> float:
+        return self.epoch + step * self.tau + lateness
+
+    def _sample(self, step: int, on_sample: Callable[[int, Sample], None] | None) -> None:
+        for i, loop in enumerate(self.loops):
+            sample = loop.sample(step)
+            if sample is not None and on_sample is not None:
+                on_sample(i, sample)
+
+    async def _between(self, stop: asyncio.Event, until: float) -> None:
+        """Until ``until``: fly routes (catching up on a stall or a turn), and watch for arrivals."""
+        now = self.clock()
+        for loop in self.loops:
+            loop.look(now)
+            if loop.advance():
+                await loop.send()
+        watched = [loop.check_period for loop in self.loops if loop.route or loop.arriving]
+        wake = now + min(watched) if watched else until
+        await _sleep_or_stop(stop, min(wake, until) - self.clock())
+
+
+def _offset(a: Cell, b: Cell) -> Cell:
+    return (b[0] - a[0], b[1] - a[1], b[2] - a[2])
 
 
 async def _sleep_or_stop(stop: asyncio.Event, seconds: float) -> None:

@@ -17,7 +17,7 @@ from drona_gcs.stack.messages import CurrentTraj, Message, PlanAck, ReqForCurren
 from drona_gcs.stack.protocol import Braked, State
 from drona_gcs.workspace import Cell, Workspace
 from fleet.agent.drone import DroneAgent
-from fleet.executor import StepReport
+from fleet.executor import Sample, StepReport
 from fleet.transport.keys import FleetKeys
 from fleet.transport.wire import (
     CommandAck,
@@ -163,7 +163,7 @@ def test_a_departed_peer_last_heard_after_its_plan_holds_only_where_it_rested() 
     assert [t.cells for t in rested.values()] == [(flown.last,)]  # held: only where it rested
     # Not heard from since its plan: it may have stopped anywhere on the rest of it from a lease ago.
     unheard = asyncio.run(scenario(heard_after_the_plan=False))
-    assert {t.last for t in unheard.values()} == set(flown.cells[40 - 20 - 1 - 10:])
+    assert {t.last for t in unheard.values()} == set(flown.cells[40 - 20 - ws.delta - 1 - 10:])
 
 
 def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_everyone() -> None:
@@ -380,7 +380,7 @@ def test_a_vehicle_back_outside_its_held_cells_leaves_its_drone_out_of_service()
 
 
 def test_the_flight_record_has_only_fresh_sightings_never_a_stale_or_lost_vehicle() -> None:
-    """A cell is recorded at a boundary only from a position reported since the previous one: a vehicle
+    """A cell is recorded at a sample only from a position reported since the previous one: a vehicle
     whose position stopped coming, or whose link is lost, leaves a gap (the audit counts it), never the
     last cell it was seen in (a killed ArduCopter SITL was recorded for 23 steps where it died)."""
     record, vehicle = io.StringIO(), ScriptedVehicle()
@@ -394,7 +394,8 @@ def test_the_flight_record_has_only_fresh_sightings_never_a_stale_or_lost_vehicl
                 vehicle.seen_at += 1.0
             vehicle.lost = "no HEARTBEAT for 3.0 s" if step >= 6 else None
             actions = agent.tick(step)
-            agent.on_step(StepReport(step + 1, stack.executor.cell, (0, 0, 0), 0.0, False, 0.0), actions)
+            agent.on_step(StepReport(step, stack.executor.cell, (0, 0, 0), 0.0, False, 0.0), actions)
+            agent.on_sample(Sample(step, stack.executor.cell, (0, 0, 0), 0.0))
             await asyncio.sleep(0)
 
     asyncio.run(scenario())
@@ -573,3 +574,37 @@ def test_a_gone_drone_back_within_the_lease_keeps_its_mail() -> None:
         return node
 
     assert asyncio.run(scenario()).statuses("q") == []
+
+
+def test_a_vehicle_later_than_lambda_holds_where_its_plan_ends_and_takes_no_task_until_on_time() -> None:
+    """Peers plan with a margin of lambda for a vehicle's lateness: past it, the margin is gone. The
+    drone plans nothing more, hands back the mail not on board, and every peer holds the rest of its
+    plan; once its vehicle is where that plan ended, it takes tasks again."""
+    async def scenario() -> tuple[RecordingNode, DroneAgent, list[str]]:
+        node, vehicle = RecordingNode(), ScriptedVehicle()
+        stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
+        agent = DroneAgent(stack, node, KEYS, vehicle, FRAME, lambda: 1000.0)  # type: ignore[arg-type]
+        agent.mail.take(MailOrder(id="first", pickup=[3, 0, 0], dropoff=[5, 5, 0], priority=9))
+        seen: list[str] = []
+        for step in range(40):
+            agent.on_step(StepReport(step, stack.executor.cell, None, 0.0, False, 0.0), agent.tick(step))
+            agent.vehicle.airborne = True
+            if stack.executor.flying and stack.executor.cell != (0, 0, 0) and agent.late is None and not seen:
+                agent.on_sample(Sample(step, stack.executor.cell, (0, 0, 0), None))  # still at the start
+                seen.append(f"late: off since {stack.protocol.off_since}")
+                with pytest.raises(ProblemError, match="its vehicle was not in"):
+                    agent.mail.take(MailOrder(id="refused", pickup=[2, 2, 0], dropoff=[4, 4, 0], priority=5))
+            elif seen and stack.executor.trajectory is None and agent.late is not None:
+                vehicle.cell = stack.executor.cell
+                agent.on_sample(Sample(step, stack.executor.cell, stack.executor.cell, 0.4))
+                seen.append(f"on time: off since {stack.protocol.off_since}")
+                agent.mail.take(MailOrder(id="again", pickup=[2, 2, 0], dropoff=[4, 4, 0], priority=5))
+            await asyncio.sleep(0)
+        return node, agent, seen
+
+    node, agent, seen = asyncio.run(scenario())
+    assert seen[0].startswith("late: off since ") and seen[0] != "late: off since None"
+    assert seen[1:] == ["on time: off since None"]
+    assert node.statuses("first")[-1] == (MailStatus.REJECTED, "drone d1's vehicle is later than lambda")
+    assert node.statuses("again")[0] == (MailStatus.ACCEPTED, "")
+    assert "late" not in agent.alarms

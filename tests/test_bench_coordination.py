@@ -8,13 +8,20 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 import yaml
 
 from drona_gcs.stack.protocol import State
 from drona_gcs.workspace_files import workspace_from_mapping
-from fleet.bench_coordination import PlanLatencies, _between_rounds, bench_workspace, default_processes
+from fleet.bench_coordination import (
+    PlanLatencies,
+    _between_rounds,
+    audit_records,
+    bench_workspace,
+    default_processes,
+)
 from fleet.transport.wire import DroneState
 
 
@@ -92,3 +99,16 @@ def test_the_bench_workspace_is_valid_at_every_size(agents: int) -> None:
     """`drona bench coordination --agents 64` did not start: drones parked beside a charger walled it off."""
     ws = workspace_from_mapping(yaml.safe_load(bench_workspace(agents)), name=f"bench-{agents}")
     assert len(ws.drones) == agents and len(ws.parking) == agents
+
+
+def test_the_agents_records_are_gathered_and_audited(tmp_path: Path) -> None:
+    """Each agent process records its drones; the bench gathers the parts into one file, with the
+    workspace beside it, and audits it: two drones in one cell at one step is a violation."""
+    record = tmp_path / "run.jsonl"
+    line = '{{"step": {step}, "drone": "{drone}", "cell": [{x}, 0, 0], "planned": [{x}, 0, 0], "delta": 5}}\n'
+    (tmp_path / "run.jsonl.d1").write_text(line.format(step=1, drone="d1", x=2) + line.format(step=2, drone="d1", x=3))
+    (tmp_path / "run.jsonl.d3").write_text(line.format(step=1, drone="d3", x=4) + line.format(step=2, drone="d3", x=3))
+    verdict = audit_records(record, bench_workspace(4))
+    assert "4 records" in verdict and "delta 5" in verdict and "separation violations, 0 jumps" in verdict, verdict
+    assert len(record.read_text().splitlines()) == 4 and not list(tmp_path.glob("run.jsonl.d*"))
+    assert (tmp_path / "run.jsonl.workspace.yaml").read_text() == bench_workspace(4)

@@ -9,6 +9,7 @@ the test's network may hold back.
 
 from __future__ import annotations
 
+import dataclasses
 import random
 from collections.abc import Callable, Mapping
 
@@ -17,7 +18,7 @@ import pytest
 from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.battery import BatteryModel
-from drona_gcs.stack.drone import CONFIRM_STEPS, DroneAction, DroneStack, LegNotFlown, StackConfig, yield_spot
+from drona_gcs.stack.drone import DroneAction, DroneStack, LegNotFlown, StackConfig, yield_spot
 from drona_gcs.stack.mail import MAX_MISSES, GoTo, MailDelivered, MailPickedUp, MailRejected, MailRequest, Phase
 from drona_gcs.stack.messages import CurrentTraj, Message, PlanAck, PlanProposal, ReqForCurrentTraj, Task, TaskId
 from drona_gcs.stack.protocol import Braked, Broadcast, Reroute, Send, State, Threatened
@@ -39,8 +40,9 @@ def stuck_at_start(stack: DroneStack, step: int) -> Cell | None:
     return (0, 0, 0)
 
 
-def fly(vehicle: Vehicle, steps: int, stack: DroneStack | None = None) -> tuple[DroneStack, list[DroneAction]]:
-    stack = stack or DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
+def fly(vehicle: Vehicle, steps: int, stack: DroneStack | None = None,
+        workspace: Workspace = WS) -> tuple[DroneStack, list[DroneAction]]:
+    stack = stack or DroneStack("d1", StackConfig(workspace, SafePlanner(workspace)), dict(workspace.drones))
     if not stack.mail.queue and stack.mail.current is None:
         stack.assign(MAIL)
     actions: list[DroneAction] = []
@@ -70,18 +72,20 @@ def test_a_vehicle_that_never_flew_picks_nothing_up_and_the_mail_is_handed_back(
     assert "never reached the pickup" in of(MailRejected, actions)[0].reason  # type: ignore[union-attr]
 
 
-def test_a_vehicle_late_by_a_step_still_picks_up_when_it_gets_there() -> None:
-    """Seen at each cell one boundary after the plan put it there: within CONFIRM_STEPS, so the mail
-    is picked up and delivered, each when the vehicle is seen at the cell."""
+@pytest.mark.parametrize("steps_late", [1, 2, 3])
+def test_a_vehicle_late_within_lambda_still_picks_up_when_it_gets_there(steps_late: int) -> None:
+    """Seen at each cell some boundaries after the plan put it there, within lambda (at tau 0.25 s
+    a 1 m cell's default lambda, 1.88 s, is 8 steps): the mail is picked up and delivered, each when
+    the vehicle is seen at the cell."""
     trail: list[Cell] = []
 
     def late(stack: DroneStack, step: int) -> Cell | None:
         trail.append(stack.executor.cell)
-        return trail[-2] if len(trail) > 1 else trail[-1]
+        return trail[max(0, len(trail) - 1 - steps_late)]
 
-    _, actions = fly(late, 60)
-    assert CONFIRM_STEPS >= 2
+    _, actions = fly(late, 80, workspace=dataclasses.replace(WS, tau_s=0.25))
     assert of(MailPickedUp, actions) == [MailPickedUp(MAIL)] and of(MailDelivered, actions) == [MailDelivered(MAIL)]
+    assert of(LegNotFlown, actions) == []
 
 
 def test_a_lost_vehicle_plans_nothing_and_back_in_a_held_cell_the_drone_rests_there() -> None:

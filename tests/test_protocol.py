@@ -616,7 +616,8 @@ def test_the_battery_budget_caps_the_plan(flight_steps: int, hovering_since: int
 
 
 # ============================================================ whole clusters
-CROSSING = Workspace.build(size=(5, 5, 1), obstacles=frozenset({(1, 1, 0), (3, 3, 0)}), beta_s=1.0)  # delta 1
+CROSSING = Workspace.build(size=(5, 5, 1), obstacles=frozenset({(1, 1, 0), (3, 3, 0)}), beta_s=1.0,
+                           lambda_s=0.0)  # delta 1
 CLUSTER_STARTS = {"a": (0, 2, 0), "b": (2, 0, 0), "c": (4, 4, 0)}
 CLUSTER_GOALS = {"a": (4, 2, 0), "b": (2, 4, 0), "c": (0, 0, 0)}  # three crossing ways
 ORDERS: list[str | int] = ["fifo", "lifo", 0, 1, 2, 3, 4]  # an int is the seed of a random order
@@ -825,6 +826,17 @@ def test_an_observed_stamp_makes_later_ids_rank_below_it() -> None:
 
 
 # ============================================================ a lost vehicle
+def test_a_lost_vehicle_may_trail_its_plan_by_the_window_so_those_cells_are_held_too() -> None:
+    """Delta covers a vehicle up to lambda late: lost at step 5 of its plan, seen in the plan's cell of
+    step 5, it may still be in those of steps 3 and 4 (a killed vehicle's peer flew into one)."""
+    proto = machine({"a": A, "b": B})
+    proto.delta = 2
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    plan = started(confirmed(proto, proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0))).trajectory
+    proto.handle(VehicleLost(5, plan.at(5)), 5)
+    assert {plan.at(3), plan.at(4)} <= set(proto.holds()) and plan.at(3) != plan.at(5)
+
+
 def test_a_drone_whose_vehicle_is_lost_holds_the_rest_of_its_plan_and_plans_nothing() -> None:
     """Lost at step 4 of its plan, last seen in (1, 0): its vehicle may be anywhere on the rest of the
     plan from then on. Its answers and requests say so; a task of its own finds no plan."""
@@ -1154,6 +1166,11 @@ def test_a_drone_whose_clock_is_off_holds_where_its_plan_ends_and_plans_nothing(
     failed += proto.handle(CurrentTraj("b", location_of("b"), TaskId(9, "a", 2)), plan.end_step)
     failed += proto.handle(CurrentTraj("c", location_of("c"), TaskId(9, "a", 2)), plan.end_step)
     assert [a.reason for a in failed if isinstance(a, TaskFailed)] == ["my clock is beyond the fleet's bound"]
+    # At rest, it answers with the cell it rests in alone: peers hold every cell it answers with for good.
+    assert proto.holds() == (GOAL,)
+    [answer] = proto.handle(request(TaskId(30, "b", 3), "b", plan.end_step + 1), plan.end_step + 1)
+    assert isinstance(answer, Send) and isinstance(answer.message, CurrentTraj)
+    assert set(answer.message.trajectory.cells) == {GOAL}
     proto.handle(ClockBound(mine_off=False), plan.end_step + 1)
     assert proto.holds() == ()
 

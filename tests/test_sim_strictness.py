@@ -16,6 +16,7 @@ from fleet.sim.config import VehicleConfig
 from fleet.sim.fleet import FleetConfig, SimClock, build_nodes, placements
 from fleet.sim.mav import mavlink2
 from fleet.sim.model import VehicleModel
+from fleet.sim.params import ParamStore
 from fleet.sim.personality import ARDUPILOT, PX4
 from fleet.sim.telemetry import ekf_status_report, global_position_int, gps_raw_int, local_position_ned
 from fleet.vehicle.policy import ekf_has_position
@@ -110,3 +111,14 @@ def test_every_arducopter_sitl_is_system_1_and_px4_instances_count_up() -> None:
         config = FleetConfig(count=3, vehicle=dataclasses.replace(VehicleConfig(), personality=personality))
         nodes = build_nodes(config, None, SimClock())
         assert [node.system_id for node in nodes] == expected
+
+
+def test_a_higher_wpnav_accel_closes_in_on_a_setpoint_more_slowly_as_arducopter_does() -> None:
+    """ArduCopter shapes a position setpoint with the gain PSC_JERK_XY / (2 WPNAV_ACCEL): a real SITL
+    flown one 1 m cell per 0.5 s reached its cells 1.3 s late at WPNAV_ACCEL 250 and 2.2 s at 500."""
+    store = ParamStore(VehicleConfig(personality=ARDUPILOT))
+    assert store.limits.gain == pytest.approx(1.0)
+    store.set("WPNAV_ACCEL", 500.0)
+    assert (store.limits.max_accel, store.limits.gain) == (pytest.approx(5.0), pytest.approx(0.5))
+    store.set("PSC_JERK_XY", 20.0)
+    assert store.limits.gain == pytest.approx(2.0)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import dataclasses
 import os
@@ -14,6 +15,7 @@ import pytest
 
 import drona_gcs.planner
 import drona_gcs.stack
+import fleet.cli.verify as verify_cli
 from drona_gcs.errors import DronaError, ProblemError
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.mail import MailPickedUp, MailPlanner, MailRequest, MailStarted
@@ -501,3 +503,15 @@ def test_an_agent_restarted_across_a_cut_holds_its_peers_as_gone_until_it_heals(
     for message in [m for m in world.inflight if m.to == d0]:
         world.apply(("deliver", message.seq))
     assert world.stacks[d0].protocol.members == set(world.config.drones[1:])
+
+
+@pytest.mark.parametrize(("given", "delta"), [([], 3), (["--delta", "1"], 1)])
+def test_verify_on_a_workspace_explores_its_own_separation_window(tmp_path: Path, given: list[str],
+                                                                   delta: int) -> None:
+    """The window the tester explores is the one the fleet flies: ceil((beta + lambda) / tau)."""
+    path = tmp_path / "ws.yaml"
+    path.write_text("size: [4, 4, 1]\ntau_s: 0.5\nbeta_s: 0.2\nlambda_s: 0.9\ndrones: {d1: [0, 0, 0]}\n")
+    parser = argparse.ArgumentParser()
+    verify_cli.add_arguments(parser)
+    scenario = verify_cli._scenario(parser.parse_args(["--workspace", str(path), "--max-depth", "100", *given]))
+    assert scenario.delta == delta

@@ -115,8 +115,36 @@ def test_cell_of_id_out_of_range(bad_id: int) -> None:
     (1.5, 1.0, 2),
     (2.0, 0.5, 4),
 ])
-def test_delta_is_ceil_beta_over_tau(beta: float, tau: float, delta: int) -> None:
-    assert Workspace.build(size=(2, 2, 1), beta_s=beta, tau_s=tau).delta == delta
+def test_delta_is_ceil_beta_over_tau_for_a_vehicle_never_late(beta: float, tau: float, delta: int) -> None:
+    assert Workspace.build(size=(2, 2, 1), beta_s=beta, tau_s=tau, lambda_s=0.0).delta == delta
+
+
+@pytest.mark.parametrize(("beta", "lam", "tau", "delta"), [
+    (0.2, 1.882, 0.5, 5),  # the coordination bench's grid
+    (0.05, 2.345, 1.0, 3),  # the demo campus
+    (0.1, 0.2, 0.1, 3),  # 0.30000000000000004 / 0.1 in floats
+    (0.0, 0.5, 0.5, 1),
+])
+def test_delta_widens_by_the_vehicles_lateness(beta: float, lam: float, tau: float, delta: int) -> None:
+    assert Workspace.build(size=(2, 2, 1), beta_s=beta, tau_s=tau, lambda_s=lam).delta == delta
+
+
+@pytest.mark.parametrize(("cell", "layer", "layers", "lateness"), [
+    (1.0, 1.0, 1, 1.0 + 0.25 + 0.632),  # shaping lag, jerk ramp, half a metre at 2.5 m/s²
+    (3.0, 3.0, 1, 1.0 + 0.25 + 1.095),
+    (0.1, 1.0, 2, 0.4 + 0.1 + 1.0),  # half a metre up at 1 m/s² takes longer than 5 cm across
+    (100.0, 1.0, 1, 1.0 + 0.25 + 4.0 + 3.0),  # 20 m to reach 10 m/s, then 30 m at it
+])
+def test_lambda_defaults_to_the_shaping_lag_and_half_a_cell_from_rest(cell: float, layer: float, layers: int,
+                                                                      lateness: float) -> None:
+    ws = Workspace.build(size=(2, 2, layers), cell_size_m=cell, geo=GeoOrigin(layer_height_m=layer))
+    assert ws.lateness_s == pytest.approx(lateness, abs=1e-3)
+
+
+def test_a_set_lambda_wins_and_a_bad_one_is_named() -> None:
+    assert Workspace.build(size=(2, 2, 1), lambda_s=0.0).lateness_s == 0.0
+    with pytest.raises(WorkspaceError, match="lambda_s"):
+        Workspace.build(size=(2, 2, 1), lambda_s=-1.0)
 
 
 # ------------------------------------------------------------ our YAML/JSON format
@@ -126,6 +154,7 @@ size: [6, 5, 2]
 cell_size_m: 2.5
 tau_s: 0.5
 beta_s: 0.3
+lambda_s: 0.7
 max_plan_length: 40
 geo_origin:
   lat: 52.2297
@@ -155,7 +184,8 @@ def _as_mapping(ws: Workspace) -> dict[str, object]:
     cells = lambda cs: [list(c) for c in cs]  # noqa: E731
     return {
         "name": ws.name, "size": list(ws.size), "cell_size_m": ws.cell_size_m, "tau_s": ws.tau_s,
-        "beta_s": ws.beta_s, "max_plan_length": ws.max_plan_length, "geo_origin": dataclasses.asdict(ws.geo),
+        "beta_s": ws.beta_s, "lambda_s": ws.lambda_s, "max_plan_length": ws.max_plan_length,
+        "geo_origin": dataclasses.asdict(ws.geo),
         "obstacles": cells(sorted(ws.obstacles)), "charging_stations": cells(ws.charging_stations),
         "drones": {k: list(v) for k, v in ws.drones.items()}, "pickups": cells(ws.pickups),
         "dropoffs": cells(ws.dropoffs), "parking": cells(ws.parking),
@@ -169,7 +199,7 @@ def test_yaml_example_loads_every_field(write_file) -> None:
     assert ws.name == "depot-east"
     assert ws.source == str(path)
     assert ws.size == (6, 5, 2)
-    assert (ws.cell_size_m, ws.tau_s, ws.beta_s, ws.max_plan_length) == (2.5, 0.5, 0.3, 40)
+    assert (ws.cell_size_m, ws.tau_s, ws.beta_s, ws.lambda_s, ws.max_plan_length) == (2.5, 0.5, 0.3, 0.7, 40)
     assert ws.geo == GeoOrigin(lat=52.2297, lon=21.0122, alt_m=110.0, layer0_alt_m=12.0, layer_height_m=3.0)
     assert ws.layer_height_m == 3.0
     assert ws.obstacles == {(2, 2, 0), (5, 4, 1), (3, 0, 0), (3, 1, 0), (3, 0, 1), (3, 1, 1)}
@@ -178,7 +208,7 @@ def test_yaml_example_loads_every_field(write_file) -> None:
     assert ws.pickups == ((0, 4, 0),)
     assert ws.dropoffs == ((5, 4, 0), (4, 2, 1))
     assert ws.parking == ((1, 4, 0), (2, 4, 0))
-    assert ws.delta == 1
+    assert ws.delta == 2  # ceil((0.3 + 0.7) / 0.5)
     assert ws.plan_length_limit == 40
     assert len(ws.free_cells) == 6 * 5 * 2 - 6 == len(ws.main_region)
 
@@ -201,7 +231,7 @@ def test_json_with_the_same_content_loads_identically(write_file, suffix: str) -
 def test_minimal_yaml_takes_the_defaults(write_file) -> None:
     ws = load_workspace(write_file("tiny.yaml", "size: [3, 2, 1]\n"))
     assert ws == Workspace(size=(3, 2, 1), name="tiny", source=ws.source)
-    assert (ws.tau_s, ws.beta_s, ws.delta, ws.plan_length_limit, ws.layer_height_m) == (1.0, 0.0, 0, 6, 1.0)
+    assert (ws.tau_s, ws.beta_s, ws.delta, ws.plan_length_limit, ws.layer_height_m) == (1.0, 0.0, 2, 6, 1.0)
 
 
 # ------------------------------------------------------------ bad files
@@ -246,6 +276,7 @@ BAD_FILES = [
     ("tau-nan", "ws.yaml", GRID + "tau_s: .nan\n", "tau_s", ["must be a positive number, got nan"]),
     ("tau-not-a-number", "ws.yaml", GRID + "tau_s: fast\n", "tau_s", ["must be a number, got 'fast'"]),
     ("beta-negative", "ws.yaml", GRID + "beta_s: -0.1\n", "beta_s", [">= 0, got -0.1"]),
+    ("lambda-negative", "ws.yaml", GRID + "lambda_s: -0.5\n", "lambda_s", [">= 0, got -0.5"]),
     ("beta-infinite", "ws.yaml", GRID + "beta_s: .inf\n", "beta_s", [">= 0, got inf"]),
     ("beta-nan", "ws.yaml", GRID + "beta_s: .nan\n", "beta_s", [">= 0, got nan"]),
     ("plan-length-zero", "ws.yaml", GRID + "max_plan_length: 0\n", "max_plan_length", ["must be >= 1"]),

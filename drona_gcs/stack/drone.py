@@ -13,7 +13,7 @@ actions below, which the runtime carries out.
 
 Only physical truth counts: a leg is over (a mail picked up, delivered) when
 telemetry puts the vehicle in the leg's goal cell, not when its plan ends. The
-plan's last step ends at the boundary after it; by :data:`CONFIRM_STEPS` more,
+plan's last step ends at the boundary after it; by :func:`confirm_steps` more,
 the vehicle must have been seen there (in the cell: cells are what separation is
 judged in), or the leg did not happen (:class:`LegNotFlown`) and is tried again.
 
@@ -67,9 +67,11 @@ from drona_gcs.stack.protocol import (
 )
 from drona_gcs.workspace import Cell, Workspace
 
-#: Boundaries after a plan's end by which the vehicle must have been seen in its goal: one for the
-#: move into the cell, one more for a vehicle that trails by a cell (the lag alarm's tolerance).
-CONFIRM_STEPS = 2
+
+def confirm_steps(workspace: Workspace) -> int:
+    """Boundaries after a plan's end by which the vehicle must have been seen in its goal: it may
+    enter it up to lambda late, and one more for a vehicle that trails by a cell (the lag alarm's)."""
+    return math.ceil(workspace.lateness_s / workspace.tau_s) + 1
 
 
 @dataclass(frozen=True)
@@ -157,6 +159,8 @@ class DroneStack:
         #: in touch with most of the fleet at the last boundary (CoordinationProtocol.in_quorum); not before the
         #: first: a drone starting up meets its peers one by one, and hands back no mail meanwhile
         self.in_touch = False
+        self.clock_off = False  #: my clock is beyond the fleet's bound (see :meth:`clock_bound`)
+        self.late = False  #: my vehicle came to a cell later than lambda (see :meth:`tracking_bound`)
 
     def distance(self, a: Cell, b: Cell) -> int:
         """Steps from ``a`` to ``b``, around the drones resting now and never through a vehicle down
@@ -291,8 +295,20 @@ class DroneStack:
     def clock_bound(self, mine_off: bool, outliers: frozenset[str], reason: str) -> list[DroneAction]:
         """The clock check's verdict (see ClockBound): my clock off, I hold where my plan ends and hand the
         mail not on board back; the runtime starts no task meanwhile (``may_plan`` False)."""
-        newly_off = mine_off and self.protocol.off_since is None
-        actions = self._protocol(ClockBound(mine_off, outliers))
+        self.clock_off = mine_off
+        return self._out_of_bounds(outliers, reason)
+
+    def tracking_bound(self, late: bool, reason: str) -> list[DroneAction]:
+        """The lateness check's verdict: my vehicle came to a cell later than lambda, so the margin
+        peers planned with is gone. As with a clock off, I hold where my plan ends, hand back the mail
+        not on board, and every peer holds that for good, until the vehicle is back on time."""
+        self.late = late
+        return self._out_of_bounds(self.protocol.outliers, reason)
+
+    def _out_of_bounds(self, outliers: frozenset[str], reason: str) -> list[DroneAction]:
+        off = self.clock_off or self.late
+        newly_off = off and self.protocol.off_since is None
+        actions = self._protocol(ClockBound(off, outliers))
         return [*actions, *(self.mail.release(reason) if newly_off else ())]
 
     def vehicle_back(self, cell: Cell, landed: bool) -> list[DroneAction]:
@@ -327,7 +343,7 @@ class DroneStack:
             actions.append(done)
             if isinstance(done, Completed):
                 actions += self._protocol(PlanCompleted())
-                self.arrival = Arrival(done.trajectory.last, step + CONFIRM_STEPS)
+                self.arrival = Arrival(done.trajectory.last, step + confirm_steps(self.config.workspace))
         actions += self._arrive(step, flown)
         for event in self.monitor.reading(battery_level):
             actions.append(event)

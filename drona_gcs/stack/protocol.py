@@ -68,8 +68,10 @@ settled here, and one message it sends is saved (the second point):
   paper's model checker found (the tester seeds this bug).
 * **A plan starts ``lead_steps`` after now**, because planning, messaging and
   the executor's hand-over take time; the executor refuses a trajectory whose
-  start it has already passed. Other drones' executors may be up to Delta
-  steps ahead or behind; the planner's skew window covers exactly that.
+  start it has already passed. Other drones' executors may be up to beta
+  ahead or behind, and their vehicles up to lambda late into each cell (a later
+  vehicle raises an alarm and plans nothing more); the planner's window,
+  Delta = ceil((beta + lambda) / tau), covers exactly that.
 * **A plan is flown only once every member holds it** (``CONFIRMING``). Planned, I send it to
   everyone (``PlanProposal``); each member holds it besides what it knew of me and says so
   (``PlanAck``, with what it flies now); once every member has, I fly it and tell everyone
@@ -458,7 +460,8 @@ class CoordinationProtocol:
 
     def holds(self) -> tuple[Cell, ...]:
         """Cells my lost vehicle may be in, besides my trajectory: the rest of my plan from when it
-        was last seen, where it was seen, and where I rest (none while my vehicle answers)."""
+        was last seen, where it was seen, and where I rest (none while my vehicle answers). A vehicle
+        may trail its plan by up to lambda: the cells of the window before it was seen count too."""
         cells: list[Cell] = []
         for since, seen in ((self.lost.since, self.lost.seen) if self.lost else (None, None),
                             (self.off_since, self.location)):
@@ -466,7 +469,7 @@ class CoordinationProtocol:
                 continue
             cells += [seen, self.location]
             if self.trajectory is not None:
-                cells += self.trajectory.suffix_from(since).cells
+                cells += self.trajectory.suffix_from(since - self.delta - 1).cells
         return tuple(dict.fromkeys(cells))
 
     def ghost_obstacles(self, sparing: Cell | None = None) -> dict[str, Trajectory]:
@@ -602,8 +605,12 @@ class CoordinationProtocol:
         return []  # a late reply to a round that is over
 
     def _on_completed(self, event: PlanCompleted, now: int) -> list[Action]:
+        """I rest at my plan's end. Out of the fleet's bound, my steps are not the fleet's: peers hold for
+        good every cell I answer with, so from now on I answer with the one I rest in."""
         assert self.trajectory is not None
         self.location, self.state, self.task = self.trajectory.last, State.WAIT_FOR_TASK, None
+        if self.off_since is not None:
+            self.trajectory = Trajectory.stationary(self.location, now)
         return []
 
     def _on_completed_while_rerouting(self, event: PlanCompleted, now: int) -> list[Action]:

@@ -56,7 +56,7 @@ from fleet.agent.maildesk import MailDesk
 from fleet.agent.outbox import Answers, coalesced, urgency
 from fleet.agent.vehicle import VehicleSupervisor
 from fleet.agent.watch import Seen, VehicleWatch, Verdict, record_line
-from fleet.executor import SetpointLoop, StepReport
+from fleet.executor import Sample, SetpointLoop, StepReport
 from fleet.logs import Throttled
 from fleet.transport.keys import FleetKeys
 from fleet.transport.node import Query, ZenohNode
@@ -123,6 +123,8 @@ class DroneAgent:
         self.actual: Cell | None = None
         self.battery_pct = 100.0
         self.may_plan = True
+        #: why the vehicle is out of its lateness bound (None: within it; see on_sample)
+        self.late: str | None = None
         #: the vehicle came down by itself: its mail is handed back and it starts no task, for good (a
         #: vehicle may be anywhere once down: it rejoins the fleet when its agent is restarted)
         self.down = False
@@ -192,6 +194,8 @@ class DroneAgent:
             return self.out_of_service
         if not self.may_plan:
             return "its clock is beyond the fleet's bound"
+        if self.late is not None:
+            return self.late
         readiness = self.watch.readiness()
         if readiness is Readiness.LOST:
             return "its vehicle is lost"
@@ -247,8 +251,6 @@ class DroneAgent:
         self.actual = self.watch.seen_cell()
         if self.actual is None:
             log.debug("%s: no cell at step %d: position %s", self.me, report.step, self.link.last_position())
-        if self.record is not None and self.actual is not None:
-            self.record.write(record_line(report.step - 1, self.me, self.actual, report.planned, self.delta))
         if not self.down and not self.watch.lost and self.vehicle.grounded_by_itself():
             self.down = True
             self.mail.refusal = "its vehicle came down by itself"
@@ -268,6 +270,31 @@ class DroneAgent:
         self.vehicle.want_airborne(not grounded or self.stack.protocol.state is State.EXECUTING)
         # Half a period later: at the boundary every drone of the fleet is busy, and answers come first.
         self.publish_state_soon(self.ws.tau_s / 2)
+
+    def on_sample(self, sample: Sample) -> None:
+        """Lambda after a boundary: record where the vehicle was, and judge how late it came."""
+        seen = self.watch.seen_cell("sample")  # None: no fresh position, a gap in the record
+        flown = sample.planned if sample.late_s is not None else seen
+        if self.record is not None and seen is not None and flown is not None:
+            self.record.write(record_line(sample.step, self.me, flown, sample.planned, self.delta))
+        if not (self.down or self.watch.lost or not self.vehicle.settled):
+            self._judge_lateness(sample)
+
+    def _judge_lateness(self, sample: Sample) -> None:
+        """Later than lambda, the margin peers planned with is gone: hold where the plan ends, until the
+        vehicle is there."""
+        if sample.late_s is None and self.late is None:
+            self.late = (f"its vehicle was not in {list(sample.planned)} {self.ws.lateness_s:g} s (lambda) after "
+                         f"step {sample.step} began")
+            log.warning("%s: %s: it holds where its plan ends, and takes no task until it is on time", self.me,
+                        self.late)
+            self._carry_out(self.stack.tracking_bound(True, f"drone {self.me}'s vehicle is later than lambda"))
+        elif self.late is not None and sample.actual == sample.planned and self.stack.executor.trajectory is None:
+            log.warning("%s: its vehicle is where its plan ended: it takes tasks again", self.me)
+            self.late = None
+            self._carry_out(self.stack.tracking_bound(False, ""))
+        self.mail.refusal = self._refusal()
+        self._alarm("late", None if self.late is None else f"late: {self.late}")
 
     def _lag(self, report: StepReport) -> str | None:
         """Trailing its timed trajectory, or on the ground while its plan flies: the separation argument
@@ -538,6 +565,7 @@ class DroneAgent:
         outliers = frozenset() if mine_off else frozenset(self.clocks.violations())
         reason = f"drone {self.me}'s clock is beyond the fleet's bound"
         self._carry_out(self.stack.clock_bound(mine_off, outliers, reason))
+        self.mail.refusal = self._refusal()  # now, not at the next boundary: mail may come meanwhile
         self._alarm("clock", alarm)
 
     def _alarm(self, kind: str, text: str | None) -> None:

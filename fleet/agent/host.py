@@ -38,7 +38,7 @@ from fleet import runtime
 from fleet.agent.drone import BROADCAST, DroneAgent
 from fleet.agent.settings import AgentSettings
 from fleet.clock import cancel_all, periodic
-from fleet.executor import SetpointFleet, SetpointLoop, StepReport
+from fleet.executor import Sample, SetpointFleet, SetpointLoop, StepReport
 from fleet.transport.identity import identity_for
 from fleet.transport.keys import FleetKeys, check_name
 from fleet.transport.node import ZenohNode, ZenohSettings, agent_endpoint
@@ -242,19 +242,21 @@ async def _fly(host: Host, frame: GeoFrame, record: TextIO | None) -> None:
     settings, ws = host.settings, host.workspace
     # A route after a stall is checked as often as positions come.
     loops = [SetpointLoop(agent.link, frame, agent.stack.executor, settings.epoch, ws.tau_s, host.clock,
-                          settings.telemetry_hz, tick=agent.tick) for agent in host.agents]
+                          settings.telemetry_hz, tick=agent.tick, lateness_s=ws.lateness_s) for agent in host.agents]
     for agent, loop in zip(host.agents, loops, strict=True):
         agent.setpoints = loop
     def on_step(i: int, report: StepReport, actions: Sequence[object]) -> None:
         host.agents[i].on_step(report, actions)
-        if i == len(host.agents) - 1:
-            if record is not None:
-                record.flush()
-            if host.draining.is_set() and not any(agent.busy for agent in host.agents):
-                host.drained.set()
+        if i == len(host.agents) - 1 and host.draining.is_set() and not any(agent.busy for agent in host.agents):
+            host.drained.set()
+
+    def on_sample(i: int, sample: Sample) -> None:
+        host.agents[i].on_sample(sample)
+        if i == len(host.agents) - 1 and record is not None:
+            record.flush()
 
     async with asyncio.TaskGroup() as group:
-        group.create_task(SetpointFleet(loops).run(on_step, host.stop_stepping))
+        group.create_task(SetpointFleet(loops).run(on_step, host.stop_stepping, on_sample))
         supervisors = [group.create_task(agent.vehicle.run()) for agent in host.agents]
         clocks = group.create_task(_check_clocks(host))
         await host.draining.wait()

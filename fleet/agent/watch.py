@@ -47,7 +47,7 @@ class VehicleWatch:
         self.lost_since: int | None = None  #: the step it was lost at (None: it answers)
         self.lost_at: float | None = None  #: the link clock time of its last HEARTBEAT before the loss
         self.last_seen: Cell | None = None  #: the last cell telemetry put it in while it answered
-        self._seen_at: float | None = None  #: the time of the position seen at the last boundary
+        self._seen_at: dict[str, float | None] = {}  #: the time of the position seen at each look
 
     @property
     def lost(self) -> bool:
@@ -97,12 +97,13 @@ class VehicleWatch:
         where = f"in {list(cell)}" if cell is not None else "outside the grid"
         return Verdict(Seen.BACK_ELSEWHERE, f"its vehicle is back {where}, not in a cell held for it")
 
-    def seen_cell(self) -> Cell | None:
-        """At a boundary, :meth:`recorded_cell` from a position reported since the previous boundary:
-        None when none came (the vehicle lost, or silent), for a stale position is not a sighting."""
+    def seen_cell(self, look: str = "boundary") -> Cell | None:
+        """At a boundary (or another periodic ``look``), :meth:`recorded_cell` from a position reported
+        since the previous one: None when none came (the vehicle lost, or silent), for a stale position
+        is not a sighting."""
         position = self.link.last_position()
-        fresh = position is not None and position.at != self._seen_at and not self.lost
-        self._seen_at = None if position is None else position.at
+        fresh = position is not None and position.at != self._seen_at.get(look) and not self.lost
+        self._seen_at[look] = None if position is None else position.at
         return self.recorded_cell() if fresh else None
 
     def recorded_cell(self) -> Cell | None:

@@ -95,6 +95,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from api import bench as api_bench  # its own group: --rate, --connections, --sim-drones, --url, --token
 
     api_bench.add_arguments(parser)
+    group.add_argument("--record", type=Path, help="coordination: record every drone's flight here (JSON Lines, "
+                       "with the workspace beside it) and audit it after the run")
     group.add_argument("--steady-after", type=float, default=10.0,
                        help="also report the plans after this many seconds, past the opening burst (default 10)")
 

@@ -45,7 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add("--workspace", type=Path, help="workspace file (default: an embedded 16x12 campus)")
     add("--port", type=int, default=8000, help="the service's port (default 8000)")
     add("--host", default="127.0.0.1", help="the service's address (default 127.0.0.1)")
-    add("--tau", type=float, help="seconds per step (default: the workspace's; 1 s on the embedded one)")
+    add("--tau", type=float, help="seconds per step (default: the workspace's; 1.5 s on the embedded one, "
+        "which its 3 m cells need at ArduCopter's default gains)")
     add("--speedup", type=float, default=1.0, help="the fake vehicles' simulated seconds per second (default 1)")
     add("--ready-after", type=float, default=DEMO_READY_AFTER_S,
         help="the fake vehicles' boot to their position estimate, simulated seconds (default "
@@ -57,6 +58,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add("--vehicle-port", type=int, default=14540, help="vehicle i talks MAVLink on UDP port (this + i)")
     add("--zenoh-port", type=int, default=AGENT_BASE_PORT, help="drone i's agent listens on TCP port (this + i)")
     add_security_arguments(parser)  # neither given: the demo makes a fleet CA and certificates of its own
+
+
+#: An ArduCopter at its default gains flies a zigzag of 3 m cells 1.2 s late at this tau (1 s: ever later).
+DEMO_TAU_S = 1.5
 
 
 def demo_workspace(drones: int, tau: float) -> dict[str, object]:
@@ -121,7 +126,7 @@ def _security(args: argparse.Namespace, workspace: Workspace, state: Path) -> li
 def _workspace_file(args: argparse.Namespace, state: Path) -> Path:
     """The workspace to fly, as a file the children can read (--tau applied)."""
     if args.workspace is None:
-        data = demo_workspace(args.drones, args.tau or 1.0)
+        data = demo_workspace(args.drones, args.tau or DEMO_TAU_S)
     elif args.tau is None:
         return args.workspace
     elif args.workspace.suffix.lower() in (".yaml", ".yml", ".json"):

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import math
 import signal
 import sys
 from dataclasses import replace
@@ -27,7 +28,7 @@ from drona_gcs.workspace_files import load_workspace
 from fleet import runtime
 from fleet.sim.config import VehicleConfig
 from fleet.sim.fleet import FleetConfig, SimNode, run_fleet
-from fleet.sim.params import starting_limits
+from fleet.sim.params import TABLES, starting_limits
 from fleet.sim.personality import PERSONALITIES
 from fleet.sim.transport import PtyLink
 from fleet.vehicle.signing import parse_key
@@ -65,6 +66,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="horizontal speed limit, m/s: the starting WPNAV_SPEED or MPC_XY_VEL_MAX, which a ground "
                              "station may change (default: the autopilot's, ArduCopter 10, PX4 12)")
     parser.add_argument("--battery", type=float, default=100.0, help="initial battery charge, percent")
+    parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                        help="a parameter's starting value, as set by hand on a real vehicle (repeat for more), "
+                             "e.g. PSC_JERK_XY=10: ArduCopter closes in on a setpoint at jerk / (2 WPNAV_ACCEL)")
     parser.add_argument("--signing-key", help="MAVLink 2 signing key, 64 hex digits: unsigned commands are ignored")
 
 
@@ -90,6 +94,17 @@ def max_speed(args: argparse.Namespace) -> float:
     return starting_limits(_config(args).vehicle).max_speed
 
 
+def _param(text: str) -> tuple[str, float]:
+    name, sep, value = text.partition("=")
+    try:
+        number = float(value)
+    except ValueError:
+        number = math.nan
+    if not sep or not name or not math.isfinite(number):
+        raise ValueError(f"--param must be NAME=VALUE with a finite number, got {text!r}")
+    return name, number
+
+
 def _config(args: argparse.Namespace) -> FleetConfig:
     if args.count < 1:
         raise ValueError(f"--count must be >= 1, got {args.count}")
@@ -113,7 +128,11 @@ def _config(args: argparse.Namespace) -> FleetConfig:
     if args.max_speed is not None:
         limits = replace(starting_limits(VehicleConfig(personality=personality)), max_speed=args.max_speed)
     vehicle = VehicleConfig(personality=personality, limits=limits, ready_after_s=args.ready_after,
-                            spool_up_s=args.spool_up, auto_disarm_s=args.auto_disarm, battery_pct=args.battery)
+                            spool_up_s=args.spool_up, auto_disarm_s=args.auto_disarm, battery_pct=args.battery,
+                            params=tuple(_param(text) for text in args.param))
+    unknown = sorted({name for name, _ in vehicle.params} - {p.name for p in TABLES[personality.name]})
+    if unknown:
+        raise ValueError(f"--param: {args.autopilot} has no parameter {', '.join(unknown)}")
     key = parse_key(args.signing_key, "--signing-key") if args.signing_key else None
     return FleetConfig(count=args.count, vehicle=vehicle, tcp=args.tcp, host=args.host, base_port=args.base_port,
                        speedup=args.speedup, signing_key=key, serial_baud=baud if args.serial else None,

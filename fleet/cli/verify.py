@@ -25,6 +25,7 @@ from drona_gcs.verify.explore import (
 from drona_gcs.verify.mutants import SEEDED_BUGS
 from drona_gcs.verify.sweep import SweepRow, configurations, run_sweep
 from drona_gcs.verify.world import PARTITION_STEPS
+from drona_gcs.workspace_files import load_workspace
 
 _GRID = re.compile(r"^(\d+)x(\d+)(?:x(\d+))?$")
 
@@ -36,7 +37,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--obstacles", type=float, default=0.2, help="obstacle ratio of --grid (default 0.2)")
     parser.add_argument("--drones", type=int, default=4)
     parser.add_argument("--requests", type=int, default=6, help="mail requests the environment sends")
-    parser.add_argument("--delta", type=int, default=1, help="clock-skew window in steps")
+    parser.add_argument("--delta", type=int, help="the separation window in steps (default: the workspace's, "
+                        "ceil((beta_s + lambda_s) / tau_s), or 1 on a random grid)")
     parser.add_argument("--strategy", choices=[s.value for s in Strategy], default="random")
     parser.add_argument("--schedules", type=int, default=1000, help="schedules to run (random, pct)")
     parser.add_argument("--max-depth", type=int, default=None,
@@ -132,7 +134,10 @@ def _scenario(args: argparse.Namespace) -> Scenario:
     if args.schedules < 1 or args.max_depth < 1 or args.time_limit <= 0:
         raise ValueError("--schedules, --max-depth and --time-limit must be positive")
     max_delay = args.max_delay if args.max_delay is not None else (0 if args.strategy == "dfs" else 2)
-    return Scenario(drones=args.drones, requests=args.requests, delta=args.delta, seed=args.seed, grid=grid,
+    delta = args.delta
+    if delta is None:
+        delta = load_workspace(args.workspace).delta if args.workspace else 1
+    return Scenario(drones=args.drones, requests=args.requests, delta=delta, seed=args.seed, grid=grid,
                     obstacles=args.obstacles, workspace_path=args.workspace, bugs=tuple(args.seed_bug),
                     max_delay=max_delay, faults=not args.no_faults, crashes=args.crashes, partitions=args.partitions)
 

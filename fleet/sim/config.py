@@ -34,6 +34,8 @@ class VehicleConfig:
     guided_velocity_timeout_s: float | None = None  #: ArduCopter's GUID_TIMEOUT: a velocity setpoint older stops
     rtl_alt_m: float | None = None  #: RTL_ALT, PX4's RTL_RETURN_ALT
     takeoff_alt_m: float | None = None  #: PX4's MIS_TAKEOFF_ALT, when the command gives none
+    #: parameters by name with their starting values (after the fields above), as a vehicle tuned by hand
+    params: tuple[tuple[str, float], ...] = ()
     hover_current_a: float = 15.0
     charge_current_a: float = 10.0
 

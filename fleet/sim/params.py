@@ -64,6 +64,7 @@ class Setting(enum.Enum):
     OFFBOARD_TIMEOUT = "offboard_timeout"  #: s without a setpoint before PX4 leaves OFFBOARD
     GUIDED_TIMEOUT = "guided_timeout"  #: s before an ArduCopter GUIDED velocity setpoint stops
     SYSTEM_ID = "system_id"  #: reported only: both autopilots take a new id at their next boot
+    SHAPING_JERK = "shaping_jerk"  #: m/s³, ArduCopter's PSC_JERK_XY: its position gain is jerk / (2 accel)
 
 
 LIMIT_SETTINGS = (Setting.MAX_SPEED, Setting.MAX_ACCEL, Setting.CLIMB_RATE, Setting.DESCENT_RATE,
@@ -89,6 +90,7 @@ ARDUCOPTER_PARAMS = (
     Param("WPNAV_SPEED_UP", 250, REAL32, (Setting.CLIMB_RATE,), CM),
     Param("WPNAV_SPEED_DN", 150, REAL32, (Setting.DESCENT_RATE,), CM),
     Param("WPNAV_ACCEL", 250, REAL32, (Setting.MAX_ACCEL,), CM),
+    Param("PSC_JERK_XY", 5.0, REAL32, (Setting.SHAPING_JERK,)),
     Param("LAND_SPEED", 50, INT16, (Setting.LAND_SPEED,), CM),
     Param("RTL_ALT", 1500, INT32, (Setting.RTL_ALT,), CM),
     Param("DISARM_DELAY", 10, INT8, (Setting.PREFLIGHT_DISARM, Setting.LANDED_DISARM)),
@@ -146,6 +148,10 @@ class ParamStore:
         self._index = {p.name: i for i, p in enumerate(self.table)}
         start = starting_settings(config)
         self._values = [_starting_value(p, start) for p in self.table]
+        for name, value in config.params:
+            if name not in self._index:
+                raise ValueError(f"{config.personality.name} has no parameter {name!r}")
+            self._values[self._index[name]] = _stored(self.table[self._index[name]], value)
         self._driver = {s: i for i, p in enumerate(self.table) for s in p.drives}
         self._fixed = {s: start.get(s, FALLBACK.get(s, 0.0)) for s in Setting if s not in self._driver}
         self._shape = config.limits or Limits()  #: gain and land_speed_high_alt: no parameter sets them
@@ -216,8 +222,12 @@ class ParamStore:
 
     # ------------------------------------------------------------- internals
     def _limits(self) -> Limits:
-        return Limits(**{s.value: max(MIN_LIMIT, self.setting(s)) for s in LIMIT_SETTINGS},
-                      land_speed_high_alt=self._shape.land_speed_high_alt, gain=self._shape.gain)
+        values = {s.value: max(MIN_LIMIT, self.setting(s)) for s in LIMIT_SETTINGS}
+        gain = self._shape.gain
+        if Setting.SHAPING_JERK in self._driver:  # ArduCopter: a higher WPNAV_ACCEL makes it slower to close in
+            gain = max(MIN_LIMIT, self.setting(Setting.SHAPING_JERK)) / (2 * values[Setting.MAX_ACCEL.value])
+        return Limits(**values, land_speed_high_alt=self._shape.land_speed_high_alt, gain=gain,
+                      gain_z=self._shape.gain_z)
 
     def _bytewise(self, p: Param) -> bool:
         return p.type != REAL32 and self.personality is not ARDUPILOT

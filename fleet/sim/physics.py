@@ -30,7 +30,8 @@ class Limits:
     descent_rate: float = 1.5  #: m/s
     land_speed: float = 0.5  #: m/s, the final descent of a landing
     land_speed_high_alt: float = 10.0  #: m, above this a landing descends at descent_rate
-    gain: float = 1.5  #: 1/s, position error to speed near a target
+    gain: float = 1.0  #: 1/s, position error to speed near a target (ArduCopter's jerk / (2 accel), PX4's MPC_XY_P)
+    gain_z: float = 1.5  #: 1/s, the same vertically
 
 
 @dataclass(frozen=True)
@@ -131,7 +132,7 @@ class Body:
             return max(-lim.climb_rate, min(lim.descent_rate, t.vd))
         dd = t.down - self.down
         limit = lim.descent_rate if dd > 0 else lim.climb_rate
-        speed = min(limit, math.sqrt(2 * lim.max_accel * abs(dd)), lim.gain * abs(dd))
+        speed = min(limit, math.sqrt(2 * lim.max_accel * abs(dd)), lim.gain_z * abs(dd))
         return math.copysign(speed, dd)
 
 

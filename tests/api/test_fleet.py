@@ -32,7 +32,8 @@ def test_workspace_gives_the_grid_with_obstacles_as_cells(settings: ApiSettings,
     async def body() -> None:
         async with running(settings, workspace) as h:
             ws = (await h.client.get("/v1/workspace", headers=auth())).json()
-            assert ws["size"] == [10, 8, 1] and ws["cell_size_m"] == 1.0 and ws["tau_s"] == 1.0 and ws["delta"] == 0
+            assert ws["size"] == [10, 8, 1] and ws["cell_size_m"] == 1.0 and ws["tau_s"] == 1.0
+            assert (ws["beta_s"], ws["lambda_s"], ws["delta"]) == (0.0, 1.882, 2)
             assert len(ws["obstacles"]) == 2 * 4 + 3 and [4, 2, 0] in ws["obstacles"] and [9, 3, 0] in ws["obstacles"]
             assert ws["charging_stations"] == [[0, 0, 0], [9, 7, 0]]
             assert ws["drones"] == {"d1": [1, 0, 0], "d2": [2, 0, 0], "d3": [8, 7, 0]}

@@ -44,7 +44,8 @@ def workspace_yaml(drones: int) -> str:
     starts = [(1 + 2 * (i % 4), 1 + 7 * (i // 4)) for i in range(drones)]
     parking = [(0, 2 + 2 * (i % 4)) if i < 4 else (9, 2 + 2 * (i % 4)) for i in range(drones)]
     lines = [
-        "name: integration", "size: [10, 10, 1]", "cell_size_m: 1.0", "tau_s: 0.5", "beta_s: 0.2",
+        # Vehicles at SPEEDUP enter their cells within a tenth of a second: lambda is theirs, not ArduCopter's.
+        "name: integration", "size: [10, 10, 1]", "cell_size_m: 1.0", "tau_s: 0.5", "beta_s: 0.2", "lambda_s: 0.5",
         "geo_origin: {lat: 47.397742, lon: 8.545594, alt_m: 488.0, layer0_alt_m: 2.0}",
         "obstacles:", "  - box: [[4, 4, 0], [5, 5, 0]]",
         "charging_stations: [[0, 0, 0], [9, 9, 0]]",
