@@ -588,15 +588,17 @@ def test_a_vehicle_later_than_lambda_holds_where_its_plan_ends_and_takes_no_task
         seen: list[str] = []
         for step in range(40):
             agent.on_step(StepReport(step, stack.executor.cell, None, 0.0, False, 0.0), agent.tick(step))
-            agent.vehicle.airborne = True
+            agent.vehicle.airborne = not seen[1:]
             if stack.executor.flying and stack.executor.cell != (0, 0, 0) and agent.late is None and not seen:
                 agent.on_sample(Sample(step, stack.executor.cell, (0, 0, 0), None))  # still at the start
                 seen.append(f"late: off since {stack.protocol.off_since}")
                 with pytest.raises(ProblemError, match="its vehicle was not in"):
                     agent.mail.take(MailOrder(id="refused", pickup=[2, 2, 0], dropoff=[4, 4, 0], priority=5))
             elif seen and stack.executor.trajectory is None and agent.late is not None:
-                vehicle.cell = stack.executor.cell
+                vehicle.cell, vehicle.seen_at = stack.executor.cell, vehicle.seen_at + 1.0
+                agent.vehicle.airborne = False  # landed there (SITL found a drone late for good once landed)
                 agent.on_sample(Sample(step, stack.executor.cell, stack.executor.cell, 0.4))
+                agent.vehicle.airborne = True
                 seen.append(f"on time: off since {stack.protocol.off_since}")
                 agent.mail.take(MailOrder(id="again", pickup=[2, 2, 0], dropoff=[4, 4, 0], priority=5))
             await asyncio.sleep(0)

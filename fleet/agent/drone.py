@@ -277,8 +277,19 @@ class DroneAgent:
         flown = sample.planned if sample.late_s is not None else seen
         if self.record is not None and seen is not None and flown is not None:
             self.record.write(record_line(sample.step, self.me, flown, sample.planned, self.delta))
-        if not (self.down or self.watch.lost or not self.vehicle.settled):
+        if self.down or self.watch.lost:
+            return
+        if self.late is not None and seen == sample.planned and self.stack.executor.trajectory is None:
+            self._on_time_again()  # in the air or landed below it: its vehicle is where its plan ended
+        elif self.vehicle.settled:
             self._judge_lateness(sample)
+
+    def _on_time_again(self) -> None:
+        log.warning("%s: its vehicle is where its plan ended: it takes tasks again", self.me)
+        self.late = None
+        self._carry_out(self.stack.tracking_bound(False, ""))
+        self.mail.refusal = self._refusal()
+        self._alarm("late", None)
 
     def _judge_lateness(self, sample: Sample) -> None:
         """Later than lambda, the margin peers planned with is gone: hold where the plan ends, until the
@@ -289,10 +300,6 @@ class DroneAgent:
             log.warning("%s: %s: it holds where its plan ends, and takes no task until it is on time", self.me,
                         self.late)
             self._carry_out(self.stack.tracking_bound(True, f"drone {self.me}'s vehicle is later than lambda"))
-        elif self.late is not None and sample.actual == sample.planned and self.stack.executor.trajectory is None:
-            log.warning("%s: its vehicle is where its plan ended: it takes tasks again", self.me)
-            self.late = None
-            self._carry_out(self.stack.tracking_bound(False, ""))
         self.mail.refusal = self._refusal()
         self._alarm("late", None if self.late is None else f"late: {self.late}")
 
