@@ -767,3 +767,16 @@ def test_mail_on_board_whose_drop_off_is_walled_off_hands_the_queue_back() -> No
     actions = mp.decide(0, 100.0, set())
     assert [(a.request.id, "cut off" in a.reason) for a in actions if isinstance(a, MailRejected)] == [("next", True)]
     assert mp.current == carried and mp.queue == [] and mp.decide(1, 100.0, set()) == []
+
+
+def test_a_drone_whose_battery_reaches_no_charger_hands_its_mail_back() -> None:
+    """Found by the tester (sweep seed 98791: 5 drones, 8x8): its way to a charger blocked, a drone
+    waited until its battery afforded neither charger, then held three mails on the ground for good."""
+    mp = MailPlanner(c(5, 5), (Q1, Q2), (P1, P2), manhattan, MODEL)
+    mp.assign(mail("a", c(1, 5), c(2, 5)))
+    mp.assign(mail("b", c(3, 5), c(4, 5)))
+    mp.battery_low()
+    actions = mp.decide(0, 25.0, set())  # 9 and 10 cells to the chargers; the floor is 20
+    assert sorted(a.request.id for a in actions if isinstance(a, MailRejected)) == ["a", "b"]
+    assert "reaches no charger" in next(a for a in actions if isinstance(a, MailRejected)).reason
+    assert mp.queue == []

@@ -549,7 +549,8 @@ class MailPlanner:
                 self.low = True
                 return self._to_charger(budget, taken)
             self.landed_here = True  # no charger in reach: wait on the ground
-            return []
+            # Waiting, it would hold mail for good: another drone flies what is not on board.
+            return self.release("its battery reaches no charger") if purpose is Phase.TO_CHARGER else []
         untried = [c for c in ranked if c not in self.tried]  # after a failure, the next one
         if not untried:
             self.tried.clear()
