@@ -771,15 +771,12 @@ class CoordinationProtocol:
     def _on_clock_bound(self, event: ClockBound, now: int) -> list[Action]:
         """My clock is off (every cell of the rest of my plan is held for good in my answers), or back
         within; ``outliers``' proposals get no ack of mine, and their plans are held for good."""
-        was_off = self.off_since is not None
-        if event.mine_off and not was_off:
+        if event.mine_off and self.off_since is None:
             self.off_since = now
         elif not event.mine_off:
             self.off_since = None
         self.outliers = event.outliers
-        if event.mine_off and not was_off:  # plans made on my steps may cross me: every peer steers clear now
-            return [Holding(self.holds())]
-        return [Holding(())] if was_off and not event.mine_off and self.lost is None else []
+        return []
 
     def _on_vehicle_lost(self, event: VehicleLost, now: int) -> list[Action]:
         """Every peer is told at once where my vehicle may be: plans made before avoided only my plan."""

@@ -34,10 +34,10 @@ from tests.conftest import fleet_tls_dir
 
 DRONA = [sys.executable, "-m", "fleet.cli"]
 SPEEDUP = 6.0  #: the fake vehicles' simulated seconds per second: they track a cell per tau easily
-#: Delta + 1 (Delta 2 with the workspace's lambda), and 6 steps (3 s) for the take-off: the fake spools up
+#: Delta + 1 (Delta 2 with the workspace's lambda), and 3 steps (1.5 s) for the take-off: the fake spools up
 #: for 3.5 s and climbs 2 m (simulated, about 1.2 s at SPEEDUP), after the mode change and arming are
 #: acknowledged and confirmed. A vehicle still climbing when its plan moves on is late, past lambda.
-LEAD_STEPS = 9
+LEAD_STEPS = 6
 
 
 def workspace_yaml(drones: int) -> str:
