@@ -34,10 +34,10 @@ from tests.conftest import fleet_tls_dir
 
 DRONA = [sys.executable, "-m", "fleet.cli"]
 SPEEDUP = 6.0  #: the fake vehicles' simulated seconds per second: they track a cell per tau easily
-#: Delta + 1 (Delta 2 with the workspace's lambda), and 3 steps (1.5 s) for the take-off: the fake spools up
-#: for 3.5 s and climbs 2 m (simulated, about 1.2 s at SPEEDUP), after the mode change and arming are
-#: acknowledged and confirmed. A vehicle still climbing when its plan moves on is late, past lambda.
-LEAD_STEPS = 6
+#: Delta + 1, and 6 steps (3 s) for the take-off: the fake spools up for 3.5 s and climbs 2 m (simulated,
+#: about 1.2 s at SPEEDUP), after the mode change and arming are acknowledged and confirmed. A vehicle
+#: still climbing when its plan moves on is late, past lambda.
+LEAD_STEPS = 8
 
 
 def workspace_yaml(drones: int) -> str:
@@ -45,8 +45,8 @@ def workspace_yaml(drones: int) -> str:
     starts = [(1 + 2 * (i % 4), 1 + 7 * (i // 4)) for i in range(drones)]
     parking = [(0, 2 + 2 * (i % 4)) if i < 4 else (9, 2 + 2 * (i % 4)) for i in range(drones)]
     lines = [
-        # Vehicles at SPEEDUP enter their cells within a tenth of a second: lambda is theirs, not ArduCopter's.
-        "name: integration", "size: [10, 10, 1]", "cell_size_m: 1.0", "tau_s: 0.5", "beta_s: 0.2", "lambda_s: 0.5",
+        # Vehicles at SPEEDUP enter their cells within a fifth of a second: lambda is theirs, not ArduCopter's.
+        "name: integration", "size: [10, 10, 1]", "cell_size_m: 1.0", "tau_s: 0.5", "beta_s: 0.2", "lambda_s: 0.3",
         "geo_origin: {lat: 47.397742, lon: 8.545594, alt_m: 488.0, layer0_alt_m: 2.0}",
         "obstacles:", "  - box: [[4, 4, 0], [5, 5, 0]]",
         "charging_stations: [[0, 0, 0], [9, 9, 0]]",
