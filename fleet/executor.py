@@ -87,10 +87,13 @@ class SetpointLoop:
 
     def __init__(self, sink: SetpointSink, frame: GeoFrame, executor: PlanExecutor, epoch: float, tau: float,
                  clock: Callable[[], float], check_hz: float = 10.0, lag_tolerance_m: float | None = None,
-                 tick: Callable[[int], Sequence[object]] | None = None, lateness_s: float = 0.0) -> None:
+                 tick: Callable[[int], Sequence[object]] | None = None, lateness_s: float = 0.0,
+                 link_clock: Callable[[], float] | None = None) -> None:
         if tau <= 0 or check_hz <= 0 or lateness_s < 0:
             raise ValueError("tau and check_hz must be > 0, lateness_s >= 0")
         self.lateness = lateness_s
+        #: the clock positions are stamped with (None: ``clock``): an arrival counts when it was reported
+        self.link_clock = link_clock or clock
         #: steps taken whose sample is not yet due, oldest first
         self.arrivals: collections.deque[_Arrival] = collections.deque()
         self.sink, self.frame, self.executor = sink, frame, executor
@@ -194,10 +197,14 @@ class SetpointLoop:
 
     def look(self, now: float) -> None:
         """Note the steps whose cell the vehicle is in now, for the first time."""
-        here = self._here() if self.arrivals and not self.suspended else None
+        position = self.sink.last_position() if self.arrivals and not self.suspended else None
+        if position is None:
+            return
+        here = self.frame.locate(position.ned).cell
+        seen = now - max(0.0, self.link_clock() - position.at)  # a look the process was late to make
         for arrival in self.arrivals:
             if arrival.seen_at is None and here == arrival.cell:
-                arrival.seen_at = now
+                arrival.seen_at = max(seen, arrival.boundary)
 
     @property
     def arriving(self) -> bool:

@@ -251,3 +251,24 @@ def test_a_vehicle_not_in_its_cell_lambda_after_the_boundary_is_sampled_late() -
            samples=samples)
     behind = [s for s in samples if s.step >= 4]
     assert behind and all(s.late_s is None and s.actual != s.planned for s in behind)
+
+
+def test_an_arrival_counts_when_telemetry_reported_it_not_when_a_stalled_loop_looked() -> None:
+    """A loaded process looks 0.4 s after the boundary; the vehicle's position, reported 0.05 s after
+    it, already puts it in the step's cell: it was 0.05 s late, not 0.4 s (a suite under load raised
+    late alarms for vehicles on time)."""
+    class Reported:
+        async def send_position_target(self, target: Ned) -> None:
+            return None
+
+        def last_position(self) -> Position | None:
+            return Position(FRAME.cell_to_ned((1, 0, 0)), 100.05)  # on the link's clock
+
+    executor = PlanExecutor((0, 0, 0))
+    executor.start(Trajectory(1, ((0, 0, 0), (1, 0, 0))))
+    loop = SetpointLoop(Reported(), FRAME, executor, 0.0, 1.0, lambda: 10.4, lateness_s=0.3,
+                        link_clock=lambda: 100.4)
+    for step in range(3):
+        loop.take(step, 10.0 if step == 2 else step - 10.0)
+    sample = loop.sample(2)
+    assert sample is not None and sample.late_s == pytest.approx(0.05)

@@ -389,6 +389,9 @@ def test_cli_says_on_exit_when_a_serial_line_had_no_room() -> None:
     (["--serial", "--baud", "0"], "--baud must be > 0, got 0"),
     (["--baud", "9600"], "--baud is the rate of a serial line: it needs --serial"),
     (["--serial", "--base-port", "5760"], "--base-port: a serial line has no port"),
+    (["--param", "FOO=1"], "--param: ardupilot has no parameter FOO"),
+    (["--param", "PSC_JERK_XY"], "--param must be NAME=VALUE with a finite number, got 'PSC_JERK_XY'"),
+    (["--autopilot", "px4", "--param", "PSC_JERK_XY=10"], "--param: px4 has no parameter PSC_JERK_XY"),
 ])
 def test_cli_refuses_serial_flags_that_do_not_fit(flags: list[str], problem: str,
                                                   capsys: pytest.CaptureFixture[str]) -> None:

@@ -281,27 +281,23 @@ class DroneAgent:
             return
         if self.late is not None and seen == sample.planned and self.stack.executor.trajectory is None:
             self._on_time_again()  # in the air or landed below it: its vehicle is where its plan ended
-        elif self.vehicle.settled:
-            self._judge_lateness(sample)
+        elif self.late is None and sample.late_s is None and self.vehicle.settled:
+            self._late(sample)
+        self.mail.refusal = self._refusal()
+        self._alarm("late", None if self.late is None else f"late: {self.late}")
 
     def _on_time_again(self) -> None:
         log.warning("%s: its vehicle is where its plan ended: it takes tasks again", self.me)
         self.late = None
         self._carry_out(self.stack.tracking_bound(False, ""))
-        self.mail.refusal = self._refusal()
-        self._alarm("late", None)
 
-    def _judge_lateness(self, sample: Sample) -> None:
+    def _late(self, sample: Sample) -> None:
         """Later than lambda, the margin peers planned with is gone: hold where the plan ends, until the
         vehicle is there."""
-        if sample.late_s is None and self.late is None:
-            self.late = (f"its vehicle was not in {list(sample.planned)} {self.ws.lateness_s:g} s (lambda) after "
-                         f"step {sample.step} began")
-            log.warning("%s: %s: it holds where its plan ends, and takes no task until it is on time", self.me,
-                        self.late)
-            self._carry_out(self.stack.tracking_bound(True, f"drone {self.me}'s vehicle is later than lambda"))
-        self.mail.refusal = self._refusal()
-        self._alarm("late", None if self.late is None else f"late: {self.late}")
+        self.late = (f"its vehicle was not in {list(sample.planned)} {self.ws.lateness_s:g} s (lambda) after "
+                     f"step {sample.step} began")
+        log.warning("%s: %s: it holds where its plan ends, and takes no task until it is on time", self.me, self.late)
+        self._carry_out(self.stack.tracking_bound(True, f"drone {self.me}'s vehicle is later than lambda"))
 
     def _lag(self, report: StepReport) -> str | None:
         """Trailing its timed trajectory, or on the ground while its plan flies: the separation argument

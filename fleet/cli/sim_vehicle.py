@@ -28,7 +28,7 @@ from drona_gcs.workspace_files import load_workspace
 from fleet import runtime
 from fleet.sim.config import VehicleConfig
 from fleet.sim.fleet import FleetConfig, SimNode, run_fleet
-from fleet.sim.params import TABLES, starting_limits
+from fleet.sim.params import ParamStore, starting_limits
 from fleet.sim.personality import PERSONALITIES
 from fleet.sim.transport import PtyLink
 from fleet.vehicle.signing import parse_key
@@ -130,9 +130,7 @@ def _config(args: argparse.Namespace) -> FleetConfig:
     vehicle = VehicleConfig(personality=personality, limits=limits, ready_after_s=args.ready_after,
                             spool_up_s=args.spool_up, auto_disarm_s=args.auto_disarm, battery_pct=args.battery,
                             params=tuple(_param(text) for text in args.param))
-    unknown = sorted({name for name, _ in vehicle.params} - {p.name for p in TABLES[personality.name]})
-    if unknown:
-        raise ValueError(f"--param: {args.autopilot} has no parameter {', '.join(unknown)}")
+    ParamStore(vehicle)  # refuses a parameter its autopilot does not have, before any vehicle starts
     key = parse_key(args.signing_key, "--signing-key") if args.signing_key else None
     return FleetConfig(count=args.count, vehicle=vehicle, tcp=args.tcp, host=args.host, base_port=args.base_port,
                        speedup=args.speedup, signing_key=key, serial_baud=baud if args.serial else None,

@@ -150,7 +150,7 @@ class ParamStore:
         self._values = [_starting_value(p, start) for p in self.table]
         for name, value in config.params:
             if name not in self._index:
-                raise ValueError(f"{config.personality.name} has no parameter {name!r}")
+                raise ValueError(f"--param: {config.personality.name} has no parameter {name}")
             self._values[self._index[name]] = _stored(self.table[self._index[name]], value)
         self._driver = {s: i for i, p in enumerate(self.table) for s in p.drives}
         self._fixed = {s: start.get(s, FALLBACK.get(s, 0.0)) for s in Setting if s not in self._driver}

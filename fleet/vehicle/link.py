@@ -166,6 +166,8 @@ class SetpointSink(Protocol):
 class VehicleLink(SetpointSink, Protocol):
     """The whole link: connection, readiness, commands and telemetry."""
 
+    clock: Callable[[], float]  #: what :attr:`Position.at` and the other telemetry times are read on
+
     async def connect(self, timeout: float = ...) -> None: ...
 
     async def wait_ready(self, timeout: float) -> None: ...
