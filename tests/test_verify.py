@@ -515,3 +515,13 @@ def test_verify_on_a_workspace_explores_its_own_separation_window(tmp_path: Path
     verify_cli.add_arguments(parser)
     scenario = verify_cli._scenario(parser.parse_args(["--workspace", str(path), "--max-depth", "100", *given]))
     assert scenario.delta == delta
+
+
+def test_a_drone_that_stops_where_it_stands_short_of_a_held_cell_is_no_violation() -> None:
+    """Found by sweep 9914: d0, carrying mail, had not left its first cell when a departed peer came to
+    hold a cell of its plan; it stopped where it stood. Monitor (f) compared the plans only as long as
+    the new one, a single cell, so it saw nothing made new and called the stop a detour."""
+    scenario = Scenario(drones=6, requests=8, delta=1, seed=625805, grid=(8, 8, 1), obstacles=0.0, crashes=1,
+                        partitions=1, max_delay=2)
+    outcome = Explorer(scenario).run(Strategy.PCT, schedules=20, max_depth=5000, seed=625805)
+    assert outcome.violation is None, str(outcome.violation)

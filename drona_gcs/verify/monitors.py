@@ -373,7 +373,8 @@ class Monitors:
         """The plan flown, made new from some step on, ends short of its goal: fine when the rest of
         the old one crossed a cell a vehicle down, or a drone this one saw leave, may hold for good."""
         old = self.committed[drone]
-        parting = next((t for t in range(new.start_step, new.end_step + 1) if _at(new, t) != _at(old, t)), None)
+        horizon = max(new.end_step, old.end_step)  # a stop where it stands is one cell: it parts after it
+        parting = next((t for t in range(new.start_step, horizon + 1) if _at(new, t) != _at(old, t)), None)
         if new.start_step >= old.end_step or parting is None or parting <= new.start_step:
             return False  # not the rest of the plan flown made new
         rest = {_at(old, t) for t in range(parting, old.end_step + 1)}
