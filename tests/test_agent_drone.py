@@ -595,6 +595,10 @@ def test_a_vehicle_later_than_lambda_holds_where_its_plan_ends_and_takes_no_task
                 with pytest.raises(ProblemError, match="its vehicle was not in"):
                     agent.mail.take(MailOrder(id="refused", pickup=[2, 2, 0], dropoff=[4, 4, 0], priority=5))
             elif seen and stack.executor.trajectory is None and agent.late is not None:
+                # Seen in the cell of the step sampled (lambda ago), not yet where the plan ended: still late.
+                vehicle.cell, vehicle.seen_at = (2, 0, 0), vehicle.seen_at + 1.0
+                agent.on_sample(Sample(step, (2, 0, 0), (2, 0, 0), 0.4))
+                assert agent.late is not None and stack.executor.cell != (2, 0, 0)
                 vehicle.cell, vehicle.seen_at = stack.executor.cell, vehicle.seen_at + 1.0
                 agent.vehicle.airborne = False  # landed there (SITL found a drone late for good once landed)
                 agent.on_sample(Sample(step, stack.executor.cell, stack.executor.cell, 0.4))

@@ -279,7 +279,7 @@ class DroneAgent:
             self.record.write(record_line(sample.step, self.me, flown, sample.planned, self.delta))
         if self.down or self.watch.lost:
             return
-        if self.late is not None and seen == sample.planned and self.stack.executor.trajectory is None:
+        if self.late is not None and seen == self.stack.executor.cell and self.stack.executor.trajectory is None:
             self._on_time_again()  # in the air or landed below it: its vehicle is where its plan ended
         elif self.late is None and sample.late_s is None and self.vehicle.settled:
             self._late(sample)
