@@ -103,6 +103,21 @@ class GeoFrame:
         error = math.dist((ned.north, ned.east, ned.down), (centre.north, centre.east, centre.down))
         return CellFix(cell if self.ws.in_bounds(cell) else None, error)
 
+    def column_cell(self, ned: Ned) -> Cell | None:
+        """The lowest cell over a position (None outside the grid, or on an obstacle): a vehicle on the
+        ground, taking off or landing there meets no other drone, as in that cell."""
+        size, ws = self.ws.cell_size_m, self.ws
+        cell = (math.floor(ned.east / size), math.floor(ned.north / size), 0)
+        return cell if ws.in_bounds(cell) and cell not in ws.obstacles else None
+
+    def recorded_cell(self, ned: Ned) -> Cell | None:
+        """The cell a flight record puts a position in: the one it is in, or below the grid (landed,
+        climbing) the cell over it (None: outside the grid)."""
+        cell = self.locate(ned).cell
+        if cell is not None:
+            return cell
+        return self.column_cell(ned) if -ned.down < self.ws.geo.layer0_alt_m else None
+
     def locate_global(self, point: GeoPoint) -> CellFix:
         return self.locate(self.global_to_ned(point))
 

@@ -53,7 +53,8 @@ class StepReport:
 
 @dataclass(frozen=True)
 class Sample:
-    """Lambda after boundary ``step``: whether telemetry saw the vehicle in the step's cell by then.
+    """Lambda after boundary ``step``: whether telemetry saw the vehicle in the step's cell by then
+    (as the flight record places it: under the grid, in the cell over it).
 
     Within its bound, a vehicle enters each cell by lambda after its step begins and leaves it no
     sooner than the next step (it is never sent further): that is what the separation window
@@ -200,7 +201,7 @@ class SetpointLoop:
         position = self.sink.last_position() if self.arrivals and not self.suspended else None
         if position is None:
             return
-        here = self.frame.locate(position.ned).cell
+        here = self.frame.recorded_cell(position.ned)  # below the grid: over its take-off or landing
         seen = now - max(0.0, self.link_clock() - position.at)  # a look the process was late to make
         for arrival in self.arrivals:
             if arrival.seen_at is None and here == arrival.cell:

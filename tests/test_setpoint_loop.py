@@ -272,3 +272,27 @@ def test_an_arrival_counts_when_telemetry_reported_it_not_when_a_stalled_loop_lo
         loop.take(step, 10.0 if step == 2 else step - 10.0)
     sample = loop.sample(2)
     assert sample is not None and sample.late_s == pytest.approx(0.05)
+
+
+@pytest.mark.parametrize("layer, on_time", [(0, True), (1, False)])
+def test_a_vehicle_climbing_under_its_lowest_layer_cell_is_in_it(layer: int, on_time: bool) -> None:
+    """Below the grid (still climbing, or coming down to land) a vehicle is in its own column, where it
+    meets no drone, as in the cell over it: on time there, as the flight record has it (under load the
+    suite's drones took off after their plans began, and were called late). Under a higher cell it is not."""
+    ws = Workspace.build(size=(4, 4, 2), cell_size_m=2.0, tau_s=1.0)
+    frame = GeoFrame(ws)
+    cell: Cell = (1, 1, layer)
+    climbing = Ned(frame.cell_to_ned(cell).north, frame.cell_to_ned(cell).east, -0.3)
+
+    class Climbing:
+        async def send_position_target(self, target: Ned) -> None:
+            return None
+
+        def last_position(self) -> Position | None:
+            return Position(climbing, 0.1)
+
+    executor = PlanExecutor(cell)
+    loop = SetpointLoop(Climbing(), frame, executor, 0.0, 1.0, lambda: 0.2, lateness_s=0.3)
+    loop.take(0, 0.0)
+    sample = loop.sample(0)
+    assert sample is not None and (sample.late_s is not None) == on_time, sample

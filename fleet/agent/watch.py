@@ -15,7 +15,6 @@ what the vehicle last reported; the watch turns that into what the drone must do
 from __future__ import annotations
 
 import enum
-import math
 from dataclasses import dataclass
 
 from drona_gcs.geo import GeoFrame
@@ -88,7 +87,7 @@ class VehicleWatch:
         self.lost_since = self.lost_at = None
         cell = self.frame.locate(position.ned).cell
         if _on_the_ground(t):
-            column = self._column(position.ned.east, position.ned.north)
+            column = self.frame.column_cell(position.ned)
             if column is not None:
                 return Verdict(Seen.BACK, cell=column, landed=True)
         if cell is not None and cell in held:
@@ -107,16 +106,10 @@ class VehicleWatch:
         return self.recorded_cell() if fresh else None
 
     def recorded_cell(self) -> Cell | None:
-        """Where telemetry puts the vehicle for the flight record; below the grid (landed, climbing) it is
-        in its cell's column (None: no position, or outside the grid)."""
+        """Where telemetry puts the vehicle for the flight record (GeoFrame.recorded_cell; None: no
+        position, or outside the grid)."""
         position = self.link.last_position()
-        if position is None:
-            return None
-        cell = self.frame.locate(position.ned).cell
-        if cell is not None:
-            return cell
-        below = -position.ned.down < self.frame.ws.geo.layer0_alt_m
-        return self._column(position.ned.east, position.ned.north) if below else None
+        return None if position is None else self.frame.recorded_cell(position.ned)
 
     def misplaced(self, start: Cell) -> str | None:
         """The stack starts the drone at its start cell: its vehicle must be there (in that column), or its
@@ -135,13 +128,6 @@ class VehicleWatch:
         return VehicleView(status=status.value, reason=reason, mode=t.mode, armed=t.armed,
                            landed=t.landed.name.lower(), height_m=t.height_m, gps_fix=t.gps_fix,
                            satellites=t.satellites, battery_v=t.battery_v)
-
-    def _column(self, east: float, north: float) -> Cell | None:
-        """The lowest cell above a landed vehicle (None outside the grid, or on an obstacle)."""
-        size, ws = self.frame.ws.cell_size_m, self.frame.ws
-        cell = (math.floor(east / size), math.floor(north / size), 0)
-        return cell if ws.in_bounds(cell) and cell not in ws.obstacles else None
-
 
 def _on_the_ground(t: Telemetry) -> bool:
     return t.landed is LandedState.ON_GROUND or (not t.armed and (t.height_m or 0.0) < 0.5)
