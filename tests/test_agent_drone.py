@@ -120,8 +120,8 @@ def test_a_vehicle_down_by_itself_hands_its_mail_back_and_the_drone_starts_no_ta
     node, agent, later = asyncio.run(scenario())
     why = "drone d1's vehicle came down by itself in [0, 0, 0]"
     assert node.statuses("first") == [(MailStatus.ACCEPTED, ""), (MailStatus.STARTED, ""),
-                                      (MailStatus.REJECTED, why)]
-    assert node.statuses("next") == [(MailStatus.ACCEPTED, ""), (MailStatus.REJECTED, why)]
+                                      (MailStatus.HANDED_BACK, why)]
+    assert node.statuses("next") == [(MailStatus.ACCEPTED, ""), (MailStatus.HANDED_BACK, why)]
     assert agent.mail.held() == []
     assert "came down" in agent.alarms["down"]
     kinds = {type(a).__name__ for a in later if not isinstance(a, Exception)}
@@ -335,7 +335,7 @@ def test_a_lost_vehicle_is_its_drones_problem_and_back_in_a_held_cell_the_drone_
         agent.tick(step + 2)
         await asyncio.sleep(0)
         assert agent.alarms["vehicle_lost"].startswith("vehicle_lost: vehicle 1 on udpin")
-        assert node.statuses("m")[-1] == (MailStatus.REJECTED, "drone d1's vehicle is lost")
+        assert node.statuses("m")[-1] == (MailStatus.HANDED_BACK, "drone d1's vehicle is lost")
         assert set(stack.protocol.holds()) >= set(plan.suffix_from(step + 2).cells) | {seen}
         asked = ReqForCurrentTraj(TaskId(step + 50, "d2", 9), "d2", Trajectory.stationary((7, 7, 0), step), ("d1",))
         node.puts.clear()
@@ -464,7 +464,7 @@ def test_an_operators_command_reaches_the_stack_and_is_acknowledged() -> None:
         return agent, node
 
     agent, node = asyncio.run(scenario())
-    assert node.statuses("m") == [(MailStatus.ACCEPTED, ""), (MailStatus.REJECTED, "recall by operator ops")]
+    assert node.statuses("m") == [(MailStatus.ACCEPTED, ""), (MailStatus.HANDED_BACK, "recall by operator ops")]
     assert agent.state().command == "recall"
     [(key, payload)] = replies
     ack = decode(payload).body
@@ -576,6 +576,48 @@ def test_a_gone_drone_back_within_the_lease_keeps_its_mail() -> None:
     assert asyncio.run(scenario()).statuses("q") == []
 
 
+@pytest.mark.parametrize("in_touch, service", [(True, False), (False, False), (True, True)],
+                         ids=["majority", "cut-off", "a-service-dispatches"])
+def test_the_heir_takes_over_mail_a_live_drone_handed_back_at_once(in_touch: bool, service: bool) -> None:
+    """A drone late, or whose vehicle is lost, hands back the mail it cannot fly now: with no service to
+    reassign it (the suite's fleet, ``drona mail``) it was lost. It lists it handed back; its heir takes it
+    over at the next boundary (it gave it up: no lease), in touch with most of the fleet; under a service,
+    the service reassigns it."""
+    async def scenario() -> RecordingNode:
+        handed = MailView(id="h", pickup=[2, 2, 0], dropoff=[4, 4, 0], priority=3, stage="handed_back")
+        node, agent = _heir_of_d2(handed)
+        agent.mail.adopt = not service
+        if not in_touch:  # cut off from both since d2's list came
+            agent._on_liveliness(KEYS.alive("d3"), False)
+            agent._on_liveliness(KEYS.alive("d2"), False)
+        agent.tick(0)
+        agent.tick(1)
+        return node
+
+    node = asyncio.run(scenario())
+    adopted = [(MailStatus.ACCEPTED, ""), (MailStatus.REASSIGNED, "drone d2 handed it back")]
+    assert node.statuses("h")[:2] == (adopted if in_touch and not service else [])
+    assert node.statuses("q") == []  # d2 holds it still
+
+
+def test_a_drone_lists_what_it_handed_back_until_a_peer_holds_it() -> None:
+    """The heir learns what to take over from the list; once a peer lists the mail, it is the peer's."""
+    async def scenario() -> tuple[list[list[str]], list[tuple[MailStatus, str]]]:
+        node, agent = _heir_of_d2()
+        agent.mail.take(MailOrder(id="m", pickup=[3, 0, 0], dropoff=[5, 5, 0], priority=9))
+        agent._carry_out(agent.stack.tracking_bound(True, "drone d1's vehicle is later than lambda"))
+        await asyncio.sleep(0)
+        lists = [[f"{m.id}:{m.stage}" for m in agent.mail.listed()]]
+        taken = MailView(id="m", pickup=[3, 0, 0], dropoff=[5, 5, 0], priority=9, stage="queued")
+        agent.mail._on_peer_mail(KEYS.held("d3"), encode("d3", 1000.0, HeldMail(drone="d3", mail=[taken])))
+        lists.append([f"{m.id}:{m.stage}" for m in agent.mail.listed()])
+        return lists, node.statuses("m")
+
+    lists, statuses = asyncio.run(scenario())
+    assert lists == [["m:handed_back"], []]
+    assert statuses[-1] == (MailStatus.HANDED_BACK, "drone d1's vehicle is later than lambda")
+
+
 def test_a_vehicle_later_than_lambda_holds_where_its_plan_ends_and_takes_no_task_until_on_time() -> None:
     """Peers plan with a margin of lambda for a vehicle's lateness: past it, the margin is gone. The
     drone plans nothing more, hands back the mail not on board, and every peer holds the rest of its
@@ -611,6 +653,6 @@ def test_a_vehicle_later_than_lambda_holds_where_its_plan_ends_and_takes_no_task
     node, agent, seen = asyncio.run(scenario())
     assert seen[0].startswith("late: off since ") and seen[0] != "late: off since None"
     assert seen[1:] == ["on time: off since None"]
-    assert node.statuses("first")[-1] == (MailStatus.REJECTED, "drone d1's vehicle is later than lambda")
+    assert node.statuses("first")[-1] == (MailStatus.HANDED_BACK, "drone d1's vehicle is later than lambda")
     assert node.statuses("again")[0] == (MailStatus.ACCEPTED, "")
     assert "late" not in agent.alarms

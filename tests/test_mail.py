@@ -155,8 +155,8 @@ def test_a_vehicle_down_by_itself_hands_back_every_mail_and_its_leg_ends_with_no
     mp.assign(urgent)
     handed = mp.abandon("vehicle down")
     # The waiting mail most urgent first, then the one under way: lost on board, else rejected.
-    under_way = MailLost(m, "vehicle down") if picked_up else MailRejected(m, "vehicle down")
-    assert handed == [MailRejected(urgent, "vehicle down"), MailRejected(later, "vehicle down"), under_way]
+    under_way = MailLost(m, "vehicle down") if picked_up else MailRejected(m, "vehicle down", True)
+    assert handed == [MailRejected(urgent, "vehicle down", True), MailRejected(later, "vehicle down", True), under_way]
     assert (mp.queue, mp.current, mp.carrying) == ([], None, False)
     assert mp.leg_done() == []  # the executor flew the leg to its end: no pickup, no delivery to report
     assert mp.abandon("again") == []

@@ -156,10 +156,12 @@ class MailDelivered:
 
 @dataclass(frozen=True)
 class MailRejected:
-    """A mail no full battery can fly: handed back to whoever assigned it."""
+    """A mail this drone will not fly: handed back to whoever assigned it. ``handed_back``: the mail
+    is fine, the drone is not (its vehicle lost, down, late): another drone may fly it."""
 
     request: MailRequest
     reason: str
+    handed_back: bool = False
 
 
 @dataclass(frozen=True)
@@ -231,20 +233,20 @@ class MailPlanner:
         is handed back, most urgent first. One waiting, or not picked up yet, is rejected (another
         drone may fly it); one on board is lost (it is wherever the vehicle is). A leg under way
         ends with no mail: its end reports nothing."""
-        handed: list[MailAction] = [MailRejected(r, reason) for r in sorted(self.queue, key=lambda r: r.rank)]
+        handed: list[MailAction] = [MailRejected(r, reason, True) for r in sorted(self.queue, key=lambda r: r.rank)]
         self.queue = []
         if self.current is not None:
-            handed.append(MailLost(self.current, reason) if self.carrying else MailRejected(self.current, reason))
+            handed.append(MailLost(self.current, reason) if self.carrying else MailRejected(self.current, reason, True))
             self.current, self.carrying = None, False
         return handed
 
     def release(self, reason: str) -> list[MailAction]:
         """Hand back every mail not on board, most urgent first (the vehicle is lost: another drone
         may fly them); mail on board stays. A leg to a pickup under way ends with no mail."""
-        handed: list[MailAction] = [MailRejected(r, reason) for r in sorted(self.queue, key=lambda r: r.rank)]
+        handed: list[MailAction] = [MailRejected(r, reason, True) for r in sorted(self.queue, key=lambda r: r.rank)]
         self.queue = []
         if self.current is not None and not self.carrying:
-            handed.append(MailRejected(self.current, reason))
+            handed.append(MailRejected(self.current, reason, True))
             self.current = None
         return handed
 

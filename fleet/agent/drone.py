@@ -179,7 +179,7 @@ class DroneAgent:
         actions = self.stack.step(step, level, self.watch.flown(), may_plan=self._may_plan())
         self._carry_out(actions)
         # A lease of grace: a drone cut off (not gone) has seen it too by then, and handed its mail back.
-        self.mail.adopt_due(step, self.alive, self.stack.in_touch, self.lease_steps)
+        self.mail.adopt_due(step, self.alive, self.stack.in_touch)
         return actions
 
     def _may_plan(self) -> bool:
@@ -299,6 +299,12 @@ class DroneAgent:
         log.warning("%s: %s: it holds where its plan ends, and takes no task until it is on time", self.me, self.late)
         self._carry_out(self.stack.tracking_bound(True, f"drone {self.me}'s vehicle is later than lambda"))
 
+    def _held_for_good(self) -> str:
+        """What walls a goal off, for the operator: cells departed drones may hold, and where drones rest."""
+        ghosts = self.stack.protocol.ghost_obstacles()
+        return f"departed {sorted(ghosts)} at {sorted(t.last for t in ghosts.values())}, resting at " \
+               f"{sorted(self.stack.taken_cells())}"
+
     def _lag(self, report: StepReport) -> str | None:
         """Trailing its timed trajectory, or on the ground while its plan flies: the separation argument
         assumes every drone is where its plan says."""
@@ -338,7 +344,8 @@ class DroneAgent:
                 self._alarm("leg", None)  # trying again (or a new leg)
                 self._started(action)
             elif isinstance(action, TaskFailed):
-                log.warning("%s: no plan for task %s: %s", self.me, action.task.id, action.reason)
+                walls = f" (held for good: {self._held_for_good()})" if action.cut_off else ""
+                log.warning("%s: no plan for task %s: %s%s", self.me, action.task.id, action.reason, walls)
             elif isinstance(action, Threatened):
                 log.warning("%s: %s may hold %s of my plan for good: planning its rest anew", self.me,
                             action.departed, [list(c) for c in action.cells])
@@ -459,7 +466,7 @@ class DroneAgent:
             self.alive.discard(peer)
             self.clocks.forget(peer)
             self._carry_out(self.stack.peer_left(peer, self._silent_since(peer)))
-            self.mail.orphan(peer, self.stack.now)
+            self.mail.orphan(peer, self.stack.now + self.lease_steps)
 
     def _silent_since(self, peer: str) -> int:
         """The earliest step ``peer`` may have gone silent at. A lost link is noticed only when the

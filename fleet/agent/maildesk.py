@@ -11,6 +11,11 @@ lease after the leave, by when a drone that was cut off (not gone) has handed ba
 all it had not picked up (see DroneStack). What it carried stays its own: cut off,
 it may yet deliver it; once the operator releases it (out of the air), that mail is
 reported failed. Never failed and then delivered.
+
+A drone that hands back mail it cannot fly now (its vehicle lost, down or late) goes
+on listing it, ``handed_back``, until a peer lists it: with no service to reassign it,
+its heir (the smallest live name but its own) takes it over at once, by the same rule
+of a majority, since the drone gave it up.
 """
 
 from __future__ import annotations
@@ -63,8 +68,9 @@ class MailDesk:
         self.seq = 0
         self.delivered: set[str] = set()  #: a repeated order for one of these is acknowledged, not flown again
         self.peer_mail: dict[str, list[MailView]] = {}  #: what each peer last said it holds
-        #: mail of departed drones nobody took over yet, with the step its drone left at
+        #: mail nobody took over yet: of departed drones, or handed back; whose, and from which step on
         self.orphans: dict[str, tuple[str, MailView, int]] = {}
+        self.handed: dict[str, MailView] = {}  #: mail I handed back that no peer lists yet
         self.stranded: dict[str, tuple[str, MailView]] = {}  #: mail on board departed drones
         self.published: list[MailView] | None = None
 
@@ -120,6 +126,7 @@ class MailDesk:
         if order.id in self.delivered or any(m.id == order.id for m in self.held()):
             return False
         pickup, dropoff = self._cell("pickup", order.pickup), self._cell("dropoff", order.dropoff)
+        self.handed.pop(order.id, None)  # given back to me: mine again
         self.seq += 1
         self.stack.assign(MailRequest(order.id, pickup, dropoff, order.priority, seq=self.seq))
         self.report(order.id, MailStatus.ACCEPTED)
@@ -137,6 +144,9 @@ class MailDesk:
     # ---------------------------------------------------------- progress
     def progress(self, action: MailProgress) -> None:
         status = PROGRESS[type(action)]
+        if isinstance(action, MailRejected) and action.handed_back and self.adopt:
+            self.handed[action.request.id] = _view(action.request, "handed_back")
+            status = MailStatus.HANDED_BACK
         if status is MailStatus.DELIVERED:
             self.delivered.add(action.request.id)
         self.report(action.request.id, status, action.reason if isinstance(action, (MailRejected, MailLost)) else "")
@@ -156,15 +166,19 @@ class MailDesk:
             views.append(_view(planner.current, "carrying" if planner.carrying else "current"))
         return views + [_view(r, "queued") for r in sorted(planner.queue, key=lambda r: r.rank)]
 
+    def listed(self) -> list[MailView]:
+        """What I say I hold: what I fly, and what I handed back that no peer took over yet."""
+        return self.held() + list(self.handed.values())
+
     def publish_held(self) -> None:
         """Say what mail I hold, when it changed: my heir needs it if I go."""
-        held = self.held()
+        held = self.listed()
         if held != self.published:
             self.published = held
             self.node.put(self.keys.held(self.me), encode(self.me, self.clock(), HeldMail(drone=self.me, mail=held)))
 
     def _on_held_query(self, key: str, payload: bytes, query: Query) -> None:
-        query.reply(self.keys.held(self.me), encode(self.me, self.clock(), HeldMail(drone=self.me, mail=self.held())))
+        query.reply(self.keys.held(self.me), encode(self.me, self.clock(), HeldMail(drone=self.me, mail=self.listed())))
 
     def _on_peer_mail(self, key: str, payload: bytes) -> None:
         try:
@@ -174,20 +188,31 @@ class MailDesk:
             return
         writer = self.keys.writer(key)
         if isinstance(body, HeldMail) and body.drone == writer != self.me and writer in self.stack.protocol.peers:
-            self.peer_mail[body.drone] = body.mail
-            for mail in body.mail:  # taken over by that drone (or its own again)
+            held = [m for m in body.mail if m.stage != "handed_back"]
+            self.peer_mail[body.drone] = held
+            for mail in held:  # taken over by that drone (or its own again)
                 self.orphans.pop(mail.id, None)
                 self.stranded.pop(mail.id, None)
+                if self.handed.pop(mail.id, None) is not None:
+                    self.publish_held()
+            for mail in body.mail:
+                if mail.stage == "handed_back" and not self._listed_by_other(mail.id, writer):
+                    self.orphans.setdefault(mail.id, (writer, mail, self.stack.now))
+
+    def _listed_by_other(self, mail_id: str, than: str) -> bool:
+        """Whether a drone other than ``than`` (me too) holds the mail: it took it over already."""
+        mine = any(m.id == mail_id for m in self.held())
+        return mine or any(m.id == mail_id for d, held in self.peer_mail.items() if d != than for m in held)
 
     # ---------------------------------------------------------- adoption
-    def orphan(self, peer: str, step: int) -> None:
-        """``peer`` left at ``step``: what it had not picked up is orphaned until a drone takes it over
+    def orphan(self, peer: str, due: int) -> None:
+        """``peer`` left: what it had not picked up is orphaned, to be taken over from step ``due`` on
         (see :meth:`adopt_due`); what it carried stays its own."""
         for mail in self.peer_mail.pop(peer, []):
             if mail.stage == "carrying":
                 self.stranded[mail.id] = (peer, mail)
             else:
-                self.orphans[mail.id] = (peer, mail, step)
+                self.orphans[mail.id] = (peer, mail, due)
 
     def rejoined(self, peer: str) -> None:
         """``peer`` is back: what it held is its own again (it says what, see :meth:`publish_held`), and
@@ -211,22 +236,24 @@ class MailDesk:
                 self.report(mail_id, MailStatus.FAILED, f"on board drone {drone}, released by the operator",
                             drone=drone)
 
-    def adopt_due(self, step: int, alive: Collection[str], in_touch: bool, grace_steps: int) -> None:
-        """If I am the heir (the smallest live name), in touch with most of the fleet, I take over every
-        orphan whose drone left ``grace_steps`` ago or more. Orphans stay known until some drone says it
-        holds them, so drones leaving together, heirs first, lose nothing."""
-        due = {k: v for k, v in self.orphans.items() if v[2] + grace_steps <= step}
-        if not due or not self.adopt or not in_touch or min({*alive, self.me}) != self.me:
+    def adopt_due(self, step: int, alive: Collection[str], in_touch: bool) -> None:
+        """In touch with most of the fleet, I take over every orphan due by ``step`` whose heir I am (the
+        smallest live name but its drone's). Orphans stay known until some drone says it holds them, so
+        drones leaving together, heirs first, lose nothing."""
+        if not self.adopt or not in_touch:
             return
+        due = {k: v for k, v in self.orphans.items() if v[2] <= step and min({*alive, self.me} - {v[0]}) == self.me}
         for mail_id in due:
             del self.orphans[mail_id]
-        for departed, mail, _ in due.values():
+        for owner, mail, _ in due.values():
+            why = f"drone {owner} {'handed it back' if mail.stage == 'handed_back' else 'left'}"
             order = MailOrder(id=mail.id, pickup=mail.pickup, dropoff=mail.dropoff, priority=mail.priority)
             try:
                 if self.take(order):
-                    self.report(mail.id, MailStatus.REASSIGNED, f"drone {departed} left")
-            except ProblemError as exc:
-                self.report(mail.id, MailStatus.FAILED, f"drone {departed} left; cannot take it over: {exc}")
+                    self.report(mail.id, MailStatus.REASSIGNED, why)
+            except ProblemError as exc:  # handed back, it is whole: back to whoever gave it
+                lost = MailStatus.REJECTED if mail.stage == "handed_back" else MailStatus.FAILED
+                self.report(mail.id, lost, f"{why}; cannot take it over: {exc}")
 
 def _view(request: MailRequest, stage: str) -> MailView:
     return MailView(id=request.id, pickup=list(request.pickup), dropoff=list(request.dropoff),

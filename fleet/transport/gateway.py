@@ -49,6 +49,7 @@ STATUS: dict[MailStatus, str | None] = {
     MailStatus.ACCEPTED: "accepted", MailStatus.STARTED: "started", MailStatus.PICKED_UP: "picked_up",
     MailStatus.DELIVERED: "delivered", MailStatus.REJECTED: "rejected", MailStatus.FAILED: "failed",
     MailStatus.REASSIGNED: "accepted", MailStatus.CANCELLED: None,
+    MailStatus.HANDED_BACK: "rejected",  #: sent only with no service; here, the service reassigns it
 }
 
 

@@ -69,7 +69,8 @@ from drona_gcs.stack.messages import (
 #: 7: keys name their writer (``proto/<sender>/<to>``, ``answers/<sender>``, ``mail/status/<drone>/<mail>``).
 #: 8: ``plan`` says ``braked``;
 #: 9: ``propose``, ``ack`` and ``decide``: a plan is flown once every member holds it; ``plan`` says ``lost``.
-VERSION: Final = 9
+#: 10: ``held`` lists mail handed back that no peer holds yet, and a status says ``handed_back``.
+VERSION: Final = 10
 
 CellList = Annotated[list[int], msgspec.Meta(min_length=3, max_length=3)]
 #: A mail id is a Zenoh key chunk (mail/status/<id>); \Z, not $: "$" would let a final newline through.
@@ -194,13 +195,14 @@ class TaskView(_Strict, frozen=True, kw_only=True):
 
 
 class MailView(_Strict, frozen=True, kw_only=True):
-    """A mail a drone holds: queued, current (flying to its pickup) or on board."""
+    """A mail a drone holds: queued, current (flying to its pickup) or on board; or one it handed back
+    that no peer has taken over yet (with no service, its heir adopts it)."""
 
     id: MailId  #: a departed peer's mail is taken over from these: checked as an order is
     pickup: CellList
     dropoff: CellList
     priority: Priority
-    stage: Literal["queued", "current", "carrying"]
+    stage: Literal["queued", "current", "carrying", "handed_back"]
 
 
 class VehicleView(_Strict, frozen=True, kw_only=True):
@@ -272,6 +274,7 @@ class MailStatus(enum.Enum):
     PICKED_UP = "picked_up"
     DELIVERED = "delivered"
     REJECTED = "rejected"  #: the drone cannot fly it (handed back)
+    HANDED_BACK = "handed_back"  #: the drone cannot fly it now; with no service, a peer takes it over
     FAILED = "failed"  #: lost (with a drone that left while carrying it)
     REASSIGNED = "reassigned"  #: a drone took over the mail of one that left
     CANCELLED = "cancelled"  #: dropped from the queue on request
@@ -322,7 +325,7 @@ Body = (ReqTraj | CurTraj | CurTrajTo | Propose | Ack | Decide | PlanAnnounce | 
 
 
 class Envelope(_Strict, frozen=True, kw_only=True):
-    v: Literal[9] = VERSION
+    v: Literal[10] = VERSION
     sender: Annotated[str, msgspec.Meta(min_length=1)]
     sent_at: float
     body: Body

@@ -253,20 +253,25 @@ class Observer:
         return all(MailStatus.DELIVERED in self.statuses(m) for m in mail_ids)
 
     def priority_violations(self, orders: dict[str, MailOrder]) -> list[str]:
-        """Per drone: a mail started while a more urgent one had already been accepted and waited."""
+        """Per drone: a mail started while a more urgent one had already been accepted and waited (not
+        started, nor given up)."""
         found = []
         accepted: dict[tuple[str, str], int] = {}
         started: dict[tuple[str, str], int] = {}
+        left: dict[tuple[str, str], int] = {}
+        gone = (MailStatus.REJECTED, MailStatus.HANDED_BACK, MailStatus.CANCELLED)
         for r in self.reports:
-            if r.status is MailStatus.ACCEPTED:
+            if r.status in (MailStatus.ACCEPTED, MailStatus.REASSIGNED):
                 accepted.setdefault((r.drone, r.id), r.step)
             elif r.status is MailStatus.STARTED:
                 started.setdefault((r.drone, r.id), r.step)
+            elif r.status in gone:
+                left.setdefault((r.drone, r.id), r.step)
         for (drone, mail), step in started.items():
             for (other_drone, other), since in accepted.items():
                 if other_drone != drone or other == mail or since >= step:
                     continue
-                other_start = started.get((drone, other))
+                other_start = started.get((drone, other), left.get((drone, other)))
                 waiting = other_start is None or other_start > step
                 if waiting and orders[other].priority > orders[mail].priority:
                     found.append(f"{drone} started {mail} (p{orders[mail].priority}) at step {step} while "

@@ -195,7 +195,8 @@ def _alarms(obs: Observer, drone: str) -> str:
 
 def test_a_vehicle_killed_in_flight_is_one_drones_problem(tmp_path: Path) -> None:
     """d2's vehicle (its own `drona sim-vehicle` process) is killed while d2 flies to a pickup: d2's agent
-    stays up and a member, raises vehicle_lost and hands its mail back; the other drones deliver theirs;
+    stays up and a member, raises vehicle_lost and hands its mail back, which its heir d1 takes over (no
+    service runs to reassign it); the other drones deliver theirs;
     every agent leaves cleanly; the flight record audits clean (d2's lost steps are gaps, not cells)."""
     fleet = FleetProcesses(tmp_path, ["d1", "d2", "d3", "d4"], vehicles_apart=True)
     # d2 parks at (0, 4): its leg to (3, 3) and the cells held for it while lost stay west of the others'.
@@ -217,7 +218,8 @@ def test_a_vehicle_killed_in_flight_is_one_drones_problem(tmp_path: Path) -> Non
                     await obs.give(order, ["d1", "d3", "d4"][i % 3])
                 await obs.until(lambda: any(a.startswith("vehicle_lost") for a in obs.states["d2"].health.alarms),
                                 10, "d2's vehicle_lost alarm")
-                await obs.until(lambda: MailStatus.REJECTED in obs.statuses("doomed"), 10, "d2 to hand back")
+                await obs.until(lambda: MailStatus.HANDED_BACK in obs.statuses("doomed"), 10, "d2 to hand back")
+                await obs.until(lambda: MailStatus.REASSIGNED in obs.statuses("doomed"), 10, "d1 to take it over")
                 await obs.until(lambda: obs.delivered([o.id for o in others]), 150, "the others' mail delivered")
                 assert "d2" in obs.alive and fleet.agents["d2"].poll() is None
                 return obs

@@ -99,7 +99,7 @@ LEASE_S = 2.0  #: the agents' Zenoh lease: a cut link is seen within it
 def _settled(statuses: list[MailStatus]) -> bool:
     """Delivered, or handed back by the drone that took it over."""
     return MailStatus.DELIVERED in statuses or (MailStatus.REASSIGNED in statuses
-                                                and statuses[-1] is MailStatus.REJECTED)
+                                                and statuses[-1] in (MailStatus.REJECTED, MailStatus.HANDED_BACK))
 
 
 def _logged_at(line: str) -> float:
