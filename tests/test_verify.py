@@ -525,3 +525,13 @@ def test_a_drone_that_stops_where_it_stands_short_of_a_held_cell_is_no_violation
                         partitions=1, max_delay=2)
     outcome = Explorer(scenario).run(Strategy.PCT, schedules=20, max_depth=5000, seed=625805)
     assert outcome.violation is None, str(outcome.violation)
+
+
+def test_a_drone_that_stops_short_of_a_plan_it_last_knew_of_a_departed_peer_is_no_violation() -> None:
+    """Found by sweep 10012: d4, cut off, braked short of a cell, and nobody heard; d1 then saw d4 leave
+    and stopped short of the plan of d4's it knew. Monitor (f) judged the stop against d4's brake, which
+    d1 could not know, and called it a detour."""
+    scenario = Scenario(drones=5, requests=6, delta=2, seed=76641, grid=(8, 8, 1), obstacles=0.2, crashes=1,
+                        partitions=1)
+    outcome = Explorer(scenario).run(Strategy.PCT, schedules=80, max_depth=5000, seed=76641)
+    assert outcome.violation is None, str(outcome.violation)

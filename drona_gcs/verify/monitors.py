@@ -371,7 +371,8 @@ class Monitors:
 
     def _stops_short(self, drone: str, new: Trajectory) -> bool:
         """The plan flown, made new from some step on, ends short of its goal: fine when the rest of
-        the old one crossed a cell a vehicle down, or a drone this one saw leave, may hold for good."""
+        the old one crossed a cell a vehicle down, or a drone this one saw leave, may hold for good:
+        on what it is committed to, or on what it was before a brake this drone has not heard of."""
         old = self.committed[drone]
         horizon = max(new.end_step, old.end_step)  # a stop where it stands is one cell: it parts after it
         parting = next((t for t in range(new.start_step, horizon + 1) if _at(new, t) != _at(old, t)), None)
@@ -380,8 +381,9 @@ class Monitors:
         rest = {_at(old, t) for t in range(parting, old.end_step + 1)}
         held = {c for _, c in self.down}
         for peer in self.departed.get(drone, ()):
-            gone = self.committed[peer]
-            held |= {_at(gone, t) for t in range(parting - self.config.delta - 1, gone.end_step + 1)}
+            earlier = self.before_news.get(peer) if (drone, peer) not in self.told else None
+            for gone in (self.committed[peer], *([earlier] if earlier is not None else [])):
+                held |= {_at(gone, t) for t in range(parting - self.config.delta - 1, gone.end_step + 1)}
         return bool(rest & held)
 
     def asked_to_leave(self, drone: str, way: tuple[Cell, ...]) -> None:
