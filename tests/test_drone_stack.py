@@ -21,7 +21,7 @@ from drona_gcs.stack.battery import BatteryModel
 from drona_gcs.stack.drone import DroneAction, DroneStack, LegNotFlown, StackConfig, yield_spot
 from drona_gcs.stack.mail import MAX_MISSES, GoTo, MailDelivered, MailPickedUp, MailRejected, MailRequest, Phase
 from drona_gcs.stack.messages import CurrentTraj, Message, PlanAck, PlanProposal, ReqForCurrentTraj, Task, TaskId
-from drona_gcs.stack.protocol import Braked, Broadcast, Reroute, Send, State, Threatened
+from drona_gcs.stack.protocol import Braked, Broadcast, NewTask, Reroute, Send, StartExecuting, State, Threatened
 from drona_gcs.workspace import Cell, Workspace
 
 WS = Workspace.build(size=(6, 6, 1), drones={"d1": (0, 0, 0)})
@@ -95,7 +95,7 @@ def test_a_lost_vehicle_plans_nothing_and_back_in_a_held_cell_the_drone_rests_th
     assert trajectory is not None
     seen = stack.executor.cell
     handed = stack.vehicle_lost(stack.now, seen, "its vehicle is lost")
-    assert of(MailRejected, handed) == [MailRejected(MAIL, "its vehicle is lost")]  # another drone may fly it
+    assert of(MailRejected, handed) == [MailRejected(MAIL, "its vehicle is lost", True)]  # another drone may fly it
     assert set(stack.protocol.holds()) >= {seen, *trajectory.suffix_from(stack.now).cells}
     stack, actions = fly(lambda s, k: None, 30, stack)  # nothing seen while lost: nothing reported
     assert of(MailPickedUp, actions) == []
@@ -297,6 +297,25 @@ def test_a_drone_parked_on_the_only_way_makes_way_for_mail_on_board(down: str) -
     assert moves[-1].purpose is Phase.TO_PARKING  # and home again afterwards
 
 
+def test_a_goal_that_found_no_plan_asks_its_way_clear_after_legs_elsewhere() -> None:
+    """Found by a random sweep (seed 921887): a charger walled in by resting drones found no plan; a
+    leg to a parking cell came between, and the next try at the charger no longer asked its way
+    clear (only the last leg's goal was remembered). The drone went between charger and parking
+    for good, and the mail it held waited."""
+    ws = Workspace.build(size=(4, 2, 1), obstacles=frozenset({(0, 1, 0), (1, 1, 0)}),
+                         charging_stations=((0, 0, 0),), parking=((3, 1, 0),),
+                         drones={"d1": (3, 0, 0), "d2": (1, 0, 0)})
+    stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+    stack.peer_left("d2")  # at rest on the only way to the charger
+    charger, parking = GoTo((0, 0, 0), None, Phase.TO_CHARGER), GoTo((3, 1, 0), None, Phase.TO_PARKING)
+    assert stack._way_to_clear(charger) == ()  # a first try asks nothing
+    stack._protocol(NewTask(stack._task(charger, 0, 0)))
+    assert stack.protocol.state is State.WAIT_FOR_TASK  # cut off: no plan
+    flown = stack._protocol(NewTask(stack._task(parking, 1, 1)))
+    assert any(isinstance(a, StartExecuting) for a in flown)
+    assert (1, 0, 0) in stack._way_to_clear(charger)
+
+
 def test_a_drone_boxed_in_on_a_way_makes_way_to_a_charger_when_nothing_else_is_left() -> None:
     """Found by the 60 s sweep: boxed in by a parked drone and a vehicle down, a drone asked to make
     way found no cell but a charger, stayed, and the mail behind it waited for good."""
@@ -402,7 +421,7 @@ def test_a_drone_cut_off_from_most_of_the_fleet_hands_back_its_mail_not_on_board
     assert stack.in_touch  # 2 of 3: still a majority
     stack.peer_left("d2")
     handed = stack.step(2, 100.0, (0, 5, 0))
-    assert of(MailRejected, handed) == [MailRejected(MAIL, "cut off from most of the fleet")]
+    assert of(MailRejected, handed) == [MailRejected(MAIL, "cut off from most of the fleet", True)]
     assert not stack.in_touch and stack.mail.queue == [] and stack.mail.current is None
     assert of(MailRejected, stack.step(3, 100.0, (0, 5, 0))) == []  # once
 

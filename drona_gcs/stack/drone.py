@@ -149,7 +149,9 @@ class DroneStack:
                                 config.battery, recharged_level=config.recharged_mark, leg_overhead=leg_overhead(lead),
                                 spare_parking=[c for c in ws.parking if c not in parking])
         self.arrival: Arrival | None = None  #: a plan ended; waiting to see the vehicle at its goal
-        self.unreached: Cell | None = None  #: the goal of the last leg that found no plan
+        #: goals whose last try found no plan, until a plan reaches one (legs elsewhere come between:
+        #: a charger walled in, tried between legs to parking, never asked its way clear)
+        self.unreached: frozenset[Cell] = frozenset()
         self.asked_clear: frozenset[Cell] = frozenset()  #: resting cells the last leg asked to leave
         self.stuck: frozenset[Cell] = frozenset()  #: of those, cells still taken at the next failure
         self.stop_short: Cell | None = None  #: where a rerouted leg ends instead of its goal, held for good
@@ -419,7 +421,7 @@ class DroneStack:
         its last try found no plan (the paper leaves MRMP incomplete: resting drones wall goals in).
         A shortest way, around cells it asked before that stayed taken (a vehicle down cannot move)."""
         taken = self.taken_cells()
-        if leg.purpose not in ASKING or (leg.goal not in taken and leg.goal != self.unreached):
+        if leg.purpose not in ASKING or (leg.goal not in taken and leg.goal not in self.unreached):
             return ()
         self.stuck = self.stuck | (self.asked_clear & taken)
         here, ws = self.protocol.location, self.config.workspace
@@ -479,11 +481,12 @@ class DroneStack:
                 if action.trajectory.last != self.braked:
                     self.braked = None  # a rerouted rest replaced the cut plan
                 self.mail.took_off()
-                self.unreached, self.asked_clear, self.stuck = None, frozenset(), frozenset()
+                self.unreached -= {action.trajectory.last}
+                self.asked_clear, self.stuck = frozenset(), frozenset()
                 if self.mail.held and self.stop_short is None:
                     actions += self._stop_here()  # landed by the operator while this round went on
             elif isinstance(action, TaskFailed):
-                self.unreached = action.task.goal
+                self.unreached |= {action.task.goal}
                 actions += self.mail.leg_failed(self.now, cut_off=action.cut_off)
             elif isinstance(action, Threatened):
                 actions += self._protocol(Reroute(self._reroute_task(action)))
