@@ -26,6 +26,7 @@ from drona_gcs.stack.messages import (
     PlanAck,
     PlanDecision,
     PlanProposal,
+    PlanRefusal,
     ReqForCurrentTraj,
     Task,
     TaskId,
@@ -121,7 +122,7 @@ def request(task_id: TaskId, sender: str, now: int = 0) -> ReqForCurrentTraj:
 # =========================================================== the state table
 EVENT_TYPES: tuple[type, ...] = (NewTask, PlanCompleted, PeerLeft, PeerJoined, ReqForCurrentTraj, CurrentTraj,
                                  VehicleLost, Relocated, Reroute, VehicleDown, PeerDown, PeerBraked, Released,
-                                 NextStep, PlanProposal, PlanAck, PlanDecision, ClockBound, PeerLost)
+                                 NextStep, PlanProposal, PlanAck, PlanRefusal, PlanDecision, ClockBound, PeerLost)
 #: What Protocol 1 takes in each state (paper section 3.1); the rest is a protocol violation. A vehicle
 #: found again is not placed while a round is under way (its request carried where it was). Only a
 #: drone flying a plan plans its rest anew (Reroute), and that round ends when the plan does.
@@ -165,6 +166,7 @@ def sample(event_type: type) -> Event:
         Released: Released("b"),  # in_state's peer, once it left (see test_every_state_event_pair)
         PlanProposal: PlanProposal("b", ID_B_LOW, Trajectory(3, (B, B))),
         PlanAck: PlanAck("b", ID_A, location_of("b")),
+        PlanRefusal: PlanRefusal("b", ID_A, (("c", ((3, 3, 0),)),)),
         PlanDecision: PlanDecision("b", ID_B_LOW, Trajectory(3, (B, B)), flown=True),
         ClockBound: ClockBound(mine_off=False, outliers=frozenset({"b"})),
         PeerLost: PeerLost("b", ((3, 3, 0),)),
@@ -885,11 +887,12 @@ def flying_past_b() -> tuple[CoordinationProtocol, Trajectory]:
 
 
 def test_a_peer_that_leaves_across_the_rest_of_my_plan_has_me_plan_that_rest_anew() -> None:
-    """Found by the systematic tester with a crash: b's agent died before it flew its plan, its vehicle
-    holding where it was; a drone that had planned around b's plan flew into it. Plans made before a
-    leave is noticed avoided only the plan: the rest of mine is planned anew, flown on meanwhile."""
+    """Found by the systematic tester with a crash: b's agent died before it flew its plan (silent since
+    step 0), its vehicle holding where it was; a drone that had planned around b's plan flew into it.
+    Plans made before a leave is noticed avoided only the plan: the rest of mine is planned anew, flown
+    on meanwhile."""
     proto, plan = flying_past_b()
-    assert proto.handle(PeerLeft("b"), 2) == [Threatened("b", ((3, 0, 0),))]
+    assert proto.handle(PeerLeft("b", silent_since=0), 2) == [Threatened("b", ((3, 0, 0),))]
     proto.handle(Reroute(Task(TaskId(6, "a", 2), GOAL)), 2)
     assert proto.state is State.REROUTING and proto.trajectory == plan  # what it answers meanwhile
     actions = confirmed(proto, proto.handle(CurrentTraj("c", location_of("c"), TaskId(6, "a", 2)), 2))
@@ -958,7 +961,7 @@ def test_a_reroute_with_no_peer_left_to_ask_plans_from_the_plan_flown() -> None:
     proto = machine({"a": A, "b": B})
     proto.handle(NewTask(Task(ID_A, GOAL)), 0)
     plan = started(confirmed(proto, proto.handle(CurrentTraj("b", B_AWAY, ID_A), 0))).trajectory
-    assert proto.handle(PeerLeft("b"), 2) == [Threatened("b", ((3, 0, 0),))]
+    assert proto.handle(PeerLeft("b", silent_since=0), 2) == [Threatened("b", ((3, 0, 0),))]
     new = started(confirmed(proto, proto.handle(Reroute(Task(TaskId(6, "a", 2), GOAL)), 2))).trajectory
     assert all(new.at(s) == plan.at(s) for s in range(0, 5)) and (3, 0, 0) not in new.suffix_from(4).cells
 
@@ -1116,25 +1119,27 @@ def test_a_decision_ends_the_hold_on_a_proposal() -> None:
 
 def test_a_proposal_across_what_i_fly_is_not_acked() -> None:
     """Found by the tester's partitions: a plan made while a was held as gone avoided where a was last
-    known; a flies elsewhere now. Its ack would let that plan fly into a: a holds it, and says nothing."""
+    known; a flies elsewhere now. Its ack would let that plan fly into a: a holds it, and refuses it."""
     proto = machine()
     a_plan = started(confirmed(proto, proto.handle(NewTask(Task(ID_A, GOAL)), 0)
                                + proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0)
                                + proto.handle(CurrentTraj("c", location_of("c"), ID_A), 0))).trajectory
     across = PlanProposal("b", ID_B_NEXT, Trajectory(a_plan.end_step, ((3, 1, 0), GOAL)), ("c",))
-    assert proto.handle(across, 1) == [] and proto.proposals["b"] == across  # held all the same
+    refused = [Send("b", PlanRefusal("a", ID_B_NEXT))]  # b held none gone that a knows of: no cells
+    assert proto.handle(across, 1) == refused and proto.proposals["b"] == across  # held all the same
     clear = PlanProposal("b", TaskId(10, "b", 3), Trajectory(a_plan.end_step, (B, (3, 4, 0))), ("a", "c"))
     assert proto.handle(clear, 1) == [Send("b", PlanAck("a", clear.task_id, a_plan))]
 
 
 def test_a_proposal_across_a_drone_its_sender_held_as_gone_is_not_acked() -> None:
     """Views apart: b planned with c gone (where b last knew it); I know where c flies now, and b's plan
-    crosses it. Two majorities overlap in a drone that holds both: it acks neither into the other."""
+    crosses it. Two majorities overlap in a drone that holds both: it acks neither into the other, and
+    names where c may be for good, which b then holds too."""
     proto = machine()
     c_plan = traj(2, (0, 4), (1, 4), (2, 4))
     proto.handle(PlanDecision("c", ID_C_LOW, c_plan, flown=True), 1)
     into_c = PlanProposal("b", ID_B_NEXT, traj(3, (4, 4), (3, 4), (2, 4)), ("a",))
-    assert proto.handle(into_c, 1) == []
+    assert proto.handle(into_c, 1) == [Send("b", PlanRefusal("a", ID_B_NEXT, (("c", c_plan.cells),)))]
     asked_c = PlanProposal("b", TaskId(10, "b", 3), traj(3, (4, 4), (3, 4), (2, 4)), ("a", "c"))
     assert proto.handle(asked_c, 1) == [Send("b", PlanAck("a", asked_c.task_id, location_of("a", 1)))]
 
@@ -1233,3 +1238,23 @@ def test_a_drone_whose_clock_is_off_acks_with_the_cells_it_holds_for_good() -> N
     proposal = PlanProposal("b", ID_B_LOW, traj(3, (4, 4), (4, 3)), ("a", "c"))
     assert proto.handle(proposal, 0) == [Send("b", PlanAck("a", ID_B_LOW, location_of("a"), proto.holds()))]
     assert A in proto.holds()
+
+
+def test_a_refusal_naming_where_a_gone_drone_may_be_is_held_and_the_next_plan_keeps_clear() -> None:
+    """Found in the suite: b, frozen while c died, held more of c's way than a did, and silently refused
+    each plan a proposed across it until a's mail was given up. Now b says where it holds c: a drops the
+    plan at once, holds those cells too, and plans around them; c back, they are free again."""
+    proto = machine()
+    proto.handle(PeerLeft("c"), 0)
+    actions = proto.handle(NewTask(Task(ID_A, GOAL)), 0) + proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0)
+    proposal = next(a.message for a in actions if isinstance(a, Broadcast) and isinstance(a.message, PlanProposal))
+    assert (2, 0, 0) in proposal.trajectory.cells and proto.state is State.CONFIRMING
+    dropped = proto.handle(PlanRefusal("b", proposal.task_id, (("c", ((2, 0, 0), (2, 1, 0))),)), 1)
+    assert proto.state is State.WAIT_FOR_TASK and any(isinstance(a, TaskFailed) for a in dropped)
+    assert {"c!0", "c!1"} <= set(proto.ghost_obstacles())
+    again = TaskId(9, "a", 2)
+    actions = proto.handle(NewTask(Task(again, GOAL)), 2) + proto.handle(CurrentTraj("b", location_of("b"), again), 2)
+    retry = next(a.message for a in actions if isinstance(a, Broadcast) and isinstance(a.message, PlanProposal))
+    assert not {(2, 0, 0), (2, 1, 0)} & set(retry.trajectory.cells) and retry.trajectory.last == GOAL
+    proto.handle(PeerJoined("c", C), 3)
+    assert not any(name.startswith("c!") for name in proto.ghost_obstacles())

@@ -141,6 +141,17 @@ class PlanAck:
 
 
 @dataclass(frozen=True)
+class PlanRefusal:
+    """``sender`` will not hold the proposal of task ``task_id``: it comes too close to what ``sender``
+    flies or holds, or enters cells where a drone the proposer holds as gone may be for good, as
+    ``sender`` knows it (``gone``: each such drone with those cells, which the proposer holds from now)."""
+
+    sender: str
+    task_id: TaskId
+    gone: tuple[tuple[str, tuple[Cell, ...]], ...] = ()
+
+
+@dataclass(frozen=True)
 class PlanDecision:
     """``sender`` flies ``trajectory`` from now: its proposal of task ``task_id`` if ``flown``, else the
     trajectory it flew before (the proposal is dropped)."""
@@ -151,7 +162,7 @@ class PlanDecision:
     flown: bool
 
 
-Message = ReqForCurrentTraj | CurrentTraj | PlanProposal | PlanAck | PlanDecision
+Message = ReqForCurrentTraj | CurrentTraj | PlanProposal | PlanAck | PlanRefusal | PlanDecision
 
 
 def task_of(message: Message) -> TaskId:

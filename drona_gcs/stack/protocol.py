@@ -91,9 +91,13 @@ settled here, and one message it sends is saved (the second point):
   there). A member acks a proposal only if it keeps clear of what it flies, and of what it knows a
   drone flies or proposed that the proposer held as gone (``_clashes``); the proposer, in turn, flies
   it only if it keeps clear of what each ack says the member flies. Two majorities overlap in a drone
-  that sees both plans. Confirming, I ack no proposal: mine was made without it. A message that
-  says what a drone I held as gone flies (an answer, an ack, a decision, a request) proves it alive:
-  a member again, there.
+  that sees both plans. A member that will not hold a plan says so (``PlanRefusal``), naming the cells
+  it holds for good for each drone the proposer held as gone; the proposer drops the plan at once and
+  holds those cells too (``hearsay``, until that drone is back or released), so its next plan keeps
+  clear of them. Without it, a drone that knew less of where a gone drone had stopped proposed the
+  same plan until its mail was given up (found in the suite: a member frozen while a drone died).
+  Confirming, I ack no proposal: mine was made without it. A message that says what a drone I held
+  as gone flies (an answer, an ack, a decision, a request) proves it alive: a member again, there.
 * **Membership can change.** ``PeerLeft`` means the drone's liveliness was
   lost: it is no longer waited for, and it stays in Psi as an obstacle:
   safety first. Since it may have stopped anywhere along the rest of its
@@ -168,6 +172,7 @@ from drona_gcs.stack.messages import (
     PlanAck,
     PlanDecision,
     PlanProposal,
+    PlanRefusal,
     ReqForCurrentTraj,
     Task,
     TaskId,
@@ -293,7 +298,7 @@ class Reroute:
 
 Event = (NewTask | PlanCompleted | PeerLeft | PeerJoined | ReqForCurrentTraj | CurrentTraj | VehicleLost
          | Relocated | Reroute | VehicleDown | PeerDown | PeerBraked | Released | NextStep | PlanProposal
-         | PlanAck | PlanDecision | ClockBound | PeerLost)
+         | PlanAck | PlanRefusal | PlanDecision | ClockBound | PeerLost)
 
 
 # ----------------------------------------------------------------- actions
@@ -406,6 +411,8 @@ class CoordinationProtocol:
     decided: dict[str, TaskId] = field(default_factory=dict)  #: each peer's newest decided proposal
     #: departed drones' proposals, undecided when they left: each may fly it, so its rest is held for good
     maybe_flown: dict[str, Trajectory] = field(default_factory=dict)
+    #: cells a member holds for good for a drone gone here too (its refusal said): held here as well
+    hearsay: dict[str, frozenset[Cell]] = field(default_factory=dict)
     released: set[str] = field(default_factory=set)  #: departed drones the operator took out of the fleet
     off_since: int | None = None  #: my clock is beyond the fleet's bound, since this step
     outliers: frozenset[str] = frozenset()  #: peers whose clock is beyond the fleet's bound
@@ -489,6 +496,10 @@ class CoordinationProtocol:
                     continue
                 name = drone if cell == trajectory.last else f"{drone}#{i}"
                 held[name] = Trajectory.stationary(cell, trajectory.start_step)
+        for drone, cells in self.hearsay.items():
+            for i, cell in enumerate(sorted(cells)):
+                if cell != sparing:
+                    held[f"{drone}!{i}"] = Trajectory.stationary(cell, 0)
         return held
 
     def in_quorum(self) -> bool:
@@ -723,7 +734,8 @@ class CoordinationProtocol:
         """Forget where a departed drone may be: its ghost, its vehicle down, its brake."""
         if event.drone == self.me or event.drone in self.members or event.drone not in self.peers:
             raise ProblemError(f"{event.drone} is not a drone gone from the fleet: nothing to release")
-        for held in (self.ghosts, self.maybe_flown, self.peers_down, self.braked, self.known, self.peers_lost):
+        for held in (self.ghosts, self.maybe_flown, self.peers_down, self.braked, self.known, self.peers_lost,
+                     self.hearsay):
             held.pop(event.drone, None)
         self.released.add(event.drone)
         return []
@@ -738,13 +750,15 @@ class CoordinationProtocol:
         # The newest of what it answered and what it announced (an answer of a round over is old).
         answered, known = self.received.pop(event.drone, None), self.known[event.drone]
         last = answered if answered is not None and answered.start_step > known.start_step else known
-        # What it had flown before it went silent (less the lead, which covers any skew) is
-        # behind it: only the rest of its plan is where it may have stopped.
+        # What it had flown before it went silent is behind it, less the window (its clock may be
+        # behind, its vehicle late): only the rest of its plan is where it may have stopped. (The
+        # lead, as before, held cells a drone flew through seconds earlier: mail there was stuck.)
         silent = now if event.silent_since is None else min(now, event.silent_since)
-        self.ghosts[event.drone] = last.suffix_from(silent - self.lead_steps)
+        since = silent - self.delta - 1
+        self.ghosts[event.drone] = last.suffix_from(since)
         proposal = self.proposals.pop(event.drone, None)
         if proposal is not None:
-            self.maybe_flown[event.drone] = proposal.trajectory.suffix_from(silent - self.lead_steps)
+            self.maybe_flown[event.drone] = proposal.trajectory.suffix_from(since)
         self.pending.pop(event.drone, None)
         self.peer_holds.pop(event.drone, None)
         return self._plan_if_ready(now) if self.coordinating else self._steer_clear(event.drone, now)
@@ -754,7 +768,7 @@ class CoordinationProtocol:
             return []
         self.members.add(event.drone)
         self.released.discard(event.drone)
-        for gone in (self.ghosts, self.maybe_flown, self.proposals):  # what it announces now is the truth
+        for gone in (self.ghosts, self.maybe_flown, self.proposals, self.hearsay):  # it says where it is now
             gone.pop(event.drone, None)
         self.peers_down.pop(event.drone, None)  # its agent restarted: its vehicle is back in service
         self.peers_lost.pop(event.drone, None)  # where it announces itself now is the truth
@@ -960,7 +974,8 @@ class CoordinationProtocol:
         if self.state is State.CONFIRMING or sender in self.outliers:
             return []  # not flown: it runs out of time (an outlier's steps are not ours)
         if self.off_since is None and self._clashes(event, now):
-            return []  # (my clock off, my steps say nothing: the cells my ack holds for good do)
+            # (my clock off, my steps say nothing: the cells my ack holds for good do)
+            return [Send(sender, PlanRefusal(self.me, event.task_id, self._gone_there(event, now)))]
         return [Send(sender, PlanAck(self.me, event.task_id, self.current_trajectory(now), self.holds()))]
 
     def _clashes(self, proposal: PlanProposal, now: int) -> bool:
@@ -969,15 +984,38 @@ class CoordinationProtocol:
         of what it flies or proposed (were it gone), a departed drone anywhere on its rest. A partition
         leaves views apart, and two plans made by majorities that overlap meet at a drone that holds
         both, here. (Confirming, I hold none: mine was made without it.)"""
-        sender, theirs = proposal.sender, proposal.trajectory
-        gone_there = (self.members | set(self.ghosts)) - set(proposal.members) - {sender, self.me}
-        rests = [self.ghosts.get(p) or self.known[p].suffix_from(now - self.lead_steps) for p in gone_there]
-        rests += [t for p, t in self.maybe_flown.items() if p in gone_there]
-        rests += [held.trajectory for p, held in self.proposals.items() if p in gone_there]
-        cells = {c for rest in rests for c in rest.cells} - {theirs.at(now)}  # where it is: we would have met
+        theirs = proposal.trajectory
+        cells = {c for _, rest in self._gone_there(proposal, now) for c in rest}
         flown = [self.current_trajectory(now), *(Trajectory.stationary(c, 0) for c in {*self.holds(), *cells})]
         since = max(now, theirs.start_step)  # what it flew already was held before
         return any(check_pair(theirs, other, self.delta, from_step=since) for other in flown)
+
+    def _gone_there(self, proposal: PlanProposal, now: int) -> tuple[tuple[str, tuple[Cell, ...]], ...]:
+        """Each drone ``proposal``'s sender held as gone, with every cell it may be in for good as I know
+        it, but where the proposer is (had it stopped there, they would have met)."""
+        sender, here = proposal.sender, proposal.trajectory.at(now)
+        gone_there = (self.members | set(self.ghosts)) - set(proposal.members) - {sender, self.me}
+        found = []
+        for p in sorted(gone_there):
+            rests = [self.ghosts.get(p) or self.known[p].suffix_from(now - self.lead_steps)]
+            rests += [t for d, t in self.maybe_flown.items() if d == p]
+            rests += [held.trajectory for d, held in self.proposals.items() if d == p]
+            cells = {c for rest in rests for c in rest.cells} | self.hearsay.get(p, frozenset())
+            found.append((p, tuple(sorted(cells - {here}))))
+        return tuple(found)
+
+    def _on_refusal(self, event: PlanRefusal, now: int) -> list[Action]:
+        """A member will not hold my plan. Where it names cells a drone I hold as gone may be in, I hold
+        them too from now (our views of where it stopped differ: its is the wider), so the next plan keeps
+        clear of them; and I drop this one now rather than at its start."""
+        proposed = self.proposed
+        if proposed is None or event.task_id != proposed.proposal.task_id:
+            return []
+        for drone, cells in event.gone:
+            if drone in self.peers and drone not in self.members and drone != self.me:
+                self.hearsay[drone] = self.hearsay.get(drone, frozenset()) | frozenset(cells)
+        return self._abandon(f"{event.sender} will not hold it: it flies, holds or knows of a drone across it",
+                             now)
 
     def _on_decision(self, event: PlanDecision, now: int) -> list[Action]:
         sender = event.sender
@@ -1043,6 +1081,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         Released: CoordinationProtocol._on_released,
         PlanProposal: CoordinationProtocol._on_proposal,  # held, and acknowledged
         PlanAck: CoordinationProtocol._ignore,  # a late one
+        PlanRefusal: CoordinationProtocol._ignore,  # a late one
         PlanDecision: CoordinationProtocol._on_decision,
         ClockBound: CoordinationProtocol._on_clock_bound,
         PeerLost: CoordinationProtocol._on_peer_lost,
@@ -1060,6 +1099,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         Released: CoordinationProtocol._on_released,
         PlanProposal: CoordinationProtocol._on_proposal,  # held, and acknowledged
         PlanAck: CoordinationProtocol._ignore,  # a late one
+        PlanRefusal: CoordinationProtocol._ignore,  # a late one
         PlanDecision: CoordinationProtocol._on_decision,
         ClockBound: CoordinationProtocol._on_clock_bound,
         PeerLost: CoordinationProtocol._on_peer_lost,
@@ -1080,6 +1120,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         Released: CoordinationProtocol._on_released,
         PlanProposal: CoordinationProtocol._on_proposal,  # held, and acknowledged
         PlanAck: CoordinationProtocol._ignore,  # a late one
+        PlanRefusal: CoordinationProtocol._ignore,  # a late one
         PlanDecision: CoordinationProtocol._on_decision,
         ClockBound: CoordinationProtocol._on_clock_bound,
         PeerLost: CoordinationProtocol._on_peer_lost,
@@ -1098,6 +1139,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         Released: CoordinationProtocol._on_released,
         PlanProposal: CoordinationProtocol._on_proposal,  # held, and acknowledged
         PlanAck: CoordinationProtocol._ignore,  # a late one
+        PlanRefusal: CoordinationProtocol._ignore,  # a late one
         PlanDecision: CoordinationProtocol._on_decision,
         ClockBound: CoordinationProtocol._on_clock_bound,
         PeerLost: CoordinationProtocol._on_peer_lost,
@@ -1105,6 +1147,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
     },
     State.CONFIRMING: {  # planned: the plan is flown once every member holds it, or dropped
         PlanAck: CoordinationProtocol._on_ack,  # -> EXECUTING once every member's came
+        PlanRefusal: CoordinationProtocol._on_refusal,  # -> WAIT_FOR_TASK (or EXECUTING), the plan dropped
         NextStep: CoordinationProtocol._on_next_step_while_confirming,  # too late: -> WAIT_FOR_TASK (or EXECUTING)
         ReqForCurrentTraj: CoordinationProtocol._on_request_while_confirming,  # answered once decided
         CurrentTraj: CoordinationProtocol._ignore,

@@ -55,6 +55,7 @@ from drona_gcs.stack.messages import (
     PlanAck,
     PlanDecision,
     PlanProposal,
+    PlanRefusal,
     ReqForCurrentTraj,
     TaskId,
 )
@@ -69,7 +70,7 @@ from drona_gcs.stack.messages import (
 #: 7: keys name their writer (``proto/<sender>/<to>``, ``answers/<sender>``, ``mail/status/<drone>/<mail>``).
 #: 8: ``plan`` says ``braked``;
 #: 9: ``propose``, ``ack`` and ``decide``: a plan is flown once every member holds it; ``plan`` says ``lost``.
-#: 10: ``held`` lists mail handed back that no peer holds yet, and a status says ``handed_back``.
+#: 10: ``held`` lists mail handed back that no peer holds yet, and a status says ``handed_back``; ``refuse``.
 VERSION: Final = 10
 
 CellList = Annotated[list[int], msgspec.Meta(min_length=3, max_length=3)]
@@ -159,6 +160,14 @@ class Ack(_Body, frozen=True, kw_only=True, tag="ack"):
     task_id: WireTaskId  #: the proposal held
     trajectory: WireTrajectory  #: what the sender flies
     holds: Holds = ()  #: cells its lost vehicle may be in, besides the trajectory
+
+
+class Refuse(_Body, frozen=True, kw_only=True, tag="refuse"):
+    """A proposal the sender will not hold; ``gone``: for each drone the proposer held as gone, every cell
+    the sender holds it may be in for good."""
+
+    task_id: WireTaskId
+    gone: dict[str, Holds] = {}
 
 
 class Decide(_Body, frozen=True, kw_only=True, tag="decide"):
@@ -320,8 +329,8 @@ class CommandAck(_Body, frozen=True, kw_only=True, tag="command_ack"):
     reason: str = ""
 
 
-Body = (ReqTraj | CurTraj | CurTrajTo | Propose | Ack | Decide | PlanAnnounce | DroneState | HeldMail | MailOrder
-        | MailCancel | MailAck | MailStatusReport | ClockPing | ClockPong | FleetCommand | CommandAck)
+Body = (ReqTraj | CurTraj | CurTrajTo | Propose | Ack | Refuse | Decide | PlanAnnounce | DroneState | HeldMail
+        | MailOrder | MailCancel | MailAck | MailStatusReport | ClockPing | ClockPong | FleetCommand | CommandAck)
 
 
 class Envelope(_Strict, frozen=True, kw_only=True):
@@ -362,6 +371,12 @@ class PeerBounds:
                                 f"{self.max_cells}")
             self._inside(trajectory.cells)
         self._inside((*getattr(body, "holds", ()), *getattr(body, "clear", ())))
+        if isinstance(body, Refuse):
+            for drone, cells in body.gone.items():
+                if len(cells) > self.max_cells:
+                    raise WireError(f"{len(cells)} cells held for {drone!r}: no plan here has more than "
+                                    f"{self.max_cells}")
+                self._inside(cells)
         for task_id in _task_ids(body):
             if task_id.stamp > now + STAMP_AHEAD_STEPS:
                 raise WireError(f"task id stamp {task_id.stamp} is {task_id.stamp - now} steps ahead of this "
@@ -374,7 +389,7 @@ class PeerBounds:
 
 
 def _task_ids(body: Body) -> list[WireTaskId]:
-    if isinstance(body, (ReqTraj, Propose, Ack, Decide)):
+    if isinstance(body, (ReqTraj, Propose, Ack, Refuse, Decide)):
         return [body.task_id]
     if isinstance(body, CurTraj):
         return [body.in_reply_to]
@@ -424,7 +439,7 @@ def to_json(message: _Strict) -> dict[str, Any]:
 
 
 # ------------------------------------------------------ core <-> wire
-ProtocolBody = ReqTraj | CurTraj | Propose | Ack | Decide
+ProtocolBody = ReqTraj | CurTraj | Propose | Ack | Refuse | Decide
 
 
 def from_core(message: Message) -> ProtocolBody:
@@ -437,6 +452,8 @@ def from_core(message: Message) -> ProtocolBody:
     if isinstance(message, PlanAck):
         return Ack(task_id=WireTaskId.of(message.task_id), trajectory=WireTrajectory.of(message.trajectory),
                    holds=message.holds)
+    if isinstance(message, PlanRefusal):
+        return Refuse(task_id=WireTaskId.of(message.task_id), gone=dict(message.gone))
     if isinstance(message, PlanDecision):
         return Decide(task_id=WireTaskId.of(message.task_id), trajectory=WireTrajectory.of(message.trajectory),
                       flown=message.flown)
@@ -462,6 +479,8 @@ def to_core(envelope: Envelope, me: str) -> Message | None:
         return PlanProposal(envelope.sender, body.task_id.core(), body.trajectory.core(), body.members)
     if isinstance(body, Ack):
         return PlanAck(envelope.sender, body.task_id.core(), body.trajectory.core(), body.holds)
+    if isinstance(body, Refuse):
+        return PlanRefusal(envelope.sender, body.task_id.core(), tuple(sorted(body.gone.items())))
     if isinstance(body, Decide):
         return PlanDecision(envelope.sender, body.task_id.core(), body.trajectory.core(), body.flown)
     if isinstance(body, CurTraj):
