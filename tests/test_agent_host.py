@@ -192,6 +192,23 @@ def test_an_agent_started_before_its_vehicle_waits_for_it(ws_file: Path, tmp_pat
     assert codes == [0, 0], log.read_text(errors="replace")
 
 
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_an_agent_waiting_for_its_vehicle_leaves_on_a_signal(ws_file: Path, tmp_path: Path, sig: int) -> None:
+    """Found flying SITL: agents waiting for a vehicle that never came ignored Ctrl-C and SIGTERM (the signal
+    only asked them to land what flies). Nothing flies yet: they leave at once."""
+    log, port, listen = tmp_path / "agent.log", free_port(socket.SOCK_STREAM), free_port(socket.SOCK_STREAM)
+    with log.open("wb") as out:
+        agent = subprocess.Popen([*DRONA, "agent", "--workspace", str(ws_file), "--drone", "d1",
+                                  "--vehicle", f"tcp://127.0.0.1:{port}", "--fleet", f"gone-{listen}",
+                                  "--listen", f"tcp/127.0.0.1:{listen}"], stdout=subprocess.DEVNULL, stderr=out)
+    try:
+        assert _log_says(log, agent, b"no vehicle yet", 20), log.read_text(errors="replace")
+        agent.send_signal(sig)
+        assert _wait(agent) == 0, log.read_text(errors="replace")
+    finally:
+        agent.kill()
+
+
 def _log_says(log: Path, process: subprocess.Popen[bytes], text: bytes, timeout: float) -> bool:
     deadline = time.monotonic() + timeout
     while text not in log.read_bytes() and process.poll() is None and time.monotonic() < deadline:

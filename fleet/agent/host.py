@@ -139,8 +139,13 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
     nodes = [session.view(name) for session, group in zip(sessions, groups, strict=True) for name in group]
     links: list[VehicleLink] = []
     try:
-        links = await _all_or_none([_connect(host, frame, name, signing.get(name)) for name in host.names],
-                                   lambda link: link.close())
+        # Nothing flies yet: a signal while a vehicle is awaited leaves at once.
+        connected = await _unless_stopped(host, _all_or_none(
+            [_connect(host, frame, name, signing.get(name)) for name in host.names], lambda link: link.close()))
+        if connected is None:
+            log.info("stopped before any vehicle answered")
+            return
+        links = connected
         for node, link, name in zip(nodes, links, host.names, strict=True):
             stack = DroneStack(name, config, ws.drones, epoch=time.time_ns() // 1_000_000)
             agent = DroneAgent(stack, node, keys, link, frame, host.clock, record, timeouts(settings),
@@ -173,6 +178,16 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
 
 
 T = TypeVar("T")
+
+
+async def _unless_stopped(host: Host, work: Awaitable[T]) -> T | None:
+    """``work``'s result, or None if a signal came first (``work`` is then cancelled)."""
+    task, stop = asyncio.ensure_future(work), asyncio.ensure_future(host.draining.wait())
+    try:
+        await asyncio.wait([task, stop], return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        await cancel_all([stop, *([] if task.done() else [task])])
+    return task.result() if not task.cancelled() else None
 
 
 async def _all_or_none(starts: Sequence[Awaitable[T]], close: Callable[[T], Awaitable[object]]) -> list[T]:
