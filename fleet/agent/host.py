@@ -329,6 +329,9 @@ async def _check_clocks(host: Host) -> None:
             agent.judge_clocks(samples)
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
 def install_signals(host: Host) -> None:
     """First SIGINT/SIGTERM: drain and land; a second one: leave now."""
     loop = asyncio.get_running_loop()
@@ -341,5 +344,14 @@ def install_signals(host: Host) -> None:
             log.info("stopping: finishing the plans under way, then landing")
         host.draining.set()
 
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    for sig in STOP_SIGNALS:
         loop.add_signal_handler(sig, on_signal)
+
+
+def ignore_signals() -> None:
+    """The fleet has left: what is left is the exit. A second Ctrl-C then would kill the process by
+    the default handler (exit -2, a traceback) rather than end it cleanly: it is ignored."""
+    loop = asyncio.get_running_loop()
+    for sig in STOP_SIGNALS:
+        loop.remove_signal_handler(sig)
+        signal.signal(sig, signal.SIG_IGN)

@@ -23,7 +23,7 @@ from pydantic import ValidationError
 from drona_gcs.errors import DronaError
 from drona_gcs.workspace_files import load_workspace
 from fleet import runtime
-from fleet.agent.host import Host, install_signals, run_host, select_drones
+from fleet.agent.host import Host, ignore_signals, install_signals, run_host, select_drones
 from fleet.agent.settings import AgentSettings
 
 
@@ -117,11 +117,14 @@ def _leaves(exc: BaseException) -> list[BaseException]:
 
 async def _main(host: Host) -> None:
     install_signals(host)
-    with contextlib.ExitStack() as files:
-        record: TextIO | None = None
-        if host.settings.record is not None:
-            record = files.enter_context(host.settings.record.open("a", encoding="utf-8"))
-        await run_host(host, record, on_ready=_announce)
+    try:
+        with contextlib.ExitStack() as files:
+            record: TextIO | None = None
+            if host.settings.record is not None:
+                record = files.enter_context(host.settings.record.open("a", encoding="utf-8"))
+            await run_host(host, record, on_ready=_announce)
+    finally:
+        ignore_signals()
 
 
 def _announce(host: Host) -> None:
