@@ -47,7 +47,7 @@ from fleet.transport.node import ZenohNode, ZenohSettings
 from fleet.transport.wire import DroneState, MailOrder, MailStatus, MailStatusReport, WireError, decode
 
 VEHICLE_SPEEDUP = 2.0  #: enough to track a cell per tau; telemetry rates scale with it, as in SITL
-TELEMETRY_HZ = 4.0  #: position twice per step at tau 0.5 s
+TELEMETRY_HZ = 10.0  #: the agent's default: a vehicle sent a cell ahead at most is sent on as soon as seen there
 IDLE_BOUND_S = 30.0  #: how long the drones may take to park at start-up (their moves take 10 s at most)
 
 
