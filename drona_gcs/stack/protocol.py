@@ -997,10 +997,10 @@ class CoordinationProtocol:
         gone_there = (self.members | set(self.ghosts)) - set(proposal.members) - {sender, self.me}
         found = []
         for p in sorted(gone_there):
-            rests = [self.ghosts.get(p) or self.known[p].suffix_from(now - self.lead_steps)]
-            rests += [t for d, t in self.maybe_flown.items() if d == p]
-            rests += [held.trajectory for d, held in self.proposals.items() if d == p]
-            cells = {c for rest in rests for c in rest.cells} | self.hearsay.get(p, frozenset())
+            proposal_held = self.proposals.get(p)
+            rests = [self.ghosts.get(p) or self.known[p].suffix_from(now - self.lead_steps), self.maybe_flown.get(p),
+                     proposal_held.trajectory if proposal_held is not None else None]
+            cells = {c for rest in rests if rest is not None for c in rest.cells} | self.hearsay.get(p, frozenset())
             found.append((p, tuple(sorted(cells - {here}))))
         return tuple(found)
 

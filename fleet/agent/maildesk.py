@@ -193,8 +193,8 @@ class MailDesk:
             for mail in held:  # taken over by that drone (or its own again)
                 self.orphans.pop(mail.id, None)
                 self.stranded.pop(mail.id, None)
-                if self.handed.pop(mail.id, None) is not None:
-                    self.publish_held()
+                self.handed.pop(mail.id, None)
+            self.publish_held()  # (only if what I list changed)
             for mail in body.mail:
                 if mail.stage == "handed_back" and not self._listed_by_other(mail.id, writer):
                     self.orphans.setdefault(mail.id, (writer, mail, self.stack.now))
