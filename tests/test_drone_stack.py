@@ -452,3 +452,28 @@ def test_a_drone_starting_up_before_it_meets_its_peers_hands_back_nothing() -> N
     stack.peer_left("d2")  # not running yet
     stack.assign(MAIL)
     assert of(MailRejected, stack.step(0, 100.0, (0, 5, 0))) == [] and not stack.in_touch
+
+
+def test_a_drone_in_the_air_starts_its_plan_sooner_than_one_on_the_ground() -> None:
+    """A landed drone's plan starts ``lead_steps`` on (it climbs first); one in the air, having picked up,
+    ``hover_lead_steps`` on."""
+    config = StackConfig(WS, SafePlanner(WS), lead_steps=6, hover_lead_steps=3)
+    stack = DroneStack("d1", config, dict(WS.drones))
+    stack.assign(MAIL)
+    leads = []
+    for step in range(1, 60):
+        for action in stack.step(step, 100.0, ideal(stack, step)):
+            if isinstance(action, StartExecuting):
+                leads.append((action.trajectory.last, action.trajectory.start_step - step))
+    assert leads[:2] == [(MAIL.pickup, 6), (MAIL.dropoff, 3)]
+
+
+def test_a_drone_with_nowhere_to_park_leaves_a_mail_stop_once_idle() -> None:
+    """No parking cells: a drone that delivered to one of the workspace's pickups waits next to it,
+    not on it, where it would wall in the next mail from there."""
+    ws = Workspace.build(size=(6, 6, 1), drones={"d1": (0, 0, 0)}, pickups=((3, 0, 0), (3, 3, 0)))
+    stack, actions = fly(ideal, 60, DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones)), ws)
+    assert of(MailDelivered, actions) == [MailDelivered(MAIL)]
+    [leave] = [a for a in of(GoTo, actions) if a.purpose is Phase.MAKING_WAY]  # type: ignore[union-attr]
+    assert leave.goal not in ws.pickups and stack.executor.cell == leave.goal  # type: ignore[union-attr]
+    assert stack.protocol.state is State.WAIT_FOR_TASK

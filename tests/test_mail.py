@@ -780,3 +780,52 @@ def test_a_drone_whose_battery_reaches_no_charger_hands_its_mail_back() -> None:
     assert sorted(a.request.id for a in actions if isinstance(a, MailRejected)) == ["a", "b"]
     assert "reaches no charger" in next(a for a in actions if isinstance(a, MailRejected)).reason
     assert mp.queue == []
+
+
+# ======================================================== legs with an overhead, goals passed through
+def test_a_pickup_leg_is_given_its_overhead_and_moves_even_where_the_overhead_outweighs_the_margin() -> None:
+    """What the leg to a pickup keeps for after it is the drop-off leg and the way to a charger; its own
+    overhead (lead steps, first step) is flown within it. Reserving a leg from the pickup to itself
+    (an overhead) in place of the margin left a landed drone with less than its lead: no plan, for good."""
+    overhead = MODEL.margin_steps + 2
+    mp = MailPlanner(Q1, (Q1, Q2), (P1, P2), manhattan, MODEL, leg_overhead=overhead)
+    m = mail("m", c(1, 0), c(3, 0))
+    need = (overhead + 1) + (overhead + 2) + (overhead + manhattan(c(3, 0), Q2)) + MODEL.margin_steps
+    mp.assign(m)
+    leg = goto(mp.decide(0, MODEL.safe_threshold + need, ()))
+    assert leg.goal == m.pickup and leg.flight_steps is not None
+    assert leg.flight_steps >= overhead + manhattan(Q1, m.pickup)
+
+
+def test_a_mail_whose_drop_off_no_way_joins_is_rejected_before_its_pickup() -> None:
+    """A vehicle down on the drop-off: picked up, the mail would stay on board for good. (No chargers,
+    so no energy rule rejects it first.)"""
+    walled = c(4, 4)
+    mp = MailPlanner(P1, (), (P1, P2), lambda a, b: NO_WAY if walled in (a, b) else manhattan(a, b), MODEL)
+    m = mail("m", c(2, 2), walled)
+    mp.assign(m)
+    [rejected] = mp.decide(0, 100, ())
+    assert isinstance(rejected, MailRejected) and "drop-off [4, 4, 0] is cut off" in rejected.reason
+    assert not mp.carrying and mp.current is None
+
+
+def handed_back_while_the_pickup_is_taken(passing: bool, steps: int = 600) -> list[MailAction]:
+    """A mail whose pickup another drone rests on all along (``passing``: its plan ends there, under
+    way) : every round to it fails; what was handed back."""
+    pickup = c(2, 2)
+    mp = planner(at=c(5, 5))
+    mp.assign(mail("m", pickup, c(4, 4)))
+    handed: list[MailAction] = []
+    for now in range(steps):
+        actions = mp.decide(now, 100, (pickup,), (pickup,) if passing else ())
+        handed += [a for a in actions if isinstance(a, MailRejected)]
+        if any(isinstance(a, GoTo) for a in actions):
+            handed += [a for a in mp.leg_failed(now) if isinstance(a, MailRejected)]
+    return handed
+
+
+def test_a_pickup_where_a_peer_s_plan_ends_is_waited_for_not_handed_back() -> None:
+    """Two mails with one pickup: the drone that gets there first rests there until its next leg. The
+    other waits, whatever it takes; the same pickup held by a drone at rest is handed back as before."""
+    assert handed_back_while_the_pickup_is_taken(passing=True) == []
+    assert handed_back_while_the_pickup_is_taken(passing=False)

@@ -293,6 +293,7 @@ def test_liveness_excuses_only_mail_the_vehicles_down_cut_off() -> None:
     with pytest.raises(Violation, match=r"\(d\)"):  # on board, the way to the drop-off is open
         carrying.liveness(1, blocked=aside, fleet=at_pickup)
     carrying.liveness(1, blocked=cut, fleet=at_pickup)
+    carrying.liveness(1, blocked=frozenset({request.dropoff}), fleet=at_pickup)  # a vehicle down on the drop-off
 
 
 def test_liveness_excuses_mail_no_drone_can_fly_once_a_vehicle_down_takes_its_charger() -> None:

@@ -105,6 +105,14 @@ def default_lead_steps(workspace: Workspace) -> int:
     return workspace.delta + 1 + math.ceil(climb_s / workspace.tau_s)
 
 
+ROUND_S = 1.0  #: a coordination round, from the request to the last ack, with room (LAN p99: tenths of a second)
+
+
+def default_hover_lead_steps(workspace: Workspace) -> int:
+    """Delta + 1, plus the steps a round takes: a drone in the air climbs no more before its plan."""
+    return workspace.delta + 1 + math.ceil(ROUND_S / workspace.tau_s)
+
+
 def leg_overhead(lead_steps: int) -> int:
     """Steps of flight a leg takes besides its moves: the lead steps before its plan starts
     (climbing, or hovering) and the plan's first step, held in the start cell."""
@@ -121,6 +129,7 @@ class StackConfig:
     low_mark: float = 40.0
     recharged_mark: float = 95.0
     lead_steps: int | None = None  #: steps between planning and a plan's start; default Delta + 1
+    hover_lead_steps: int | None = None  #: the same for a drone in the air (at most ``lead_steps``); default that
 
     def __deepcopy__(self, memo: dict[int, object]) -> StackConfig:
         return self
@@ -136,7 +145,8 @@ class DroneStack:
         self.clock = HybridClock(me, epoch)
         planner = config.planner
         lead = config.lead_steps if config.lead_steps is not None else config.planner.delta + 1
-        self.protocol = CoordinationProtocol(me, start, dict(peers), planner.plan, lead, planner.delta)
+        self.protocol = CoordinationProtocol(me, start, dict(peers), planner.plan, lead, planner.delta,
+                                             hover_lead_steps=config.hover_lead_steps)
         self.executor = PlanExecutor(start)
         self.monitor = BatteryMonitor(config.low_mark, config.recharged_mark)
         parking = own_parking(ws.parking, list(peers), me)
@@ -148,6 +158,7 @@ class DroneStack:
         self.mail = MailPlanner(start, ws.charging_stations, parking, self.distance,
                                 config.battery, recharged_level=config.recharged_mark, leg_overhead=leg_overhead(lead),
                                 spare_parking=[c for c in ws.parking if c not in parking])
+        self.mail_cells = frozenset(ws.pickups) | frozenset(ws.dropoffs)  #: the workspace's mail stops
         self.arrival: Arrival | None = None  #: a plan ended; waiting to see the vehicle at its goal
         #: goals whose last try found no plan, until a plan reaches one (legs elsewhere come between:
         #: a charger walled in, tried between legs to parking, never asked its way clear)
@@ -254,7 +265,7 @@ class DroneStack:
         trajectory = self.protocol.trajectory
         if self.protocol.state is not State.EXECUTING or trajectory is None:
             return []
-        stop = trajectory.at(self.now + self.protocol.lead_steps)
+        stop = trajectory.at(self.now + self.protocol.airborne_lead)
         if stop == trajectory.last:
             return []
         self.stop_short, self.threat = stop, None
@@ -359,11 +370,22 @@ class DroneStack:
         if may_plan and self.protocol.state is State.WAIT_FOR_TASK:
             taken = self.taken_cells()
             self.resting_now = frozenset(taken)
-            for decided in self.mail.decide(step, battery_level, taken):
+            self._off_mail_cells(taken)
+            for decided in self.mail.decide(step, battery_level, taken, self.passing_cells()):
                 actions.append(decided)
                 if isinstance(decided, GoTo):
                     actions += self._protocol(NewTask(self._task(decided, step, physical_time)))
         return actions
+
+    def _off_mail_cells(self, taken: set[Cell]) -> None:
+        """A drone with nothing to do and nowhere to park leaves a workspace's pickup or drop-off cell for
+        the nearest cell off them: waiting there, it would wall in the next mail that needs it."""
+        here = self.protocol.location
+        if here not in self.mail_cells or not self.mail.homeless:
+            return
+        spot = yield_spot(self.config.workspace, here, self.mail_cells, taken)
+        if spot is not None:
+            self.mail.make_way(spot)
 
     def _cut_off(self) -> list[DroneAction]:
         """Out of touch with most of the fleet, a drone plans nothing, and the other side may take its mail
@@ -399,7 +421,7 @@ class DroneStack:
         where a new plan would start (that cell itself, if it can be held); None if there is none."""
         trajectory = self.protocol.trajectory
         assert trajectory is not None
-        start = trajectory.at(self.now + self.protocol.lead_steps)
+        start = trajectory.at(self.now + self.protocol.airborne_lead)
         self.stop_short = yield_spot(self.config.workspace, start, frozenset(threat.cells), self.taken_cells())
         return self.stop_short
 
@@ -457,13 +479,19 @@ class DroneStack:
         task = self.protocol.task
         if self.protocol.state is not State.COORDINATING or task is None or self.landed:
             return
-        left = task.max_length(step + self.protocol.lead_steps)
+        left = task.max_length(step + self.protocol.lead_for(task))
         if left is not None and left < self.mail.distance(self.protocol.location, task.goal):
             self.mail.land()
 
     @property
     def landed(self) -> bool:
         return self.mail.landed(holding=not self.executor.flying)
+
+    def passing_cells(self) -> set[Cell]:
+        """Where the plans of live peers under way end: they rest there only until their next leg."""
+        now = self.now
+        return {traj.last for drone, traj in self.protocol.known.items()
+                if drone != self.me and drone not in self.protocol.ghosts and traj.end_step > now}
 
     def taken_cells(self) -> set[Cell]:
         """Cells where other drones rest, as far as this drone knows."""

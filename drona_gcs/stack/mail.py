@@ -206,6 +206,7 @@ class MailPlanner:
     misses: int = 0  #: legs in a row whose plan ended with the vehicle not seen at the goal
     failures: int = 0  #: coordination rounds in a row that found no plan to a pickup, drop-off or charger
     occupied: frozenset[Cell] = frozenset()  #: chargers other drones rested on at the last decision
+    passing: frozenset[Cell] = frozenset()  #: where plans under way ended, at the last decision
     cut_offs: int = 0  #: legs in a row whose goal no path at all joined
     #: mail whose leg no path joined from here: tried after the rest, until the drone has moved
     cut_off_mail: frozenset[str] = frozenset()
@@ -256,6 +257,12 @@ class MailPlanner:
         a drone waiting with it for a drop-off walled off for good would wall others off in turn."""
         if not self.busy and self.phase is not Phase.CHARGING:
             self.make_way_to = spot
+
+    @property
+    def homeless(self) -> bool:
+        """Idle with no mail, no leg and nowhere to park or charge: it waits wherever it is."""
+        return (not self.busy and not self.carrying and not self.queue and self.phase is Phase.IDLE
+                and not self.held and self.make_way_to is None and not self._parking_spots())
 
     def battery_low(self) -> None:
         self.low = True
@@ -323,7 +330,10 @@ class MailPlanner:
         :data:`MAX_FAILURES` rounds in a row found no plan to its pickup (a vehicle down may rest
         on it for good), or to the drop-off of the mail on board, or to a charger it needs (the
         queue behind them), and all of it once as many legs in a row were cut off (drones resting
-        for good wall this one in)."""
+        for good wall this one in). A leg to where a peer's plan under way ends counts for none of
+        that: the peer moves on (two mails with one pickup, two drones at once)."""
+        passing = self.goal in self.passing
+        asked = asked and not passing
         self.retry_at = now + self._retry_delay()
         if self.goal is not None:
             self.tried.add(self.goal)
@@ -339,7 +349,7 @@ class MailPlanner:
         self.phase = Phase.IDLE
         self.failures += asked and (to_pickup or to_dropoff or to_charger)
         self.cut_offs = self.cut_offs + 1 if cut_off else 0 if asked else self.cut_offs
-        if to_pickup and self._struck(self.queue[-1]):
+        if to_pickup and not passing and self._struck(self.queue[-1]):
             request = self.queue.pop()
             return [MailRejected(request, f"no plan to its pickup {list(request.pickup)} in {MAX_STRIKES} legs")]
         reason = f"no plan in {MAX_FAILURES} rounds in a row"
@@ -403,9 +413,12 @@ class MailPlanner:
         return self.goal is not None
 
     # ---------------------------------------------------------- decide
-    def decide(self, now: int, level: float, taken: Collection[Cell]) -> list[MailAction]:
-        """At step boundary ``now`` with battery ``level``; ``taken``: cells other drones rest on."""
+    def decide(self, now: int, level: float, taken: Collection[Cell],
+               passing: Collection[Cell] = ()) -> list[MailAction]:
+        """At step boundary ``now`` with battery ``level``; ``taken``: cells other drones rest on;
+        ``passing``: of those, the ones where a drone's plan under way ends (it will move on)."""
         self.occupied = frozenset(c for c in self.chargers if c in taken)
+        self.passing = frozenset(passing)
         if self.phase is Phase.CHARGING and level >= self.recharged_level:
             self.battery_recharged()  # also ends charging for a mail it could not afford
         if self.held and not self.busy:
@@ -485,14 +498,15 @@ class MailPlanner:
     def _start_next_mail(self, budget: Budget, taken: Collection[Cell]) -> list[MailAction]:
         self.queue.sort(key=lambda r: (r.id in self.cut_off_mail, r.rank))
         best = self.queue[0]
-        if not self._reachable([best.pickup]):
+        cut_off = self._cut_off_end(best)
+        if cut_off is not None:
             self.queue.pop(0)
-            why = f"its pickup {list(best.pickup)} is cut off from here (obstacles and vehicles down)"
+            why = f"its {cut_off} is cut off from here (obstacles and vehicles down)"
             return [MailRejected(best, why), *self.decide_again(budget, taken)]
         if budget.allows(self._need(self.cell, best)):
             self.queue.pop(0)
             self.current = best
-            rest = self._need(best.pickup, best) - self.battery.margin_steps
+            rest = self._leg(best.pickup, best.dropoff) + self._after(best.dropoff)  # kept for after the pickup
             leg = self._go(best.pickup, budget, rest, Phase.TO_PICKUP, taken)
             if not any(isinstance(a, GoTo) for a in leg):
                 return leg  # not started: back in the queue, or handed back
@@ -513,6 +527,14 @@ class MailPlanner:
             self.phase = Phase.CHARGING
             return []
         return self._to_one_of(free, budget, taken, Phase.TO_CHARGER)
+
+    def _cut_off_end(self, request: MailRequest) -> str | None:
+        """The end of ``request`` no way joins to here (vehicles down may wall one off), or None."""
+        if not self._reachable([request.pickup]):
+            return f"pickup {list(request.pickup)}"
+        if self.distance(request.pickup, request.dropoff) >= NO_WAY:
+            return f"drop-off {list(request.dropoff)}"
+        return None
 
     def decide_again(self, budget: Budget, taken: Collection[Cell]) -> list[MailAction]:
         return self._start_next_mail(budget, taken) if self.queue else []

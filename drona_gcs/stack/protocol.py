@@ -67,7 +67,9 @@ settled here, and one message it sends is saved (the second point):
   plans that may have been replaced since; planning with them is the race the
   paper's model checker found (the tester seeds this bug).
 * **A plan starts ``lead_steps`` after now**, because planning, messaging and
-  the executor's hand-over take time; the executor refuses a trajectory whose
+  the executor's hand-over take time, and a landed drone climbs into the grid;
+  a drone in the air (its task ``hovering_since``) climbs no more and starts
+  ``hover_lead_steps`` after now. The executor refuses a trajectory whose
   start it has already passed. Other drones' executors may be up to beta
   ahead or behind, and their vehicles up to lambda late into each cell (a later
   vehicle raises an alarm and plans nothing more); the planner's window,
@@ -390,6 +392,7 @@ class CoordinationProtocol:
     plan: PlanFunction
     lead_steps: int = 1
     delta: int = 0  #: the planner's skew window, in steps: a plan keeps that clear of every other drone
+    hover_lead_steps: int | None = None  #: ``lead_steps`` for a drone in the air, which climbs no more
     state: State = State.WAIT_FOR_TASK
     task: Task | None = None
     trajectory: Trajectory | None = None
@@ -501,6 +504,15 @@ class CoordinationProtocol:
                 if cell != sparing:
                     held[f"{drone}!{i}"] = Trajectory.stationary(cell, 0)
         return held
+
+    @property
+    def airborne_lead(self) -> int:
+        """Steps from now to the start of a plan for a drone in the air."""
+        return min(self.hover_lead_steps or self.lead_steps, self.lead_steps)
+
+    def lead_for(self, task: Task) -> int:
+        """Steps from now to the start of ``task``'s plan: a landed drone climbs first."""
+        return self.lead_steps if task.hovering_since is None else self.airborne_lead
 
     def in_quorum(self) -> bool:
         """In touch with a strict majority of the fleet, or half of it with its first drone (by name):
@@ -820,7 +832,7 @@ class CoordinationProtocol:
             return []
         assert self.task is not None
         task = self.task
-        start_step = now + self.lead_steps
+        start_step = now + self.lead_for(task)
         flying = self.trajectory if self.state is State.REROUTING else None
         here = flying.at(now) if flying is not None else self.location
         start = flying.at(start_step) if flying is not None else self.location

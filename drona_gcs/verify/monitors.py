@@ -312,7 +312,8 @@ class Monitors:
         carrier = next((d for d, r in self.carrying.items() if r.id == request.id), None)
         if carrier is not None:
             flier = fleet.get(carrier)
-            return flier is not None and self._affords(flier, None, request.dropoff, blocked)
+            return flier is not None and request.dropoff not in blocked and self._affords(flier, None, request.dropoff,
+                                                                                          blocked)
         if request.pickup in blocked or request.dropoff in blocked:
             return False
         return any(self._affords(flier, request.pickup, request.dropoff, blocked) for flier in fleet.values())

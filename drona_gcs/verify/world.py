@@ -96,11 +96,19 @@ class Upgrade:
 UPGRADE = Upgrade()
 
 
-def model_lead(delta: int, max_delay: int) -> int:
-    """Lead steps of the model's drones: the stack's default (Delta + 1), and at least a plan's round
-    trip to be held by every peer (its proposal and the acks, ``max_delay`` steps each) and a step, so
-    that a plan is never dropped for the model's network alone."""
+MODEL_CLIMB_STEPS = 2  #: a landed model drone's take-off before its plan starts (one in the air needs none)
+
+
+def model_hover_lead(delta: int, max_delay: int) -> int:
+    """Lead steps of the model's drones in the air: the stack's default (Delta + 1), and at least a
+    plan's round trip to be held by every peer (its proposal and the acks, ``max_delay`` steps each)
+    and a step, so that a plan is never dropped for the model's network alone."""
     return max(delta + 1, 2 * max_delay + 1)
+
+
+def model_lead(delta: int, max_delay: int) -> int:
+    """Lead steps of the model's landed drones, which climb first."""
+    return model_hover_lead(delta, max_delay) + MODEL_CLIMB_STEPS
 PARTITION_STEPS = 20  #: a partition heals within this many steps of the slowest clock
 MAX_DRAWS = 1000  #: random draws of a mail the service accepts, before giving up
 
@@ -288,11 +296,11 @@ class World:
         needed = planner_delta(config.delta, config.bugs)
         if planner.delta != needed:
             raise ValueError(f"planner has delta {planner.delta}, the world needs {needed}")
-        lead = model_lead(config.delta, config.max_delay)
-        stack = StackConfig(config.workspace, planner, config.battery, lead_steps=lead)
-        # A rolling upgrade: the last drone runs another configuration (a longer lead, other marks).
-        upgraded = replace(stack, lead_steps=lead + UPGRADE.extra_lead, low_mark=UPGRADE.low_mark,
-                           recharged_mark=UPGRADE.recharged_mark)
+        lead, hover = model_lead(config.delta, config.max_delay), model_hover_lead(config.delta, config.max_delay)
+        stack = StackConfig(config.workspace, planner, config.battery, lead_steps=lead, hover_lead_steps=hover)
+        # A rolling upgrade: the last drone runs another configuration (longer leads, other marks).
+        upgraded = replace(stack, lead_steps=lead + UPGRADE.extra_lead, hover_lead_steps=hover + UPGRADE.extra_lead,
+                           low_mark=UPGRADE.low_mark, recharged_mark=UPGRADE.recharged_mark)
         peers = dict(zip(config.drones, config.starts, strict=True))
         self.stacks = {d: DroneStack(d, upgraded if config.mixed and d == config.drones[-1] else stack, peers)
                        for d in config.drones}

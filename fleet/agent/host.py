@@ -32,7 +32,7 @@ from drona_gcs.errors import DronaError, VehicleError
 from drona_gcs.geo import GeoFrame
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.battery import BatteryModel
-from drona_gcs.stack.drone import DroneStack, StackConfig, default_lead_steps
+from drona_gcs.stack.drone import DroneStack, StackConfig, default_hover_lead_steps, default_lead_steps
 from drona_gcs.workspace import Workspace
 from fleet import runtime
 from fleet.agent.drone import BROADCAST, DroneAgent
@@ -130,7 +130,8 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
     planner = SafePlanner(ws, delta=ws.delta)
     battery = BatteryModel.for_period(ws.tau_s, settings.drain_per_step, settings.safe_threshold)
     lead = settings.lead_steps or default_lead_steps(ws)
-    config = StackConfig(ws, planner, battery, lead_steps=lead)
+    hover = min(settings.hover_lead_steps or default_hover_lead_steps(ws), lead)
+    config = StackConfig(ws, planner, battery, lead_steps=lead, hover_lead_steps=hover)
     keys = FleetKeys(settings.fleet)
     signing = settings.signing_keys(host.names)  # before any network: a missing key stops the process here
     groups = session_groups(settings, host.names)

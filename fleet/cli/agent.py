@@ -47,6 +47,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add("--epoch", type=float, help="fleet epoch, Unix seconds: step k starts at epoch + k tau (default 0)")
     add("--record", type=Path, help="write every drone's actual cell at every step here, as JSON Lines")
     add("--lead-steps", type=int, help="steps from planning to a plan's start (default: Delta + 1 + climb)")
+    add("--hover-lead-steps", type=int,
+        help="the same for a drone in the air, at most --lead-steps (default: Delta + 1 + a second's round)")
     add("--clock-offset", dest="clock_offset_s", type=float,
         help="simulation only: shift this process's clock by S seconds (tests the skew check)")
     add("--telemetry-hz", type=float, help="rate asked of the vehicle's position streams; the landed state comes at "
