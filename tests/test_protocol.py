@@ -43,12 +43,14 @@ from drona_gcs.stack.protocol import (
     Holding,
     NewTask,
     NextStep,
+    PeerAnnounced,
     PeerBraked,
     PeerDown,
     PeerJoined,
     PeerLeft,
     PeerLost,
     PlanCompleted,
+    Present,
     Released,
     Relocated,
     Reroute,
@@ -121,8 +123,9 @@ def request(task_id: TaskId, sender: str, now: int = 0) -> ReqForCurrentTraj:
 
 # =========================================================== the state table
 EVENT_TYPES: tuple[type, ...] = (NewTask, PlanCompleted, PeerLeft, PeerJoined, ReqForCurrentTraj, CurrentTraj,
-                                 VehicleLost, Relocated, Reroute, VehicleDown, PeerDown, PeerBraked, Released,
-                                 NextStep, PlanProposal, PlanAck, PlanRefusal, PlanDecision, ClockBound, PeerLost)
+                                 VehicleLost, Relocated, Reroute, VehicleDown, PeerDown, PeerBraked, PeerAnnounced,
+                                 Released, NextStep, PlanProposal, PlanAck, PlanRefusal, PlanDecision, ClockBound,
+                                 PeerLost)
 #: What Protocol 1 takes in each state (paper section 3.1); the rest is a protocol violation. A vehicle
 #: found again is not placed while a round is under way (its request carried where it was). Only a
 #: drone flying a plan plans its rest anew (Reroute), and that round ends when the plan does.
@@ -163,6 +166,7 @@ def sample(event_type: type) -> Event:
         PeerDown: PeerDown("b", (3, 3, 0)),
         NextStep: NextStep(),
         PeerBraked: PeerBraked("b", Trajectory(0, (B, B))),
+        PeerAnnounced: PeerAnnounced("b", Trajectory(0, (B, B))),
         Released: Released("b"),  # in_state's peer, once it left (see test_every_state_event_pair)
         PlanProposal: PlanProposal("b", ID_B_LOW, Trajectory(3, (B, B))),
         PlanAck: PlanAck("b", ID_A, location_of("b")),
@@ -216,12 +220,14 @@ def test_an_executing_drone_answers_with_its_trajectory_then_idle_with_the_finis
     proto = machine({"a": A})
     plan = started(confirmed(proto, proto.handle(NewTask(Task(ID_A, GOAL)), 0))).trajectory
     assert proto.state is State.EXECUTING
-    assert proto.handle(request(ID_B_LOW, "b"), 1) == [Send("b", CurrentTraj("a", plan, ID_B_LOW))]
+    # b, unknown so far, is alive: told what a flies, then answered
+    assert proto.handle(request(ID_B_LOW, "b"), 1) == [Present("b", plan, False),
+                                                       Send("b", CurrentTraj("a", plan, ID_B_LOW))]
     proto.handle(PlanCompleted(), plan.end_step)
     assert (proto.state, proto.location) == (State.WAIT_FOR_TASK, GOAL)
     # idle after a plan: the plan itself, which ends at the location and forever stays there
-    [reply] = proto.handle(request(ID_C_LOW, "c"), 20)
-    assert isinstance(reply, Send) and isinstance(reply.message, CurrentTraj)
+    told, reply = proto.handle(request(ID_C_LOW, "c"), 20)
+    assert isinstance(told, Present) and isinstance(reply, Send) and isinstance(reply.message, CurrentTraj)
     assert reply.message.trajectory.at(20) == GOAL and reply.message.in_reply_to == ID_C_LOW
 
 
@@ -305,13 +311,15 @@ def test_a_requester_that_is_no_member_is_alive_and_a_member_again() -> None:
     proto.handle(PeerLeft("c"), 0)
     proto.handle(NewTask(Task(ID_A, GOAL)), 0)
     first, second = TaskId(2, "c", 1), TaskId(3, "c", 2)
-    assert proto.handle(request(first, "c"), 1) == [Send("c", request(ID_A, "a", 1))]
-    assert "c" in proto.members and "c" not in proto.ghosts
-    assert proto.handle(PeerJoined("c", C), 1) == []  # its return, noticed late: nothing new
+    told = Present("c", Trajectory.stationary(A, 1), False)
+    assert proto.handle(request(first, "c"), 1) == [told, Send("c", request(ID_A, "a", 1))]
+    assert "c" in proto.members and "c" in proto.ghosts  # held where it may be until it says where it is
+    assert proto.handle(PeerJoined("c", C), 1) == [told]  # its return, noticed late: told again
     assert proto.handle(request(second, "c"), 1) == []
     assert proto.state is State.COORDINATING  # waiting for b, and for c's plan
     proto.handle(PeerLeft("b"), 1)
-    assert proto.handle(request(ID_B_HIGH, "b"), 1) == [Send("b", request(ID_A, "a", 1))]
+    assert proto.handle(request(ID_B_HIGH, "b"), 1) == [Present("b", Trajectory.stationary(A, 1), False),
+                                                        Send("b", request(ID_A, "a", 1))]
     assert proto.state is State.COORDINATING and proto.members == {"b", "c"}
 
 
@@ -340,7 +348,8 @@ def test_a_lower_priority_request_from_a_departed_drone_makes_it_a_member_and_is
     proto = machine()
     proto.handle(NewTask(Task(ID_A, GOAL)), 0)
     proto.handle(PeerLeft("c"), 0)
-    assert proto.handle(request(ID_C_LOW, "c"), 0) == [Send("c", request(ID_A, "a", 0))]
+    assert proto.handle(request(ID_C_LOW, "c"), 0) == [Present("c", Trajectory.stationary(A, 0), False),
+                                                       Send("c", request(ID_A, "a", 0))]
     assert proto.pending == {"c": ID_C_LOW} and "c" in proto.members
     assert proto.received["c"] == request(ID_C_LOW, "c").trajectory
 
@@ -564,8 +573,9 @@ def test_a_drone_plans_only_in_touch_with_most_of_the_fleet(fleet: str, in_touch
 def test_a_peer_joining_during_coordination_is_asked_and_waited_for() -> None:
     proto = machine({"a": A, "b": B})
     proto.handle(NewTask(Task(ID_A, GOAL)), 0)
-    assert proto.handle(PeerJoined("c", C), 1) == [Send("c", request(ID_A, "a", 1))]
-    assert proto.handle(PeerJoined("c", C), 1) == []  # already a member
+    told = Present("c", Trajectory.stationary(A, 1), False)
+    assert proto.handle(PeerJoined("c", C), 1) == [told, Send("c", request(ID_A, "a", 1))]
+    assert proto.handle(PeerJoined("c", C), 1) == [told]  # already a member: told again, not asked
     assert proto.handle(CurrentTraj("b", location_of("b"), ID_A), 1) == []  # still waiting for c
     c_plan = traj(2, (0, 4), (0, 3), (1, 3))
     action = started(confirmed(proto, proto.handle(CurrentTraj("c", c_plan, ID_A), 2)))
@@ -574,7 +584,7 @@ def test_a_peer_joining_during_coordination_is_asked_and_waited_for() -> None:
 
 def test_a_peer_joining_while_idle_is_asked_at_the_next_task() -> None:
     proto = machine({"a": A})
-    assert proto.handle(PeerJoined("b", B), 0) == []
+    assert proto.handle(PeerJoined("b", B), 0) == [Present("b", Trajectory.stationary(A, 0), False)]
     actions = proto.handle(NewTask(Task(ID_A, GOAL)), 0)
     assert actions == [Broadcast(ReqForCurrentTraj(ID_A, "a", location_of("a"), ("b",)))]  # it waits for b now
     answered = proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0)
@@ -979,6 +989,31 @@ def test_a_vehicle_down_too_close_to_plan_around_has_me_brake_short_of_it() -> N
             and isinstance(a.message, CurrentTraj)] == [cut]
 
 
+def test_a_drone_that_braked_tells_a_peer_back_of_the_brake() -> None:
+    """Its announcement of the brake went nowhere across a partition: a peer back is told, as a brake."""
+    proto, plan = flying_past_b()
+    [braked] = proto.handle(PeerDown("c", plan.at(5)), 4)
+    assert isinstance(braked, Braked)
+    proto.handle(PeerLeft("b", silent_since=4), 4)
+    assert proto.handle(PeerJoined("b", B), 5) == [Present("b", braked.trajectory, True)]
+
+
+def test_a_peer_back_is_held_where_it_may_be_until_it_says_what_it_flies() -> None:
+    """Sweep 10033: the cut healed, d4 dropped d1's ghost at once, and flew into d1, which had braked
+    while they were apart. A peer back stays held where it may be until its own word comes."""
+    proto = machine({"a": A, "b": B})
+    way = traj(0, (4, 4), (3, 4), (2, 4), (2, 3))
+    proto.heard("b", way)
+    proto.handle(PeerLeft("b", silent_since=0), 1)
+    held = {t.last for t in proto.ghost_obstacles().values()}
+    assert set(way.cells) <= held
+    proto.handle(PeerJoined("b", way.last), 2)
+    assert {t.last for t in proto.ghost_obstacles().values()} == held and "b" in proto.members
+    cut = traj(0, (4, 4), (3, 4), (3, 4))
+    proto.handle(PeerBraked("b", cut), 3)
+    assert proto.ghost_obstacles() == {} and proto.known["b"] == cut and proto.braked == {"b": cut}
+
+
 def test_a_round_that_ends_too_late_to_plan_around_a_vehicle_down_brakes_at_the_last_step() -> None:
     """Found by a crash sweep (seed 5151): the round to plan around it was still waiting for an answer
     when the plan entered the cell. At the boundary before, the drone brakes and the round ends."""
@@ -1257,4 +1292,6 @@ def test_a_refusal_naming_where_a_gone_drone_may_be_is_held_and_the_next_plan_ke
     retry = next(a.message for a in actions if isinstance(a, Broadcast) and isinstance(a.message, PlanProposal))
     assert not {(2, 0, 0), (2, 1, 0)} & set(retry.trajectory.cells) and retry.trajectory.last == GOAL
     proto.handle(PeerJoined("c", C), 3)
+    assert {"c!0", "c!1"} <= set(proto.ghost_obstacles())  # until c says where it is
+    proto.heard("c", Trajectory.stationary(C, 3))
     assert not any(name.startswith("c!") for name in proto.ghost_obstacles())

@@ -536,3 +536,14 @@ def test_a_drone_that_stops_short_of_a_plan_it_last_knew_of_a_departed_peer_is_n
                         partitions=1)
     outcome = Explorer(scenario).run(Strategy.PCT, schedules=80, max_depth=5000, seed=76641)
     assert outcome.violation is None, str(outcome.violation)
+
+
+def test_a_brake_announced_across_a_partition_reaches_the_peer_once_it_is_back() -> None:
+    """Found by sweep 10033: d1 saw d4 leave and braked in the cell d4's plan ended in; the announcement
+    was lost across the cut. The cut healed at once, d4 dropped d1's ghost when d1 joined again, and flew
+    into d1. Now each tells a peer back what it flies (a brake as a brake), and holds it where it may be
+    until it says."""
+    scenario = Scenario(drones=6, requests=3, delta=1, seed=100028, grid=(8, 8, 1), obstacles=0.2, crashes=1,
+                        partitions=1)
+    outcome = Explorer(scenario).run(Strategy.PCT, schedules=30, max_depth=5000, seed=100028)
+    assert outcome.violation is None, str(outcome.violation)

@@ -48,6 +48,7 @@ from drona_gcs.stack.protocol import (
     Event,
     NewTask,
     NextStep,
+    PeerAnnounced,
     PeerBraked,
     PeerDown,
     PeerJoined,
@@ -336,9 +337,9 @@ class DroneStack:
     def peer_left(self, drone: str, silent_since: int | None = None) -> list[DroneAction]:
         return self._protocol(PeerLeft(drone, silent_since))
 
-    def heard(self, drone: str, trajectory: Trajectory) -> None:
-        """A peer announced its new plan (see CoordinationProtocol.heard)."""
-        self.protocol.heard(drone, trajectory)
+    def heard(self, drone: str, trajectory: Trajectory) -> list[DroneAction]:
+        """A peer announced its new plan (see CoordinationProtocol.heard): one held as gone is back."""
+        return self._protocol(PeerAnnounced(drone, trajectory))
 
     def peer_joined(self, drone: str, cell: Cell, trajectory: Trajectory | None = None) -> list[DroneAction]:
         return self._protocol(PeerJoined(drone, cell, trajectory))

@@ -326,12 +326,12 @@ class MailPlanner:
     def leg_failed(self, now: int, asked: bool = True, cut_off: bool = False) -> list[MailAction]:
         """No plan was found (``asked``: by a coordination round; else the goal was known taken;
         ``cut_off``: no path at all joins start and goal): land here and try again a little later,
-        from the ground. Mail not on board is handed back for another drone to fly once
-        :data:`MAX_FAILURES` rounds in a row found no plan to its pickup (a vehicle down may rest
-        on it for good), or to the drop-off of the mail on board, or to a charger it needs (the
-        queue behind them), and all of it once as many legs in a row were cut off (drones resting
-        for good wall this one in). A leg to where a peer's plan under way ends counts for none of
-        that: the peer moves on (two mails with one pickup, two drones at once)."""
+        from the ground (or in the air, where a peer's plan under way ends at the goal). Mail not on
+        board is handed back for another drone to fly once :data:`MAX_FAILURES` rounds in a row found
+        no plan to its pickup (a vehicle down may rest on it for good), or to the drop-off of the
+        mail on board, or to a charger it needs (the queue behind them), and all of it once as many
+        legs in a row were cut off (drones resting for good wall this one in). A leg to where a peer's
+        plan under way ends counts for none of that: the peer moves on (two mails with one pickup)."""
         passing = self.goal in self.passing
         asked = asked and not passing
         self.retry_at = now + self._retry_delay()
@@ -341,7 +341,7 @@ class MailPlanner:
         to_dropoff = self.phase is Phase.TO_DROPOFF and self.carrying
         to_charger = self.phase is Phase.TO_CHARGER
         self.goal = None
-        self.landed_here = True
+        self.landed_here = self.landed_here or not passing  # a peer passing through: hover the short wait
         if self.current is not None and not self.carrying:
             # Not picked up yet: back in the queue, to be weighed again against priorities and battery.
             self.queue.append(self.current)

@@ -270,6 +270,14 @@ class PeerBraked:
 
 
 @dataclass(frozen=True)
+class PeerAnnounced:
+    """``drone`` announced the plan it flies now, outside any round of mine (see :meth:`CoordinationProtocol.heard`)."""
+
+    drone: str
+    trajectory: Trajectory
+
+
+@dataclass(frozen=True)
 class Released:
     """The operator saw ``drone``, gone, out of the air for good (landed, or taken away): no cell is
     held for it any more, until it joins again."""
@@ -299,8 +307,8 @@ class Reroute:
 
 
 Event = (NewTask | PlanCompleted | PeerLeft | PeerJoined | ReqForCurrentTraj | CurrentTraj | VehicleLost
-         | Relocated | Reroute | VehicleDown | PeerDown | PeerBraked | Released | NextStep | PlanProposal
-         | PlanAck | PlanRefusal | PlanDecision | ClockBound | PeerLost)
+         | Relocated | Reroute | VehicleDown | PeerDown | PeerBraked | PeerAnnounced | Released | NextStep
+         | PlanProposal | PlanAck | PlanRefusal | PlanDecision | ClockBound | PeerLost)
 
 
 # ----------------------------------------------------------------- actions
@@ -369,7 +377,18 @@ class Holding:
     cells: tuple[Cell, ...]
 
 
-Action = Send | Broadcast | StartExecuting | TaskFailed | Threatened | RerouteFailed | Grounded | Braked | Holding
+@dataclass(frozen=True)
+class Present:
+    """Tell ``to``, which joined (again), what I fly now: news of me it missed while apart (a brake, a new
+    plan) would otherwise be lost for good. ``braked``: a plan I cut short, announced as any brake."""
+
+    to: str
+    trajectory: Trajectory
+    braked: bool
+
+
+Action = (Send | Broadcast | StartExecuting | TaskFailed | Threatened | RerouteFailed | Grounded | Braked | Holding
+          | Present)
 
 
 @dataclass(frozen=True)
@@ -420,6 +439,9 @@ class CoordinationProtocol:
     off_since: int | None = None  #: my clock is beyond the fleet's bound, since this step
     outliers: frozenset[str] = frozenset()  #: peers whose clock is beyond the fleet's bound
     peers_lost: dict[str, tuple[Cell, ...]] = field(default_factory=dict)  #: peers' lost vehicles, where they may be
+    #: members back since they left, not heard from since: held where they may be until they say (Present)
+    unreported: set[str] = field(default_factory=set)
+    cut: Trajectory | None = None  #: my last brake: the plan I cut short, held at its end
 
     def __post_init__(self) -> None:
         self.members = set(self.peers) - {self.me}
@@ -437,19 +459,28 @@ class CoordinationProtocol:
 
     def _alive(self, event: Event, now: int) -> list[Action]:
         """A message that says what a drone I hold as gone flies proves it alive (its lease outlasts what
-        it sent before): a member again, there. (A request does so in :meth:`_admit`.)"""
-        if not isinstance(event, (CurrentTraj, PlanAck, PlanDecision)):
+        it sent before): a member again, there. (A request does so in :meth:`_admit`.) So does an
+        announcement of its, which may come before its return does."""
+        if isinstance(event, (PeerAnnounced, PeerBraked)):
+            sender = event.drone
+        elif isinstance(event, (CurrentTraj, PlanAck, PlanDecision)):
+            sender = event.sender
+        else:
             return []
-        sender = event.sender
         if sender in self.members or sender == self.me or sender not in self.peers:
             return []
         return self.handle(PeerJoined(sender, event.trajectory.last, event.trajectory), now)
+
+    def _on_announced(self, event: PeerAnnounced, now: int) -> list[Action]:
+        self.heard(event.drone, event.trajectory)
+        return []
 
     def heard(self, drone: str, trajectory: Trajectory) -> None:
         """A peer announced the plan it now flies (outside any round of mine): known for where
         it rests and, should it leave, where it may have stopped. Never planned with: Psi is
         only what the peers answer."""
-        if drone in self.members and trajectory.start_step >= self.known[drone].start_step:
+        reporting = self._reported(drone)
+        if drone in self.members and (reporting or trajectory.start_step >= self.known[drone].start_step):
             self.known[drone] = self._news(drone, trajectory)
 
     def current_trajectory(self, now: int) -> Trajectory:
@@ -663,6 +694,7 @@ class CoordinationProtocol:
         the plan I fly (which avoided its plan, not this) if that crosses it."""
         if event.drone == self.me or event.drone not in self.peers:
             return []
+        self._reported(event.drone)
         self.peers_down[event.drone] = event.cell
         self.proposals.pop(event.drone, None)
         stays = Trajectory.stationary(event.cell, now)
@@ -717,7 +749,7 @@ class CoordinationProtocol:
         assert self.trajectory is not None
         flown, start = self.trajectory, self.trajectory.start_step
         cells = tuple(flown.at(t) for t in range(start, max(entry, start + 1)))
-        self.trajectory = Trajectory(start, (*cells, cells[-1]))
+        self.trajectory = self.cut = Trajectory(start, (*cells, cells[-1]))
         actions: list[Action] = [Braked(self.trajectory, flown.at(entry))]
         if self.state is State.REROUTING and self.task is not None:
             actions += [*self._release_pending(self.trajectory), RerouteFailed(self.task, "braked")]
@@ -735,7 +767,9 @@ class CoordinationProtocol:
         overrides what it answered of that plan, and the plan I fly steers clear of it as of a vehicle
         down (brake, or plan its rest anew)."""
         drone, cut = event.drone, event.trajectory
-        if drone == self.me or drone not in self.members or cut.start_step < self.known[drone].start_step:
+        reporting = self._reported(drone)
+        if drone == self.me or drone not in self.members or (
+                not reporting and cut.start_step < self.known[drone].start_step):
             return []  # a plan of its made since ended the brake
         self.braked[drone] = self.known[drone] = cut
         if drone in self.received:
@@ -767,7 +801,11 @@ class CoordinationProtocol:
         # lead, as before, held cells a drone flew through seconds earlier: mail there was stuck.)
         silent = now if event.silent_since is None else min(now, event.silent_since)
         since = silent - self.delta - 1
-        self.ghosts[event.drone] = last.suffix_from(since)
+        if event.drone in self.unreported:  # gone again before it said where it is: held as it was, and here
+            self.unreported.discard(event.drone)
+            self.hearsay[event.drone] = self.hearsay.get(event.drone, frozenset()) | set(last.suffix_from(since).cells)
+        else:
+            self.ghosts[event.drone] = last.suffix_from(since)
         proposal = self.proposals.pop(event.drone, None)
         if proposal is not None:
             self.maybe_flown[event.drone] = proposal.trajectory.suffix_from(since)
@@ -776,23 +814,41 @@ class CoordinationProtocol:
         return self._plan_if_ready(now) if self.coordinating else self._steer_clear(event.drone, now)
 
     def _on_peer_joined(self, event: PeerJoined, now: int) -> list[Action]:
-        if event.drone == self.me or event.drone in self.members:
+        """A drone back (a partition healed, its agent restarted). Where it may be stays held until it says
+        what it flies now: a brake of its, announced while we were apart, never reached us. It is told
+        what I fly now, for the same reason."""
+        if event.drone == self.me:
             return []
+        if event.drone in self.members:  # met as I start (my agent restarted), or back already (a message)
+            return [self._present(event.drone, now)]
         self.members.add(event.drone)
         self.released.discard(event.drone)
-        for gone in (self.ghosts, self.maybe_flown, self.proposals, self.hearsay):  # it says where it is now
-            gone.pop(event.drone, None)
-        self.peers_down.pop(event.drone, None)  # its agent restarted: its vehicle is back in service
-        self.peers_lost.pop(event.drone, None)  # where it announces itself now is the truth
-        self.braked.pop(event.drone, None)
+        self.proposals.pop(event.drone, None)
         self.newest.pop(event.drone, None)  # it may have restarted, and its clock with it
-        # What it announces now is newer than anything we heard before it left.
         self.known[event.drone] = event.announced(now)
-        if self.down is not None and self.trajectory is not None:
-            return [Grounded(self.trajectory)]  # a restarted agent missed the news: it never moves
+        self.unreported.add(event.drone)
+        told = self._present(event.drone, now)
         if self.coordinating and self.task is not None:
-            return [Send(event.drone, self._request(now))]
-        return []
+            return [told, Send(event.drone, self._request(now))]
+        return [told]
+
+    def _present(self, drone: str, now: int) -> Action:
+        """What ``drone``, back, is told of me: my vehicle down or lost, or the plan I fly (a brake or not)."""
+        if self.down is not None and self.trajectory is not None:
+            return Grounded(self.trajectory)  # a restarted agent missed the news: it never moves
+        if self.lost is not None:
+            return Holding(self.holds())
+        return Present(drone, self.current_trajectory(now), self.trajectory is not None and self.trajectory == self.cut)
+
+    def _reported(self, drone: str) -> bool:
+        """News of ``drone``: if it is back and had not said where it is, forget where it might have been
+        while it was gone (what it says now is the truth, however old its plan). Whether it had not."""
+        if drone not in self.unreported:
+            return False
+        self.unreported.discard(drone)
+        for gone in (self.ghosts, self.maybe_flown, self.hearsay, self.peers_down, self.peers_lost, self.braked):
+            gone.pop(drone, None)
+        return True
 
     def _on_clock_bound(self, event: ClockBound, now: int) -> list[Action]:
         """My clock is off (every cell of the rest of my plan is held for good in my answers), or back
@@ -820,6 +876,7 @@ class CoordinationProtocol:
         them as of a vehicle down (brake, or plan its rest anew); every plan from now avoids them."""
         if event.drone == self.me or event.drone not in self.peers:
             return []
+        self._reported(event.drone)
         if not event.cells:
             self.peers_lost.pop(event.drone, None)
             return []
@@ -832,8 +889,10 @@ class CoordinationProtocol:
             return []
         assert self.task is not None
         task = self.task
-        start_step = now + self.lead_for(task)
         flying = self.trajectory if self.state is State.REROUTING else None
+        start_step = now + self.lead_for(task)
+        if flying is not None:  # after the plan it replaces starts: peers tell plans apart so, a landed drone climbs
+            start_step = max(start_step, flying.start_step + 1)
         here = flying.at(now) if flying is not None else self.location
         start = flying.at(start_step) if flying is not None else self.location
         psi = {**self.ghost_obstacles(sparing=here), **self._held_by_peers(now),
@@ -1090,6 +1149,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         VehicleDown: CoordinationProtocol._on_vehicle_down,  # -> WAIT_FOR_TASK
         PeerDown: CoordinationProtocol._on_peer_down,
         PeerBraked: CoordinationProtocol._on_peer_braked,
+        PeerAnnounced: CoordinationProtocol._on_announced,
         Released: CoordinationProtocol._on_released,
         PlanProposal: CoordinationProtocol._on_proposal,  # held, and acknowledged
         PlanAck: CoordinationProtocol._ignore,  # a late one
@@ -1108,6 +1168,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         VehicleDown: CoordinationProtocol._on_vehicle_down,  # -> WAIT_FOR_TASK
         PeerDown: CoordinationProtocol._on_peer_down,
         PeerBraked: CoordinationProtocol._on_peer_braked,
+        PeerAnnounced: CoordinationProtocol._on_announced,
         Released: CoordinationProtocol._on_released,
         PlanProposal: CoordinationProtocol._on_proposal,  # held, and acknowledged
         PlanAck: CoordinationProtocol._ignore,  # a late one
@@ -1129,6 +1190,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         VehicleDown: CoordinationProtocol._on_vehicle_down,  # -> WAIT_FOR_TASK
         PeerDown: CoordinationProtocol._on_peer_down,  # may brake, or report Threatened
         PeerBraked: CoordinationProtocol._on_peer_braked,  # may brake, or report Threatened
+        PeerAnnounced: CoordinationProtocol._on_announced,
         Released: CoordinationProtocol._on_released,
         PlanProposal: CoordinationProtocol._on_proposal,  # held, and acknowledged
         PlanAck: CoordinationProtocol._ignore,  # a late one
@@ -1148,6 +1210,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         VehicleDown: CoordinationProtocol._on_vehicle_down,  # -> WAIT_FOR_TASK
         PeerDown: CoordinationProtocol._on_peer_down,  # may brake
         PeerBraked: CoordinationProtocol._on_peer_braked,  # may brake, or report Threatened
+        PeerAnnounced: CoordinationProtocol._on_announced,
         Released: CoordinationProtocol._on_released,
         PlanProposal: CoordinationProtocol._on_proposal,  # held, and acknowledged
         PlanAck: CoordinationProtocol._ignore,  # a late one
@@ -1169,6 +1232,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PeerLeft: CoordinationProtocol._on_news_while_confirming,
         PeerDown: CoordinationProtocol._on_news_while_confirming,
         PeerBraked: CoordinationProtocol._on_news_while_confirming,
+        PeerAnnounced: CoordinationProtocol._on_announced,
         VehicleLost: CoordinationProtocol._on_news_while_confirming,
         VehicleDown: CoordinationProtocol._on_news_while_confirming,
         Released: CoordinationProtocol._on_released,

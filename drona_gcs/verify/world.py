@@ -49,6 +49,7 @@ from drona_gcs.stack.protocol import (
     Braked,
     Broadcast,
     Grounded,
+    Present,
     RerouteFailed,
     Send,
     StartExecuting,
@@ -427,7 +428,7 @@ class World:
             self.monitors.heard_news(msg.to, msg.sender, self.steps[msg.to])
             self._carry_out(msg.to, stack.peer_braked(msg.sender, notice.trajectory))
         elif isinstance(notice, Announce):
-            stack.heard(msg.sender, notice.trajectory)
+            self._carry_out(msg.to, stack.heard(msg.sender, notice.trajectory))
         elif isinstance(notice, Left):
             self.monitors.left(msg.to, msg.sender)
             self._carry_out(msg.to, stack.peer_left(msg.sender, notice.since))
@@ -542,6 +543,8 @@ class World:
             if peer == drone:
                 continue
             self._post(drone, peer, Joined())
+            if not self._across(drone, peer) and peer not in self.crashed:  # their tokens, as the agent sees
+                self._post(peer, drone, Joined(), liveliness=True)
             if self._across(drone, peer) or peer in self.crashed:  # as the agent does: no token, no member
                 self.monitors.left(drone, peer)
                 self._carry_out(drone, self.stacks[drone].peer_left(peer))
@@ -651,6 +654,8 @@ class World:
             if note:
                 self.trace.append(f"{drone}: {note}")
             self.monitors.action(drone, action)
+            if isinstance(action, Present):
+                self._post(drone, action.to, Announce(action.trajectory, braked=action.braked))
             if isinstance(action, (Grounded, Braked)):  # as the agent does
                 for peer in self.config.drones:
                     if peer != drone:

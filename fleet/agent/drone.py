@@ -43,6 +43,7 @@ from drona_gcs.stack.protocol import (
     Broadcast,
     Grounded,
     Holding,
+    Present,
     RerouteFailed,
     Send,
     StartExecuting,
@@ -356,6 +357,9 @@ class DroneAgent:
                 flies = self.stack.protocol.current_trajectory(self.stack.now)
                 told = PlanAnnounce(trajectory=WireTrajectory.of(flies), lost=True, holds=action.cells)
                 self.node.put(self.keys.plan(self.me), encode(self.me, self.clock(), told))
+            elif isinstance(action, Present):
+                told = PlanAnnounce(trajectory=WireTrajectory.of(action.trajectory), braked=action.braked)
+                self.node.put(self.keys.plan(self.me), encode(self.me, self.clock(), told))
             elif isinstance(action, Braked):
                 log.warning("%s: braked short of %s, held for good: holding %s", self.me, list(action.held),
                             list(action.trajectory.last))
@@ -413,7 +417,7 @@ class DroneAgent:
             # the plan it flies must be known now too (if it leaves, it is held along this plan, not the
             # one before); and it comes with no announcement of its own (see _started).
             known = message.trajectory if isinstance(message, CurrentTraj) else envelope.body.trajectory.core()
-            self.stack.heard(envelope.sender, known)
+            self._carry_out(self.stack.heard(envelope.sender, known))
         if message is not None:
             actions = self.stack.receive(message)
             if actions:
@@ -439,7 +443,7 @@ class DroneAgent:
             elif body.braked:
                 self._carry_out(self.stack.peer_braked(sender, body.trajectory.core()))
             else:
-                self.stack.heard(sender, body.trajectory.core())
+                self._carry_out(self.stack.heard(sender, body.trajectory.core()))
 
     def _step_now(self) -> int:
         """The step on this clock, also before the first boundary is stepped."""
