@@ -26,6 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"endpoint to listen on (repeatable; default tcp/{DEFAULT_HOST}:{ROUTER_PORT})")
     parser.add_argument("--connect", action="append", metavar="EP", help="another router to connect to")
     parser.add_argument("--zenoh-config", type=Path, help="Zenoh JSON5 configuration file")
+    parser.add_argument("--lease", dest="lease_s", type=float,
+                        help="Zenoh lease, s: a cut link is seen after it; keep it the agents' (default 10)")
     parser.add_argument("--workspace", type=Path, default=os.environ.get("DRONA_WORKSPACE"),
                         help="with --tls-dir: the fleet's workspace, whose drones the access control knows "
                              "[DRONA_WORKSPACE]")
@@ -37,7 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     listen = tuple(args.listen or ()) or (() if args.zenoh_config else (f"tcp/{DEFAULT_HOST}:{ROUTER_PORT}",))
     settings = ZenohSettings(mode="router", listen=listen, connect=tuple(args.connect or ()),
-                             config_file=args.zenoh_config)
+                             config_file=args.zenoh_config, lease_s=args.lease_s)
     try:
         settings = _secured(settings, args)
         asyncio.run(_serve(settings))

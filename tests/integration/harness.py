@@ -31,6 +31,7 @@ from fleet.transport.keys import FleetKeys
 from fleet.transport.node import ZenohNode, ZenohSettings
 from fleet.transport.wire import DroneState, MailOrder, MailStatus, MailStatusReport, WireError, decode
 from tests.conftest import fleet_tls_dir
+from tests.integration.hosts import Hosts
 
 DRONA = [sys.executable, "-m", "fleet.cli"]
 SPEEDUP = 6.0  #: the fake vehicles' simulated seconds per second: they track a cell per tau easily
@@ -38,6 +39,17 @@ SPEEDUP = 6.0  #: the fake vehicles' simulated seconds per second: they track a 
 #: about 1.2 s at SPEEDUP), after the mode change and arming are acknowledged and confirmed. A vehicle
 #: still climbing when its plan moves on is late, past lambda.
 LEAD_STEPS = 8
+
+
+#: An agent as a Zenoh client of its host's router (the test adds the router's endpoint): it waits for
+#: the router at start-up as deploy/zenoh/client.json5 does, and never scouts.
+CLIENT_CONFIG = """{
+  mode: "client",
+  connect: { timeout_ms: 30000, exit_on_failure: true,
+             retry: { period_init_ms: 250, period_max_ms: 1000, period_increase_factor: 2 } },
+  scouting: { multicast: { enabled: false } },
+}
+"""
 
 
 def workspace_yaml(drones: int) -> str:
@@ -65,6 +77,11 @@ class FleetProcesses:
     hosted: bool = False  #: every drone in one `drona agent --count N --shared-session` process
     agent_options: tuple[str, ...] = ()  #: more `drona agent` options for every agent
     vehicles_apart: bool = False  #: each vehicle in its own `drona sim-vehicle` process (it may die alone)
+    #: each drone (agent and vehicle) on its host, ``host_of[drone]``; the vehicles apart then
+    hosts: Hosts | None = None
+    host_of: dict[str, str] = field(default_factory=dict)
+    #: a `drona router` on every host, joined to the others; the agents its Zenoh clients (else a peer mesh)
+    routers: bool = False
     sims: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)  #: by drone, or "all"
     agents: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
     others: list[subprocess.Popen[bytes]] = field(default_factory=list)
@@ -75,8 +92,12 @@ class FleetProcesses:
         self.vehicle_base = free_udp_base(len(self.drones))
         # A block below the ephemeral range: a port picked there cannot be taken meanwhile by some
         # socket's outgoing connection (the agents and the observer make many).
-        base = free_port_block(len(self.drones), socket.SOCK_STREAM)
+        base = free_port_block(len(self.drones) + 1, socket.SOCK_STREAM)
         self.ports = {d: base + i for i, d in enumerate(self.drones)}
+        self.router_port = base + len(self.drones)
+        self.vehicles_apart = self.vehicles_apart or self.hosts is not None
+        self.client_config = self.tmp / "client.json5"
+        self.client_config.write_text(CLIENT_CONFIG)
 
     @property
     def tls_dir(self) -> Path:
@@ -84,24 +105,47 @@ class FleetProcesses:
         return fleet_tls_dir()
 
     def endpoint(self, drone: str) -> str:
-        return f"tcp/127.0.0.1:{self.ports[drone]}"
+        """Where a session reaches ``drone``: its agent, or its host's router."""
+        if self.hosts is None:
+            return f"tcp/127.0.0.1:{self.ports[drone]}"
+        ip = self.hosts.ip[self.host_of[drone]]
+        return f"tcp/{ip}:{self.router_port if self.routers else self.ports[drone]}"
+
+    def endpoints(self) -> list[str]:
+        """Where an outside session connects: every agent, or every router."""
+        return list(dict.fromkeys(self.endpoint(d) for d in self.drones))
 
     def record(self, drone: str) -> Path:
         return self.tmp / f"record-{drone}.jsonl"
 
     def start(self) -> None:
+        if self.routers:
+            assert self.hosts is not None, "routers run on hosts"
+            for host in dict.fromkeys(self.host_of.values()):
+                self.others.append(self._spawn(f"router-{host}", self.router_command(host), host))
         vehicles = [*DRONA, "sim-vehicle", "--workspace", str(self.workspace), "--base-port", str(self.vehicle_base),
                     "--speedup", str(SPEEDUP), "--ready-after", "0.5"]
         if self.vehicles_apart:
             for i, drone in enumerate(self.drones):
-                self.sims[drone] = self._spawn(f"sim-{drone}", [*vehicles, "--count", "1", "--instance", str(i)])
+                self.sims[drone] = self._spawn(f"sim-{drone}", [*vehicles, "--count", "1", "--instance", str(i)],
+                                               self.host_of.get(drone))
         else:
             self.sims["all"] = self._spawn("sim", [*vehicles, "--count", str(len(self.drones))])
         if self.hosted:
             self.agents["+".join(self.drones)] = self._spawn("host", self.host_command())
             return
         for i, drone in enumerate(self.drones):
-            self.agents[drone] = self._spawn(drone, self.agent_command(drone, i))
+            self.agents[drone] = self._spawn(drone, self.agent_command(drone, i), self.host_of.get(drone))
+
+    def router_command(self, host: str) -> list[str]:
+        """The router of ``host``, joined to every other host's; with the agents' lease, if they set one."""
+        assert self.hosts is not None
+        others = [f"tcp/{ip}:{self.router_port}" for h, ip in self.hosts.ip.items()
+                  if h != host and h in self.host_of.values()]
+        lease = self.agent_options[self.agent_options.index("--lease"):][:2] if "--lease" in self.agent_options else ()
+        return [*DRONA, "router", "--listen", f"tcp/{self.hosts.ip[host]}:{self.router_port}",
+                *(arg for ep in others for arg in ("--connect", ep)), "--workspace", str(self.workspace),
+                "--fleet", self.fleet, *lease]
 
     def host_command(self) -> list[str]:
         """One process for the whole fleet: drone i listens i ports up from the first (as the ports are)."""
@@ -114,22 +158,27 @@ class FleetProcesses:
     def agent_command(self, drone: str, index: int) -> list[str]:
         command = [*DRONA, "agent", "--workspace", str(self.workspace), "--drone", drone,
                    "--vehicle", f"udpin://127.0.0.1:{self.vehicle_base + index}", "--fleet", self.fleet,
-                   "--listen", self.endpoint(drone), "--record", str(self.record(drone)),
-                   "--lead-steps", str(LEAD_STEPS)]
-        for other in self.drones:
-            if other != drone:
-                command += ["--connect", self.endpoint(other)]
+                   "--record", str(self.record(drone)), "--lead-steps", str(LEAD_STEPS)]
+        if self.routers:
+            command += ["--zenoh-config", str(self.client_config), "--connect", self.endpoint(drone)]
+        else:
+            command += ["--listen", self.endpoint(drone)]
+            command += [arg for other in self.drones if other != drone for arg in ("--connect", self.endpoint(other))]
         if drone in self.offsets:
             command += ["--clock-offset", str(self.offsets[drone])]
         return command + list(self.agent_options)
 
-    def spawn(self, name: str, arguments: list[str]) -> subprocess.Popen[bytes]:
+    def spawn(self, name: str, arguments: list[str], host: str | None = None) -> subprocess.Popen[bytes]:
         """Another `drona` process of this run (stopped by :meth:`kill_all`), its output in ``<name>.log``."""
-        process = self._spawn(name, [*DRONA, *arguments])
+        process = self._spawn(name, [*DRONA, *arguments], host)
         self.others.append(process)
         return process
 
-    def _spawn(self, name: str, command: list[str]) -> subprocess.Popen[bytes]:
+    def _spawn(self, name: str, command: list[str], host: str | None = None) -> subprocess.Popen[bytes]:
+        """``command`` on ``host`` (None: this one), its output in ``<name>.log``."""
+        if host is not None:
+            assert self.hosts is not None
+            command = self.hosts.run_on(host, command)
         env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONFAULTHANDLER": "1"}
         with (self.tmp / f"{name}.log").open("ab") as log:  # the child keeps its own handle
             return subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env)
@@ -150,13 +199,13 @@ class FleetProcesses:
             except subprocess.TimeoutExpired:
                 process.kill()
                 codes[drone] = None
-        for sim in self.sims.values():
-            if sim.poll() is None:
-                sim.send_signal(signal.SIGINT)
+        for process in [*self.sims.values(), *self.others]:
+            if process.poll() is None:
+                process.send_signal(signal.SIGINT)
                 try:
-                    sim.wait(10)
+                    process.wait(10)
                 except subprocess.TimeoutExpired:
-                    sim.kill()
+                    process.kill()
         return codes
 
     def kill_all(self) -> None:
@@ -196,7 +245,7 @@ class Observer:
         self.changed = asyncio.Event()
 
     async def __aenter__(self) -> Observer:
-        connect = tuple(self.fleet.endpoint(d) for d in self.fleet.drones)
+        connect = tuple(self.fleet.endpoints())
         settings = ZenohSettings(connect=connect, lease_s=self.lease_s).secured(self.fleet.tls_dir, SERVICE, self.keys,
                                                                                 self.fleet.drones)
         self.node = await ZenohNode.open(settings, "observer")

@@ -1,4 +1,8 @@
-"""Agents in separate processes, each with its own fake vehicle, over real Zenoh and MAVLink on loopback.
+"""Agents in separate processes, each with its own fake vehicle, over real Zenoh and MAVLink.
+
+Fleets that deliver run on loopback, the agents a Zenoh peer mesh. The fault runs (an agent killed, a
+clock off, a vehicle lost; a partition in test_partition.py) put each drone, agent and vehicle, on a host
+of its own (a network namespace the test makes), joined through a `drona router` per host.
 
 Judged independently of the agents: collisions from the cells the vehicles'
 telemetry put them in (the ``--record`` files, checked under Delta by the
@@ -12,6 +16,8 @@ import asyncio
 import json
 import random
 import signal
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack
 from pathlib import Path
 
 import pytest
@@ -19,11 +25,23 @@ import pytest
 from drona_gcs.audit import Audit
 from fleet.transport.wire import DroneState, MailAck, MailOrder, MailStatus
 from tests.integration.harness import DRONA, FleetProcesses, Observer
+from tests.integration.hosts import network_hosts
 
 pytestmark = pytest.mark.slow
 
 SAFE_THRESHOLD = 20.0
 MIN_CONFORMANCE = 0.95  #: drona audit's default bound
+
+
+@pytest.fixture
+def hosted_apart(tmp_path: Path) -> Iterator[Callable[..., FleetProcesses]]:
+    """``hosted_apart(drones, **options)``: a fleet with each drone on a host of its own, through routers."""
+    with ExitStack() as stack:
+        def fleet(drones: list[str], **options: object) -> FleetProcesses:
+            hosts = stack.enter_context(network_hosts(drones))
+            return FleetProcesses(tmp_path, drones, hosts=hosts, host_of={d: d for d in drones}, routers=True,
+                                  **options)  # type: ignore[arg-type]
+        yield fleet
 
 
 def random_orders(count: int, seed: int, fleet: FleetProcesses) -> list[MailOrder]:
@@ -98,8 +116,9 @@ def test_agents_deliver_every_mail_without_collisions(tmp_path: Path, drones: in
         fleet.kill_all()
 
 
-def test_an_agent_killed_mid_coordination_neither_blocks_the_others_nor_loses_its_mail(tmp_path: Path) -> None:
-    fleet = FleetProcesses(tmp_path, ["d1", "d2", "d3", "d4"])
+def test_an_agent_killed_mid_coordination_neither_blocks_the_others_nor_loses_its_mail(
+        hosted_apart: Callable[..., FleetProcesses]) -> None:
+    fleet = hosted_apart(["d1", "d2", "d3", "d4"])
     doomed = MailOrder(id="doomed", pickup=[2, 6, 0], dropoff=[7, 6, 0], priority=5)
     fleet.start()
     try:
@@ -158,11 +177,12 @@ def test_clock_offsets_within_beta_stay_safe(tmp_path: Path) -> None:
         fleet.kill_all()
 
 
-def test_a_clock_offset_beyond_beta_excludes_that_drone_and_the_others_deliver(tmp_path: Path) -> None:
+def test_a_clock_offset_beyond_beta_excludes_that_drone_and_the_others_deliver(
+        hosted_apart: Callable[..., FleetProcesses]) -> None:
     """Issue 25: one skewed clock stalled the fleet (every drone alarmed, none planned). The drone whose
     clock most peers disagree with holds where its plan ends and takes no mail; the others hold its
     cells for good and deliver; the flight record audits clean."""
-    fleet = FleetProcesses(tmp_path, ["d1", "d2", "d3"], offsets={"d3": 0.6})
+    fleet = hosted_apart(["d1", "d2", "d3"], offsets={"d3": 0.6})
     orders = [MailOrder(id="m1", pickup=[2, 2, 0], dropoff=[7, 7, 0], priority=9),
               MailOrder(id="m2", pickup=[6, 2, 0], dropoff=[2, 7, 0], priority=4)]
     fleet.start()
@@ -193,12 +213,12 @@ def _alarms(obs: Observer, drone: str) -> str:
     return " ".join(obs.states[drone].health.alarms) if drone in obs.states else ""
 
 
-def test_a_vehicle_killed_in_flight_is_one_drones_problem(tmp_path: Path) -> None:
+def test_a_vehicle_killed_in_flight_is_one_drones_problem(hosted_apart: Callable[..., FleetProcesses]) -> None:
     """d2's vehicle (its own `drona sim-vehicle` process) is killed while d2 flies to a pickup: d2's agent
     stays up and a member, raises vehicle_lost and hands its mail back, which its heir d1 takes over (no
     service runs to reassign it); the other drones deliver theirs;
     every agent leaves cleanly; the flight record audits clean (d2's lost steps are gaps, not cells)."""
-    fleet = FleetProcesses(tmp_path, ["d1", "d2", "d3", "d4"], vehicles_apart=True)
+    fleet = hosted_apart(["d1", "d2", "d3", "d4"])
     # d2 parks at (0, 4): its leg to (3, 3) and the cells held for it while lost stay west of the others'.
     doomed = MailOrder(id="doomed", pickup=[3, 3, 0], dropoff=[3, 8, 0], priority=5)
     others = [MailOrder(id=f"m{i}", pickup=[*a, 0], dropoff=[*b, 0], priority=p) for i, (a, b, p) in

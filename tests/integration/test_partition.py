@@ -1,21 +1,17 @@
 """A partition over real processes: agents on two hosts (network namespaces the test makes), cut and healed.
 
-Host ``a`` flies d1 and d2, host ``b`` flies d3, each drone's vehicle on its own host; the hosts meet on a
-bridge in the test's namespace, where the observer (as the service would) reaches both. The link of
-host ``b`` goes down while d3 flies, and comes back. The majority side delivers meanwhile; the cut-off
-drone plans nothing new; the flight record audits clean.
+Host ``a`` flies d1 and d2, host ``b`` flies d3, each drone's vehicle on its own host; each host runs a
+`drona router`, whose Zenoh clients its agents are, joined to the other's across a bridge in the test's
+namespace, where the observer (as the service would) reaches both. The link of host ``b`` goes down while
+d3 flies, and comes back. The majority side delivers meanwhile; the cut-off drone plans nothing new; the
+flight record audits clean.
 """
 
 from __future__ import annotations
 
 import asyncio
-import os
-import shutil
-import subprocess
 import time
-import uuid
 from collections.abc import Iterator
-from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 
@@ -23,78 +19,18 @@ import pytest
 
 from fleet.transport.wire import MailOrder, MailStatus
 from tests.integration.harness import FleetProcesses, Observer
+from tests.integration.hosts import Hosts, network_hosts
 from tests.integration.test_agents import check_run_record
-
-
-@dataclass(frozen=True)
-class Hosts:
-    """Two network namespaces on a bridge: ``ip[side]`` is a host's address, ``link[side]`` its cable."""
-
-    ns: dict[str, str]
-    ip: dict[str, str]
-    link: dict[str, str]
-
-    def cut(self, side: str) -> None:
-        _ip("link", "set", self.link[side], "down")
-
-    def heal(self, side: str) -> None:
-        _ip("link", "set", self.link[side], "up")
-
-
-def _ip(*args: str, ns: str | None = None) -> None:
-    command = ["ip", *(["netns", "exec", ns, "ip"] if ns else []), *args]
-    subprocess.run(command, check=True, capture_output=True, timeout=10)
 
 
 @pytest.fixture
 def hosts() -> Iterator[Hosts]:
-    if os.geteuid() != 0 or shutil.which("ip") is None:
-        pytest.skip("network namespaces need root and iproute2 (ip)")
-    tag = uuid.uuid4().hex[:5]
-    subnet = f"10.{77 + int(tag[0], 16) % 8}.{int(tag[1:3], 16)}"
-    bridge = f"br{tag}"
-    made = Hosts(ns={s: f"drona-{tag}-{s}" for s in "ab"}, ip={"a": f"{subnet}.1", "b": f"{subnet}.2"},
-                 link={s: f"v{tag}{s}" for s in "ab"})
-    try:
-        _ip("link", "add", bridge, "type", "bridge")
-        _ip("addr", "add", f"{subnet}.254/24", "dev", bridge)
-        _ip("link", "set", bridge, "up")
-        for side in "ab":
-            ns, cable, end = made.ns[side], made.link[side], f"p{tag}{side}"
-            _ip("netns", "add", ns)
-            _ip("link", "add", cable, "type", "veth", "peer", "name", end)
-            _ip("link", "set", end, "netns", ns)
-            _ip("link", "set", cable, "master", bridge)
-            _ip("link", "set", cable, "up")
-            _ip("addr", "add", f"{made.ip[side]}/24", "dev", end, ns=ns)
-            _ip("link", "set", end, "up", ns=ns)
-            _ip("link", "set", "lo", "up", ns=ns)
+    with network_hosts(["a", "b"]) as made:
         yield made
-    finally:
-        for side in "ab":
-            subprocess.run(["ip", "netns", "del", made.ns[side]], check=False, capture_output=True, timeout=10)
-            subprocess.run(["ip", "link", "del", made.link[side]], check=False, capture_output=True, timeout=10)
-        subprocess.run(["ip", "link", "del", bridge], check=False, capture_output=True, timeout=10)
 
 
-@dataclass
-class SplitFleet(FleetProcesses):
-    """The integration fleet, each drone (agent and vehicle) on its side's host."""
+LEASE_S = 2.0  #: the agents' and routers' Zenoh lease: a cut link is seen within it
 
-    hosts: Hosts | None = None
-    side: dict[str, str] = field(default_factory=dict)
-
-    def endpoint(self, drone: str) -> str:
-        assert self.hosts is not None
-        return f"tcp/{self.hosts.ip[self.side[drone]]}:{self.ports[drone]}"
-
-    def _spawn(self, name: str, command: list[str]) -> subprocess.Popen[bytes]:
-        assert self.hosts is not None
-        drone = name.removeprefix("sim-")
-        return super()._spawn(name, ["ip", "netns", "exec", self.hosts.ns[self.side[drone]], *command])
-
-
-LEASE_S = 2.0  #: the agents' Zenoh lease: a cut link is seen within it
 
 def _settled(statuses: list[MailStatus]) -> bool:
     """Delivered, or handed back by the drone that took it over."""
@@ -109,8 +45,8 @@ def _logged_at(line: str) -> float:
 
 def test_a_partition_puts_no_two_drones_in_one_cell_and_the_majority_delivers(tmp_path: Path, hosts: Hosts) -> None:
     side = {"d1": "a", "d2": "a", "d3": "b"}
-    fleet = SplitFleet(tmp_path, list(side), vehicles_apart=True, agent_options=("--lease", str(LEASE_S)), hosts=hosts,
-                       side=side)
+    fleet = FleetProcesses(tmp_path, list(side), agent_options=("--lease", str(LEASE_S)), hosts=hosts, host_of=side,
+                           routers=True)
     # d3 parks at (0, 6): its mail keeps to that corner, which it may hold for good while it is gone (it
     # may have stopped anywhere on its way); the others' mail keeps clear of it.
     before = MailOrder(id="before", pickup=[1, 8, 0], dropoff=[3, 9, 0], priority=1)
@@ -143,8 +79,8 @@ def test_a_partition_puts_no_two_drones_in_one_cell_and_the_majority_delivers(tm
         obs, apart, healed = asyncio.run(scenario())
         # One owner: d3, cut off, handed it back before picking it up; d1 took it over (a lease after d3
         # left): delivered once, or handed back again (its pickup on d3's way, held for good). Never both.
-        before = obs.statuses("before")
-        assert before.count(MailStatus.DELIVERED) <= 1 and MailStatus.FAILED not in before, before
+        statuses = obs.statuses("before")
+        assert statuses.count(MailStatus.DELIVERED) <= 1 and MailStatus.FAILED not in statuses, statuses
         assert [r.drone for r in obs.reports if r.id == "before" and r.status is MailStatus.REASSIGNED] == ["d1"]
         audit = check_run_record(fleet)
         assert audit.safe
