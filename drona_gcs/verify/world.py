@@ -72,8 +72,7 @@ class Faults:
     cancels: int = 1  #: a mail cancelled by its sender (taken back only while it waits in a queue)
     downs: int = 1  #: a vehicle that comes down by itself: its mail is handed back (or lost, on board)
     #: agents that crash (the vehicle holds its cell in the air; messages to it are lost; its peers
-    #: see it leave) and may restart there later (its peers see it join); none unless asked for:
-    #: the stack does not yet survive them (issue 25)
+    #: see it leave) and may restart there later (its peers see it join); none unless asked for
     crashes: int = 0
     #: a drone cut off from the rest for a while (messages across the cut lost; each side sees the
     #: other leave, and join again once it heals, within PARTITION_STEPS); none unless asked for
@@ -174,8 +173,11 @@ def make_world_config(workspace: Workspace, drones: int, requests: int, delta: i
     # Batteries start part-charged, so charging and the energy checks are exercised.
     levels = tuple(_initial_level(workspace, start, model, rng) if workspace.charging_stations else 100.0
                    for start in starts)
-    # Generous enough for a drone's share of the mail, a charge and the detours of a busy grid.
-    per_drone = -(-requests // len(ids))
+    # Generous enough for a drone's share of the mail, a charge and the detours of a busy grid. The
+    # share is of the drones left flying once the faults took theirs: the service gives their mail on.
+    faults = options.get("faults", Faults())
+    assert isinstance(faults, Faults)
+    per_drone = -(-requests // max(1, len(ids) - faults.crashes - faults.downs))
     span = workspace.nx + workspace.ny + workspace.nz
     liveness = 8 * span * (per_drone + 1) + 100
     defaults: dict[str, object] = {"initial_battery": levels, "liveness_steps": liveness}
