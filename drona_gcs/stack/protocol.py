@@ -891,7 +891,7 @@ class CoordinationProtocol:
         task = self.task
         flying = self.trajectory if self.state is State.REROUTING else None
         start_step = now + self.lead_for(task)
-        if flying is not None:  # after the plan it replaces starts: peers tell plans apart so, a landed drone climbs
+        if flying is not None:  # later than the plan it replaces: peers order plans so, and a landed drone climbs
             start_step = max(start_step, flying.start_step + 1)
         here = flying.at(now) if flying is not None else self.location
         start = flying.at(start_step) if flying is not None else self.location
