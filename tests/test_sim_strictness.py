@@ -16,7 +16,7 @@ from fleet.sim.config import VehicleConfig
 from fleet.sim.fleet import FleetConfig, SimClock, build_nodes, placements
 from fleet.sim.mav import mavlink2
 from fleet.sim.model import VehicleModel
-from fleet.sim.params import ParamStore
+from fleet.sim.params import ParamStore, Setting
 from fleet.sim.personality import ARDUPILOT, PX4
 from fleet.sim.telemetry import ekf_status_report, global_position_int, gps_raw_int, local_position_ned
 from fleet.vehicle.policy import ekf_has_position
@@ -122,3 +122,19 @@ def test_a_higher_wpnav_accel_closes_in_on_a_setpoint_more_slowly_as_arducopter_
     assert (store.limits.max_accel, store.limits.gain) == (pytest.approx(5.0), pytest.approx(0.5))
     store.set("PSC_JERK_XY", 20.0)
     assert store.limits.gain == pytest.approx(2.0)
+
+
+def test_the_battery_capacity_parameter_sets_how_fast_the_charge_falls() -> None:
+    """The monitor counts the charge down from the capacity it is told (BATT_CAPACITY, PX4's BAT1_CAPACITY):
+    a bigger pack lasts longer."""
+    drained = {}
+    for capacity in (5000.0, 20000.0):
+        model = arducopter(ready_after_s=1.0)
+        model.params.set("BATT_CAPACITY", capacity)
+        armed_and_taking_off(model, 1.0)
+        run_for(model, 1.0, 60.0)
+        drained[capacity] = 1.0 - model.battery.remaining
+    assert drained[5000.0] > 0 and drained[5000.0] == pytest.approx(4 * drained[20000.0], rel=0.05)
+    px4 = ParamStore(VehicleConfig(personality=PX4))
+    px4.set("BAT1_CAPACITY", 20000.0)
+    assert px4.setting(Setting.BATTERY_CAPACITY) == 20000.0

@@ -29,6 +29,7 @@ def advance(m: VehicleModel, now: float, dt: float) -> None:
     m.body.limits = m.params.limits  # a PARAM_SET takes effect from the next step
     m.body.step(_motion_target(m, now), dt)
     _after_motion(m, now)
+    m.battery.capacity_mah = m.params.setting(Setting.BATTERY_CAPACITY)  # the monitor counts down from it
     m.battery.step(dt, _current(m))
 
 

@@ -65,13 +65,15 @@ class Setting(enum.Enum):
     GUIDED_TIMEOUT = "guided_timeout"  #: s before an ArduCopter GUIDED velocity setpoint stops
     SYSTEM_ID = "system_id"  #: reported only: both autopilots take a new id at their next boot
     SHAPING_JERK = "shaping_jerk"  #: m/s³, ArduCopter's PSC_JERK_XY: its position gain is jerk / (2 accel)
+    BATTERY_CAPACITY = "battery_capacity"  #: mAh, the pack the battery monitor counts down from
 
 
 LIMIT_SETTINGS = (Setting.MAX_SPEED, Setting.MAX_ACCEL, Setting.CLIMB_RATE, Setting.DESCENT_RATE,
                   Setting.LAND_SPEED)
 
 #: Settings one autopilot has no parameter for (it never uses them), unless the config gives them.
-FALLBACK = {Setting.TAKEOFF_ALT: 2.5, Setting.OFFBOARD_TIMEOUT: 1.0, Setting.GUIDED_TIMEOUT: 3.0}
+FALLBACK = {Setting.TAKEOFF_ALT: 2.5, Setting.OFFBOARD_TIMEOUT: 1.0, Setting.GUIDED_TIMEOUT: 3.0,
+            Setting.BATTERY_CAPACITY: 5000.0}
 
 
 @dataclass(frozen=True)
@@ -99,6 +101,7 @@ ARDUCOPTER_PARAMS = (
     Param("FENCE_ENABLE", 0, INT8),
     Param("FENCE_TYPE", 7, INT8),  # max altitude, circle and polygon
     Param("ARMING_CHECK", 1, INT32),
+    Param("BATT_CAPACITY", 5000, INT32, (Setting.BATTERY_CAPACITY,)),  # the fake's pack (ArduCopter's: 3300)
 )
 
 #: PX4 v1.15's defaults, numbered in name order as PX4 does.
@@ -116,6 +119,7 @@ PX4_PARAMS = tuple(sorted((
     Param("COM_DISARM_PRFLT", 10.0, REAL32, (Setting.PREFLIGHT_DISARM,)),
     Param("COM_OF_LOSS_T", 1.0, REAL32, (Setting.OFFBOARD_TIMEOUT,)),
     Param("GF_ACTION", 1, INT32),  # warning only
+    Param("BAT1_CAPACITY", 5000.0, REAL32, (Setting.BATTERY_CAPACITY,)),  # the fake's pack (PX4's: -1, unknown)
 ), key=lambda p: p.name))
 
 TABLES: dict[str, tuple[Param, ...]] = {"ardupilot": ARDUCOPTER_PARAMS, "px4": PX4_PARAMS}
