@@ -547,3 +547,12 @@ def test_a_brake_announced_across_a_partition_reaches_the_peer_once_it_is_back()
                         partitions=1)
     outcome = Explorer(scenario).run(Strategy.PCT, schedules=30, max_depth=5000, seed=100028)
     assert outcome.violation is None, str(outcome.violation)
+
+
+def test_a_drone_that_made_way_stays_out_until_the_peer_could_get_there() -> None:
+    """Found by CI's sweep 31023: a charger in a corner behind a parking cell, with a vehicle down beside
+    it. The parked drone made way when asked, went home 16 steps later, before the asker (which parks
+    first, between tries) got there, and walled the charger in again, for good."""
+    scenario = Scenario(drones=4, requests=4, delta=0, seed=196631, grid=(16, 16, 1), obstacles=0.2)
+    outcome = Explorer(scenario).run(Strategy.RANDOM, schedules=60, max_depth=5000, seed=196631)
+    assert outcome.violation is None, str(outcome.violation)

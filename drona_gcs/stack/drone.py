@@ -206,8 +206,8 @@ class DroneStack:
         if self.protocol.state is not State.WAIT_FOR_TASK or here not in way:
             return
         spot = yield_spot(self.config.workspace, here, frozenset(way), self.taken_cells())
-        if spot is not None:
-            self.mail.make_way(spot)
+        if spot is not None:  # out while the peer flies there, a detour to park on the way included
+            self.mail.make_way(spot, 2 * len(way))
 
     def assign(self, request: MailRequest) -> list[DroneAction]:
         self.mail.assign(request)

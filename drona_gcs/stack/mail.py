@@ -213,6 +213,7 @@ class MailPlanner:
     strikes: dict[str, int] = field(default_factory=dict)  #: legs to each mail's pickup that found no plan
     make_way_to: Cell | None = None  #: a peer's way crosses our cell: leave for this one
     hold_steps: int = 16  #: how long a drone that made way stays out of it before going home
+    make_way_stay: int = 0  #: at least how long to stay out of the way asked for
     paused: bool = False  #: the operator's pause: no mail starts (mail on board is still delivered)
     held: bool = False  #: the operator landed the drone where it is: no leg at all until resumed
 
@@ -251,12 +252,14 @@ class MailPlanner:
             self.current = None
         return handed
 
-    def make_way(self, spot: Cell) -> None:
+    def make_way(self, spot: Cell, stay: int = 0) -> None:
         """A peer found no plan, for a way that crosses the cell we rest on: leave for ``spot`` at
-        the next decision, unless a leg is under way or the drone charges. Mail on board goes along:
-        a drone waiting with it for a drop-off walled off for good would wall others off in turn."""
+        the next decision, unless a leg is under way or the drone charges, and stay out at least
+        ``stay`` steps (back home sooner, a drone walled the peer's goal in again before the peer got
+        there: CI's sweep 31023). Mail on board goes along: a drone waiting with it for a drop-off
+        walled off for good would wall others off in turn."""
         if not self.busy and self.phase is not Phase.CHARGING:
-            self.make_way_to = spot
+            self.make_way_to, self.make_way_stay = spot, stay
 
     @property
     def homeless(self) -> bool:
@@ -466,7 +469,7 @@ class MailPlanner:
                 return []
             self.low = True  # the way off would leave too little: off to charge instead
             return self._to_charger(budget, taken)
-        self.retry_at = budget.now + self._leg(self.cell, spot) + self.hold_steps
+        self.retry_at = budget.now + self._leg(self.cell, spot) + max(self.hold_steps, self.make_way_stay)
         return self._go(spot, budget, self._after(spot), Phase.MAKING_WAY, taken)
 
     def flight_to(self, goal: Cell, level: float) -> int | None:
