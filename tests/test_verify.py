@@ -556,3 +556,12 @@ def test_a_drone_that_made_way_stays_out_until_the_peer_could_get_there() -> Non
     scenario = Scenario(drones=4, requests=4, delta=0, seed=196631, grid=(16, 16, 1), obstacles=0.2)
     outcome = Explorer(scenario).run(Strategy.RANDOM, schedules=60, max_depth=5000, seed=196631)
     assert outcome.violation is None, str(outcome.violation)
+
+
+def test_mail_on_board_is_charged_for_where_a_full_battery_delivers_it() -> None:
+    """Found by sweep 10083: d3 took mail while one charger was busy (the nearest then counted), picked it
+    up, and once both were free the rule asked for the second nearest: no charger staged the delivery,
+    and d3 charged in full at the far one, for good."""
+    scenario = Scenario(drones=4, requests=4, delta=0, seed=533698, grid=(16, 16, 1), obstacles=0.2, partitions=2)
+    outcome = Explorer(scenario).run(Strategy.PCT, schedules=30, max_depth=5000, seed=533698)
+    assert outcome.violation is None, str(outcome.violation)

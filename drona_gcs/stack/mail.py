@@ -437,7 +437,7 @@ class MailPlanner:
         if self.carrying and self.current is not None:
             # Mail on board goes to its drop-off, or to a charger on the way, and nowhere else:
             # after a failed leg it waits on the ground where it is (see leg_failed).
-            dropoff, after = self.current.dropoff, self._after(self.current.dropoff)
+            dropoff, after = self.current.dropoff, self._kept_after(self.current.dropoff)
             if not self._reachable([dropoff]):  # held or walled off by vehicles down: the rest goes back
                 self.landed_here = True
                 return self.release(f"the drop-off {list(dropoff)} of the mail on board is cut off from here")
@@ -551,12 +551,35 @@ class MailPlanner:
         # Low on energy: land before coordinating, so the wait for the peers' answers is free
         # and the whole budget is left for the way to the charger (or land to charge here).
         self.landed_here = True
-        if self.cell in self.chargers:
-            self.phase = Phase.CHARGING
+        staging = self._staging_chargers()
+        if self.cell in staging or (self.cell in self.chargers
+                                    and not any(budget.allows(self._leg(self.cell, c)) for c in staging)):
+            self.phase = Phase.CHARGING  # (at another charger: enough to get to one of those first)
             return []
         if self.queue and not self._reachable(self.chargers):
             return self.release("no charger can be reached from here (obstacles and vehicles down wall it in)")
-        return self._to_one_of(self.chargers, budget, taken, Phase.TO_CHARGER)
+        return self._to_one_of(staging, budget, taken, Phase.TO_CHARGER)
+
+    def _staging_chargers(self) -> Sequence[Cell]:
+        """Where to charge: with mail on board, at a charger from which a full battery delivers it (found
+        by the tester: charged in full at the far one, a drone waited there with it for good); else any."""
+        if not self.carrying or self.current is None:
+            return self.chargers
+        dropoff = self.current.dropoff
+        return self._staging(dropoff, self._kept_after(dropoff)) or self.chargers
+
+    def _staging(self, dropoff: Cell, after: int) -> list[Cell]:
+        full = self.battery.steps_affordable(self.recharged_level)
+        return [c for c in self.chargers if self._leg(c, dropoff) + after + self.battery.margin_steps // 2 <= full]
+
+    def _kept_after(self, dropoff: Cell) -> int:
+        """What must remain at the drop-off of the mail on board: the way to the second nearest charger
+        (see :meth:`_after`), or to the nearest where a full charge affords no more. The mail was taken
+        while the other was busy; waiting at the drop-off for the nearest to be free costs nothing."""
+        after = self._after(dropoff)
+        if self._staging(dropoff, after):
+            return after
+        return min((w for w in (self._leg(dropoff, c) for c in self.chargers) if w < NO_WAY), default=after)
 
     def _to_one_of(self, candidates: Sequence[Cell], budget: Budget, taken: Collection[Cell],
                    purpose: Phase) -> list[MailAction]:
