@@ -82,7 +82,8 @@ class FleetProcesses:
     host_of: dict[str, str] = field(default_factory=dict)
     #: a `drona router` on every host, joined to the others; the agents its Zenoh clients (else a peer mesh)
     routers: bool = False
-    sims: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)  #: by drone, or "all"
+    #: by drone, or "all"; and the routers, "router-<host>": stopped with the vehicles
+    sims: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
     agents: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
     others: list[subprocess.Popen[bytes]] = field(default_factory=list)
 
@@ -122,7 +123,7 @@ class FleetProcesses:
         if self.routers:
             assert self.hosts is not None, "routers run on hosts"
             for host in dict.fromkeys(self.host_of.values()):
-                self.others.append(self._spawn(f"router-{host}", self.router_command(host), host))
+                self.sims[f"router-{host}"] = self._spawn(f"router-{host}", self.router_command(host), host)
         vehicles = [*DRONA, "sim-vehicle", "--workspace", str(self.workspace), "--base-port", str(self.vehicle_base),
                     "--speedup", str(SPEEDUP), "--ready-after", "0.5"]
         if self.vehicles_apart:
@@ -199,13 +200,13 @@ class FleetProcesses:
             except subprocess.TimeoutExpired:
                 process.kill()
                 codes[drone] = None
-        for process in [*self.sims.values(), *self.others]:
-            if process.poll() is None:
-                process.send_signal(signal.SIGINT)
+        for sim in self.sims.values():
+            if sim.poll() is None:
+                sim.send_signal(signal.SIGINT)
                 try:
-                    process.wait(10)
+                    sim.wait(10)
                 except subprocess.TimeoutExpired:
-                    process.kill()
+                    sim.kill()
         return codes
 
     def kill_all(self) -> None:
