@@ -35,6 +35,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from drona_gcs.audit import audit
+from drona_gcs.stack.drone import default_lead_steps
 from drona_gcs.stack.protocol import State
 from drona_gcs.workspace import Cell, Workspace
 from drona_gcs.workspace_files import load_workspace
@@ -124,8 +125,9 @@ async def run_bench(agents: int, processes: int, seconds: float, steady_after: f
         children.append(_spawn(["agent", "--workspace", str(ws_file), "--drone", names[first], "--count", str(count),
                                 "--fleet", fleet, "--listen", f"tcp/127.0.0.1:{port + first}",
                                 "--connect", f"tcp/127.0.0.1:{port}", "--vehicle-base-port", str(base),
-                                "--lead-steps", str(max(4, workspace.delta + 1)), "--telemetry-hz", str(TELEMETRY_HZ),
-                                "--log-level", "WARNING",
+                                "--lead-steps", str(default_lead_steps(workspace, VEHICLE_SPEEDUP)),
+                                "--hover-lead-steps", str(max(4, workspace.delta + 1)),
+                                "--telemetry-hz", str(TELEMETRY_HZ), "--log-level", "WARNING",
                                 *security, *_recording(record, names[first])]))
     try:
         return await _measure(children, workspace, names, fleet, port, seconds, steady_after, seed, tls_dir)

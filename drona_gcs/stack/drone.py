@@ -100,10 +100,11 @@ ARM_AND_MODE_S = 2.0  #: mode change, arming and take-off command acknowledged
 SPOOL_UP_S = 4.0  #: an accepted take-off to leaving the ground (ArduCopter SITL: about 3.5 s)
 
 
-def default_lead_steps(workspace: Workspace) -> int:
-    """Delta + 1, plus the steps a landed drone needs to take off and climb into the grid."""
+def default_lead_steps(workspace: Workspace, speedup: float = 1.0) -> int:
+    """Delta + 1, plus the steps a landed drone needs to take off and climb into the grid (``speedup``: a
+    fake vehicle's simulated seconds per second)."""
     climb_s = ARM_AND_MODE_S + SPOOL_UP_S + workspace.geo.layer0_alt_m / CLIMB_RATE_M_S
-    return workspace.delta + 1 + math.ceil(climb_s / workspace.tau_s)
+    return workspace.delta + 1 + math.ceil(climb_s / speedup / workspace.tau_s)
 
 
 ROUND_S = 1.0  #: a coordination round, from the request to the last ack, with room (LAN p99: tenths of a second)
