@@ -256,8 +256,8 @@ class MailPlanner:
         """A peer found no plan, for a way that crosses the cell we rest on: leave for ``spot`` at
         the next decision, unless a leg is under way or the drone charges, and stay out at least
         ``stay`` steps (back home sooner, a drone walled the peer's goal in again before the peer got
-        there: CI's sweep 31023). Mail on board goes along: a drone waiting with it for a drop-off
-        walled off for good would wall others off in turn."""
+        there). Mail on board goes along: a drone waiting with it for a drop-off walled off for good
+        would wall others off in turn."""
         if not self.busy and self.phase is not Phase.CHARGING:
             self.make_way_to, self.make_way_stay = spot, stay
 
@@ -561,8 +561,8 @@ class MailPlanner:
         return self._to_one_of(staging, budget, taken, Phase.TO_CHARGER)
 
     def _staging_chargers(self) -> Sequence[Cell]:
-        """Where to charge: with mail on board, at a charger from which a full battery delivers it (found
-        by the tester: charged in full at the far one, a drone waited there with it for good); else any."""
+        """Where to charge: with mail on board, at a charger from which a full battery delivers it (charged
+        in full at another, a drone would wait there with it for good); else any."""
         if not self.carrying or self.current is None:
             return self.chargers
         dropoff = self.current.dropoff
