@@ -17,7 +17,6 @@ import asyncio
 import contextlib
 import json
 import logging
-import math
 import time
 from collections.abc import Callable, Coroutine
 
@@ -49,7 +48,8 @@ class Dispatcher:
         self.clock = clock
         self.in_flight: dict[str, InFlight] = {}
         self.queued = 0
-        self._excluded: dict[str, dict[str, float]] = {}  # mail -> drone -> until (inf: rejected for good)
+        self._excluded: dict[str, dict[str, float]] = {}  # mail -> drone -> until
+        self._rejections: dict[str, dict[str, int]] = {}  # mail -> drone -> times it rejected the mail
         self._inbox: list[_Inbox] = []
         self._wake = asyncio.Event()
         self._idle = asyncio.Event()  # set while asleep with nothing under way
@@ -89,6 +89,7 @@ class Dispatcher:
             self.in_flight.pop(record.id, None)
         if record.status in FINAL:
             self._excluded.pop(record.id, None)
+            self._rejections.pop(record.id, None)
         self._poke()
 
     def _poke(self) -> None:
@@ -130,7 +131,7 @@ class Dispatcher:
                 self._idle.set()
             self._current_exclusions()  # drops the ended ones
             times = [m.deadline for m in self.in_flight.values()]
-            times += [t for drones in self._excluded.values() for t in drones.values() if t < math.inf]
+            times += [t for drones in self._excluded.values() for t in drones.values()]
             delay = min(times) - self.clock() if times else None
             with contextlib.suppress(TimeoutError):
                 async with asyncio.timeout(delay):
@@ -284,11 +285,18 @@ class Dispatcher:
         # accepted, started: the refreshed deadline is all
 
     async def _rejected(self, report: MailStatusReport) -> None:
-        self._exclude(report.mail_id, report.drone, math.inf)
+        """A rejection may be passing (a goal taken, a charger busy): the drone is offered the mail
+        again after a backoff that doubles each time. Once every drone has rejected it
+        ``max_rejections`` times, no drone is likely to fly it: it fails."""
+        times = self._rejections.setdefault(report.mail_id, {})
+        times[report.drone] = times.get(report.drone, 0) + 1
+        backoff = self.settings.refuse_backoff_s * 2 ** (times[report.drone] - 1)
+        self._exclude(report.mail_id, report.drone, self.clock() + backoff)
         why = f"drone {report.drone} rejected it: {report.reason or 'no reason given'}"
-        rejected_by = set(self._excluded[report.mail_id])
-        if set(self.gateway.drones()) <= rejected_by:
-            await self.store.transition(report.mail_id, Status.FAILED, reason=f"every drone rejected it; {why}")
+        limit = self.settings.max_rejections
+        if all(times.get(drone, 0) >= limit for drone in self.gateway.drones()):
+            await self.store.transition(report.mail_id, Status.FAILED,
+                                        reason=f"every drone rejected it {limit} time(s); {why}")
         else:
             await self.store.transition(report.mail_id, Status.QUEUED, reason=why)
 

@@ -41,6 +41,9 @@ class ApiSettings(BaseSettings):
         10.0, gt=0, description="an assigned mail its drone never mentions for this long is requeued")
     refuse_backoff_s: float = Field(5.0, ge=0, description="a drone that refused a mail is not offered it again "
                                                           "for this long")
+    max_rejections: int = Field(3, ge=1, description="a drone that rejected a mail is offered it again after a "
+                                "backoff that doubles each time; the mail fails once every drone has rejected "
+                                "it this many times")
     sse_ping_s: float = Field(15.0, gt=0, description="seconds between keep-alive comments on /v1/events")
     sse_queue: int = Field(10000, ge=1, description="events buffered for one slow /v1/events client before "
                                                     "it is dropped")

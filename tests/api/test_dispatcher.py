@@ -139,18 +139,27 @@ def test_a_refusing_drone_is_passed_over(settings: ApiSettings, workspace: Works
     run(body())
 
 
-def test_mail_every_drone_rejects_fails(settings: ApiSettings, workspace: Workspace) -> None:
+def test_a_rejection_is_for_a_while_and_mail_every_drone_rejects_again_and_again_fails(
+        settings: ApiSettings, workspace: Workspace) -> None:
     async def body() -> None:
         gateway = SimulatedGateway(workspace, drones=1, step_s=None)
-        async with running(settings, workspace, gateway) as h:
+        quick = settings.model_copy(update={"refuse_backoff_s": 0.1, "max_rejections": 3})
+        async with running(quick, workspace, gateway) as h:
             gateway.silent.add("sim1")
             mail = await h.submit([1, 1, 0], [3, 1, 0])
-            await h.service.dispatcher.idle()
-            gateway.report(MailStatusReport(mail["id"], "sim1", "rejected", "needs 99 steps", at=time.time()))
-            await h.service.dispatcher.idle()
+            offered_at = []
+            for times in range(1, 4):
+                await h.until(lambda: h.status(mail["id"]) == "assigned", timeout=5)
+                offered_at.append(time.monotonic())
+                await h.service.dispatcher.idle()
+                assert len(gateway.assigned) == times
+                gateway.report(MailStatusReport(mail["id"], "sim1", "rejected", "needs 99 steps", at=time.time()))
+                await h.service.dispatcher.idle()
             record = h.service.store.get(mail["id"])
             assert record is not None and record.status.value == "failed"
-            assert "every drone rejected it" in record.reason and "needs 99 steps" in record.reason
+            assert "every drone rejected it 3 time(s)" in record.reason and "needs 99 steps" in record.reason
+            assert gateway.assigned == [("sim1", mail["id"])] * 3
+            assert offered_at[2] - offered_at[1] >= 0.2  # the backoff doubled
 
     run(body())
 
