@@ -59,6 +59,8 @@ class FleetCommands:
             self._apply(action, drone)
         if action is Action.RELEASE:
             acks = tuple(await self.fleet.command(None, action.value, by, about=drone))
+            if drone is not None:
+                await self.dispatcher.released(drone)
         else:
             acks = tuple(await self.fleet.command(drone, action.value, by))
         if action is Action.RESUME:

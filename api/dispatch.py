@@ -7,7 +7,10 @@
   then by id. A drone takes at most ``per_drone`` unfinished mails from the service, so
   urgent mail that arrives later is not stuck behind long queues on board.
 * A drone that refused a mail is not offered it again for a while (the caller's ``excluded``).
-* A lost drone's mails go back to the queue, except those on board: they fail.
+* A drone takes a mail on board only once the service cleared it for pickup (when the drone
+  started it). A lost drone's mails not cleared go back to the queue; mail cleared or on board
+  stays the drone's, which may be only cut off and deliver it, until it is back (and says what
+  it did meanwhile) or the operator releases it.
 * A mail whose drone has not mentioned it (in a report or its published state) by its
   deadline is requeued if not picked up yet, and failed if it was on board.
 
@@ -125,9 +128,18 @@ def assign(waiting: Iterable[Waiting], free: Sequence[Slot], distance: Distance,
     return out
 
 
-def on_drone_lost(in_flight: Iterable[InFlight], drone: str) -> list[Decision]:
-    """A lost drone's mails: back to the queue, or failed if on board."""
-    return [_give_up(m, f"drone {drone} was lost") for m in in_flight if m.drone == drone]
+def on_drone_lost(in_flight: Iterable[InFlight], drone: str, cleared: Collection[str]) -> list[Decision]:
+    """A lost drone's mails it was not cleared to pick up, back to the queue (the rest stays its own)."""
+    return [Requeue(m.mail_id, drone, f"drone {drone} was lost before the pickup") for m in in_flight
+            if m.drone == drone and m.status is Status.ASSIGNED and m.mail_id not in cleared]
+
+
+def on_drone_released(in_flight: Iterable[InFlight], drone: str, cleared: Collection[str]) -> list[Decision]:
+    """The operator saw ``drone``, gone, out of the air: mail that may be on board fails, the rest is
+    requeued."""
+    why = f"drone {drone} was released by the operator"
+    return [Fail(m.mail_id, drone, f"{why}; it may have had the mail on board") if m.mail_id in cleared
+            else _give_up(m, why) for m in in_flight if m.drone == drone]
 
 
 def expired(in_flight: Iterable[InFlight], now: float) -> list[Decision]:

@@ -57,12 +57,17 @@ class Dispatcher:
         self._tasks: asyncio.TaskGroup | None = None
         self.paused = False  #: the operator paused the fleet: no mail is handed out
         self.held: set[str] = set()  #: drones the operator recalled or landed: handed nothing until resumed
+        self.gone: set[str] = set()  #: drones lost and not back: their mail waits for them (no deadline)
+        #: mail a drone started and was cleared to take on board: held as that drone's through a loss
+        self.cleared: set[str] = set()
 
     # ------------------------------------------------------- listeners
     def on_drone_state(self, view: DroneView) -> None:
+        back = view.id in self.gone  # its mail gets a deadline from now: it sends again what we missed
+        self.gone.discard(view.id)
         deadline = self.clock() + self.settings.assign_timeout_s
         for mail_id, held in self.in_flight.items():
-            if held.drone == view.id and view.mentions(mail_id):
+            if held.drone == view.id and (back or view.mentions(mail_id)):
                 self.in_flight[mail_id] = InFlight(mail_id, held.drone, held.status, deadline)
         self.bus.publish("drone", lambda: _DRONE_JSON.dump_json(view).decode())
         self._poke()
@@ -87,6 +92,8 @@ class Dispatcher:
             self.in_flight[record.id] = InFlight(record.id, record.drone, record.status, deadline)
         else:
             self.in_flight.pop(record.id, None)
+        if record.status is not Status.ASSIGNED:
+            self.cleared.discard(record.id)
         if record.status in FINAL:
             self._excluded.pop(record.id, None)
             self._rejections.pop(record.id, None)
@@ -110,6 +117,8 @@ class Dispatcher:
         for record in self.store.with_status(IN_FLIGHT):
             if record.drone is not None:
                 self.in_flight[record.id] = InFlight(record.id, record.drone, record.status, deadline)
+                if record.status is Status.ASSIGNED:  # it may have been cleared before: held as the drone's
+                    self.cleared.add(record.id)
         self.queued = self.store.count(Status.QUEUED)
         log.info("resumed: %d mail(s) queued, %d held by drones", self.queued, len(self.in_flight))
 
@@ -121,7 +130,8 @@ class Dispatcher:
             inbox, self._inbox = self._inbox, []
             for item in inbox:
                 await (self._lost(item) if isinstance(item, str) else self._report(item))
-            await self._decide(dispatch.expired(self.in_flight.values(), self.clock()))
+            heard = [m for m in self.in_flight.values() if m.drone not in self.gone]
+            await self._decide(dispatch.expired(heard, self.clock()))
             await self._assign_round()
 
     async def _sleep(self) -> None:
@@ -130,7 +140,7 @@ class Dispatcher:
             if self._sending == 0:
                 self._idle.set()
             self._current_exclusions()  # drops the ended ones
-            times = [m.deadline for m in self.in_flight.values()]
+            times = [m.deadline for m in self.in_flight.values() if m.drone not in self.gone]
             times += [t for drones in self._excluded.values() for t in drones.values()]
             delay = min(times) - self.clock() if times else None
             with contextlib.suppress(TimeoutError):
@@ -256,8 +266,16 @@ class Dispatcher:
                 await self.gateway.cancel(drone, mail_id)
 
     async def _lost(self, drone: str) -> None:
+        """A drone lost may be only cut off, flying on. Mail it was not cleared to pick up is requeued
+        (it will not take it on board); mail cleared or on board waits for it, or the operator's release."""
         log.warning("drone %s lost", drone)
-        await self._decide(dispatch.on_drone_lost(self.in_flight.values(), drone))
+        self.gone.add(drone)
+        await self._decide(dispatch.on_drone_lost(self.in_flight.values(), drone, self.cleared))
+
+    async def released(self, drone: str) -> None:
+        """The operator saw ``drone``, gone, out of the air: what it carried is lost with it."""
+        self.gone.discard(drone)
+        await self._decide(dispatch.on_drone_released(self.in_flight.values(), drone, self.cleared))
 
     # ----------------------------------------------------------- reports
     async def _report(self, report: MailStatusReport) -> None:
@@ -282,7 +300,16 @@ class Dispatcher:
             await self.store.transition(mail_id, Status.FAILED, reason=why or f"drone {drone} failed it")
         elif report.status == "rejected":
             await self._rejected(report)
-        # accepted, started: the refreshed deadline is all
+        elif report.status == "started":
+            self._clear(drone, mail_id)
+        # accepted: the refreshed deadline is all
+
+    def _clear(self, drone: str, mail_id: str) -> None:
+        """Held as the drone's from now, lost or not: then it may take the mail on board."""
+        if mail_id not in self.cleared:
+            self.cleared.add(mail_id)
+            log.info("mail %s cleared for pickup by drone %s", mail_id, drone)
+        self._spawn(lambda: self.gateway.clear(drone, mail_id))
 
     async def _rejected(self, report: MailStatusReport) -> None:
         """A rejection may be passing (a goal taken, a charger busy): the drone is offered the mail
@@ -294,7 +321,7 @@ class Dispatcher:
         self._exclude(report.mail_id, report.drone, self.clock() + backoff)
         why = f"drone {report.drone} rejected it: {report.reason or 'no reason given'}"
         limit = self.settings.max_rejections
-        if all(times.get(drone, 0) >= limit for drone in self.gateway.drones()):
+        if all(times.get(drone, 0) >= limit for drone in {*self.gateway.drones(), report.drone}):
             await self.store.transition(report.mail_id, Status.FAILED,
                                         reason=f"every drone rejected it {limit} time(s); {why}")
         else:

@@ -167,6 +167,11 @@ class FleetGateway(Protocol):
         """Ask ``drone`` to drop ``mail_id``: best effort, never raises for an unreachable drone."""
         ...
 
+    async def clear(self, drone: str, mail_id: str) -> None:
+        """Tell ``drone`` it may take ``mail_id`` on board: best effort, never raises for an unreachable
+        drone (the service holds the mail as that drone's from before it asks)."""
+        ...
+
     async def command(self, drone: str | None, action: str, by: str, about: str | None = None) -> list[CommandAck]:
         """Tell ``drone`` (None: every live drone) an operator's ``action`` (pause, resume, recall, land,
         release ``about`` a drone gone) asked by ``by``; the answers that came in time (never raises for

@@ -23,6 +23,7 @@ from drona_gcs.stack.battery import BatteryModel, BatteryMonitor, BatteryRecharg
 from drona_gcs.stack.drone import _distance_function
 from drona_gcs.stack.mail import (
     NO_WAY,
+    NOT_CLEARED,
     Distance,
     GoTo,
     MailAction,
@@ -829,3 +830,34 @@ def test_a_pickup_where_a_peer_s_plan_ends_is_waited_for_not_handed_back() -> No
     other waits, whatever it takes; the same pickup held by a drone at rest is handed back as before."""
     assert handed_back_while_the_pickup_is_taken(passing=True) == []
     assert handed_back_while_the_pickup_is_taken(passing=False)
+
+
+# ======================================================== clearance for pickup (a service dispatches)
+def test_mail_is_taken_on_board_only_once_its_dispatcher_cleared_it() -> None:
+    mp = planner()
+    mp.cleared = set()
+    m = mail("m", c(2, 2), c(4, 4))
+    mp.assign(m)
+    goto(mp.decide(0, 100, ()))
+    [rejected] = mp.leg_done()  # at the pickup with no clearance: handed back, not on board
+    assert rejected == MailRejected(m, NOT_CLEARED, True)
+    assert (mp.current, mp.carrying, mp.queue) == (None, False, [])
+    mp.assign(m)
+    mp.cleared.add("m")
+    goto(mp.decide(1, 100, ()))
+    assert mp.leg_done() == [MailPickedUp(m)] and mp.carrying
+
+
+def test_out_of_touch_with_its_dispatcher_a_drone_keeps_only_cleared_mail() -> None:
+    mp = planner()
+    mp.cleared = {"started"}
+    started, waiting, later = mail("started", c(2, 2), c(4, 4), 9), mail("waiting", c(3, 3), c(5, 5)), \
+        mail("later", c(1, 1), c(6, 6), 1)
+    for m in (started, waiting, later):
+        mp.assign(m)
+    goto(mp.decide(0, 100, ()))
+    assert mp.current == started
+    handed = mp.release("out of touch", keep_cleared=True)
+    assert [(type(a), a.request.id) for a in handed] == [(MailRejected, "waiting"), (MailRejected, "later")]
+    assert mp.current == started and mp.queue == []
+    assert [a.request.id for a in mp.release("lost")] == ["started"]  # without keep_cleared: all not on board

@@ -389,6 +389,13 @@ class DroneStack:
         if spot is not None:
             self.mail.make_way(spot)
 
+    def service_lost(self) -> list[DroneAction]:
+        """Out of touch with the service that dispatches the mail, a drone hands back every mail it was
+        not cleared to pick up: the service requeues a lost drone's mail not cleared a lease after it saw
+        it go, by when the drone, only cut off, has seen the service go too; cleared mail it holds as the
+        drone's until it is back. So no mail has two owners."""
+        return list(self.mail.release(SERVICE_LOST, keep_cleared=True))
+
     def _cut_off(self) -> list[DroneAction]:
         """Out of touch with most of the fleet, a drone plans nothing, and the other side may take its mail
         over: it hands back every mail not on board, once, so that no mail has two owners."""
@@ -529,6 +536,7 @@ class DroneStack:
 
 
 CUT_OFF = "cut off from most of the fleet"  #: why a drone out of touch with a majority hands its mail back
+SERVICE_LOST = "out of touch with the service"  #: why a drone the service dispatches to hands its mail back
 
 #: Legs that ask drones resting on their way to leave it; a drone going to park waits instead.
 ASKING = frozenset({Phase.TO_PICKUP, Phase.TO_DROPOFF, Phase.TO_CHARGER})

@@ -78,6 +78,7 @@ NO_WAY = 10**6  #: the distance between cells no path joins (a vehicle down may 
 MAX_MISSES = 3  #: plans to a pickup that end with the vehicle not there, before the mail is handed back
 MAX_FAILURES = 4  #: rounds in a row that find no plan, before mail not on board is handed back (see leg_failed)
 MAX_STRIKES = 8  #: legs to a mail's pickup that found no plan, in a row or not, before it is handed back
+NOT_CLEARED = "at the pickup, not cleared by the service to take it on board"
 
 
 def mail_cell_problem(workspace: Workspace, cell: Cell) -> tuple[str, str] | None:
@@ -216,6 +217,8 @@ class MailPlanner:
     make_way_stay: int = 0  #: at least how long to stay out of the way asked for
     paused: bool = False  #: the operator's pause: no mail starts (mail on board is still delivered)
     held: bool = False  #: the operator landed the drone where it is: no leg at all until resumed
+    #: mail the dispatcher cleared for pickup; None: no clearance needed (no service dispatches the mail)
+    cleared: set[str] | None = None
 
     # ---------------------------------------------------------- inputs
     def assign(self, request: MailRequest) -> None:
@@ -242,12 +245,22 @@ class MailPlanner:
             self.current, self.carrying = None, False
         return handed
 
-    def release(self, reason: str) -> list[MailAction]:
+    def _may_pick_up(self, request: MailRequest) -> bool:
+        """Mail is taken on board only once its dispatcher knows it may be (see :attr:`cleared`): then a
+        drone it loses touch with may hold it, and it gives it to no other drone meanwhile."""
+        return self.cleared is None or request.id in self.cleared
+
+    def release(self, reason: str, keep_cleared: bool = False) -> list[MailAction]:
         """Hand back every mail not on board, most urgent first (the vehicle is lost: another drone
-        may fly them); mail on board stays. A leg to a pickup under way ends with no mail."""
-        handed: list[MailAction] = [MailRejected(r, reason, True) for r in sorted(self.queue, key=lambda r: r.rank)]
-        self.queue = []
-        if self.current is not None and not self.carrying:
+        may fly them); mail on board stays, and with ``keep_cleared`` mail cleared for pickup (its
+        dispatcher holds it as this drone's). A leg to a pickup under way ends with no mail."""
+        def kept(request: MailRequest) -> bool:
+            return keep_cleared and self.cleared is not None and request.id in self.cleared
+
+        ranked = sorted(self.queue, key=lambda r: r.rank)
+        handed: list[MailAction] = [MailRejected(r, reason, True) for r in ranked if not kept(r)]
+        self.queue = [r for r in self.queue if kept(r)]
+        if self.current is not None and not self.carrying and not kept(self.current):
             handed.append(MailRejected(self.current, reason, True))
             self.current = None
         return handed
@@ -285,7 +298,10 @@ class MailPlanner:
         self.blocked, self.backoff = None, 0
         done, actions = self.phase, list[MailAction]()
         self.landed_here = self._parked() or self.cell in self.chargers or done is Phase.MAKING_WAY
-        if done is Phase.TO_PICKUP and self.current is not None:
+        if done is Phase.TO_PICKUP and self.current is not None and not self._may_pick_up(self.current):
+            actions.append(MailRejected(self.current, NOT_CLEARED, True))
+            self.current, self.phase = None, Phase.IDLE
+        elif done is Phase.TO_PICKUP and self.current is not None:
             self.strikes.pop(self.current.id, None)
             actions.append(MailPickedUp(self.current))
             self.carrying, self.phase = True, Phase.IDLE  # the drop-off leg starts at the next decision

@@ -161,6 +161,8 @@ class DroneAgent:
         # With the protocol's messages, in the order they came: a peer that left and came back must not have
         # its new request handled before its leaving (which would drop the request, held for an answer).
         node.watch_liveliness(keys.alive(), self._on_liveliness, first=True)
+        if not self.mail.adopt:  # a service dispatches the mail
+            node.watch_liveliness(keys.service(), self._on_service, first=True)
         # The token last: whoever sees us alive finds every queryable already declared (the
         # declarations reach a peer in order), so a mail order sent at once is answered.
         node.token(keys.alive(self.me))
@@ -471,6 +473,14 @@ class DroneAgent:
             self.clocks.forget(peer)
             self._carry_out(self.stack.peer_left(peer, self._silent_since(peer)))
             self.mail.orphan(peer, self.stack.now + self.lease_steps)
+
+    def _on_service(self, key: str, alive: bool) -> None:
+        if alive:
+            log.info("%s: the service is there", self.me)
+            self.mail.service_back()
+            return
+        log.warning("%s: the service is gone: mail not on board is handed back", self.me)
+        self._carry_out(self.stack.service_lost())
 
     def _silent_since(self, peer: str) -> int:
         """The earliest step ``peer`` may have gone silent at. A lost link is noticed only when the

@@ -152,6 +152,8 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
             agent = DroneAgent(stack, node, keys, link, frame, host.clock, record, timeouts(settings),
                                epoch_s=settings.epoch)
             agent.mail.adopt = settings.adopt_mail
+            if not settings.adopt_mail:  # a service dispatches the mail: it clears each for pickup
+                stack.mail.cleared = set()
             agent.lease_steps = math.ceil(settings.lease_s / ws.tau_s)
             host.agents.append(agent)
         for agent in host.agents:

@@ -20,6 +20,7 @@ of a majority, since the drone gave it up.
 
 from __future__ import annotations
 
+import collections
 import logging
 from collections.abc import Callable, Collection
 
@@ -41,6 +42,7 @@ from fleet.transport.wire import (
     HeldMail,
     MailAck,
     MailCancel,
+    MailClear,
     MailOrder,
     MailStatus,
     MailStatusReport,
@@ -52,6 +54,7 @@ from fleet.transport.wire import (
 
 log = logging.getLogger(__name__)
 
+KEPT_REPORTS = 256  #: mails whose last report a drone keeps, to send again to a service back
 MailProgress = MailStarted | MailPickedUp | MailDelivered | MailRejected | MailLost
 PROGRESS = {MailStarted: MailStatus.STARTED, MailPickedUp: MailStatus.PICKED_UP,
             MailDelivered: MailStatus.DELIVERED, MailRejected: MailStatus.REJECTED, MailLost: MailStatus.FAILED}
@@ -73,6 +76,9 @@ class MailDesk:
         self.handed: dict[str, MailView] = {}  #: mail I handed back that no peer lists yet
         self.stranded: dict[str, tuple[str, MailView]] = {}  #: mail on board departed drones
         self.published: list[MailView] | None = None
+        #: the last report on each mail, newest last: sent again when the service comes back (it may have
+        #: missed any of them, made before either side saw the link go)
+        self.latest: collections.OrderedDict[str, MailStatusReport] = collections.OrderedDict()
 
     def declare(self) -> None:
         node, keys = self.node, self.keys
@@ -80,6 +86,7 @@ class MailDesk:
         node.queryable(keys.held(self.me), self._on_held_query)
         node.queryable(keys.assign(self.me), self._on_order)
         node.queryable(keys.cancel(self.me), self._on_cancel)
+        node.queryable(keys.clear(self.me), self._on_clear)
 
     async def catch_up(self) -> None:
         """What the peers already hold (they published it before we subscribed)."""
@@ -115,6 +122,21 @@ class MailDesk:
         ack = MailAck(id=body.id, drone=self.me, accepted=dropped, reason="" if dropped else "under way or unknown")
         query.reply(self.keys.cancel(self.me), encode(self.me, self.clock(), ack))
 
+    def _on_clear(self, key: str, payload: bytes, query: Query) -> None:
+        """The service holds a mail I started as mine from now on: I may take it on board."""
+        try:
+            body = decode(payload).body
+            if not isinstance(body, MailClear):
+                raise WireError(f"expected a mail clearance, got {body.kind}")
+        except WireError as exc:
+            log.warning("%s: dropped a clearance on %s: %s", self.me, key, exc)
+            return
+        cleared = self.stack.mail.cleared
+        if cleared is not None:
+            cleared.add(body.id)
+        ack = MailAck(id=body.id, drone=self.me, accepted=cleared is not None)
+        query.reply(self.keys.clear(self.me), encode(self.me, self.clock(), ack))
+
     def take(self, order: MailOrder) -> bool:
         """Queue ``order``; False if this drone already has it (a repeated order). ProblemError if unusable."""
         if not self.accepting:
@@ -149,6 +171,9 @@ class MailDesk:
             status = MailStatus.HANDED_BACK
         if status is MailStatus.DELIVERED:
             self.delivered.add(action.request.id)
+        cleared = self.stack.mail.cleared
+        if cleared is not None and not isinstance(action, (MailStarted, MailPickedUp)):
+            cleared.discard(action.request.id)  # no longer mine: a clearance is for one holding
         self.report(action.request.id, status, action.reason if isinstance(action, (MailRejected, MailLost)) else "")
         self.publish_held()
 
@@ -156,7 +181,19 @@ class MailDesk:
         report = MailStatusReport(id=mail_id, drone=drone or self.me, status=status, step=self.stack.now,
                                   reason=reason)
         self.node.put(self.keys.status(self.me, mail_id), encode(self.me, self.clock(), report), once=True)
+        self.latest.pop(mail_id, None)
+        self.latest[mail_id] = report
+        if len(self.latest) > KEPT_REPORTS:
+            self.latest.popitem(last=False)
         log.info("%s: mail %s %s%s", self.me, mail_id, status.value, f" ({reason})" if reason else "")
+
+    def service_back(self) -> None:
+        """The service is back: the last word on each mail again, in order, since it may have missed
+        it (a delivery made meanwhile is not failed for want of news; it ignores what it knew)."""
+        for report in self.latest.values():
+            self.node.put(self.keys.status(self.me, report.id), encode(self.me, self.clock(), report), once=True)
+        if self.latest:
+            log.info("%s: the last report on %d mail(s) sent again to the service", self.me, len(self.latest))
 
     # ---------------------------------------------------------- holdings
     def held(self) -> list[MailView]:

@@ -53,7 +53,8 @@ class AgentSettings(BaseSettings):
     takeoff_timeout_s: Annotated[float, Field(gt=0)] = 10.0  #: an accepted take-off to leaving the ground
     command_timeout_s: Annotated[float, Field(gt=0)] = 30.0  #: a whole take-off or landing
     shared_session: bool = False  #: simulation: the process's drones share one Zenoh session (one each by default)
-    adopt_mail: bool = True  #: take over a departed peer's mail (turn off when a service dispatches it)
+    #: take over a departed peer's mail; off when a service dispatches it (it clears mail for pickup)
+    adopt_mail: bool = True
     signing_key: SecretStr | None = None  #: DRONA_SIGNING_KEY: the vehicle's MAVLink 2 key, 64 hex digits (one drone)
     #: MAVLink 2 keys: one key (one drone), or a line "DRONE KEY" per drone (fleet.vehicle.signing)
     signing_key_file: Path | None = None

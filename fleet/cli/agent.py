@@ -72,7 +72,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
              "then signs what it sends and hears only what is signed with the key. For one drone the key may "
              "instead come from DRONA_SIGNING_KEY (not a flag: ps shows flags) [DRONA_SIGNING_KEY_FILE]")
     add("--no-adopt-mail", dest="adopt_mail", action="store_const", const=False,
-        help="do not take over a departed drone's mail (when `drona serve` dispatches, it reassigns it)")
+        help="`drona serve` dispatches the mail: take over no departed drone's mail (the service reassigns it), "
+             "take mail on board only once the service cleared it, and hand back what is not cleared when the "
+             "service is out of touch")
     add("--tls-dir", type=Path, help="the fleet's certificates, made by `drona certs`: Zenoh runs with mutual TLS and "
                                      "the fleet's access control, each drone its own identity [DRONA_TLS_DIR]")
     add("--insecure", action="store_const", const=True,

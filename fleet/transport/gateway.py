@@ -33,6 +33,7 @@ from fleet.transport.wire import (
     DroneState,
     FleetCommand,
     MailCancel,
+    MailClear,
     MailStatus,
     VehicleView,
     WireError,
@@ -78,6 +79,7 @@ class ZenohGateway:
             node.subscribe(self.keys.state(), self._on_state)
             node.subscribe(self.keys.status(), self._on_report)
             node.watch_liveliness(self.keys.alive(), self._on_liveliness)
+            node.token(self.keys.service())  # drones hold the mail it gave only while they see it
             self.ready.set()
             await asyncio.Event().wait()  # until cancelled: everything else comes through the callbacks
         finally:
@@ -103,6 +105,12 @@ class ZenohGateway:
         with contextlib.suppress(Exception):  # best effort: the drone may be gone
             node = (await self._client()).node
             await node.get(self.keys.cancel(drone), encode("drona-serve", 0.0, MailCancel(id=mail_id)),
+                           QUERY_TIMEOUT_S)
+
+    async def clear(self, drone: str, mail_id: str) -> None:
+        with contextlib.suppress(Exception):  # best effort: the drone may be gone
+            node = (await self._client()).node
+            await node.get(self.keys.clear(drone), encode("drona-serve", 0.0, MailClear(id=mail_id)),
                            QUERY_TIMEOUT_S)
 
     async def command(self, drone: str | None, action: str, by: str, about: str | None = None) -> list[CommandAck]:

@@ -7,7 +7,8 @@ the fleet's CA gets no link at all. Zenoh's access control then ties each key to
 identity that may write it (:func:`access_control`): drone ``dX`` puts only on its own
 keys (``proto/<to>/dX``, ``answers/dX``, ``plan/dX``, ``state/dX``, ``held/dX``,
 ``mail/status/dX/<mail>``), declares only the liveliness token ``alive/dX``, serves only its
-own queryables; only the service may ask (assign, cancel mail). Everything else is denied.
+own queryables; only the service may ask (assign, cancel mail) and declare the token ``service``.
+Everything else is denied.
 A router relays what its clients may say, so what comes from a router is taken as its
 clients': the router enforces the same rules at its ingress. A *host* (a process flying several
 drones in one session, ``--shared-session``: a simulation, or a ground computer) has a certificate
@@ -106,6 +107,7 @@ def access_control(keys: FleetKeys, drones: Sequence[str],
         _rule("listen", ["ingress"], _LISTENING, [f"{root}/**"]),
         _rule("ask-drones", ["ingress"], ["query"], [keys.clock(), keys.held(), keys.state()]),
         _rule("ask-all", ["ingress"], ["query"], [f"{root}/**"]),
+        _rule("service-token", ["ingress"], ["liveliness_token"], [keys.service()]),
         _rule("relay", ["ingress"], ALL_MESSAGES, [f"{root}/**"]),
         _rule("tell", ["egress"], ALL_MESSAGES, [f"{root}/**"]),
     ]
@@ -113,7 +115,7 @@ def access_control(keys: FleetKeys, drones: Sequence[str],
     policies: list[dict[str, Any]] = [
         {"id": "everyone", "rules": ["listen", "tell"], "subjects": [*fleet, SERVICE, ROUTER]},
         {"id": "drones", "rules": ["ask-drones"], "subjects": fleet},
-        {"id": "service", "rules": ["ask-all"], "subjects": [SERVICE]},
+        {"id": "service", "rules": ["ask-all", "service-token"], "subjects": [SERVICE]},
         {"id": "router", "rules": ["relay"], "subjects": [ROUTER]},
     ]
     for drone in drones:
@@ -129,7 +131,7 @@ def _own_keys(keys: FleetKeys, drone: str) -> list[dict[str, Any]]:
     puts = [keys.proto("*", drone), keys.answers(drone), keys.plan(drone), keys.state(drone), keys.held(drone),
             keys.status(drone)]
     serves = [keys.state(drone), keys.held(drone), keys.clock(drone), keys.assign(drone), keys.cancel(drone),
-              keys.command(drone)]
+              keys.clear(drone), keys.command(drone)]
     return [_rule(f"{drone}-puts", ["ingress"], ["put"], puts),
             _rule(f"{drone}-token", ["ingress"], ["liveliness_token"], [keys.alive(drone)]),
             _rule(f"{drone}-serves", ["ingress"], ["declare_queryable", "reply"], serves)]

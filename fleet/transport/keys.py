@@ -48,6 +48,10 @@ class FleetKeys:
     def alive(self, drone: str = "*") -> str:
         return f"{self.root}/alive/{drone}"
 
+    def service(self) -> str:
+        """The service's liveliness token: drones it dispatches to hold its mail only while it is there."""
+        return f"{self.root}/service"
+
     def proto(self, drone: str, sender: str = "*") -> str:
         return f"{self.root}/proto/{sender}/{drone}"
 
@@ -68,6 +72,9 @@ class FleetKeys:
 
     def cancel(self, drone: str) -> str:
         return f"{self.root}/mail/cancel/{drone}"
+
+    def clear(self, drone: str) -> str:
+        return f"{self.root}/mail/clear/{drone}"
 
     def status(self, drone: str = "*", mail: str = "*") -> str:
         return f"{self.root}/mail/status/{drone}/{mail}"

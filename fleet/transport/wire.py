@@ -71,7 +71,8 @@ from drona_gcs.stack.messages import (
 #: 8: ``plan`` says ``braked``;
 #: 9: ``propose``, ``ack`` and ``decide``: a plan is flown once every member holds it; ``plan`` says ``lost``.
 #: 10: ``held`` lists mail handed back that no peer holds yet, and a status says ``handed_back``; ``refuse``.
-VERSION: Final = 10
+#: 11: ``mail_clear``, the service's clearance to take a mail on board.
+VERSION: Final = 11
 
 CellList = Annotated[list[int], msgspec.Meta(min_length=3, max_length=3)]
 #: A mail id is a Zenoh key chunk (mail/status/<id>); \Z, not $: "$" would let a final newline through.
@@ -270,6 +271,12 @@ class MailCancel(_Body, frozen=True, kw_only=True, tag="mail_cancel"):
     id: str
 
 
+class MailClear(_Body, frozen=True, kw_only=True, tag="mail_clear"):
+    """The service holds the mail as the drone's from now: it may take it on board."""
+
+    id: str
+
+
 class MailAck(_Body, frozen=True, kw_only=True, tag="mail_ack"):
     id: str
     drone: str
@@ -330,11 +337,12 @@ class CommandAck(_Body, frozen=True, kw_only=True, tag="command_ack"):
 
 
 Body = (ReqTraj | CurTraj | CurTrajTo | Propose | Ack | Refuse | Decide | PlanAnnounce | DroneState | HeldMail
-        | MailOrder | MailCancel | MailAck | MailStatusReport | ClockPing | ClockPong | FleetCommand | CommandAck)
+        | MailOrder | MailCancel | MailClear | MailAck | MailStatusReport | ClockPing | ClockPong | FleetCommand
+        | CommandAck)
 
 
 class Envelope(_Strict, frozen=True, kw_only=True):
-    v: Literal[10] = VERSION
+    v: Literal[11] = VERSION
     sender: Annotated[str, msgspec.Meta(min_length=1)]
     sent_at: float
     body: Body
@@ -496,3 +504,4 @@ def to_core(envelope: Envelope, me: str) -> Message | None:
         return CurrentTraj(envelope.sender, body.trajectory.core(), request.core(), body.holds)
     except DronaError as exc:
         raise WireError(f"{body.kind} from {envelope.sender!r}: {exc}") from exc
+

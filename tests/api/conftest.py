@@ -101,6 +101,10 @@ class Harness:
                 while not predicate():
                     await sub.queue.get()
 
+    def drone_of(self, mail_id: str) -> str | None:
+        record = self.service.store.get(mail_id)
+        return record.drone if record is not None else None
+
     def status(self, mail_id: str) -> str:
         record = self.service.store.get(mail_id)
         assert record is not None

@@ -68,6 +68,7 @@ class SimulatedGateway:
         self.refusing: dict[str, str] = {}  #: drone -> the reason it refuses every mail
         self.silent: set[str] = set()  #: drones that take mail and then never mention it
         self.assigned: list[tuple[str, str]] = []  #: (drone, mail id) as assigned
+        self.cleared: list[tuple[str, str]] = []  #: (drone, mail id) as cleared for pickup
         self.cancelled: list[tuple[str, str]] = []
         self.commands: list[tuple[str | None, str, str]] = []  #: (drone or None: all, action, by) as told
         self.commanded: dict[str, str] = {}  #: drone -> the command in force (it takes no mail)
@@ -113,6 +114,9 @@ class SimulatedGateway:
         sim.queue = deque(m for m in sim.queue if m.id != mail_id)
         if sim.current is not None and sim.current.id == mail_id and not sim.carrying:
             sim.current, sim.path = None, []
+
+    async def clear(self, drone: str, mail_id: str) -> None:
+        self.cleared.append((drone, mail_id))
 
     async def command(self, drone: str | None, action: str, by: str, about: str | None = None) -> list[CommandAck]:
         """Live drones that are not silent answer; a recalled or landed one hands back its queue."""

@@ -2,7 +2,19 @@
 
 from __future__ import annotations
 
-from api.dispatch import Assignment, Fail, InFlight, Requeue, Slot, Waiting, assign, expired, on_drone_lost, slots
+from api.dispatch import (
+    Assignment,
+    Fail,
+    InFlight,
+    Requeue,
+    Slot,
+    Waiting,
+    assign,
+    expired,
+    on_drone_lost,
+    on_drone_released,
+    slots,
+)
 from api.gateway import DroneView, Health, Position
 from api.lifecycle import Status
 from drona_gcs.workspace import Cell
@@ -66,13 +78,15 @@ def test_slots_skip_dead_unhealthy_and_full_drones() -> None:
     assert not found["e"].idle and found["e"].free == 1
 
 
-def test_a_lost_drone_gives_back_what_it_had_not_picked_up() -> None:
+def test_a_lost_drone_gives_back_only_what_it_was_not_cleared_to_pick_up() -> None:
     held = [InFlight("m1", "a", Status.ASSIGNED, 10.0), InFlight("m2", "a", Status.PICKED_UP, 10.0),
-            InFlight("m3", "b", Status.ASSIGNED, 10.0)]
-    decisions = on_drone_lost(held, "a")
-    assert [type(d) for d in decisions] == [Requeue, Fail]
-    assert [d.mail_id for d in decisions] == ["m1", "m2"]
-    assert "on board" in decisions[1].reason
+            InFlight("m3", "b", Status.ASSIGNED, 10.0), InFlight("m4", "a", Status.ASSIGNED, 10.0)]
+    decisions = on_drone_lost(held, "a", cleared={"m4"})
+    assert [(type(d), d.mail_id) for d in decisions] == [(Requeue, "m1")]
+    released = on_drone_released(held, "a", cleared={"m4"})
+    assert [(type(d), d.mail_id) for d in released] == [(Requeue, "m1"), (Fail, "m2"), (Fail, "m4")]
+    assert "on board" in released[1].reason and "released by the operator" in released[1].reason
+    assert "may have had the mail on board" in released[2].reason
 
 
 def test_only_mail_past_its_deadline_expires() -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import time
 
@@ -28,6 +29,7 @@ def test_a_mail_is_assigned_picked_up_and_delivered(settings: ApiSettings, works
             done = (await h.client.get(f"/v1/mail/{mail['id']}", headers=auth())).json()
             assert done["status"] == "delivered"
             assert history(done) == [("queued", None), ("assigned", "d1"), ("picked_up", "d1"), ("delivered", "d1")]
+            assert h.gateway.cleared == [("d1", mail["id"])]  # once it started: before, a loss requeues it
             stamps = [e["at"] for e in done["history"]]
             assert stamps == sorted(stamps)
 
@@ -62,27 +64,36 @@ def test_the_nearest_idle_drone_takes_it(settings: ApiSettings, workspace: Works
     run(body())
 
 
-def test_a_lost_drone_s_mail_is_requeued_or_failed_if_on_board(settings: ApiSettings, workspace: Workspace) -> None:
+def test_a_lost_drone_s_mail_not_cleared_is_requeued_and_what_it_may_carry_waits_for_its_release(
+        settings: ApiSettings, workspace: Workspace) -> None:
     async def body() -> None:
-        async with running(settings, workspace) as h:
+        quick = settings.model_copy(update={"assign_timeout_s": 0.5})
+        async with running(quick, workspace) as h:
             on_board = await h.submit([1, 1, 0], [1, 7, 0])  # d1, one step away
             await h.service.dispatcher.idle()
             await h.steps(2)
             assert h.status(on_board["id"]) == "picked_up"
-            waiting = await h.submit([7, 1, 0], [7, 6, 0])  # d2 now: d1 is busy
+            started = await h.submit([7, 1, 0], [7, 6, 0])  # d2 now: d1 is busy
             await h.service.dispatcher.idle()
-            assert ("d2", waiting["id"]) in h.gateway.assigned
-            h.gateway.lose("d1")
-            h.gateway.lose("d2")
+            await h.steps(1)  # d2 starts it: cleared for pickup
+            waiting = await h.submit([2, 2, 0], [2, 6, 0])  # d3 now, not started
             await h.service.dispatcher.idle()
-            failed = h.service.store.get(on_board["id"])
-            assert failed is not None and failed.status.value == "failed"
-            assert "d1 was lost" in failed.reason and "on board" in failed.reason
-            assert ("d3", waiting["id"]) in h.gateway.assigned  # requeued, then to the one left
-            await h.steps(25)
-            assert h.status(waiting["id"]) == "delivered"
-            statuses = [e.status.value for e in h.service.store.history(h.service.store.get(waiting["id"]).seq)]
-            assert statuses == ["queued", "assigned", "queued", "assigned", "picked_up", "delivered"]
+            assert [h.drone_of(m["id"]) for m in (started, waiting)] == ["d2", "d3"]
+            assert ("d2", started["id"]) in h.gateway.cleared and ("d3", waiting["id"]) not in h.gateway.cleared
+            for drone in ("d1", "d2", "d3"):
+                h.gateway.lose(drone)
+            await h.service.dispatcher.idle()
+            assert h.status(waiting["id"]) == "queued"  # d3 may not take it on board: it is no longer its own
+            # d1 and d2 may be only cut off, and deliver: no deadline runs out on what they may carry.
+            await asyncio.sleep(3 * quick.assign_timeout_s)  # past every deadline: nothing may happen
+            await h.service.dispatcher.idle()
+            assert h.status(on_board["id"]) == "picked_up" and h.status(started["id"]) == "assigned"
+            for drone, mail in (("d1", on_board), ("d2", started)):
+                res = await h.client.post(f"/v1/fleet/drones/{drone}/release", headers=auth())
+                assert res.status_code == 200, res.text
+                failed = h.service.store.get(mail["id"])
+                assert failed is not None and failed.status.value == "failed"
+                assert f"{drone} was released by the operator" in failed.reason and "on board" in failed.reason
 
     run(body())
 

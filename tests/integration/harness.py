@@ -148,6 +148,10 @@ class FleetProcesses:
                 *(arg for ep in others for arg in ("--connect", ep)), "--workspace", str(self.workspace),
                 "--fleet", self.fleet, *lease]
 
+    def add_router(self, host: str) -> None:
+        """A router on ``host``, which flies no drone (the service's, say), joined to every drone's host."""
+        self.sims[f"router-{host}"] = self._spawn(f"router-{host}", self.router_command(host), host)
+
     def host_command(self) -> list[str]:
         """One process for the whole fleet: drone i listens i ports up from the first (as the ports are)."""
         first = self.drones[0]
