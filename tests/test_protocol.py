@@ -32,6 +32,7 @@ from drona_gcs.stack.messages import (
     TaskId,
 )
 from drona_gcs.stack.protocol import (
+    ASK_AGAIN_STEPS,
     TRANSITIONS,
     Action,
     Braked,
@@ -1295,3 +1296,16 @@ def test_a_refusal_naming_where_a_gone_drone_may_be_is_held_and_the_next_plan_ke
     assert {"c!0", "c!1"} <= set(proto.ghost_obstacles())  # until c says where it is
     proto.heard("c", Trajectory.stationary(C, 3))
     assert not any(name.startswith("c!") for name in proto.ghost_obstacles())
+
+
+def test_a_round_asks_again_the_members_that_have_not_answered() -> None:
+    """Seen once over real processes: a round waited for good after a partition healed (most likely a
+    request or answer lost while the link's routes came back). Every few steps the silent members are
+    asked again."""
+    proto = machine()
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0)  # c's answer is lost
+    assert [proto.handle(NextStep(), step) for step in range(1, ASK_AGAIN_STEPS)] == [[]] * (ASK_AGAIN_STEPS - 1)
+    assert proto.handle(NextStep(), ASK_AGAIN_STEPS) == [Send("c", request(ID_A, "a", ASK_AGAIN_STEPS))]
+    planned = proto.handle(CurrentTraj("c", location_of("c"), ID_A), ASK_AGAIN_STEPS)
+    assert proto.state is State.CONFIRMING and isinstance(planned[0], Broadcast)

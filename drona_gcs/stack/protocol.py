@@ -152,7 +152,9 @@ settled here, and one message it sends is saved (the second point):
   reassigns the task. Nothing is dropped.
 * **Messages** may be delayed, duplicated and reordered. Every reply names
   the request it answers (``in_reply_to``); replies to anything but my current
-  request are ignored, and duplicates only overwrite an entry with itself.
+  request are ignored, and duplicates only overwrite an entry with itself. A round still
+  waiting :data:`ASK_AGAIN_STEPS` after it asked asks the silent members again (a request
+  or answer lost must not hold it for good).
 
 Every transition is in :data:`TRANSITIONS`; an event a state does not take
 raises :class:`~drona_gcs.errors.ProtocolViolation` naming both.
@@ -181,6 +183,8 @@ from drona_gcs.stack.messages import (
 )
 from drona_gcs.workspace import Cell
 
+#: steps a round waits for answers before it asks the members that have not answered again
+ASK_AGAIN_STEPS = 4
 #: plan(start, goal, start_step, others, max_length) -> Plan, e.g. SafePlanner.plan
 PlanFunction = Callable[[Cell, Cell, int, Mapping[str, Trajectory], int | None], Plan]
 
@@ -442,6 +446,7 @@ class CoordinationProtocol:
     #: members back since they left, not heard from since: held where they may be until they say (Present)
     unreported: set[str] = field(default_factory=set)
     cut: Trajectory | None = None  #: my last brake: the plan I cut short, held at its end
+    asked_at: int = 0  #: the step this round last asked the members that have not answered
 
     def __post_init__(self) -> None:
         self.members = set(self.peers) - {self.me}
@@ -557,7 +562,7 @@ class CoordinationProtocol:
         return self._begin_round(event.task, State.COORDINATING, now)
 
     def _begin_round(self, task: Task, state: State, now: int) -> list[Action]:
-        self.task, self.state = task, state
+        self.task, self.state, self.asked_at = task, state, now
         self._forget_answers()
         self.pending = {}
         if not self.in_quorum():  # nothing to ask: no plan could be flown
@@ -755,6 +760,16 @@ class CoordinationProtocol:
             actions += [*self._release_pending(self.trajectory), RerouteFailed(self.task, "braked")]
             self.state = State.EXECUTING
         return actions
+
+    def _ask_again(self, event: NextStep, now: int) -> list[Action]:
+        """A round still waiting :data:`ASK_AGAIN_STEPS` after it asked asks again the members that have not
+        answered: one request lost (a link just back drops what it carries before its routes are up) would
+        hold a round for good. A copy is harmless: it is answered, or held for an answer, again."""
+        if now - self.asked_at < ASK_AGAIN_STEPS:
+            return []
+        self.asked_at = now
+        request = self._request(now)
+        return [Send(p, request) for p in sorted(self.members - set(self.received))]
 
     def _on_next_step(self, event: NextStep, now: int) -> list[Action]:
         if self.trajectory is None:
@@ -1176,7 +1191,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PlanDecision: CoordinationProtocol._on_decision,
         ClockBound: CoordinationProtocol._on_clock_bound,
         PeerLost: CoordinationProtocol._on_peer_lost,
-        NextStep: CoordinationProtocol._ignore,  # nothing is flown yet
+        NextStep: CoordinationProtocol._ask_again,  # nothing is flown yet
     },
     State.EXECUTING: {
         ReqForCurrentTraj: CoordinationProtocol._on_request,  # answered with my trajectory
