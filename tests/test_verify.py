@@ -565,3 +565,13 @@ def test_mail_on_board_is_charged_for_where_a_full_battery_delivers_it() -> None
     scenario = Scenario(drones=4, requests=4, delta=0, seed=533698, grid=(16, 16, 1), obstacles=0.2, partitions=2)
     outcome = Explorer(scenario).run(Strategy.PCT, schedules=30, max_depth=5000, seed=533698)
     assert outcome.violation is None, str(outcome.violation)
+
+
+def test_the_service_gives_mail_handed_back_to_the_drone_with_the_least_in_hand() -> None:
+    """Found by sweep 20021: two drones walled in and two more short of a charger handed their mail back,
+    and the model's service gave each to the next drone by name. Only d5 flew, one mail after another, past
+    the liveness bound. `drona serve` chooses by the fleet's rule (fewest held, idle, nearest): so does
+    the model."""
+    scenario = Scenario(drones=6, requests=9, delta=1, seed=161326, grid=(8, 8, 1), obstacles=0.2)
+    outcome = Explorer(scenario).run(Strategy.RANDOM, schedules=30, max_depth=5000, seed=161326)
+    assert outcome.violation is None, str(outcome.violation)

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field, replace
 from typing import TypeVar
 
 from drona_gcs.bench.workload import random_workspace
+from drona_gcs.dispatch import Candidate, choose_drone
 from drona_gcs.errors import ProblemError
 from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
@@ -53,6 +54,7 @@ from drona_gcs.stack.protocol import (
     RerouteFailed,
     Send,
     StartExecuting,
+    State,
     TaskFailed,
     Threatened,
 )
@@ -446,12 +448,13 @@ class World:
 
     def _inject(self) -> None:
         if self.redispatch:
-            drone, request, _ = self.redispatch.pop(0)
+            handed_back_by, request, _ = self.redispatch.pop(0)
+            drone = self._reassign(request, handed_back_by)
         else:
             request, drone = self.config.requests[self.injected], self.config.assignees[self.injected]
             self.injected += 1
-        if drone in self.down or drone in self.crashed:  # it refuses mail: the service gives it to another
-            drone = self._next_flying(drone)
+            if drone in self.down or drone in self.crashed:  # it refuses mail: the service gives it to another
+                drone = self._reassign(request, drone)
         self.last_injection_step = min(self.steps.values())
         self.trace.append(f"env -> {drone}: mail {request.id} p{request.priority} "
                           f"{cell_text(request.pickup)}->{cell_text(request.dropoff)}")
@@ -663,15 +666,20 @@ class World:
                     if peer != drone:
                         self._post(drone, peer, Announce(action.trajectory, grounded=isinstance(action, Grounded),
                                                          braked=isinstance(action, Braked)))
-            if isinstance(action, MailRejected):  # the service gives it to the next drone that flies
+            if isinstance(action, MailRejected):  # the service gives it to another drone that flies
                 # As promptly as a message: a liveness bound needs the service to be fair.
                 deadline = max(self.steps[drone], 0) + self.config.max_delay
-                self.redispatch.append((self._next_flying(drone), action.request, deadline))
+                self.redispatch.append((drone, action.request, deadline))
 
-    def _next_flying(self, drone: str) -> str:
-        drones = self.config.drones
-        later = [*drones[drones.index(drone) + 1:], *drones[:drones.index(drone) + 1]]
-        return next((d for d in later if d not in self.down and d not in self.crashed), drone)
+    def _reassign(self, request: MailRequest, handed_back_by: str) -> str:
+        """The drone the service gives ``request`` to, by the fleet's one rule (as ``drona serve``'s):
+        of the drones in service but the one that handed it back (if there are others), the fewest
+        mails held, idle first, the nearest to the pickup."""
+        flying = [d for d in self.config.drones if d not in self.down and d not in self.crashed]
+        others = [d for d in flying if d != handed_back_by] or flying
+        candidates = [Candidate(d, self._where(d), _held(self.stacks[d]),
+                                self.stacks[d].protocol.state is not State.WAIT_FOR_TASK) for d in others]
+        return choose_drone(candidates, request.pickup) or handed_back_by
 
     def _post(self, sender: str, to: str, message: Notice, liveliness: bool = False) -> None:
         """``liveliness``: a leave or join each side's session sees by itself, across a cut too."""
@@ -820,3 +828,7 @@ def _machine_key(machine: object) -> Hashable:
             out.append(value)
     return tuple(out)
 
+
+def _held(stack: DroneStack) -> int:
+    """The mail a drone holds: queued, current or on board."""
+    return len(stack.mail.queue) + (stack.mail.current is not None)
