@@ -761,7 +761,10 @@ class CoordinationProtocol:
             self.state = State.EXECUTING
         return actions
 
-    def _ask_again(self, event: NextStep, now: int) -> list[Action]:
+    def _on_next_step_while_coordinating(self, event: NextStep, now: int) -> list[Action]:
+        return self._ask_again(now)
+
+    def _ask_again(self, now: int) -> list[Action]:
         """A round still waiting :data:`ASK_AGAIN_STEPS` after it asked asks again the members that have not
         answered: one request lost (a link just back drops what it carries before its routes are up) would
         hold a round for good. A copy is harmless: it is answered, or held for an answer, again."""
@@ -1191,7 +1194,7 @@ TRANSITIONS: dict[State, dict[type, _Handler]] = {
         PlanDecision: CoordinationProtocol._on_decision,
         ClockBound: CoordinationProtocol._on_clock_bound,
         PeerLost: CoordinationProtocol._on_peer_lost,
-        NextStep: CoordinationProtocol._ask_again,  # nothing is flown yet
+        NextStep: CoordinationProtocol._on_next_step_while_coordinating,  # nothing is flown yet: ask again
     },
     State.EXECUTING: {
         ReqForCurrentTraj: CoordinationProtocol._on_request,  # answered with my trajectory

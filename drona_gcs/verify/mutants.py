@@ -19,7 +19,8 @@ from drona_gcs.stack.protocol import Action, CoordinationProtocol, Event, State
 #: Bugs that ``--seed-bug`` can plant, and what each does.
 SEEDED_BUGS = {
     "stale-trajectory": "a drone keeps its peers' answers from its previous task and plans with them",
-    "tie-break-reversed": "a request ranks above mine when its task id is higher, not lower",
+    "tie-break-reversed": "a request ranks above mine when its task id is higher, not lower (and a round "
+                          "never asks again)",
     "answer-while-coordinating": "a coordinating drone answers every request with its location",
     "no-battery-check": "the task planner starts legs without checking the battery",
     "skip-delta": "the planner ignores the clock-skew window (plans with Delta 0)",
@@ -36,6 +37,9 @@ class StaleTrajectory(CoordinationProtocol):
 class TieBreakReversed(CoordinationProtocol):
     def _outranks(self, theirs: TaskId, mine: TaskId) -> bool:
         return theirs > mine
+
+    def _ask_again(self, now: int) -> list[Action]:
+        return []  # asked again, the drones that wait for each other for good would be woken
 
 
 class AnswerWhileCoordinating(CoordinationProtocol):
