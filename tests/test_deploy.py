@@ -50,7 +50,7 @@ CONTAINER_DIR = DEPLOY / "container"
 SETTINGS = frozenset({
     "DRONA_WORKSPACE", "DRONA_DRONE", "DRONA_VEHICLE", "DRONA_FLEET", "DRONA_ZENOH_CONFIG",
     "DRONA_LISTEN", "DRONA_CONNECT", "DRONA_LEASE_S", "DRONA_EPOCH", "DRONA_RECORD", "DRONA_TLS_DIR",
-    "DRONA_INSECURE",
+    "DRONA_INSECURE", "DRONA_ADOPT_MAIL",
 })
 KEY = "drona/deploy-test/put"
 ARRIVAL_S = 5.0  #: how long a sample may take to arrive over loopback
