@@ -78,6 +78,7 @@ from fleet.transport.wire import (
     WireTrajectory,
     answers,
     decode,
+    decode_as,
     encode,
     from_core,
     to_core,
@@ -537,9 +538,7 @@ class DroneAgent:
     def _on_command(self, key: str, payload: bytes, query: Query) -> None:
         """An operator's command (only the service may ask: see fleet.transport.identity)."""
         try:
-            body = decode(payload).body
-            if not isinstance(body, FleetCommand):
-                raise WireError(f"expected a command, got {body.kind}")
+            body = decode_as(payload, FleetCommand, "a command")
         except WireError as exc:
             self.dropped.warning(key, "%s: dropped a command on %s: %s", self.me, key, exc)
             return

@@ -49,6 +49,7 @@ from fleet.transport.wire import (
     MailView,
     WireError,
     decode,
+    decode_as,
     encode,
 )
 
@@ -97,9 +98,7 @@ class MailDesk:
     def _on_order(self, key: str, payload: bytes, query: Query) -> None:
         order_id = "?"
         try:
-            body = decode(payload).body
-            if not isinstance(body, MailOrder):
-                raise WireError(f"expected a mail order, got {body.kind}")
+            body = decode_as(payload, MailOrder, "a mail order")
             order_id = body.id
             taken = self.take(body)
             ack = MailAck(id=body.id, drone=self.me, accepted=True, reason="" if taken else "already held")
@@ -109,9 +108,7 @@ class MailDesk:
 
     def _on_cancel(self, key: str, payload: bytes, query: Query) -> None:
         try:
-            body = decode(payload).body
-            if not isinstance(body, MailCancel):
-                raise WireError(f"expected a mail cancel, got {body.kind}")
+            body = decode_as(payload, MailCancel, "a mail cancel")
         except WireError as exc:
             log.warning("%s: dropped a cancel on %s: %s", self.me, key, exc)
             return
@@ -125,9 +122,7 @@ class MailDesk:
     def _on_clear(self, key: str, payload: bytes, query: Query) -> None:
         """The service holds a mail I started as mine from now on: I may take it on board."""
         try:
-            body = decode(payload).body
-            if not isinstance(body, MailClear):
-                raise WireError(f"expected a mail clearance, got {body.kind}")
+            body = decode_as(payload, MailClear, "a mail clearance")
         except WireError as exc:
             log.warning("%s: dropped a clearance on %s: %s", self.me, key, exc)
             return
@@ -180,18 +175,21 @@ class MailDesk:
     def report(self, mail_id: str, status: MailStatus, reason: str = "", drone: str | None = None) -> None:
         report = MailStatusReport(id=mail_id, drone=drone or self.me, status=status, step=self.stack.now,
                                   reason=reason)
-        self.node.put(self.keys.status(self.me, mail_id), encode(self.me, self.clock(), report), once=True)
+        self._put_report(report)
         self.latest.pop(mail_id, None)
         self.latest[mail_id] = report
         if len(self.latest) > KEPT_REPORTS:
             self.latest.popitem(last=False)
         log.info("%s: mail %s %s%s", self.me, mail_id, status.value, f" ({reason})" if reason else "")
 
+    def _put_report(self, report: MailStatusReport) -> None:
+        self.node.put(self.keys.status(self.me, report.id), encode(self.me, self.clock(), report), once=True)
+
     def service_back(self) -> None:
         """The service is back: the last word on each mail again, in order, since it may have missed
         it (a delivery made meanwhile is not failed for want of news; it ignores what it knew)."""
         for report in self.latest.values():
-            self.node.put(self.keys.status(self.me, report.id), encode(self.me, self.clock(), report), once=True)
+            self._put_report(report)
         if self.latest:
             log.info("%s: the last report on %d mail(s) sent again to the service", self.me, len(self.latest))
 

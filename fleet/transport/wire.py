@@ -430,6 +430,15 @@ def decode(payload: bytes) -> Envelope:
 T = TypeVar("T", bound=_Strict)
 
 
+def decode_as(payload: bytes, kind: type[T], what: str) -> T:
+    """The body of ``payload``, which must be a ``kind`` (``what``, in the error); :class:`WireError`
+    naming what is wrong otherwise."""
+    body = decode(payload).body
+    if not isinstance(body, kind):
+        raise WireError(f"expected {what}, got {body.kind}")
+    return body
+
+
 def checked(kind: type[T], /, **fields: Any) -> T:
     """A message built from ``fields`` and validated as if it had come over the wire (building one by
     hand checks nothing); :class:`WireError` naming what is wrong (a mail order typed by an operator)."""
