@@ -14,6 +14,7 @@ import random
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
+from drona_gcs.errors import ProblemError
 from drona_gcs.verify.explore import Explorer, Outcome, Scenario, Strategy, encode_token
 
 DRONES = range(2, 7)
@@ -22,6 +23,7 @@ DELTAS = range(0, 3)
 GRIDS = ((8, 8, 1), (16, 16, 1))
 OBSTACLES = (0.0, 0.2)
 STRATEGIES = (Strategy.RANDOM, Strategy.PCT)
+DRAWS_PER_CONFIGURATION = 100  #: a sweep gives up drawing a valid configuration after this many tries each
 
 
 @dataclass(frozen=True)
@@ -52,13 +54,27 @@ class SweepRow:
 def configurations(seed: int, count: int, faults: bool = True, crashes: int = 0,
                    partitions: int = 0) -> Iterator[Configuration]:
     """``count`` configurations drawn from ``seed``: uniform over every range above; ``crashes``
-    agents may crash and restart in each, and ``partitions`` times a drone may be cut off."""
+    agents may crash and restart in each, and ``partitions`` times a drone may be cut off. A draw no
+    mail can be given in (obstacles leave no pickup a charged drone can fly) is drawn again: it is no
+    fleet the stack must serve, and it ended the whole sweep."""
     rng = random.Random(f"sweep-{seed}")
-    for _ in range(count):
+    made = 0
+    for _ in range(count * DRAWS_PER_CONFIGURATION):
+        if made == count:
+            return
         scenario = Scenario(drones=rng.choice(DRONES), requests=rng.choice(REQUESTS), delta=rng.choice(DELTAS),
                             seed=rng.randrange(1_000_000), grid=rng.choice(GRIDS), obstacles=rng.choice(OBSTACLES),
                             faults=faults, crashes=crashes, partitions=partitions)
-        yield Configuration(scenario, rng.choice(STRATEGIES))
+        strategy = rng.choice(STRATEGIES)
+        try:
+            scenario.world_config(scenario.workspace())
+        except ProblemError:
+            continue
+        made += 1
+        yield Configuration(scenario, strategy)
+    if made < count:
+        raise ProblemError(f"sweep seed {seed}: {made} of {count} configurations drawn in "
+                           f"{count * DRAWS_PER_CONFIGURATION} draws")
 
 
 def run_sweep(configs: Iterator[Configuration], schedules: int, max_depth: int,
