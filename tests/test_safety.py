@@ -7,6 +7,8 @@ The grid is 5 x 5 x 1 with one obstacle at (2, 2). Cells are written (x, y);
 from __future__ import annotations
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from drona_gcs.errors import UnsafeTrajectory
 from drona_gcs.motion import Trajectory
@@ -19,6 +21,7 @@ from drona_gcs.safety import (
     check_path,
     check_trajectory,
 )
+from drona_gcs.verify.monitors import _meetings
 from drona_gcs.workspace import Cell, Workspace
 
 COLLISION, SWAP = ViolationKind.COLLISION, ViolationKind.SWAP
@@ -210,3 +213,19 @@ def test_unsafe_trajectory_message_shows_five_violations_at_most(ws: Workspace) 
         assert_safe(ws, a, {"b": traj(0, (0, 0))}, 0)
     assert len(info.value.violations) == 8  # steps 0..6 and the horizon step 7
     assert str(info.value).endswith("(+3 more)")
+
+
+_WALK = st.lists(st.tuples(st.integers(0, 2), st.integers(0, 2)), min_size=1, max_size=12)
+
+
+@given(a=_WALK, b=_WALK, t=st.integers(-2, 14), delta=st.integers(0, 3))
+@settings(max_examples=400, deadline=None)
+def test_the_checker_and_the_testers_own_monitor_find_the_same_meetings(
+        a: list[tuple[int, int]], b: list[tuple[int, int]], t: int, delta: int) -> None:
+    """Two separate statements of the separation rule (the checker skips steps in no cell of the
+    other's; the monitor walks every step) agree on small grids, where drones meet often."""
+    mine, other = traj(0, *a), traj(0, *b)
+    found = {(v.kind.value, v.step, v.cell, v.other_step)
+             for v in check_pair(mine, other, delta, "b", from_step=t, until=t)}
+    judged = {(m.kind, m.step, m.cell, m.other_step) for m in _meetings(list(mine.cells), list(other.cells), t, delta)}
+    assert found == judged
