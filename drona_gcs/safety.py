@@ -97,8 +97,12 @@ def check_pair(mine: Trajectory, other: Trajectory, delta: int, other_id: str = 
     n = mine.start_step if from_step is None else from_step
     horizon = max(mine.end_step, other.end_step) + delta + 1 if until is None else until
     found: list[Violation] = []
+    theirs = set(other.cells)  # both a collision and a swap put me in a cell of theirs
     for t in range(n, horizon + 1):
-        here, nxt = mine.at(t), mine.at(t + 1)
+        here = mine.at(t)
+        if here not in theirs:
+            continue
+        nxt = mine.at(t + 1)
         for p in range(t - delta, t + delta + 1):
             if here == other.at(p):
                 found.append(Violation(ViolationKind.COLLISION, t, here, other_id, p))

@@ -201,10 +201,16 @@ def _agent() -> tuple[DroneAgent, DroneStack]:
     return agent, stack
 
 
-@pytest.mark.parametrize("what", ["200,000 cells", "a cell outside", "a stamp far ahead"])
+OUTSIDE = {"a cell outside": (8, 0, 0), "a cell beyond y": (7, 8, 0), "a cell below": (7, 0, -1),
+           "a cell above": (7, 0, 1)}
+
+
+@pytest.mark.parametrize("what", ["200,000 cells", *OUTSIDE, "a stamp far ahead"])
 def test_a_peer_message_out_of_bounds_is_refused_with_one_log_line(what: str, caplog: pytest.LogCaptureFixture) -> None:
     agent, stack = _agent()
-    cells = [(x % 8, 0, 0) for x in range(200_000)] if what == "200,000 cells" else [(7, 0, 0), (8, 0, 0)]
+    cells = [(7, 0, 0), OUTSIDE.get(what, (6, 0, 0))]
+    if what == "200,000 cells":
+        cells = [(x % 8, 0, 0) for x in range(200_000)]
     if what == "a stamp far ahead":
         cells = [(7, 0, 0)]
     stamp = 1_800_000_000_000 if what == "a stamp far ahead" else 5

@@ -391,8 +391,10 @@ class PeerBounds:
                                 f"clock (at most {STAMP_AHEAD_STEPS})")
 
     def _inside(self, cells: Sequence[tuple[int, int, int]]) -> None:
+        width, depth, height = self.size
         for cell in cells:
-            if not all(0 <= c < n for c, n in zip(cell, self.size, strict=True)):
+            x, y, z = cell
+            if not (0 <= x < width and 0 <= y < depth and 0 <= z < height):
                 raise WireError(f"cell {list(cell)} is outside the {'x'.join(map(str, self.size))} workspace")
 
 
