@@ -138,16 +138,20 @@ def on_drone_released(in_flight: Iterable[InFlight], drone: str, cleared: Collec
     """The operator saw ``drone``, gone, out of the air: mail that may be on board fails, the rest is
     requeued."""
     why = f"drone {drone} was released by the operator"
-    return [Fail(m.mail_id, drone, f"{why}; it may have had the mail on board") if m.mail_id in cleared
-            else _give_up(m, why) for m in in_flight if m.drone == drone]
+    return [_give_up(m, why, cleared) for m in in_flight if m.drone == drone]
 
 
-def expired(in_flight: Iterable[InFlight], now: float) -> list[Decision]:
-    """Mails whose drone has been silent about them past their deadline."""
-    return [_give_up(m, f"drone {m.drone} stopped reporting it") for m in in_flight if m.deadline <= now]
+def expired(in_flight: Iterable[InFlight], now: float, may_be_on_board: Collection[str] = ()) -> list[Decision]:
+    """Mails whose drone has been silent about them past their deadline: failed if it may have them on
+    board (picked up; or ``may_be_on_board``: cleared, and the drone lost since, so its agent may be a
+    new one that forgot what its vehicle carries), else requeued."""
+    return [_give_up(m, f"drone {m.drone} stopped reporting it", may_be_on_board) for m in in_flight
+            if m.deadline <= now]
 
 
-def _give_up(mail: InFlight, why: str) -> Decision:
+def _give_up(mail: InFlight, why: str, cleared: Collection[str]) -> Decision:
     if mail.status is Status.PICKED_UP:
         return Fail(mail.mail_id, mail.drone, f"{why} with the mail on board")
+    if mail.mail_id in cleared:
+        return Fail(mail.mail_id, mail.drone, f"{why}; it may have had the mail on board")
     return Requeue(mail.mail_id, mail.drone, f"{why} before the pickup")

@@ -60,6 +60,8 @@ class Dispatcher:
         self.gone: set[str] = set()  #: drones lost and not back: their mail waits for them (no deadline)
         #: mail a drone started and was cleared to take on board: held as that drone's through a loss
         self.cleared: set[str] = set()
+        #: cleared mail whose drone was lost since: a restarted agent forgets it, though its vehicle may carry it
+        self.cleared_when_lost: set[str] = set()
 
     # ------------------------------------------------------- listeners
     def on_drone_state(self, view: DroneView) -> None:
@@ -94,6 +96,7 @@ class Dispatcher:
             self.in_flight.pop(record.id, None)
         if record.status is not Status.ASSIGNED:
             self.cleared.discard(record.id)
+            self.cleared_when_lost.discard(record.id)
         if record.status in FINAL:
             self._excluded.pop(record.id, None)
             self._rejections.pop(record.id, None)
@@ -131,7 +134,7 @@ class Dispatcher:
             for item in inbox:
                 await (self._lost(item) if isinstance(item, str) else self._report(item))
             heard = [m for m in self.in_flight.values() if m.drone not in self.gone]
-            await self._decide(dispatch.expired(heard, self.clock()))
+            await self._decide(dispatch.expired(heard, self.clock(), self.cleared_when_lost))
             await self._assign_round()
 
     async def _sleep(self) -> None:
@@ -270,6 +273,8 @@ class Dispatcher:
         (it will not take it on board); mail cleared or on board waits for it, or the operator's release."""
         log.warning("drone %s lost", drone)
         self.gone.add(drone)
+        self.cleared_when_lost |= {m.mail_id for m in self.in_flight.values()
+                                   if m.drone == drone and m.mail_id in self.cleared}
         await self._decide(dispatch.on_drone_lost(self.in_flight.values(), drone, self.cleared))
 
     async def released(self, drone: str) -> None:

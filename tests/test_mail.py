@@ -848,6 +848,24 @@ def test_mail_is_taken_on_board_only_once_its_dispatcher_cleared_it() -> None:
     assert mp.leg_done() == [MailPickedUp(m)] and mp.carrying
 
 
+def test_a_clearance_holds_for_one_holding_of_the_mail() -> None:
+    """One that comes once the mail was handed back is not taken; one for mail handed back, delivered or
+    lost ends with it: given the mail again, the drone waits for a new clearance."""
+    mp = planner()
+    mp.cleared = set()
+    m = mail("m", c(2, 2), c(4, 4))
+    assert not mp.clear("m") and mp.cleared == set()  # not held here
+    mp.assign(m)
+    assert mp.clear("m") and mp.cleared == {"m"}
+    mp.reported(MailPickedUp(m))
+    assert mp.cleared == {"m"}
+    mp.reported(MailRejected(m, "a goal taken", True))
+    assert mp.cleared == set()
+    no_service = planner()
+    no_service.assign(m)
+    assert not no_service.clear("m") and no_service.cleared is None
+
+
 def test_out_of_touch_with_its_dispatcher_a_drone_keeps_only_cleared_mail() -> None:
     mp = planner()
     mp.cleared = {"started"}

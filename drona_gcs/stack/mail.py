@@ -222,9 +222,27 @@ class MailPlanner:
 
     # ---------------------------------------------------------- inputs
     def assign(self, request: MailRequest) -> None:
-        if any(r.id == request.id for r in self.queue) or (self.current and self.current.id == request.id):
+        if self.holds(request.id):
             return  # a duplicate assignment is harmless
         self.queue.append(request)
+
+    def holds(self, mail_id: str) -> bool:
+        """Whether ``mail_id`` is queued here, under way or on board."""
+        return any(r.id == mail_id for r in self.queue) or (self.current is not None and self.current.id == mail_id)
+
+    def clear(self, mail_id: str) -> bool:
+        """The dispatcher holds ``mail_id`` as this drone's from now on: it may take it on board. False if
+        no dispatcher clears this drone's mail, or if the mail is not held here: a clearance that comes
+        after the mail was handed back would let it be taken on board when given again, uncleared."""
+        if self.cleared is None or not self.holds(mail_id):
+            return False
+        self.cleared = self.cleared | {mail_id}
+        return True
+
+    def reported(self, action: MailAction) -> None:
+        """A clearance is for one holding: it ends once the mail is handed back, delivered or lost."""
+        if self.cleared is not None and isinstance(action, (MailRejected, MailDelivered, MailLost)):
+            self.cleared = self.cleared - {action.request.id}
 
     def cancel(self, mail_id: str) -> bool:
         """Drop a mail still waiting in the queue; one already under way is flown to the end."""

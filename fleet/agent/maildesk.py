@@ -126,10 +126,7 @@ class MailDesk:
         except WireError as exc:
             log.warning("%s: dropped a clearance on %s: %s", self.me, key, exc)
             return
-        cleared = self.stack.mail.cleared
-        if cleared is not None:
-            cleared.add(body.id)
-        ack = MailAck(id=body.id, drone=self.me, accepted=cleared is not None)
+        ack = MailAck(id=body.id, drone=self.me, accepted=self.stack.mail.clear(body.id))
         query.reply(self.keys.clear(self.me), encode(self.me, self.clock(), ack))
 
     def take(self, order: MailOrder) -> bool:
@@ -166,9 +163,7 @@ class MailDesk:
             status = MailStatus.HANDED_BACK
         if status is MailStatus.DELIVERED:
             self.delivered.add(action.request.id)
-        cleared = self.stack.mail.cleared
-        if cleared is not None and not isinstance(action, (MailStarted, MailPickedUp)):
-            cleared.discard(action.request.id)  # no longer mine: a clearance is for one holding
+        self.stack.mail.reported(action)
         self.report(action.request.id, status, action.reason if isinstance(action, (MailRejected, MailLost)) else "")
         self.publish_held()
 

@@ -169,6 +169,13 @@ class SimulatedGateway:
         """The link is back: the drone publishes its state again from the next step."""
         self.frozen.discard(drone)
 
+    def restart(self, drone: str) -> None:
+        """The drone's agent restarts where its vehicle is, knowing none of its mail, and publishes again."""
+        sim = self._drones[drone]
+        sim.queue.clear()
+        sim.current, sim.carrying, sim.path = None, False, []
+        self.thaw(drone)
+
     def report(self, report: MailStatusReport) -> None:
         if self.listener is not None:
             self.listener.on_mail_status(report)

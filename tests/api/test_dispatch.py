@@ -95,3 +95,12 @@ def test_only_mail_past_its_deadline_expires() -> None:
     decisions = expired(held, now=5.0)
     assert [(type(d), d.mail_id) for d in decisions] == [(Requeue, "m1"), (Fail, "m2")]
     assert "stopped reporting" in decisions[0].reason
+
+
+def test_mail_that_may_be_on_board_fails_when_it_expires() -> None:
+    """A crashed agent's vehicle may carry what it was cleared for, its pickup report lost with it:
+    given to a second drone, the mail would have two owners."""
+    held = [InFlight("m1", "a", Status.ASSIGNED, 5.0), InFlight("m2", "a", Status.ASSIGNED, 5.0)]
+    decisions = expired(held, now=5.0, may_be_on_board={"m2"})
+    assert [(type(d), d.mail_id) for d in decisions] == [(Requeue, "m1"), (Fail, "m2")]
+    assert "may have had the mail on board" in decisions[1].reason

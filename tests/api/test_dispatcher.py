@@ -98,6 +98,30 @@ def test_a_lost_drone_s_mail_not_cleared_is_requeued_and_what_it_may_carry_waits
     run(body())
 
 
+def test_mail_cleared_to_a_drone_whose_agent_restarted_without_it_fails_and_goes_to_nobody_else(
+        settings: ApiSettings, workspace: Workspace) -> None:
+    """Its vehicle may carry it, the pickup report lost with the old agent: given again, the mail would
+    have two owners. Mail the drone was never cleared for goes to another drone as before."""
+    async def body() -> None:
+        quick = settings.model_copy(update={"assign_timeout_s": 0.5})
+        async with running(quick, workspace) as h:
+            started = await h.submit([7, 1, 0], [7, 6, 0])
+            await h.service.dispatcher.idle()
+            drone = h.drone_of(started["id"])
+            await h.steps(1)  # started: cleared for pickup
+            assert (drone, started["id"]) in h.gateway.cleared
+            h.gateway.freeze(drone)
+            await h.service.dispatcher.idle()
+            h.gateway.restart(drone)
+            await h.steps(1)  # back, its new agent knowing nothing of the mail
+            await h.until(lambda: h.status(started["id"]) == "failed", timeout=10)
+            failed = h.service.store.get(started["id"])
+            assert failed is not None and "may have had the mail on board" in failed.reason
+            assert failed.drone == drone
+
+    run(body())
+
+
 def test_reports_from_unknown_drones_or_about_unknown_mail_are_ignored(
         settings: ApiSettings, workspace: Workspace, caplog: pytest.LogCaptureFixture) -> None:
     async def body() -> None:
