@@ -9,6 +9,7 @@ import os
 import random
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -29,7 +30,7 @@ from drona_gcs.workspace import Workspace
 from fleet.cli import main
 
 #: Which monitor each seeded bug should trip: (a) stale Psi, (b) collision, (d) a request never
-#: delivered, (e) battery.
+#: delivered, (e) battery, (h) a mail with two owners.
 EXPECTED = {
     "stale-trajectory": {"a", "b"},
     # Requests are answers to the drones before them in line: ranked the wrong way round, a drone
@@ -40,9 +41,11 @@ EXPECTED = {
     "skip-delta": {"b"},
     "executor-early": {"g"},  # every drone early alike: only the plan it flies shows it
     "fly-unheld": {"a", "b"},
+    # Issue 25's second owner: the service gives a cut-off drone's mail to another, which it takes too.
+    "pickup-uncleared": {"h"},
 }
 #: The fault that makes a bug show (none but for these).
-NEEDS = {"fly-unheld": {"partitions": 1}}
+NEEDS = {"fly-unheld": {"partitions": 1}, "pickup-uncleared": {"partitions": 1}}
 
 
 def test_every_seeded_bug_has_an_expectation() -> None:
@@ -211,6 +214,9 @@ def test_cli_exit_codes_and_replay(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["verify", "--quiet", "--drones", "0"]) == 2
     assert main(["verify", "--quiet", "--workspace", "/nonexistent.yaml"]) == 2
     assert main(["verify", "--replay", "nonsense"]) == 2
+    capsys.readouterr()
+    assert main(["verify", "--replay", encode_token(Scenario(drones=2, requests=1), [999])]) == 2
+    assert "replay token: choice 1 is move 1000, but only" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("name", ["16_4", "Delta", "Exp1", "Exp6", "32_32"])
@@ -585,3 +591,38 @@ def test_the_service_gives_mail_handed_back_to_the_drone_with_the_least_in_hand(
     scenario = Scenario(drones=6, requests=9, delta=1, seed=161326, grid=(8, 8, 1), obstacles=0.2)
     outcome = Explorer(scenario).run(Strategy.RANDOM, schedules=30, max_depth=5000, seed=161326)
     assert outcome.violation is None, str(outcome.violation)
+
+
+def _drive(world: World, until: Callable[[World], bool], rng: random.Random, moves: int = 3000) -> None:
+    """Random moves but faults until ``until`` holds (bounded)."""
+    for _ in range(moves):
+        if until(world):
+            return
+        calm = [m for m in world.enabled() if m[0] in ("deliver", "step", "inject")]
+        world.apply(rng.choice(calm))
+    raise AssertionError("the world never got there")
+
+
+def _given(world: World) -> bool:
+    return bool(world.holder)
+
+
+def _cleared_there(world: World) -> bool:
+    return any(mail in (world.stacks[d].mail.cleared or set()) for mail, d in world.holder.items())
+
+
+@pytest.mark.parametrize("cleared", [False, True])
+def test_the_models_service_requeues_only_uncleared_mail_of_a_drone_cut_off(cleared: bool) -> None:
+    """As ``drona serve``: a drone cut off hands back the mail it was not cleared for, and the service
+    gives that to another drone; a mail cleared stays the cut-off drone's until the heal."""
+    scenario = Scenario(drones=3, requests=1, delta=1, seed=4, partitions=1, faults=False)
+    world = Explorer(scenario).world()
+    _drive(world, _cleared_there if cleared else _given, random.Random(4))
+    mail, drone = next(iter(world.holder.items()))
+    world.apply(("partition", world.config.drones.index(drone)))
+    if cleared:
+        assert world.holder == {mail: drone} and not world.redispatch
+    else:
+        assert mail not in world.holder and [r.id for _, r, _ in world.redispatch] == [mail]
+        held = world.stacks[drone].mail
+        assert all(r.id != mail for r in held.queue) and (held.current is None or held.current.id != mail)

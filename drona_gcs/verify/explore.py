@@ -139,10 +139,19 @@ class Explorer:
         return best
 
     def replay(self, choices: list[int]) -> Outcome:
-        """Run exactly these choices (from a token); the outcome holds the trace."""
+        """Run exactly these choices (from a token); the outcome holds the trace. ProblemError if a
+        choice is not a move of the world then (a token from another version of the model)."""
         outcome = Outcome(schedules=1)
         it = iter(choices)
-        self._walk(lambda moves, depth: next(it), len(choices), outcome)
+
+        def chosen(moves: list[Hashable], depth: int) -> int:
+            pick = next(it)
+            if not 0 <= pick < len(moves):
+                raise ProblemError(f"replay token: choice {depth + 1} is move {pick + 1}, but only {len(moves)} "
+                                   "can be made there (a token from another version of the tester?)")
+            return pick
+
+        self._walk(chosen, len(choices), outcome)
         return outcome
 
     def _walk(self, choose: Callable[[list[Hashable], int], int], max_depth: int, outcome: Outcome) -> None:

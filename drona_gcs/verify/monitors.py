@@ -17,7 +17,8 @@ shares nothing with the code it judges: no production ranking, no protocol query
     with a path open to it (around obstacles, vehicles down and drones resting);
 (d) every request is delivered within a bound once the environment stops (its last request, an
     agent's restart or a partition's heal; but one
-    cancelled, lost on board a vehicle that came down, or cut off from its drop-off by
+    cancelled, lost on board a vehicle that came down, cleared for pickup to an agent that
+    crashed (the service cannot tell whether it is on board), or cut off from its drop-off by
     obstacles and the vehicles down: no path from the drone carrying it, or from any drone in
     service through its pickup);
 (e) no battery drops below the safe threshold;
@@ -25,7 +26,9 @@ shares nothing with the code it judges: no production ranking, no protocol query
     it to leave (its request named the cell the drone rested on), or short of the rest of its plan
     when a vehicle down or a drone it saw leave may hold a cell of that rest;
 (g) each executor flies its plan: at every step, the cell the plan it last started puts it
-    in (its last cell once the plan is over), one cell a period.
+    in (its last cell once the plan is over), one cell a period;
+(h) one owner per mail: no drone takes a mail on board while another has it on board, and no
+    mail is delivered twice.
 
 A violation raises :class:`Violation`, which ends the schedule.
 """
@@ -138,8 +141,11 @@ class Monitors:
         elif isinstance(action, MailStarted):
             self._in_order(drone, action.request)
         elif isinstance(action, MailPickedUp):
+            self._one_owner(drone, action.request)
             self.carrying[drone] = action.request
         elif isinstance(action, MailDelivered):
+            if action.request.id in self.delivered:
+                raise Violation("h", f"{drone} delivered {action.request.id}, delivered before")
             self.delivered.add(action.request.id)
             self.settled.add(action.request.id)
             self.carrying.pop(drone, None)
@@ -148,6 +154,17 @@ class Monitors:
             self._forget(drone, action.request)
         elif isinstance(action, MailRejected):
             self._forget(drone, action.request)
+
+    def given_up(self, drone: str, request: MailRequest) -> None:
+        """The service failed ``request``, held as ``drone``'s: it is not delivered, and not owed (d)."""
+        self.settled.add(request.id)
+        self._forget(drone, request)
+
+    # (h)
+    def _one_owner(self, drone: str, request: MailRequest) -> None:
+        others = sorted(d for d, r in self.carrying.items() if r.id == request.id and d != drone)
+        if others:
+            raise Violation("h", f"{drone} took {request.id} on board, which {others[0]} has on board")
 
     def cancelled(self, drone: str, request: MailRequest) -> None:
         """The environment took ``request`` back from ``drone``'s queue."""

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 from collections.abc import Collection
 
-from drona_gcs.stack.drone import DroneStack
+from drona_gcs.stack.drone import SERVICE_LOST, DroneStack
 from drona_gcs.stack.executor import ExecutorAction, ExecutorState, PlanExecutor
-from drona_gcs.stack.mail import Budget, MailPlanner
+from drona_gcs.stack.mail import Budget, MailAction, MailPlanner, MailRequest
 from drona_gcs.stack.messages import ReqForCurrentTraj, TaskId
 from drona_gcs.stack.protocol import Action, CoordinationProtocol, Event, State
 
@@ -26,6 +26,8 @@ SEEDED_BUGS = {
     "skip-delta": "the planner ignores the clock-skew window (plans with Delta 0)",
     "executor-early": "the executor flies each cell of its plan one step early",
     "fly-unheld": "a drone flies a plan at once, held by its peers or not, with a majority of the fleet or not",
+    "pickup-uncleared": "a drone takes mail on board without the service's clearance, and keeps it when "
+                        "out of touch with the service",
 }
 
 
@@ -71,11 +73,20 @@ class NoBatteryCheck(MailPlanner):
         return Budget(now, self.battery.steps_affordable(level), unchecked=True)
 
 
+class PickupUncleared(MailPlanner):
+    def _may_pick_up(self, request: MailRequest) -> bool:
+        return True
+
+    def release(self, reason: str, keep_cleared: bool = False) -> list[MailAction]:
+        return [] if reason == SERVICE_LOST else super().release(reason, keep_cleared)
+
+
 _PROTOCOLS: dict[str, type[CoordinationProtocol]] = {
     "stale-trajectory": StaleTrajectory, "tie-break-reversed": TieBreakReversed,
     "answer-while-coordinating": AnswerWhileCoordinating, "fly-unheld": FlyUnheld,
 }
-_MAIL_PLANNERS: dict[str, type[MailPlanner]] = {"no-battery-check": NoBatteryCheck}
+_MAIL_PLANNERS: dict[str, type[MailPlanner]] = {"no-battery-check": NoBatteryCheck,
+                                                "pickup-uncleared": PickupUncleared}
 _EXECUTORS: dict[str, type[PlanExecutor]] = {"executor-early": ExecutorEarly}
 
 

@@ -278,7 +278,18 @@ class Joined:
     """Liveliness: the sender's agent is back."""
 
 
-Notice = Message | Announce | Left | Joined
+@dataclass(frozen=True)
+class Clear:
+    """The service holds ``mail_id`` as the receiver's from now on: it may take it on board."""
+
+    mail_id: str
+
+
+#: The sender of the service's clearances (``drona serve``: the drone's mail/clear query).
+SERVICE = "service"
+
+Notice = Message | Announce | Left | Joined | Clear
+MailProgress = MailStarted | MailPickedUp | MailDelivered | MailRejected | MailLost
 
 
 @dataclass(frozen=True)
@@ -310,6 +321,7 @@ class World:
         self.stacks = {d: DroneStack(d, upgraded if config.mixed and d == config.drones[-1] else stack, peers)
                        for d in config.drones}
         for planted in self.stacks.values():
+            planted.mail.cleared = set()  # the service dispatches the mail, as under drona serve
             plant(planted, config.bugs)
         self.steps = dict.fromkeys(config.drones, -1)
         levels = config.initial_battery or tuple(100.0 for _ in config.drones)
@@ -325,16 +337,22 @@ class World:
         self.crashed: set[str] = set()  #: drones whose agent crashed (not restarted yet)
         self.apart: frozenset[str] = frozenset()  #: drones cut off from the rest by a partition
         self.heal_by: int | None = None  #: the step of the slowest clock by which the partition heals
+        #: The service (drona serve): which drone it holds each mail given out as, the mail it cleared
+        #: for pickup, and each cut-off drone's last report on each mail, which it sends again once back.
+        self.holder: dict[str, str] = {}
+        self.cleared: set[str] = set()
+        self.unheard: dict[str, dict[str, MailProgress]] = {}
         self.monitors = Monitors(config)
         self.trace: list[str] = []
 
     # -------------------------------------------------------- scheduling
     def enabled(self) -> list[Transition]:
         moves: list[Transition] = [("deliver", m.seq) for m in self.inflight if self._in_order(m)]
-        if self.injected < len(self.config.requests) or self.redispatch:
+        serving = bool(self._serving())  # else handed-back mail waits in the service's queue
+        if self.injected < len(self.config.requests) or (self.redispatch and serving):
             moves.append(("inject", 0))
         moves += self._faults()
-        deadlines = [*(m.deadline for m in self.inflight), *(d for _, _, d in self.redispatch)]
+        deadlines = [*(m.deadline for m in self.inflight), *(d for _, _, d in self.redispatch if serving)]
         deadline = min([*deadlines, *([self.heal_by] if self.heal_by is not None else [])], default=None)
         if self.config.delta == 0:
             # Perfect synchrony: every executor takes the same step at once (one transition).
@@ -406,6 +424,8 @@ class World:
         new.stacks = {d: _clone_stack(s) for d, s in self.stacks.items()}
         new.steps, new.battery, new.inflight = dict(self.steps), dict(self.battery), list(self.inflight)
         new.redispatch, new.down, new.crashed = list(self.redispatch), dict(self.down), set(self.crashed)
+        new.holder, new.cleared = dict(self.holder), set(self.cleared)
+        new.unheard = {d: dict(reports) for d, reports in self.unheard.items()}
         new.monitors = _shallow(self.monitors)
         new.monitors.history = {d: list(h) for d, h in self.monitors.history.items()}
         new.trace = []
@@ -423,7 +443,7 @@ class World:
         msg = self.inflight.pop(index)
         self.trace.append(f"{msg.to} <- {msg.sender}: {_describe(msg.message)}")
         stack, notice = self.stacks[msg.to], msg.message
-        if not isinstance(notice, (Left, PlanProposal)):  # a proposal says nothing of what it flies now
+        if not isinstance(notice, (Left, PlanProposal, Clear)):  # a proposal says nothing of what it flies now
             self.monitors.heard_from(msg.to, msg.sender)
         if isinstance(notice, Announce) and notice.grounded:
             self.monitors.heard_news(msg.to, msg.sender, self.steps[msg.to])
@@ -436,6 +456,8 @@ class World:
         elif isinstance(notice, Left):
             self.monitors.left(msg.to, msg.sender)
             self._carry_out(msg.to, stack.peer_left(msg.sender, notice.since))
+        elif isinstance(notice, Clear):
+            stack.mail.clear(notice.mail_id)
         elif isinstance(notice, Joined):
             # As the agent does: where it was last heard of (its start, if never).
             last = stack.protocol.known.get(msg.sender)
@@ -447,18 +469,24 @@ class World:
             self._carry_out(msg.to, stack.receive(notice))
 
     def _inject(self) -> None:
-        if self.redispatch:
+        serving = self._serving()
+        if self.redispatch and serving:
             handed_back_by, request, _ = self.redispatch.pop(0)
-            drone = self._reassign(request, handed_back_by)
+            drone = self._reassign(request, handed_back_by, serving)
         else:
             request, drone = self.config.requests[self.injected], self.config.assignees[self.injected]
             self.injected += 1
-            if drone in self.down or drone in self.crashed:  # it refuses mail: the service gives it to another
-                drone = self._reassign(request, drone)
+            if drone not in serving:  # out of service, or of touch: another, or the queue until one is back
+                if not serving:
+                    self.trace.append(f"env: mail {request.id} waits: no drone in service and in touch")
+                    self.redispatch.append((drone, request, max(self.steps[drone], 0) + self.config.max_delay))
+                    return
+                drone = self._reassign(request, drone, serving)
         self.last_injection_step = min(self.steps.values())
         self.trace.append(f"env -> {drone}: mail {request.id} p{request.priority} "
                           f"{cell_text(request.pickup)}->{cell_text(request.dropoff)}")
         self.monitors.given_mail(drone, request)
+        self.holder[request.id] = drone
         self._carry_out(drone, self.stacks[drone].assign(request))
 
     def _faults(self) -> list[Transition]:
@@ -510,6 +538,7 @@ class World:
         self.trace.append(f"env: cancel {request.id}" + (f" (taken back from {holder})" if taken else " (too late)"))
         if taken:
             self.monitors.cancelled(holder or "", request)
+            self.holder.pop(request.id, None)
 
     def _holder(self, mail_id: str) -> str | None:
         for drone, stack in self.stacks.items():
@@ -529,7 +558,9 @@ class World:
         self.inflight = [m for m in self.inflight if m.to != drone]
         if lost:
             self.trace.append(f"net: {len(lost)} message(s) to {drone} lost")
-        self._carry_out(drone, stack.mail.abandon(f"drone {drone}'s agent crashed"))
+        self._carry_out(drone, stack.mail.abandon(f"drone {drone}'s agent crashed"))  # the service hears none
+        self.unheard.pop(drone, None)
+        self._service_lost(drone)
         for peer in self.config.drones:
             if peer != drone:
                 self._post(drone, peer, Left(step))
@@ -540,7 +571,9 @@ class World:
         old = self.stacks[drone]
         peers = {**dict(zip(self.config.drones, self.config.starts, strict=True)), drone: old.executor.cell}
         self.stacks[drone] = DroneStack(drone, old.config, peers, epoch=old.clock.epoch + 1)
+        self.stacks[drone].mail.cleared = set()
         plant(self.stacks[drone], self.config.bugs)
+        self._service_back_new(drone)
         self.trace.append(f"{drone}: its agent restarts at {cell_text(old.executor.cell)}")
         self.last_injection_step = min(self.steps.values())  # (d)'s bound runs from the field's last change
         self.monitors.restarted(drone, old.executor.cell, self.steps[drone])
@@ -567,11 +600,17 @@ class World:
             self.trace.append(f"net: {len(lost)} message(s) across the cut lost")
         for a, b in self._pairs_across():
             self._post(a, b, Left(self.steps[a]), liveliness=True)
+        if drone not in self.crashed:  # each sees the other's token go
+            self._service_lost(drone)
+            self._carry_out(drone, self.stacks[drone].service_lost())
 
     def _heal(self) -> None:
         """The partition heals: each side sees the other join again."""
         pairs = self._pairs_across()
-        self.apart, self.heal_by = frozenset(), None
+        back, self.apart, self.heal_by = self.apart, frozenset(), None
+        for drone in sorted(back):  # the service's token back: the drone's last word on each mail again
+            for action in self.unheard.pop(drone, {}).values():
+                self._service_hears(drone, action)
         self.trace.append("net: the partition heals")
         self.last_injection_step = min(self.steps.values())  # (d)'s bound runs from the field's last change
         for a, b in pairs:
@@ -666,20 +705,85 @@ class World:
                     if peer != drone:
                         self._post(drone, peer, Announce(action.trajectory, grounded=isinstance(action, Grounded),
                                                          braked=isinstance(action, Braked)))
-            if isinstance(action, MailRejected):  # the service gives it to another drone that flies
-                # As promptly as a message: a liveness bound needs the service to be fair.
-                deadline = max(self.steps[drone], 0) + self.config.max_delay
-                self.redispatch.append((drone, action.request, deadline))
+            if isinstance(action, MailProgress):
+                self.stacks[drone].mail.reported(action)
+                self._report(drone, action)
 
-    def _reassign(self, request: MailRequest, handed_back_by: str) -> str:
+    # --------------------------------------------------------- the service
+    def _report(self, drone: str, action: MailProgress) -> None:
+        """A drone's report on its mail: heard by the service, kept for it while cut off, lost with a
+        crashed agent."""
+        if drone in self.crashed:
+            return
+        if drone in self.apart:
+            kept = self.unheard.setdefault(drone, {})
+            kept.pop(action.request.id, None)
+            kept[action.request.id] = action
+            return
+        self._service_hears(drone, action)
+
+    def _service_hears(self, drone: str, action: MailProgress) -> None:
+        """As ``drona serve``: a report on mail it holds as another's is ignored; a start is cleared, a
+        hand-back given to another drone, a delivery or a loss closes the mail."""
+        mail = action.request.id
+        if self.holder.get(mail) != drone:
+            return
+        if isinstance(action, MailStarted) and mail not in self.cleared:
+            self.cleared.add(mail)
+            self._post(SERVICE, drone, Clear(mail))
+        elif isinstance(action, MailRejected):
+            self._requeue(drone, action.request)
+        elif isinstance(action, (MailDelivered, MailLost)):
+            del self.holder[mail]
+            self.cleared.discard(mail)
+
+    def _requeue(self, drone: str, request: MailRequest) -> None:
+        """The service gives ``request`` to another drone that flies, as promptly as a message: a liveness
+        bound needs the service to be fair."""
+        del self.holder[request.id]
+        self.cleared.discard(request.id)
+        self.redispatch.append((drone, request, max(self.steps[drone], 0) + self.config.max_delay))
+
+    def _service_lost(self, drone: str) -> None:
+        """The service sees ``drone`` go: the mail it was not cleared to pick up goes to another drone;
+        the rest stays its own (it may be on board). Mail cleared to a crashed agent is never delivered
+        (nobody can tell whether it is on board): (d) expects it no more."""
+        for mail, holder in sorted(self.holder.items()):
+            if holder != drone:
+                continue
+            if mail not in self.cleared:
+                self.trace.append(f"service: {drone} lost before the pickup of {mail}: given to another")
+                self._requeue(drone, self._request(mail))
+            elif drone in self.crashed:
+                self.monitors.given_up(drone, self._request(mail))
+
+    def _service_back_new(self, drone: str) -> None:
+        """A restarted agent knows none of its old mail: what the service cleared it for may be on board
+        the vehicle its old agent left, and is failed (never given to a second drone)."""
+        for mail, holder in sorted(self.holder.items()):
+            if holder == drone:
+                self.trace.append(f"service: {drone} restarted: {mail} failed (it may be on board)")
+                del self.holder[mail]
+                self.cleared.discard(mail)
+                self.monitors.given_up(drone, self._request(mail))
+
+    def _request(self, mail_id: str) -> MailRequest:
+        return next(r for r in self.config.requests if r.id == mail_id)
+
+    def _serving(self) -> list[str]:
+        """The drones the service may give mail: vehicle flying, agent alive, in touch."""
+        return [d for d in self.config.drones if d not in self.down and d not in self.crashed and d not in self.apart]
+
+    def _reassign(self, request: MailRequest, handed_back_by: str, serving: list[str]) -> str:
         """The drone the service gives ``request`` to, by the fleet's one rule (as ``drona serve``'s):
-        of the drones in service but the one that handed it back (if there are others), the fewest
+        of the drones ``serving`` but the one that handed it back (if there are others), the fewest
         mails held, idle first, the nearest to the pickup."""
-        flying = [d for d in self.config.drones if d not in self.down and d not in self.crashed]
-        others = [d for d in flying if d != handed_back_by] or flying
+        others = [d for d in serving if d != handed_back_by] or serving
         candidates = [Candidate(d, self._where(d), _held(self.stacks[d]),
                                 self.stacks[d].protocol.state is not State.WAIT_FOR_TASK) for d in others]
-        return choose_drone(candidates, request.pickup) or handed_back_by
+        chosen = choose_drone(candidates, request.pickup)
+        assert chosen is not None  # serving is not empty
+        return chosen
 
     def _post(self, sender: str, to: str, message: Notice, liveliness: bool = False) -> None:
         """``liveliness``: a leave or join each side's session sees by itself, across a cut too."""
@@ -691,8 +795,9 @@ class World:
             return
         self.sent += 1
         # Within max_delay steps of the sender's clock: the bound is local to the sender,
-        # so sending does not depend on how far the other drones' clocks have got.
-        deadline = max(self.steps[sender], 0) + self.config.max_delay
+        # so sending does not depend on how far the other drones' clocks have got (the service's: the
+        # receiver's).
+        deadline = max(self.steps[to if sender == SERVICE else sender], 0) + self.config.max_delay
         self.inflight.append(InFlight(self.sent, sender, to, message, deadline))
 
     # --------------------------------------------- for the exhaustive search (see .dfs)
@@ -736,6 +841,8 @@ class World:
             tuple(self.steps.values()), tuple(self.battery.values()),
             tuple(sorted((m.sender, m.to, repr(m.message), m.deadline) for m in self.inflight)),
             self.injected, tuple((d, r.id, t) for d, r, t in self.redispatch), self.used, frozenset(self.down.items()),
+            frozenset(self.holder.items()), frozenset(self.cleared),
+            tuple((d, tuple(r.items())) for d, r in sorted(self.unheard.items())),
             frozenset(self.crashed), self.apart, self.heal_by, frozenset(self.monitors.settled),
             # In drone order, not in the order the drones first stepped, which is no part of the state.
             tuple(tuple(history[d][-keep:]) for d in self.config.drones if d in history),
@@ -754,6 +861,8 @@ def _describe(message: Notice) -> str:
         return f"{name}(silent since step {message.since})"
     if isinstance(message, Joined):
         return name
+    if isinstance(message, Clear):
+        return f"{name}({message.mail_id})"
     if isinstance(message, PlanDecision):
         return f"{name}(task {message.task_id} of {message.sender}: {'flown' if message.flown else 'dropped'})"
     return f"{name}(task {message.task_id} of {message.sender})"
