@@ -12,7 +12,8 @@
   stays the drone's, which may be only cut off and deliver it, until it is back (and says what
   it did meanwhile) or the operator releases it.
 * A mail whose drone has not mentioned it (in a report or its published state) by its
-  deadline is requeued if not picked up yet, and failed if it was on board.
+  deadline is requeued if not picked up yet, and failed if it was on board, or cleared and
+  its drone lost since (a restarted agent forgets what its vehicle may carry).
 
 :class:`api.dispatcher.Dispatcher` applies these decisions.
 """

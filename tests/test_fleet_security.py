@@ -216,9 +216,10 @@ def test_a_peer_message_out_of_bounds_is_refused_with_one_log_line(what: str, ca
     stamp = 1_800_000_000_000 if what == "a stamp far ahead" else 5
     forged = answers(Trajectory(3, tuple(cells)), {"d1": TaskId(stamp, "d1", 1)})
     before = stack.protocol.known["d2"]
+    payload = encode("d2", 1000.0, forged)  # once: 1000 encodings could outlast the 10 s throttle window
     with caplog.at_level(logging.WARNING):
         for _ in range(1000):
-            agent._on_protocol(KEYS.answers("d2"), encode("d2", 1000.0, forged))
+            agent._on_protocol(KEYS.answers("d2"), payload)
     assert stack.protocol.known["d2"] == before
     assert stack.clock.last < 1000  # the task-id clock was not dragged ahead
     refused = [r for r in caplog.records if "dropped a message" in r.getMessage()]
