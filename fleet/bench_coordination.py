@@ -49,7 +49,7 @@ from fleet.transport.wire import DroneState, MailOrder, MailStatus, MailStatusRe
 
 VEHICLE_SPEEDUP = 2.0  #: enough to track a cell per tau; telemetry rates scale with it, as in SITL
 TELEMETRY_HZ = 10.0  #: the agent's default: a vehicle sent a cell ahead at most is sent on as soon as seen there
-IDLE_BOUND_S = 30.0  #: how long the drones may take to park at start-up (their moves take 10 s at most)
+IDLE_BOUND_S = 90.0  #: how long the drones may take to park at start-up (some detour around the others)
 
 
 @dataclass(frozen=True)
