@@ -150,9 +150,9 @@ def expired(in_flight: Iterable[InFlight], now: float, may_be_on_board: Collecti
             if m.deadline <= now]
 
 
-def _give_up(mail: InFlight, why: str, cleared: Collection[str]) -> Decision:
+def _give_up(mail: InFlight, why: str, may_be_on_board: Collection[str]) -> Decision:
     if mail.status is Status.PICKED_UP:
         return Fail(mail.mail_id, mail.drone, f"{why} with the mail on board")
-    if mail.mail_id in cleared:
+    if mail.mail_id in may_be_on_board:
         return Fail(mail.mail_id, mail.drone, f"{why}; it may have had the mail on board")
     return Requeue(mail.mail_id, mail.drone, f"{why} before the pickup")

@@ -173,7 +173,8 @@ class MailLost:
     reason: str
 
 
-MailAction = GoTo | MailStarted | MailPickedUp | MailDelivered | MailRejected | MailLost
+MailProgress = MailStarted | MailPickedUp | MailDelivered | MailRejected | MailLost  #: what a dispatcher is told
+MailAction = GoTo | MailProgress
 
 
 @dataclass

@@ -40,6 +40,7 @@ from drona_gcs.stack.mail import (
     MailLost,
     MailPickedUp,
     MailPlanner,
+    MailProgress,
     MailRejected,
     MailRequest,
     MailStarted,
@@ -289,7 +290,6 @@ class Clear:
 SERVICE = "service"
 
 Notice = Message | Announce | Left | Joined | Clear
-MailProgress = MailStarted | MailPickedUp | MailDelivered | MailRejected | MailLost
 
 
 @dataclass(frozen=True)

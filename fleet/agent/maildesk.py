@@ -30,6 +30,7 @@ from drona_gcs.stack.mail import (
     MailDelivered,
     MailLost,
     MailPickedUp,
+    MailProgress,
     MailRejected,
     MailRequest,
     MailStarted,
@@ -56,7 +57,6 @@ from fleet.transport.wire import (
 log = logging.getLogger(__name__)
 
 KEPT_REPORTS = 256  #: mails whose last report a drone keeps, to send again to a service back
-MailProgress = MailStarted | MailPickedUp | MailDelivered | MailRejected | MailLost
 PROGRESS = {MailStarted: MailStatus.STARTED, MailPickedUp: MailStatus.PICKED_UP,
             MailDelivered: MailStatus.DELIVERED, MailRejected: MailStatus.REJECTED, MailLost: MailStatus.FAILED}
 
