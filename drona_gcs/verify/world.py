@@ -25,7 +25,7 @@ import functools
 import random
 from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from drona_gcs.bench.workload import random_workspace
 from drona_gcs.dispatch import Candidate, choose_drone
@@ -304,6 +304,11 @@ class InFlight:
     @property
     def sent_as(self) -> int:
         return self.seq if self.sent < 0 else self.sent
+
+    @functools.cached_property
+    def key(self) -> tuple[str, str, str, int]:
+        """What it is in a state's key: not its number. Worked out once, as copies of a world share it."""
+        return (self.sender, self.to, repr(self.message), self.deadline)
 
 
 class World:
@@ -839,7 +844,7 @@ class World:
         return (
             stack_keys,
             tuple(self.steps.values()), tuple(self.battery.values()),
-            tuple(sorted((m.sender, m.to, repr(m.message), m.deadline) for m in self.inflight)),
+            tuple(sorted(m.key for m in self.inflight)),
             self.injected, tuple((d, r.id, t) for d, r, t in self.redispatch), self.used, frozenset(self.down.items()),
             frozenset(self.holder.items()), frozenset(self.cleared),
             tuple((d, tuple(r.items())) for d, r in sorted(self.unheard.items())),
@@ -901,10 +906,9 @@ _MACHINES = ("clock", "protocol", "executor", "monitor", "mail")
 
 def _shallow(machine: _T) -> _T:
     """A copy whose containers are new and whose values (all immutable) are shared."""
-    new = copy.copy(machine)
-    for name, value in vars(machine).items():
-        if isinstance(value, (dict, list, set)):
-            setattr(new, name, value.copy())
+    new = object.__new__(type(machine))
+    vars(new).update({name: value.copy() if isinstance(value, (dict, list, set)) else value
+                      for name, value in vars(machine).items()})
     return new
 
 
@@ -923,19 +927,18 @@ def _stack_key(stack: DroneStack) -> Hashable:
 
 
 def _machine_key(machine: object) -> Hashable:
-    out: list[Hashable] = []
-    for name, value in vars(machine).items():
-        if name in _STATIC:
-            continue
-        if isinstance(value, dict):
-            out.append(frozenset(value.items()))
-        elif isinstance(value, set):
-            out.append(frozenset(value))
-        elif isinstance(value, list):
-            out.append(tuple(value))
-        else:
-            out.append(value)
-    return tuple(out)
+    return tuple(_FREEZE.get(type(value), _as_is)(value) for name, value in vars(machine).items()
+                 if name not in _STATIC)
+
+
+def _as_is(value: Hashable) -> Hashable:
+    return value
+
+
+#: How a machine's mutable attribute enters the key (any other value is immutable, and enters as it is).
+_FREEZE: dict[type, Callable[[Any], Hashable]] = {
+    dict: lambda value: frozenset(value.items()), set: frozenset, list: tuple,
+}
 
 
 def _held(stack: DroneStack) -> int:
