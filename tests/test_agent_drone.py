@@ -13,7 +13,7 @@ from drona_gcs.geo import GeoFrame, GeoPoint
 from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.drone import DroneStack, StackConfig
-from drona_gcs.stack.messages import CurrentTraj, Message, PlanAck, ReqForCurrentTraj, TaskId
+from drona_gcs.stack.messages import CurrentTraj, Message, PlanAck, PlanDecision, ReqForCurrentTraj, TaskId
 from drona_gcs.stack.protocol import Braked, State
 from drona_gcs.workspace import Cell, Workspace
 from fleet.agent.drone import DroneAgent
@@ -36,6 +36,8 @@ from fleet.transport.wire import (
     Propose,
     ReqTraj,
     WireTrajectory,
+    answer_in,
+    answering,
     answers,
     decode,
     encode,
@@ -167,9 +169,9 @@ def test_a_departed_peer_last_heard_after_its_plan_holds_only_where_it_rested() 
 
 
 def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_everyone() -> None:
-    """Drones that asked while this one coordinated wait for its new plan; it goes to them as one
-    ``cur_traj_to`` on the answers key, not one message each (a fleet given mail at once chains every round
-    through these answers). Each waiting drone reads its own answer out of it."""
+    """Drones that asked while this one coordinated wait for its new plan; it goes to them in the plan's
+    ``decide``, which every drone gets, not one message each (a fleet given mail at once chains every
+    round through these answers). Each waiting drone reads its own answer out of it."""
     ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0,
                          drones={"d1": (0, 0, 0), "d2": (7, 0, 0), "d3": (7, 7, 0), "d4": (0, 7, 0)})
 
@@ -198,22 +200,18 @@ def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_ever
         protocol = (f"{KEYS.root}/proto/", f"{KEYS.root}/answers/", KEYS.plan("d1"))
         return [(k, decode(p)) for k, p in node.puts if k.startswith(protocol)]
 
-    sent = asyncio.run(scenario(["d2", "d3"]))
-    # Every drone is told the plan is flown (one put to all), then the waiting ones get their answers.
-    assert [key for key, _ in sent] == [KEYS.proto("all", "d1"), KEYS.answers("d1")]
-    assert isinstance(sent[0][1].body, Decide) and sent[0][1].body.flown
-    envelope = sent[1][1]
-    assert isinstance(envelope, Envelope) and isinstance(envelope.body, CurTrajTo)
-    assert set(envelope.body.replies) == {"d2", "d3"}
-    for peer in ("d2", "d3"):
-        answer = to_core(envelope, peer)
-        assert isinstance(answer, CurrentTraj) and answer.in_reply_to.drone == peer
-        assert answer.trajectory.last == (3, 3, 0)  # the new plan, to the pickup
-    assert to_core(envelope, "d4") is None  # d4 did not wait: nothing in it for d4
-    # A single drone waiting gets its answer on its own key, as ever.
-    alone = asyncio.run(scenario(["d2"]))
-    assert [(key, type(e.body).__name__) for key, e in alone] == [(KEYS.proto("all", "d1"), "Decide"),
-                                                                  (KEYS.proto("d2", "d1"), "CurTraj")]
+    for waiting in (["d2", "d3"], ["d2"]):
+        sent = asyncio.run(scenario(waiting))
+        # Every drone is told the plan is flown, in one put to all that answers the waiting ones too.
+        assert [key for key, _ in sent] == [KEYS.proto("all", "d1")]
+        envelope = sent[0][1]
+        assert isinstance(envelope.body, Decide) and envelope.body.flown
+        assert set(envelope.body.replies) == set(waiting)
+        for peer in waiting:
+            answer = answer_in(envelope, peer)
+            assert isinstance(answer, CurrentTraj) and answer.in_reply_to.drone == peer
+            assert answer.trajectory.last == (3, 3, 0)  # the new plan, to the pickup
+        assert answer_in(envelope, "d4") is None  # d4 did not wait: nothing in it for d4
 
 
 def test_an_answer_to_other_drones_tells_this_one_the_senders_new_plan() -> None:
@@ -241,6 +239,30 @@ def test_an_answer_to_other_drones_tells_this_one_the_senders_new_plan() -> None
 
     held = {c for t in asyncio.run(scenario()).values() for c in t.cells}
     assert held == set(new.cells)  # without it: only where the old plan ended, (5, 0, 0)
+
+
+def test_a_decision_that_answers_a_waiting_drone_lets_its_round_go_on() -> None:
+    """A ``decide`` carries the answers to the drones that waited for the plan: a drone it names takes its
+    answer from it and plans; a drone it does not name still waits for one."""
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0, drones={"d1": (0, 0, 0), "d2": (7, 0, 0)})
+    flown = Trajectory(1, ((7, 0, 0), (7, 1, 0), (7, 2, 0)))
+
+    async def scenario(named: bool) -> State:
+        node = RecordingNode()
+        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+        agent = DroneAgent(stack, node, KEYS, ScriptedVehicle(), GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
+        agent.mail.take(MailOrder(id="m", pickup=[5, 5, 0], dropoff=[6, 6, 0], priority=1))
+        agent.tick(0)
+        mine = next(b.task_id.core() for k, p in node.puts if isinstance(b := decode(p).body, ReqTraj))
+        assert stack.protocol.state is State.COORDINATING
+        replies = {"d1": mine} if named else {"d9": TaskId(mine.stamp, "d9", 1)}
+        decided = answering(PlanDecision("d2", TaskId(mine.stamp - 1, "d2", 1), flown, flown=True), replies)
+        agent._on_protocol(KEYS.proto("all", "d2"), encode("d2", 1000.0, decided))
+        assert stack.protocol.known["d2"] == flown  # the plan flown, heard either way
+        return stack.protocol.state
+
+    assert asyncio.run(scenario(named=True)) is State.CONFIRMING  # planned: its proposal is out
+    assert asyncio.run(scenario(named=False)) is State.COORDINATING
 
 
 def test_answers_for_a_round_that_is_over_still_tell_the_senders_new_plan() -> None:

@@ -37,7 +37,7 @@ from drona_gcs.geo import GeoFrame
 from drona_gcs.stack.battery import BatteryLow, BatteryRecharged
 from drona_gcs.stack.drone import DroneAction, DroneStack, LegNotFlown
 from drona_gcs.stack.mail import GoTo, MailDelivered, MailLost, MailPickedUp, MailRejected, MailStarted
-from drona_gcs.stack.messages import CurrentTraj
+from drona_gcs.stack.messages import CurrentTraj, PlanDecision
 from drona_gcs.stack.protocol import (
     Braked,
     Broadcast,
@@ -54,7 +54,7 @@ from drona_gcs.stack.protocol import (
 from drona_gcs.workspace import Cell, Workspace
 from fleet.agent.clocksync import ClockCheck, OffsetSample
 from fleet.agent.maildesk import MailDesk
-from fleet.agent.outbox import Answers, coalesced, urgency
+from fleet.agent.outbox import Answers, Decided, coalesced, urgency
 from fleet.agent.vehicle import VehicleSupervisor
 from fleet.agent.watch import Seen, VehicleWatch, Verdict, record_line
 from fleet.executor import Sample, SetpointLoop, StepReport
@@ -67,6 +67,7 @@ from fleet.transport.wire import (
     CommandAck,
     CommandAction,
     CurTrajTo,
+    Decide,
     DroneState,
     FleetCommand,
     Health,
@@ -76,6 +77,8 @@ from fleet.transport.wire import (
     TaskView,
     WireError,
     WireTrajectory,
+    answer_in,
+    answering,
     answers,
     decode,
     decode_as,
@@ -342,6 +345,9 @@ class DroneAgent:
             elif isinstance(action, Answers):
                 self._send(self.keys.answers(self.me), answers(action.trajectory, action.replies, action.holds),
                            copies=len(action.replies))
+            elif isinstance(action, Decided):
+                decided = answering(action.decision, action.replies, action.holds)
+                self._send(self.keys.proto(BROADCAST, self.me), decided, copies=len(self.stack.protocol.members))
             elif isinstance(action, GoTo):
                 self.task_since = self.clock()
             elif isinstance(action, StartExecuting):
@@ -411,19 +417,20 @@ class DroneAgent:
             self._check_sender(key, envelope.sender)
             self.bounds.check(envelope.body, self._step_now())
             message = to_core(envelope, self.me)
+            answer = answer_in(envelope, self.me) if isinstance(envelope.body, Decide) else None
         except WireError as exc:
             self.dropped.warning(key, "%s: dropped a message on %s: %s", self.me, key, exc)
             return
         self.heard_at[envelope.sender] = self.stack.now
-        if isinstance(envelope.body, CurTrajTo):
+        body = envelope.body
+        if isinstance(body, CurTrajTo) or (isinstance(body, Decide) and body.replies):
             # The sender's new plan, whoever it answers (a drone whose round is over too): heard now, so
             # the plan it flies must be known now too (if it leaves, it is held along this plan, not the
             # one before); and it comes with no announcement of its own (see _started).
-            known = message.trajectory if isinstance(message, CurrentTraj) else envelope.body.trajectory.core()
+            known = message.trajectory if isinstance(message, (CurrentTraj, PlanDecision)) else body.trajectory.core()
             self._carry_out(self.stack.heard(envelope.sender, known))
-        if message is not None:
-            actions = self.stack.receive(message)
-            if actions:
+        for each in (message, answer):  # a decision first, then the answer it carries (as they were sent)
+            if each is not None and (actions := self.stack.receive(each)):
                 self._carry_out(actions)
 
     def _on_plan(self, key: str, payload: bytes) -> None:

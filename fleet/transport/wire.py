@@ -172,11 +172,15 @@ class Refuse(_Body, frozen=True, kw_only=True, tag="refuse"):
 
 
 class Decide(_Body, frozen=True, kw_only=True, tag="decide"):
-    """What the proposer flies from now: the proposal (``flown``), or what it flew before."""
+    """What the proposer flies from now: the proposal (``flown``), or what it flew before. It answers
+    too, as ``cur_traj_to`` does, the drones in ``replies`` (each to its request), whose rounds waited
+    for it: one message for both, since every drone gets the decision anyway."""
 
     task_id: WireTaskId
     trajectory: WireTrajectory
     flown: bool
+    replies: dict[str, WireTaskId] = {}
+    holds: Holds = ()  #: of the answers: cells the sender's lost vehicle may be in
 
 
 class PlanAnnounce(_Body, frozen=True, kw_only=True, tag="plan"):
@@ -399,7 +403,9 @@ class PeerBounds:
 
 
 def _task_ids(body: Body) -> list[WireTaskId]:
-    if isinstance(body, (ReqTraj, Propose, Ack, Refuse, Decide)):
+    if isinstance(body, Decide):
+        return [body.task_id, *body.replies.values()]
+    if isinstance(body, (ReqTraj, Propose, Ack, Refuse)):
         return [body.task_id]
     if isinstance(body, CurTraj):
         return [body.in_reply_to]
@@ -487,6 +493,29 @@ def answers(trajectory: Trajectory, replies: Mapping[str, TaskId], holds: Holds 
                      trajectory=WireTrajectory.of(trajectory), holds=holds)
 
 
+def answering(decision: PlanDecision, replies: Mapping[str, TaskId], holds: Holds = ()) -> Decide:
+    """A ``decide`` that also answers the drones in ``replies`` with the trajectory it names."""
+    return Decide(task_id=WireTaskId.of(decision.task_id), trajectory=WireTrajectory.of(decision.trajectory),
+                  flown=decision.flown, replies={drone: WireTaskId.of(task) for drone, task in replies.items()},
+                  holds=holds)
+
+
+def answer_in(envelope: Envelope, me: str) -> CurrentTraj | None:
+    """The answer to drone ``me``'s request that a ``cur_traj_to`` or ``decide`` carries, if any."""
+    body = envelope.body
+    found = body.replies.get(me) if isinstance(body, (CurTrajTo, Decide)) else None
+    return None if found is None else _answer(envelope, found)
+
+
+def _answer(envelope: Envelope, request: WireTaskId) -> CurrentTraj:
+    body = envelope.body
+    assert isinstance(body, (CurTraj, CurTrajTo, Decide))
+    try:
+        return CurrentTraj(envelope.sender, body.trajectory.core(), request.core(), body.holds)
+    except DronaError as exc:
+        raise WireError(f"{body.kind} from {envelope.sender!r}: {exc}") from exc
+
+
 def to_core(envelope: Envelope, me: str) -> Message | None:
     """The protocol message for drone ``me`` in ``envelope`` (the sender is the envelope's); None
     for a ``cur_traj_to`` that answers others only."""
@@ -503,16 +532,8 @@ def to_core(envelope: Envelope, me: str) -> Message | None:
     if isinstance(body, Decide):
         return PlanDecision(envelope.sender, body.task_id.core(), body.trajectory.core(), body.flown)
     if isinstance(body, CurTraj):
-        request = body.in_reply_to
-    elif isinstance(body, CurTrajTo):
-        found = body.replies.get(me)
-        if found is None:
-            return None
-        request = found
-    else:
-        raise WireError(f"{body.kind} is not a protocol message")
-    try:
-        return CurrentTraj(envelope.sender, body.trajectory.core(), request.core(), body.holds)
-    except DronaError as exc:
-        raise WireError(f"{body.kind} from {envelope.sender!r}: {exc}") from exc
+        return _answer(envelope, body.in_reply_to)
+    if isinstance(body, CurTrajTo):
+        return answer_in(envelope, me)
+    raise WireError(f"{body.kind} is not a protocol message")
 
