@@ -554,6 +554,30 @@ def test_a_drone_that_stops_short_of_a_plan_it_last_knew_of_a_departed_peer_is_n
     assert outcome.violation is None, str(outcome.violation)
 
 
+def test_a_stop_short_of_the_cell_a_departed_drone_rests_in_after_its_plan_is_no_detour() -> None:
+    """Found by the tester under a partition: d1 braked and was cut off; its cut plan ended before the step
+    d0's new plan parts from the old one, short of d1's cell. Monitor (f) took d1's cells only up to its
+    plan's end, missed the cell it rests in from then on, and called the stop a detour."""
+    ws = Workspace.build(size=(8, 8, 1))
+    request = MailRequest("m", (0, 0, 0), (7, 0, 0), 5)
+    config = WorldConfig(ws, ("d0", "d1"), ((0, 0, 0), (5, 1, 0)), (request,), ("d0",), delta=1, liveness_steps=0)
+    short = StartExecuting(Task(TaskId(12, "d0", 2), (7, 0, 0)), Trajectory(10, tuple((x, 0, 0) for x in range(4))),
+                           {})  # parts from the old plan at step 14, in (3, 0, 0)
+
+    def judged(saw_d1_leave: bool) -> None:
+        monitors = Monitors(config)
+        monitors.committed["d0"] = Trajectory(10, tuple((x, 0, 0) for x in range(8)))  # to the drop-off
+        monitors.committed["d1"] = Trajectory(5, ((5, 1, 0), (5, 0, 0)))  # rests in (5, 0, 0) from step 6
+        monitors.carrying["d0"] = request
+        if saw_d1_leave:
+            monitors.left("d0", "d1")
+        monitors._carried_to_its_dropoff("d0", short)
+
+    judged(saw_d1_leave=True)
+    with pytest.raises(Violation, match=r"\(f\) d0 carries mail m"):  # nothing held for good on the way
+        judged(saw_d1_leave=False)
+
+
 def test_a_brake_announced_across_a_partition_reaches_the_peer_once_it_is_back() -> None:
     """Found by sweep 10033: d1 saw d4 leave and braked in the cell d4's plan ended in; the announcement
     was lost across the cut. The cut healed at once, d4 dropped d1's ghost when d1 joined again, and flew

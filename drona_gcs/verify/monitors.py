@@ -400,7 +400,8 @@ class Monitors:
         for peer in self.departed.get(drone, ()):
             earlier = self.before_news.get(peer) if (drone, peer) not in self.told else None
             for gone in (self.committed[peer], *([earlier] if earlier is not None else [])):
-                held |= {_at(gone, t) for t in range(parting - self.config.delta - 1, gone.end_step + 1)}
+                since = parting - self.config.delta - 1  # past its end, where it rests (its last cell)
+                held |= {_at(gone, t) for t in range(since, max(since, gone.end_step) + 1)}
         return bool(rest & held)
 
     def asked_to_leave(self, drone: str, way: tuple[Cell, ...]) -> None:
