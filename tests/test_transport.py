@@ -66,7 +66,7 @@ def envelope(body: dict[str, object], **over: object) -> bytes:
 
 @pytest.mark.parametrize("payload, problem", [
     (b"not json", "JSON is malformed"),
-    (b'{"v": 11, "sender": "d\xff", "sent_at": 1.0, "body": {"kind": "clock_ping"}}', "not UTF-8"),
+    (b'{"v": 12, "sender": "d\xff", "sent_at": 1.0, "body": {"kind": "clock_ping"}}', "not UTF-8"),
     (envelope({"kind": "clock_ping"}, v=3), "Invalid enum value 3 - at `$.v`"),
     (envelope({"kind": "teleport"}), "Invalid value 'teleport' - at `$.body.kind`"),
     (envelope({"kind": "req_traj", "task_id": {"stamp": "12", "drone": "d1", "seq": 1}}),
@@ -110,7 +110,7 @@ def test_the_wire_format_is_the_documented_json() -> None:
     """Other tools read these bytes: the envelope's fields in order, the body tagged by its kind."""
     request = ReqForCurrentTraj(TASK, "d1", Trajectory(40, ((1, 2, 0), (2, 2, 0))), ("d2",))
     payload = encode("d1", 5.5, from_core(request))
-    assert payload == (b'{"v":11,"sender":"d1","sent_at":5.5,"body":{"kind":"req_traj",'
+    assert payload == (b'{"v":12,"sender":"d1","sent_at":5.5,"body":{"kind":"req_traj",'
                        b'"task_id":{"stamp":%d,"drone":"%s","seq":%d,"epoch":0},'
                        b'"trajectory":{"start_step":40,"cells":[[1,2,0],[2,2,0]]},"asked":["d2"],"holds":[],"clear":[]}}'
                        % (TASK.stamp, TASK.drone.encode(), TASK.seq))

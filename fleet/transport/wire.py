@@ -72,7 +72,7 @@ from drona_gcs.stack.messages import (
 #: 9: ``propose``, ``ack`` and ``decide``: a plan is flown once every member holds it; ``plan`` says ``lost``.
 #: 10: ``held`` lists mail handed back that no peer holds yet, and a status says ``handed_back``; ``refuse``.
 #: 11: ``mail_clear``, the service's clearance to take a mail on board.
-VERSION: Final = 11
+VERSION: Final = 12
 
 CellList = Annotated[list[int], msgspec.Meta(min_length=3, max_length=3)]
 #: A mail id is a Zenoh key chunk (mail/status/<id>); \Z, not $: "$" would let a final newline through.
@@ -346,7 +346,7 @@ Body = (ReqTraj | CurTraj | CurTrajTo | Propose | Ack | Refuse | Decide | PlanAn
 
 
 class Envelope(_Strict, frozen=True, kw_only=True):
-    v: Literal[11] = VERSION
+    v: Literal[12] = VERSION
     sender: Annotated[str, msgspec.Meta(min_length=1)]
     sent_at: float
     body: Body
