@@ -168,6 +168,17 @@ def test_a_departed_peer_last_heard_after_its_plan_holds_only_where_it_rested() 
     assert {t.last for t in unheard.values()} == set(flown.cells[40 - 20 - ws.delta - 1 - 10:])
 
 
+def _coordinating(ws: Workspace, node: RecordingNode, pickup: list[int],
+                  dropoff: list[int]) -> tuple[DroneAgent, DroneStack, TaskId]:
+    """Drone d1 of ``ws``, given a mail and past its first boundary: coordinating, its request out."""
+    stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+    agent = DroneAgent(stack, node, KEYS, ScriptedVehicle(), GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
+    agent.mail.take(MailOrder(id="m", pickup=pickup, dropoff=dropoff, priority=1))
+    agent.tick(0)
+    mine = next(b.task_id.core() for k, p in node.puts if isinstance(b := decode(p).body, ReqTraj))
+    return agent, stack, mine
+
+
 def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_everyone() -> None:
     """Drones that asked while this one coordinated wait for its new plan; it goes to them in the plan's
     ``decide``, which every drone gets, not one message each (a fleet given mail at once chains every
@@ -177,11 +188,7 @@ def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_ever
 
     async def scenario(waiting: list[str]) -> list[tuple[str, Envelope]]:
         node = RecordingNode()
-        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
-        agent = DroneAgent(stack, node, KEYS, ScriptedVehicle(), GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
-        agent.mail.take(MailOrder(id="m", pickup=[3, 3, 0], dropoff=[5, 5, 0], priority=1))
-        agent.tick(0)
-        mine = next(b.task_id.core() for k, p in node.puts if isinstance(b := decode(p).body, ReqTraj))
+        agent, stack, mine = _coordinating(ws, node, [3, 3, 0], [5, 5, 0])
         for peer in waiting:  # lower priorities (later stamps): they wait for my plan
             where = Trajectory.stationary(ws.drones[peer], 0)  # its answer too (see drona_gcs.stack.protocol)
             asked = tuple(sorted(set(ws.drones) - {peer}))
@@ -248,12 +255,7 @@ def test_a_decision_that_answers_a_waiting_drone_lets_its_round_go_on() -> None:
     flown = Trajectory(1, ((7, 0, 0), (7, 1, 0), (7, 2, 0)))
 
     async def scenario(named: bool) -> State:
-        node = RecordingNode()
-        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
-        agent = DroneAgent(stack, node, KEYS, ScriptedVehicle(), GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
-        agent.mail.take(MailOrder(id="m", pickup=[5, 5, 0], dropoff=[6, 6, 0], priority=1))
-        agent.tick(0)
-        mine = next(b.task_id.core() for k, p in node.puts if isinstance(b := decode(p).body, ReqTraj))
+        agent, stack, mine = _coordinating(ws, RecordingNode(), [5, 5, 0], [6, 6, 0])
         assert stack.protocol.state is State.COORDINATING
         replies = {"d1": mine} if named else {"d9": TaskId(mine.stamp, "d9", 1)}
         decided = answering(PlanDecision("d2", TaskId(mine.stamp - 1, "d2", 1), flown, flown=True), replies)

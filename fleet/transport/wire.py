@@ -503,17 +503,17 @@ def answering(decision: PlanDecision, replies: Mapping[str, TaskId], holds: Hold
 def answer_in(envelope: Envelope, me: str) -> CurrentTraj | None:
     """The answer to drone ``me``'s request that a ``cur_traj_to`` or ``decide`` carries, if any."""
     body = envelope.body
-    found = body.replies.get(me) if isinstance(body, (CurTrajTo, Decide)) else None
-    return None if found is None else _answer(envelope, found)
+    if not isinstance(body, (CurTrajTo, Decide)):
+        return None
+    found = body.replies.get(me)
+    return None if found is None else _answer(envelope.sender, body, found)
 
 
-def _answer(envelope: Envelope, request: WireTaskId) -> CurrentTraj:
-    body = envelope.body
-    assert isinstance(body, (CurTraj, CurTrajTo, Decide))
+def _answer(sender: str, body: CurTraj | CurTrajTo | Decide, request: WireTaskId) -> CurrentTraj:
     try:
-        return CurrentTraj(envelope.sender, body.trajectory.core(), request.core(), body.holds)
+        return CurrentTraj(sender, body.trajectory.core(), request.core(), body.holds)
     except DronaError as exc:
-        raise WireError(f"{body.kind} from {envelope.sender!r}: {exc}") from exc
+        raise WireError(f"{body.kind} from {sender!r}: {exc}") from exc
 
 
 def to_core(envelope: Envelope, me: str) -> Message | None:
@@ -532,7 +532,7 @@ def to_core(envelope: Envelope, me: str) -> Message | None:
     if isinstance(body, Decide):
         return PlanDecision(envelope.sender, body.task_id.core(), body.trajectory.core(), body.flown)
     if isinstance(body, CurTraj):
-        return _answer(envelope, body.in_reply_to)
+        return _answer(envelope.sender, body, body.in_reply_to)
     if isinstance(body, CurTrajTo):
         return answer_in(envelope, me)
     raise WireError(f"{body.kind} is not a protocol message")
