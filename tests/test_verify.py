@@ -26,7 +26,7 @@ from drona_gcs.verify.explore import SEEDED_BUGS, Explorer, Scenario, Strategy, 
 from drona_gcs.verify.monitors import Flier, Monitors, Violation
 from drona_gcs.verify.sweep import configurations
 from drona_gcs.verify.world import Joined, Left, World, WorldConfig
-from drona_gcs.workspace import Workspace
+from drona_gcs.workspace import Cell, Workspace
 from fleet.cli import main
 
 #: Which monitor each seeded bug should trip: (a) stale Psi, (b) collision, (d) a request never
@@ -554,10 +554,15 @@ def test_a_drone_that_stops_short_of_a_plan_it_last_knew_of_a_departed_peer_is_n
     assert outcome.violation is None, str(outcome.violation)
 
 
-def test_a_stop_short_of_the_cell_a_departed_drone_rests_in_after_its_plan_is_no_detour() -> None:
-    """Found by the tester under a partition: d1 braked and was cut off; its cut plan ended before the step
-    d0's new plan parts from the old one, short of d1's cell. Monitor (f) took d1's cells only up to its
-    plan's end, missed the cell it rests in from then on, and called the stop a detour."""
+@pytest.mark.parametrize("d1_flies", [
+    ((5, 1, 0), (5, 0, 0)),  # rests in (5, 0, 0), on d0's way, from step 6 (found in a sweep, seed 20072)
+    ((5, 0, 0), (5, 1, 0)),  # crossed (5, 0, 0) at step 5, then silent (found in a sweep, seed 20092)
+], ids=["rests-on-the-way", "crossed-the-way"])
+def test_a_stop_short_of_a_cell_a_departed_drone_may_hold_is_no_detour(d1_flies: tuple[Cell, ...]) -> None:
+    """Found by the tester under a partition: d1 was cut off, and d0 stopped short of a cell of d1's last
+    plan, which d1 may hold for good. Monitor (f) took d1's cells only from shortly before the step where
+    d0's new plan parts from the old one to d1's plan's end: it missed the cell d1 rests in after that end,
+    and the cells d1's plan crossed before, and called the stop a detour."""
     ws = Workspace.build(size=(8, 8, 1))
     request = MailRequest("m", (0, 0, 0), (7, 0, 0), 5)
     config = WorldConfig(ws, ("d0", "d1"), ((0, 0, 0), (5, 1, 0)), (request,), ("d0",), delta=1, liveness_steps=0)
@@ -567,7 +572,7 @@ def test_a_stop_short_of_the_cell_a_departed_drone_rests_in_after_its_plan_is_no
     def judged(saw_d1_leave: bool) -> None:
         monitors = Monitors(config)
         monitors.committed["d0"] = Trajectory(10, tuple((x, 0, 0) for x in range(8)))  # to the drop-off
-        monitors.committed["d1"] = Trajectory(5, ((5, 1, 0), (5, 0, 0)))  # rests in (5, 0, 0) from step 6
+        monitors.committed["d1"] = Trajectory(5, d1_flies)
         monitors.carrying["d0"] = request
         if saw_d1_leave:
             monitors.left("d0", "d1")

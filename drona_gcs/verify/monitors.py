@@ -400,8 +400,7 @@ class Monitors:
         for peer in self.departed.get(drone, ()):
             earlier = self.before_news.get(peer) if (drone, peer) not in self.told else None
             for gone in (self.committed[peer], *([earlier] if earlier is not None else [])):
-                since = parting - self.config.delta - 1  # past its end, where it rests (its last cell)
-                held |= {_at(gone, t) for t in range(since, max(since, gone.end_step) + 1)}
+                held |= set(gone.cells)  # it may have stopped anywhere on it, from when it was last heard
         return bool(rest & held)
 
     def asked_to_leave(self, drone: str, way: tuple[Cell, ...]) -> None:
