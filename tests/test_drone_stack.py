@@ -477,3 +477,28 @@ def test_a_drone_with_nowhere_to_park_leaves_a_mail_stop_once_idle() -> None:
     [leave] = [a for a in of(GoTo, actions) if a.purpose is Phase.MAKING_WAY]  # type: ignore[union-attr]
     assert leave.goal not in ws.pickups and stack.executor.cell == leave.goal  # type: ignore[union-attr]
     assert stack.protocol.state is State.WAIT_FOR_TASK
+
+
+def test_a_pickup_on_the_plan_of_a_peer_whose_clock_is_off_waits_for_it_and_is_not_handed_back() -> None:
+    """CI, issue 25: a peer whose clock went off in flight flies its plan to the end, and this drone holds
+    every cell of that plan for good meanwhile. A mail whose pickup lay on it failed four rounds in a
+    row and was handed back, though the peer was only passing through: it waits, then flies."""
+    ws = Workspace.build(size=(6, 6, 1), drones={"d1": (0, 5, 0), "d2": (5, 0, 0)})
+    stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+    stack.clock_bound(False, frozenset({"d2"}), "d2's clock is off")
+    stack.assign(MAIL)
+    crossing = Trajectory(0, ((5, 0, 0),) * 40 + tuple((x, 0, 0) for x in range(4, -1, -1)))
+    actions: list[DroneAction] = []
+    for step in range(120):
+        where = crossing if step <= crossing.end_step else Trajectory.stationary((0, 0, 0), crossing.end_step)
+        inbox = list(stack.step(step, 100.0, stack.executor.cell))
+        while inbox:
+            action = inbox.pop(0)
+            actions.append(action)
+            message = action.message if isinstance(action, Send | Broadcast) else None
+            if isinstance(message, ReqForCurrentTraj):
+                inbox += stack.receive(CurrentTraj("d2", where, message.task_id))
+            elif isinstance(message, PlanProposal):
+                inbox += stack.receive(PlanAck("d2", message.task_id, where))
+    assert of(MailRejected, actions) == []
+    assert of(MailDelivered, actions) == [MailDelivered(MAIL)]

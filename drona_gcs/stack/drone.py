@@ -497,10 +497,13 @@ class DroneStack:
         return self.mail.landed(holding=not self.executor.flying)
 
     def passing_cells(self) -> set[Cell]:
-        """Where the plans of live peers under way end: they rest there only until their next leg."""
-        now = self.now
-        return {traj.last for drone, traj in self.protocol.known.items()
-                if drone != self.me and drone not in self.protocol.ghosts and traj.end_step > now}
+        """Cells live peers hold only until they move on: where their plans under way end (they rest there
+        until their next leg), and every cell of the plan under way of a peer whose clock is off (held for
+        good only until it rests)."""
+        now, outliers = self.now, self.protocol.outliers
+        return {cell for drone, traj in self.protocol.known.items()
+                if drone != self.me and drone not in self.protocol.ghosts and traj.end_step > now
+                for cell in (traj.cells if drone in outliers else (traj.last,))}
 
     def taken_cells(self) -> set[Cell]:
         """Cells where other drones rest, as far as this drone knows."""

@@ -368,8 +368,9 @@ class MailPlanner:
         board is handed back for another drone to fly once :data:`MAX_FAILURES` rounds in a row found
         no plan to its pickup (a vehicle down may rest on it for good), or to the drop-off of the
         mail on board, or to a charger it needs (the queue behind them), and all of it once as many
-        legs in a row were cut off (drones resting for good wall this one in). A leg to where a peer's
-        plan under way ends counts for none of that: the peer moves on (two mails with one pickup)."""
+        legs in a row were cut off (drones resting for good wall this one in). A leg to a cell a peer
+        holds only while its plan is under way counts for none of that: the peer moves on (two mails
+        with one pickup, or a peer whose clock is off passing through)."""
         passing = self.goal in self.passing
         asked = asked and not passing
         self.retry_at = now + self._retry_delay()
@@ -454,7 +455,7 @@ class MailPlanner:
     def decide(self, now: int, level: float, taken: Collection[Cell],
                passing: Collection[Cell] = ()) -> list[MailAction]:
         """At step boundary ``now`` with battery ``level``; ``taken``: cells other drones rest on;
-        ``passing``: of those, the ones where a drone's plan under way ends (it will move on)."""
+        ``passing``: cells drones hold only until their plans under way end (they will move on)."""
         self.occupied = frozenset(c for c in self.chargers if c in taken)
         self.passing = frozenset(passing)
         if self.phase is Phase.CHARGING and level >= self.recharged_level:
