@@ -128,9 +128,9 @@ async def run_bench(agents: int, processes: int, seconds: float, steady_after: f
                                 "--lead-steps", str(default_lead_steps(workspace, VEHICLE_SPEEDUP)),
                                 "--hover-lead-steps", str(max(4, workspace.delta + 1)),
                                 "--telemetry-hz", str(TELEMETRY_HZ), "--log-level", "WARNING",
-                                *security, *_recording(record, names[first])]))
+                                *security, *_recording(record, workdir, names[first])]))
     try:
-        return await _measure(children, workspace, names, fleet, port, seconds, steady_after, seed, tls_dir)
+        result = await _measure(children, workspace, names, fleet, port, seconds, steady_after, seed, tls_dir)
     finally:
         # The agents first (they land and leave), then the vehicles they land.
         for group in (children[1:], children[:1]):
@@ -142,6 +142,9 @@ async def run_bench(agents: int, processes: int, seconds: float, steady_after: f
                 except subprocess.TimeoutExpired:
                     child.kill()
                     child.wait()
+    if record is not None:
+        gather_records(record, sorted(workdir.glob(f"{RECORD_PART}.*")))
+    return result
 
 
 async def _measure(children: list[subprocess.Popen[bytes]], workspace: Workspace, names: list[str], fleet: str,
@@ -230,17 +233,23 @@ class BenchError(RuntimeError):
     """The fleet under test did not come up, or lost a process."""
 
 
-def _recording(record: Path | None, first: str) -> list[str]:
-    return [] if record is None else ["--record", f"{record}.{first}"]
+#: Each agent process records its drones' flights in the bench's own directory, in a file named so.
+RECORD_PART = "flight"
+
+
+def _recording(record: Path | None, workdir: Path, first: str) -> list[str]:
+    return [] if record is None else ["--record", str(workdir / f"{RECORD_PART}.{first}")]
+
+
+def gather_records(record: Path, parts: list[Path]) -> None:
+    """The agent processes' flight records, one after the other, into ``record`` (replaced)."""
+    lines = [line for part in parts for line in part.read_text(encoding="utf-8").splitlines() if line]
+    record.write_text("".join(f"{line}\n" for line in lines), encoding="utf-8")
 
 
 def audit_records(record: Path, workspace_text: str) -> str:
-    """Gather the agents' flight records into ``record`` (the workspace beside it) and audit them."""
-    parts = sorted(record.parent.glob(f"{record.name}.*"))
-    lines = [line for part in parts for line in part.read_text(encoding="utf-8").splitlines() if line]
-    record.write_text("".join(f"{line}\n" for line in lines), encoding="utf-8")
-    for part in parts:
-        part.unlink()
+    """Audit the flight record ``record``, with its workspace written beside it."""
+    lines = [line for line in record.read_text(encoding="utf-8").splitlines() if line]
     ws_file = record.with_name(f"{record.name}.workspace.yaml")
     ws_file.write_text(workspace_text, encoding="utf-8")
     verdict = audit(load_workspace(ws_file), [json.loads(line) for line in lines])

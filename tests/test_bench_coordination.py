@@ -21,6 +21,7 @@ from fleet.bench_coordination import (
     audit_records,
     bench_workspace,
     default_processes,
+    gather_records,
 )
 from fleet.transport.wire import DroneState
 
@@ -104,12 +105,18 @@ def test_the_bench_workspace_is_valid_at_every_size(agents: int) -> None:
 
 def test_the_agents_records_are_gathered_and_audited(tmp_path: Path) -> None:
     """Each agent process records its drones; the bench gathers the parts into one file, with the
-    workspace beside it, and audits it: two drones in one cell at one step is a violation."""
-    record = tmp_path / "run.jsonl"
+    workspace beside it, and audits it: two drones in one cell at one step is a violation. The user's
+    files beside the record are left alone: the bench once gathered (and deleted) every ``run.jsonl.*``,
+    a ``run.jsonl.err`` the user sent the bench's errors to included."""
+    record, parts = tmp_path / "run.jsonl", tmp_path / "bench"
+    parts.mkdir()
+    mine = tmp_path / "run.jsonl.err"
+    mine.write_text("the user's own file\n")
     line = '{{"step": {step}, "drone": "{drone}", "cell": [{x}, 0, 0], "planned": [{x}, 0, 0], "delta": 5}}\n'
-    (tmp_path / "run.jsonl.d1").write_text(line.format(step=1, drone="d1", x=2) + line.format(step=2, drone="d1", x=3))
-    (tmp_path / "run.jsonl.d3").write_text(line.format(step=1, drone="d3", x=4) + line.format(step=2, drone="d3", x=3))
+    (parts / "flight.d1").write_text(line.format(step=1, drone="d1", x=2) + line.format(step=2, drone="d1", x=3))
+    (parts / "flight.d3").write_text(line.format(step=1, drone="d3", x=4) + line.format(step=2, drone="d3", x=3))
+    gather_records(record, sorted(parts.glob("flight.*")))
     verdict = audit_records(record, bench_workspace(4))
     assert "4 records" in verdict and "delta 5" in verdict and "separation violations, 0 jumps" in verdict, verdict
-    assert len(record.read_text().splitlines()) == 4 and not list(tmp_path.glob("run.jsonl.d*"))
+    assert len(record.read_text().splitlines()) == 4 and mine.read_text() == "the user's own file\n"
     assert (tmp_path / "run.jsonl.workspace.yaml").read_text() == bench_workspace(4)
