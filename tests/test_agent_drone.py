@@ -76,11 +76,12 @@ class ScriptedVehicle:
         self.cell = (0, 0, 0)
         self.seen_at = 1.0  #: the link clock time of its position
         self.estimate = True  #: the autopilot has its position estimate
+        self.battery = 90  #: percent left
 
     def telemetry(self) -> Telemetry:
         landed = LandedState.ON_GROUND if self.down else LandedState.IN_AIR
         return Telemetry(Autopilot.ARDUPILOT, not self.down, "GUIDED", self.last_position(), None,
-                         self.last_global(), None if self.down else 2.0, 90, 16.0, 6 if self.estimate else 1,
+                         self.last_global(), None if self.down else 2.0, self.battery, 16.0, 6 if self.estimate else 1,
                          10, landed, self.seen_at, position_ok=self.estimate)
 
     def last_position(self) -> Position | None:
@@ -134,6 +135,33 @@ def test_a_vehicle_down_by_itself_hands_its_mail_back_and_the_drone_starts_no_ta
     assert any(isinstance(b, PlanAnnounce) and b.grounded and b.trajectory.cells == ((0, 0, 0),) for b in told)
     refusal = [str(a) for a in later if isinstance(a, Exception)]
     assert refusal == ["drone d1 takes no mail: its vehicle came down by itself"]
+
+
+def test_a_drone_low_where_no_charger_is_hands_its_mail_back_and_takes_no_more() -> None:
+    """Flown on ArduCopter SITL, whose battery ran low after 5 minutes in a workspace with no charger:
+    the mail went round the low drones, each handing it back in turn. A drone that cannot fly mail
+    says so and takes none, so the mail goes back to whoever gave it."""
+    async def scenario() -> tuple[RecordingNode, list[str]]:
+        node, vehicle = RecordingNode(), ScriptedVehicle()
+        stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
+        agent = DroneAgent(stack, node, KEYS, vehicle, FRAME, lambda: 1000.0)  # type: ignore[arg-type]
+        agent.mail.take(MailOrder(id="queued", pickup=[3, 0, 0], dropoff=[5, 5, 0], priority=9))
+        vehicle.battery = 10
+        for step in range(4):
+            actions = agent.tick(step)
+            agent.on_step(StepReport(step, agent.stack.executor.cell, (0, 0, 0), 0.0, False, 0.0), actions)
+            await asyncio.sleep(0)  # the mail desk reports on the loop
+        refused = []
+        try:
+            agent.mail.take(MailOrder(id="more", pickup=[2, 4, 0], dropoff=[6, 1, 0], priority=1))
+        except ProblemError as exc:
+            refused.append(str(exc))
+        return node, refused
+
+    node, refused = asyncio.run(scenario())
+    why = "its battery is low, and the workspace has no charger"
+    assert node.statuses("queued") == [(MailStatus.ACCEPTED, ""), (MailStatus.HANDED_BACK, why)]
+    assert refused == [f"drone d1 takes no mail: {why}"]
 
 
 def test_a_departed_peer_last_heard_after_its_plan_holds_only_where_it_rested() -> None:

@@ -810,6 +810,28 @@ def test_a_mail_whose_drop_off_no_way_joins_is_rejected_before_its_pickup() -> N
     assert not mp.carrying and mp.current is None
 
 
+def test_a_drone_low_where_no_charger_is_hands_its_mail_back_parks_and_takes_no_more() -> None:
+    """Flown on ArduCopter SITL (no charger in the workspace, SITL's battery low after 5 minutes): the
+    low drone handed its mail back as if walls cut it off from a charger, and each low peer took it
+    over and handed it back in turn. It says why, delivers what is on board, parks, and flies no more."""
+    carried, queued = mail("on board", c(2, 2), c(4, 4)), mail("queued", c(6, 6), c(7, 7))
+    mp = MailPlanner(c(3, 3), (), (P1, P2), manhattan, MODEL)
+    mp.assign(carried)
+    mp.assign(queued)
+    mp.current, mp.carrying = carried, True
+    mp.queue.remove(carried)
+    mp.battery_low()
+    assert mp.spent
+    [to_dropoff] = mp.decide(0, 100, ())
+    assert to_dropoff == GoTo(c(4, 4), None, Phase.TO_DROPOFF)
+    mp.leg_done()
+    handed, to_parking = mp.decide(1, 100, ())
+    assert handed == MailRejected(queued, "its battery is low, and the workspace has no charger", True)
+    assert isinstance(to_parking, GoTo) and to_parking.goal in (P1, P2) and to_parking.purpose is Phase.TO_PARKING
+    mp.leg_done()
+    assert mp.decide(2, 100, ()) == [] and mp.landed_here and mp.queue == []
+
+
 def handed_back_while_the_pickup_is_taken(passing: bool, steps: int = 600) -> list[MailAction]:
     """A mail whose pickup another drone rests on all along (``passing``: its plan ends there, under
     way) : every round to it fails; what was handed back."""

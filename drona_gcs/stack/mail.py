@@ -76,6 +76,8 @@ from drona_gcs.workspace import Cell, Workspace
 Distance = Callable[[Cell, Cell], int]
 NO_WAY = 10**6  #: the distance between cells no path joins (a vehicle down may wall a drone in for good)
 MAX_MISSES = 3  #: plans to a pickup that end with the vehicle not there, before the mail is handed back
+#: Why a drone whose battery is low flies no mail, where no charger can fill it up again.
+SPENT = "its battery is low, and the workspace has no charger"
 MAX_FAILURES = 4  #: rounds in a row that find no plan, before mail not on board is handed back (see leg_failed)
 MAX_STRIKES = 8  #: legs to a mail's pickup that found no plan, in a row or not, before it is handed back
 NOT_CLEARED = "at the pickup, not cleared by the service to take it on board"
@@ -302,6 +304,11 @@ class MailPlanner:
     def battery_low(self) -> None:
         self.low = True
 
+    @property
+    def spent(self) -> bool:
+        """Low, in a workspace with no charger to fill up at: it flies no more mail."""
+        return self.low and not self.chargers
+
     def battery_recharged(self) -> None:
         self.low = False
         if self.phase is Phase.CHARGING:
@@ -486,6 +493,8 @@ class MailPlanner:
             # where it wants to go. Clear the way on a parking cell before trying again (once:
             # should no parking cell be reached either, the mail is not kept waiting for one).
             return self._to_one_of(spots, budget, taken, Phase.TO_PARKING)
+        if self.spent:
+            return self._park_spent(budget, taken)
         if self.low:
             return self._to_charger(budget, taken)
         if self.queue and not self.paused:
@@ -582,6 +591,16 @@ class MailPlanner:
         """Steps of flight a mail takes from ``start``: pickup, drop-off, a charger, and the margin."""
         return (self._leg(start, request.pickup) + self._leg(request.pickup, request.dropoff)
                 + self._after(request.dropoff) + self.battery.margin_steps)
+
+    def _park_spent(self, budget: Budget, taken: Collection[Cell]) -> list[MailAction]:
+        """Spent: the mail not on board goes to drones that can fly it, and this one parks and lands
+        there (or lands where it is, with nowhere to park), off the cells others need."""
+        handed = self.release(SPENT) if self.queue else []
+        spots = self._parking_spots()
+        if spots and not self._parked():
+            return handed + self._to_one_of(spots, budget, taken, Phase.TO_PARKING)
+        self.landed_here = True
+        return handed
 
     def _to_charger(self, budget: Budget, taken: Collection[Cell]) -> list[MailAction]:
         # Low on energy: land before coordinating, so the wait for the peers' answers is free

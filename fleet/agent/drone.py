@@ -312,6 +312,13 @@ class DroneAgent:
         return f"departed {sorted(ghosts)} at {sorted(t.last for t in ghosts.values())}, resting at " \
                f"{sorted(self.stack.taken_cells())}"
 
+    def _resting_at(self, goal: Cell) -> str:
+        """Which peers' plans end at ``goal``, and when, for the operator: they rest there from then on."""
+        ending = sorted((traj.end_step, drone) for drone, traj in self.stack.protocol.known.items()
+                        if drone != self.me and traj.last == goal)
+        plans = ", ".join(f"{drone}'s at step {step}" for step, drone in ending)
+        return f" (plans that end there: {plans})" if plans else ""
+
     def _lag(self, report: StepReport) -> str | None:
         """Trailing its timed trajectory, or on the ground while its plan flies: the separation argument
         assumes every drone is where its plan says."""
@@ -355,7 +362,8 @@ class DroneAgent:
                 self._started(action)
             elif isinstance(action, TaskFailed):
                 walls = f" (held for good: {self._held_for_good()})" if action.cut_off else ""
-                log.warning("%s: no plan for task %s: %s%s", self.me, action.task.id, action.reason, walls)
+                log.warning("%s: no plan for task %s to %s: %s%s%s", self.me, action.task.id, list(action.task.goal),
+                            action.reason, self._resting_at(action.task.goal), walls)
             elif isinstance(action, Threatened):
                 log.warning("%s: %s may hold %s of my plan for good: planning its rest anew", self.me,
                             action.departed, [list(c) for c in action.cells])
