@@ -223,11 +223,13 @@ class MailDesk:
         if isinstance(body, HeldMail) and body.drone == writer != self.me and writer in self.stack.protocol.peers:
             held = [m for m in body.mail if m.stage != "handed_back"]
             self.peer_mail[body.drone] = held
+            taken_over = False
             for mail in held:  # taken over by that drone (or its own again)
                 self.orphans.pop(mail.id, None)
                 self.stranded.pop(mail.id, None)
-                self.handed.pop(mail.id, None)
-            self.publish_held()  # (only if what I list changed)
+                taken_over |= self.handed.pop(mail.id, None) is not None
+            if taken_over:  # what I list changed (every drone of a host hears every list: most change nothing)
+                self.publish_held()
             for mail in body.mail:
                 if mail.stage == "handed_back" and not self._listed_by_other(mail.id, writer):
                     self.orphans.setdefault(mail.id, (writer, mail, self.stack.now))
