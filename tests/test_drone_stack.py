@@ -502,3 +502,15 @@ def test_a_pickup_on_the_plan_of_a_peer_whose_clock_is_off_waits_for_it_and_is_n
                 inbox += stack.receive(PlanAck("d2", message.task_id, where))
     assert of(MailRejected, actions) == []
     assert of(MailDelivered, actions) == [MailDelivered(MAIL)]
+
+
+def test_a_drone_whose_clock_is_off_lands_where_its_plan_ends() -> None:
+    """Found by the systematic tester with a clock off (sweep 20121): the drone held where its plan ended,
+    in the air, for as long as its clock stayed off, until its battery fell below the floor. It lands
+    there: the cell stays held, and the ground costs nothing."""
+    stack, _ = fly(ideal, 3)
+    assert stack.protocol.state is State.EXECUTING and not stack.landed
+    stack.clock_bound(True, frozenset(), "my clock is off")
+    for step in range(stack.executor.step + 1, stack.executor.step + 40):
+        stack.step(step, 100.0, stack.executor.cell, may_plan=False)
+    assert stack.protocol.state is State.WAIT_FOR_TASK and stack.landed

@@ -1228,6 +1228,33 @@ def test_a_peer_whose_clock_is_off_gets_no_ack_and_is_held_where_it_flies_for_go
     assert held == set(b_way.cells) and (2, 0, 0) not in action.trajectory.cells
 
 
+@pytest.mark.parametrize(("verdict_at", "steered"), [(2, Threatened), (3, Braked)])
+def test_the_plan_i_fly_steers_clear_of_the_plan_of_a_peer_found_with_its_clock_off(verdict_at: int,
+                                                                                   steered: type) -> None:
+    """Found in review: the cells of a peer whose clock is off were held for good only in plans made after
+    the verdict. The plan I fly went on through a cell b left a few steps before, in steps b's clock no
+    longer keeps with mine: it is planned anew there, or (too close for a round) cut short of it."""
+    proto, _ = flying_past_b()
+    actions = proto.handle(ClockBound(mine_off=False, outliers=frozenset({"b"})), verdict_at)
+    assert [type(a) for a in actions] == [steered]
+    if steered is Threatened:
+        assert actions == [Threatened("b", ((3, 0, 0),))]
+    else:
+        assert proto.trajectory is not None and (3, 0, 0) not in proto.trajectory.suffix_from(verdict_at).cells
+    assert proto.handle(ClockBound(mine_off=False, outliers=frozenset({"b"})), verdict_at) == []  # news once
+
+
+def test_a_drone_whose_clock_is_off_stops_short_of_every_cell_of_its_peers_plans() -> None:
+    """Its steps are not the fleet's: b left (3, 0) steps before I fly there by my clock, but by b's I may
+    come while it is there (or after it rests there). Flying on to the plan's end, as before, is no longer
+    safe: the plan is cut short of the first cell a peer's plan holds, and that is what I answer with."""
+    proto, plan = flying_past_b()
+    actions = proto.handle(ClockBound(mine_off=True), 2)
+    assert [type(a) for a in actions] == [Braked]
+    assert proto.trajectory is not None and proto.trajectory.last == plan.at(4) == (2, 0, 0)
+    assert not set(proto.holds()) & set(B_AWAY.cells)
+
+
 def test_a_request_of_a_round_whose_plan_was_decided_is_late_even_after_a_rejoin() -> None:
     """Found by a partition sweep (seed 9201): b's decision made it a member again (and forgot its newest
     request, as a join does); b's request of that same round came after, was taken as current, and

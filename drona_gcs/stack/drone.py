@@ -369,6 +369,8 @@ class DroneStack:
         self.level = battery_level
         actions += self._cut_off()
         self._land_if_spent(step)
+        if not may_plan and self.protocol.off_since is not None and self.protocol.state is State.WAIT_FOR_TASK:
+            self.mail.land()  # out of bounds, it holds where its plan ended for long: on the ground, for free
         if may_plan and self.protocol.state is State.WAIT_FOR_TASK:
             taken = self.taken_cells()
             self.resting_now = frozenset(taken)

@@ -134,9 +134,11 @@ settled here, and one message it sends is saved (the second point):
   tester's ``max_delay`` allows it), it may not, and the tester judges that flight.
 * **A clock beyond the fleet's bound** (``ClockBound``, from the runtime's clock check). Mine off
   (most peers' clocks disagree with it), my steps are not the fleet's: I fly the plan I have to its
-  end and hold there, plan nothing, and name every cell of that in my answers (``holds``), which
-  peers hold for good. A peer's off: its proposals get no ack of mine, and every cell of what it
-  answers is held for good. Nobody waits for it: it answers as ever.
+  end, or short of the first cell of any peer's plan (whenever it flies there), and hold there, plan
+  nothing, and name every cell of that in my answers (``holds``), which peers hold for good. A peer's
+  off: its proposals get no ack of mine, and every cell of what it answers is held for good; the plan
+  I fly steers clear of every cell of its plan, as of a vehicle down (its steps are not ours). Nobody
+  waits for it: it answers as ever.
 * **The operator may release a departed drone** (``Released``): having seen its vehicle
   out of the air for good, it tells every drone to hold none of its cells.
 * **My vehicle can be lost** (its link closed or silent). It may then be anywhere on
@@ -732,12 +734,15 @@ class CoordinationProtocol:
 
     def _held_on_plan(self, now: int) -> list[int]:
         """The steps from ``now`` on at which the plan I fly is in a cell held for good: a vehicle down's,
-        one a departed drone may hold, or one a braked peer holds from when it gets there (less my lead,
-        a margin for its clock)."""
+        one a departed drone may hold, one of the plan of a peer whose clock is off (or of any peer's, with
+        mine off: our steps are not the same), or one a braked peer holds from when it gets there (less my
+        lead, a margin for its clock)."""
         assert self.trajectory is not None
         trajectory = self.trajectory
-        held = {*self.peers_down.values(), *(t.last for t in self.ghost_obstacles(sparing=trajectory.at(now)).values()),
-                *(c for cells in self.peers_lost.values() for c in cells if c != trajectory.at(now))}
+        here = trajectory.at(now)
+        held = {*self.peers_down.values(), *(t.last for t in self.ghost_obstacles(sparing=here).values()),
+                *(c for cells in self.peers_lost.values() for c in cells if c != here),
+                *(c for flight in self._timeless() for c in flight.cells if c != here)}
 
         def taken(step: int) -> bool:
             cell = trajectory.at(step)
@@ -745,6 +750,13 @@ class CoordinationProtocol:
                                        for cut in self.braked.values())
 
         return [t for t in range(now, max(now, trajectory.end_step) + 1) if taken(t)]
+
+    def _timeless(self) -> list[Trajectory]:
+        """What peers fly, or may, in steps that are not mine: every cell of it is held. A peer's whose
+        clock is off; with mine off, every peer's, and every plan proposed."""
+        if self.off_since is None:
+            return [self.known[p] for p in sorted(self.outliers & self.known.keys())]
+        return [*self.known.values(), *(proposal.trajectory for proposal in self.proposals.values())]
 
     def _brake(self, entry: int) -> list[Action]:
         """Cut the plan I fly at the cell before step ``entry``, and hold there (one step more, so that
@@ -871,12 +883,16 @@ class CoordinationProtocol:
     def _on_clock_bound(self, event: ClockBound, now: int) -> list[Action]:
         """My clock is off (every cell of the rest of my plan is held for good in my answers), or back
         within; ``outliers``' proposals get no ack of mine, and their plans are held for good."""
-        if event.mine_off and self.off_since is None:
+        newly_off = event.mine_off and self.off_since is None
+        if newly_off:
             self.off_since = now
         elif not event.mine_off:
             self.off_since = None
-        self.outliers = event.outliers
-        return []
+        new, self.outliers = event.outliers - self.outliers, event.outliers
+        if newly_off and self.state in (State.EXECUTING, State.REROUTING) and self.trajectory is not None:
+            entry = self._entry(now)  # no rest can be planned anew with my clock off: stop short
+            return self._brake(entry) if entry is not None else []
+        return [action for drone in sorted(new) for action in self._steer_clear(drone, now)]
 
     def _on_vehicle_lost(self, event: VehicleLost, now: int) -> list[Action]:
         """Every peer is told at once where my vehicle may be: plans made before avoided only my plan."""

@@ -51,14 +51,19 @@ class Scenario:
     faults: bool = True  #: the field's faults (duplicates, a cancel, a vehicle down) and a mixed fleet
     crashes: int = 0  #: agents that crash, and may restart (see Faults.crashes)
     partitions: int = 0  #: drones cut off from the rest for a while (see Faults.partitions)
+    skews: int = 0  #: clocks that go beyond the fleet's bound (see Faults.skews)
 
     def __post_init__(self) -> None:
         unknown = sorted(set(self.bugs) - set(SEEDED_BUGS))
         if unknown:
             raise ProblemError(f"unknown seeded bug(s) {unknown}; known: {sorted(SEEDED_BUGS)}")
         if (self.drones < 1 or self.requests < 0 or self.delta < 0 or self.max_delay < 0 or self.crashes < 0
-                or self.partitions < 0):
-            raise ProblemError("drones must be >= 1, and requests, delta, max_delay, crashes and partitions >= 0")
+                or self.partitions < 0 or self.skews < 0):
+            raise ProblemError("drones must be >= 1, and requests, delta, max_delay, crashes, partitions and skews "
+                               ">= 0")
+        if self.skews and (self.crashes or self.partitions):
+            raise ProblemError("skews do not combine with crashes or partitions: the model's clock check "
+                               "hears every drone")
         if any(n < 1 for n in self.grid) or not 0 <= self.obstacles < 0.9:
             raise ProblemError("grid sizes must be >= 1 and obstacles within [0, 0.9)")
 
@@ -70,7 +75,7 @@ class Scenario:
 
     def world_config(self, workspace: Workspace) -> WorldConfig:
         field_faults = replace(Faults() if self.faults else Faults.none(), crashes=self.crashes,
-                               partitions=self.partitions)
+                               partitions=self.partitions, skews=self.skews)
         faults: dict[str, object] = {"faults": field_faults} if self.faults else {"faults": field_faults,
                                                                                     "mixed": False}
         return make_world_config(workspace, self.drones, self.requests, self.delta, self.seed,

@@ -11,10 +11,13 @@ shares nothing with the code it judges: no production ranking, no protocol query
     another occupies at a step within Delta of t, nor do two swap cells in that window; a vehicle
     down stays in its cell, and a drone that enters that cell after the vehicle came down
     breaks (b) unless it entered before the news reached it (no protocol could know: the
-    stack's part is never to enter it once told);
+    stack's part is never to enter it once told). Once every drone knows a drone's clock is
+    off by k steps, the window for that drone and any other is max(Delta, 1) + |k|, from the
+    steps each was at then (at Delta 0 the clock off steps on its own: a step apart at times);
 (c) each drone starts its mail in priority order: never one while a more urgent
     one (higher priority, or equal and sent by the environment earlier) waits, unstarted,
-    with a path open to it (around obstacles, vehicles down and drones resting);
+    with a path open to it (around obstacles, vehicles down, drones resting, and every cell of
+    the plan of a drone it was told has its clock off);
 (d) every request is delivered within a bound once the environment stops (its last request, an
     agent's restart or a partition's heal; but one
     cancelled, lost on board a vehicle that came down, cleared for pickup to an agent that
@@ -24,7 +27,8 @@ shares nothing with the code it judges: no production ranking, no protocol query
 (e) no battery drops below the safe threshold;
 (f) a drone carrying mail flies only to its drop-off, or to a charger, or off a way a peer asked
     it to leave (its request named the cell the drone rested on), or short of the rest of its plan
-    when a vehicle down or a drone it saw leave may hold a cell of that rest;
+    when a vehicle down, a drone it saw leave, or one it was told has its clock off may hold a
+    cell of that rest;
 (g) each executor flies its plan: at every step, the cell the plan it last started puts it
     in (its last cell once the plan is over), one cell a period;
 (h) one owner per mail: no drone takes a mail on board while another has it on board, and no
@@ -49,6 +53,9 @@ from drona_gcs.workspace import Cell, Workspace
 
 if TYPE_CHECKING:
     from drona_gcs.verify.world import WorldConfig
+
+#: How many steps beyond Delta the tester puts a clock found off (its scheduler keeps to that offset).
+SKEW_STEPS = 1
 
 
 @dataclass(frozen=True)
@@ -110,6 +117,10 @@ class Monitors:
     told: dict[tuple[str, str], int] = field(default_factory=dict)
     #: (f) the ways each drone was asked to leave since its last plan
     asked_to_clear: tuple[tuple[str, frozenset[Cell]], ...] = ()
+    #: (c, f) the drones each drone's clock check found off; (b) each clock every drone knows is off, with
+    #: every drone's step then (from which that pair's window widens)
+    found_off: dict[str, frozenset[str]] = field(default_factory=dict)
+    drifts: tuple[tuple[str, int, tuple[tuple[str, int], ...]], ...] = ()  #: (drone, offset, steps then)
 
     def __post_init__(self) -> None:
         for drone, start in zip(self.config.drones, self.config.starts, strict=True):
@@ -124,7 +135,8 @@ class Monitors:
                 tuple(sorted((d, tuple(sorted(p))) for d, p in self.departed.items())),
                 tuple(sorted((d, t.start_step, t.cells) for d, t in self.before_news.items())),
                 tuple(sorted(self.told.items())), tuple(sorted(self.stopped.items())),
-                tuple(sorted((d, tuple(sorted(w))) for d, w in self.asked_to_clear)))
+                tuple(sorted((d, tuple(sorted(w))) for d, w in self.asked_to_clear)),
+                tuple(sorted(self.found_off.items())), self.drifts)
 
     def given_mail(self, drone: str, request: MailRequest) -> None:
         """The environment gave ``request`` to ``drone`` (again, if another handed it back)."""
@@ -232,8 +244,8 @@ class Monitors:
         if flies and cell != planned:
             raise Violation("g", f"{drone} is in {cell_text(cell)} at step {step}, but its plan "
                                  f"({cells_text(self.committed[drone])}) puts it in {cell_text(planned)}")
-        delta = self.config.delta
-        while self.judged < min(steps.values()) - delta - 1:
+        widest = max((self._window(d, d)[0] for d, _, _ in self.drifts), default=self.config.delta)
+        while self.judged < min(steps.values()) - widest - 1:
             self.judged += 1
             self._judge(self.judged)
 
@@ -241,10 +253,32 @@ class Monitors:
         drones = sorted(self.history)
         for i, a in enumerate(drones):
             for b in drones[i + 1:]:
-                for meeting in _meetings(self.history[a], self.history[b], t, self.config.delta):
+                window, since = self._window(a, b)
+                for meeting in _meetings(self.history[a], self.history[b], t, window):
+                    apart = abs(meeting.step - meeting.other_step) > self.config.delta
+                    if apart and (since is None or t < since[a] or meeting.other_step < since[b]):
+                        continue  # the two clocks were within Delta then
                     if not self._unforeseeable(meeting, a, b):
                         raise Violation("b", f"{a} and {b}: {meeting.kind} at step {t} in cell "
                                              f"{list(meeting.cell)} with drone {b!r} at its step {meeting.other_step}")
+
+    def _window(self, a: str, b: str) -> tuple[int, dict[str, int] | None]:
+        """The window (b) judges ``a`` and ``b`` in, and the steps they were at when it widened (None: Delta)."""
+        for skewed, offset, steps in self.drifts:
+            if skewed in (a, b):
+                return max(self.config.delta, 1) + abs(offset), dict(steps)
+        return self.config.delta, None
+
+    def clock_verdict(self, drone: str, off: frozenset[str]) -> None:
+        """``drone``'s clock check found the clocks of ``off`` beyond the fleet's bound (its own among them,
+        or not)."""
+        self.found_off = {**self.found_off, drone: off}
+
+    def unbound(self, offsets: Mapping[str, int], steps: Mapping[str, int]) -> None:
+        """Every drone knows these clocks are off, each by its offset in steps: from ``steps`` on, they
+        keep to it."""
+        now = tuple(sorted(steps.items()))
+        self.drifts = (*self.drifts, *((d, k, now) for d, k in sorted(offsets.items())))
 
     def _unforeseeable(self, v: Meeting, a: str, b: str) -> bool:
         """A collision with a vehicle down, after it came down, by a drone that entered its cell before
@@ -284,8 +318,9 @@ class Monitors:
         history = self.history.get(drone) or [self.config.starts[self.config.drones.index(drone)]]
         here, now = history[-1], len(history) - 1
         down = dict(self.down)
-        walls = frozenset(down.get(p, t.cells[-1]) for p, t in self.committed.items()
-                          if p != drone and (t.end_step <= now or p in down)) - {here}
+        off = {c for p in self.found_off.get(drone, frozenset()) - {drone} for c in self.committed[p].cells}
+        walls = frozenset({*off, *(down.get(p, t.cells[-1]) for p, t in self.committed.items()
+                                   if p != drone and (t.end_step <= now or p in down))}) - {here}
         return (here in self._distances(request.pickup, walls)
                 and request.pickup in self._distances(request.dropoff, walls))
 
@@ -397,6 +432,9 @@ class Monitors:
             return False  # not the rest of the plan flown made new
         rest = {_at(old, t) for t in range(parting, old.end_step + 1)}
         held = {c for _, c in self.down}
+        for peer in self.found_off.get(drone, frozenset()) - {drone}:  # its steps are not ours: all of it
+            earlier = self.before_news.get(peer)
+            held |= {*self.committed[peer].cells, *(earlier.cells if earlier is not None else ())}
         for peer in self.departed.get(drone, ()):
             earlier = self.before_news.get(peer) if (drone, peer) not in self.told else None
             for gone in (self.committed[peer], *([earlier] if earlier is not None else [])):

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Collection
 
+from drona_gcs.motion import Trajectory
 from drona_gcs.stack.drone import SERVICE_LOST, DroneStack
 from drona_gcs.stack.executor import ExecutorAction, ExecutorState, PlanExecutor
 from drona_gcs.stack.mail import Budget, MailAction, MailPlanner, MailRequest
@@ -28,6 +29,8 @@ SEEDED_BUGS = {
     "fly-unheld": "a drone flies a plan at once, held by its peers or not, with a majority of the fleet or not",
     "pickup-uncleared": "a drone takes mail on board without the service's clearance, and keeps it when "
                         "out of touch with the service",
+    "skew-blind": "a drone reads the steps of a clock found off as its own: the plan it flies goes on through "
+                  "that drone's cells, and with its own clock off it flies its plan to the end",
 }
 
 
@@ -60,6 +63,11 @@ class FlyUnheld(CoordinationProtocol):
         return super()._go_if_held(now)
 
 
+class SkewBlind(CoordinationProtocol):
+    def _timeless(self) -> list[Trajectory]:
+        return []
+
+
 class ExecutorEarly(PlanExecutor):
     def tick(self, step: int) -> list[ExecutorAction]:
         actions = super().tick(step)
@@ -83,7 +91,7 @@ class PickupUncleared(MailPlanner):
 
 _PROTOCOLS: dict[str, type[CoordinationProtocol]] = {
     "stale-trajectory": StaleTrajectory, "tie-break-reversed": TieBreakReversed,
-    "answer-while-coordinating": AnswerWhileCoordinating, "fly-unheld": FlyUnheld,
+    "answer-while-coordinating": AnswerWhileCoordinating, "fly-unheld": FlyUnheld, "skew-blind": SkewBlind,
 }
 _MAIL_PLANNERS: dict[str, type[MailPlanner]] = {"no-battery-check": NoBatteryCheck,
                                                 "pickup-uncleared": PickupUncleared}

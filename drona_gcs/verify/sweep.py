@@ -36,8 +36,9 @@ class Configuration:
         w, h, _ = s.grid
         crashes = f", {s.crashes} crash(es)" if s.crashes else ""
         partitions = f", {s.partitions} partition(s)" if s.partitions else ""
+        skews = f", {s.skews} clock(s) off" if s.skews else ""
         return (f"{s.drones} drones, {s.requests} requests, delta {s.delta}, {w}x{h} obstacles {s.obstacles:g}, "
-                f"{self.strategy.value}, seed {s.seed}{crashes}{partitions}")
+                f"{self.strategy.value}, seed {s.seed}{crashes}{partitions}{skews}")
 
 
 @dataclass(frozen=True)
@@ -52,9 +53,10 @@ class SweepRow:
 
 
 def configurations(seed: int, count: int, faults: bool = True, crashes: int = 0,
-                   partitions: int = 0) -> Iterator[Configuration]:
+                   partitions: int = 0, skews: int = 0) -> Iterator[Configuration]:
     """``count`` configurations drawn from ``seed``: uniform over every range above; ``crashes``
-    agents may crash and restart in each, and ``partitions`` times a drone may be cut off. A draw no
+    agents may crash and restart in each, ``partitions`` times a drone may be cut off, and ``skews``
+    clocks may go beyond the fleet's bound. A draw no
     mail can be given in (obstacles leave no pickup a charged drone can fly) is drawn again: it is no
     fleet the stack must serve, and it ended the whole sweep."""
     rng = random.Random(f"sweep-{seed}")
@@ -64,7 +66,7 @@ def configurations(seed: int, count: int, faults: bool = True, crashes: int = 0,
             return
         scenario = Scenario(drones=rng.choice(DRONES), requests=rng.choice(REQUESTS), delta=rng.choice(DELTAS),
                             seed=rng.randrange(1_000_000), grid=rng.choice(GRIDS), obstacles=rng.choice(OBSTACLES),
-                            faults=faults, crashes=crashes, partitions=partitions)
+                            faults=faults, crashes=crashes, partitions=partitions, skews=skews)
         strategy = rng.choice(STRATEGIES)
         try:
             scenario.world_config(scenario.workspace())

@@ -59,7 +59,7 @@ from drona_gcs.stack.protocol import (
     TaskFailed,
     Threatened,
 )
-from drona_gcs.verify.monitors import Flier, Monitors, cell_text, cells_text
+from drona_gcs.verify.monitors import SKEW_STEPS, Flier, Monitors, cell_text, cells_text
 from drona_gcs.verify.mutants import planner_delta, plant
 from drona_gcs.workspace import Cell, Workspace
 
@@ -80,6 +80,11 @@ class Faults:
     #: a drone cut off from the rest for a while (messages across the cut lost; each side sees the
     #: other leave, and join again once it heals, within PARTITION_STEPS); none unless asked for
     partitions: int = 0
+    #: a drone whose clock goes beyond the fleet's bound: each drone's clock check says so at a point the
+    #: schedule picks (to the drone: its clock is off; to a peer: that drone's is), and once every drone
+    #: knows, its steps keep within Delta of the others' shifted by Delta + SKEW_STEPS, ahead or behind;
+    #: none unless asked for
+    skews: int = 0
 
     @classmethod
     def none(cls) -> Faults:
@@ -113,6 +118,7 @@ def model_lead(delta: int, max_delay: int) -> int:
     """Lead steps of the model's landed drones, which climb first."""
     return model_hover_lead(delta, max_delay) + MODEL_CLIMB_STEPS
 PARTITION_STEPS = 20  #: a partition heals within this many steps of the slowest clock
+VERDICT_STEPS = 2  #: every clock check finds a clock off within this many steps of the slowest clock
 MAX_DRAWS = 1000  #: random draws of a mail the service accepts, before giving up
 
 
@@ -342,6 +348,11 @@ class World:
         self.crashed: set[str] = set()  #: drones whose agent crashed (not restarted yet)
         self.apart: frozenset[str] = frozenset()  #: drones cut off from the rest by a partition
         self.heal_by: int | None = None  #: the step of the slowest clock by which the partition heals
+        self.skewed: frozenset[str] = frozenset()  #: drones whose clock went beyond the fleet's bound
+        self.told: dict[str, frozenset[str]] = {}  #: each drone's clock verdict so far: the drones it found off
+        self.unbound: frozenset[str] = frozenset()  #: skewed drones every drone knows of: their steps run free
+        self.offsets: dict[str, int] = {}  #: each skewed clock's offset, in steps
+        self.verdict_by: int | None = None  #: the step of the slowest clock by which every check has found it
         #: The service (drona serve): which drone it holds each mail given out as, the mail it cleared
         #: for pickup, and each cut-off drone's last report on each mail, which it sends again once back.
         self.holder: dict[str, str] = {}
@@ -358,22 +369,37 @@ class World:
             moves.append(("inject", 0))
         moves += self._faults()
         deadlines = [*(m.deadline for m in self.inflight), *(d for _, _, d in self.redispatch if serving)]
-        deadline = min([*deadlines, *([self.heal_by] if self.heal_by is not None else [])], default=None)
+        deadline = min([*deadlines, *(d for d in (self.heal_by, self.verdict_by) if d is not None)], default=None)
         if self.config.delta == 0:
-            # Perfect synchrony: every executor takes the same step at once (one transition).
-            nxt = min(self.steps.values()) + 1
-            if deadline is None or nxt <= deadline:
+            # Perfect synchrony: every executor takes the same step at once (one transition); a clock
+            # found off by every drone steps on its own.
+            nxt = min(s for d, s in self.steps.items() if d not in self.unbound) + 1
+            if (deadline is None or nxt <= deadline) and all(nxt - self._true(d) <= 1 for d in self.unbound):
                 moves.append(("step", -1))
-            return moves
-        for i, drone in enumerate(self.config.drones):
-            nxt = self.steps[drone] + 1
-            others_low = min((s for d, s in self.steps.items() if d != drone), default=nxt)
-            if nxt - min(others_low, nxt) > self.config.delta:
+            return moves + self._steps_of([i for i, d in enumerate(self.config.drones) if d in self.unbound],
+                                          deadline)
+        return moves + self._steps_of(list(range(len(self.config.drones))), deadline)
+
+    def _steps_of(self, drones: list[int], deadline: int | None) -> list[Transition]:
+        """The steps these drones may take: within Delta of every other drone's step (rho_Delta), a clock
+        found off by every drone read less its offset (see Faults.skews); none past a deadline."""
+        moves: list[Transition] = []
+        for i in drones:
+            drone = self.config.drones[i]
+            nxt = self.steps[drone] + 1 - self.offsets.get(drone, 0) * (drone in self.unbound)
+            others_low = min((self._true(d) for d in self.steps if d != drone), default=nxt)
+            # A clock off steps on its own even at Delta 0 (the others in one transition): a step apart.
+            ahead = self.config.delta if drone not in self.unbound else max(self.config.delta, 1)
+            if nxt - min(others_low, nxt) > ahead:
                 continue  # rho_Delta: it would run more than Delta steps ahead
             if deadline is not None and nxt > deadline:
                 continue  # a message must arrive first
             moves.append(("step", i))
         return moves
+
+    def _true(self, drone: str) -> int:
+        """``drone``'s step, less its clock's offset once every drone knows it is off."""
+        return self.steps[drone] - (self.offsets.get(drone, 0) if drone in self.unbound else 0)
 
     def apply(self, move: Transition) -> None:
         kind, arg = move
@@ -395,9 +421,14 @@ class World:
             self._partition(self.config.drones[arg])
         elif kind == "heal":
             self._heal()
+        elif kind == "skew":
+            self._skew(self.config.drones[arg // 2], ahead=arg % 2 == 0)
+        elif kind == "verdict":
+            self._verdict(self.config.drones[arg])
         elif arg < 0:
             for drone in self.config.drones:
-                self._step(drone)
+                if drone not in self.unbound:
+                    self._step(drone)
         else:
             self._step(self.config.drones[arg])
 
@@ -414,8 +445,10 @@ class World:
             return ("net", "cut")
         if kind == "down":
             return ("vehicle", self.config.drones[arg])
-        if kind in ("crash", "restart"):
+        if kind in ("crash", "restart", "verdict"):
             return ("agent", self.config.drones[arg])
+        if kind == "skew":
+            return ("clock", self.config.drones[arg // 2])
         return ("clock", self.config.drones[arg] if arg >= 0 else "*")
 
     def state_key(self) -> Hashable:
@@ -431,6 +464,7 @@ class World:
         new.redispatch, new.down, new.crashed = list(self.redispatch), dict(self.down), set(self.crashed)
         new.holder, new.cleared = dict(self.holder), set(self.cleared)
         new.unheard = {d: dict(reports) for d, reports in self.unheard.items()}
+        new.told, new.offsets = dict(self.told), dict(self.offsets)
         new.monitors = _shallow(self.monitors)
         new.monitors.history = {d: list(h) for d, h in self.monitors.history.items()}
         new.trace = []
@@ -515,6 +549,11 @@ class World:
             moves.append(("heal", 0))
         elif used.partitions < limit.partitions and len(in_service) > 1:
             moves += [("partition", i) for i in in_service]
+        if used.skews < limit.skews and len(in_service) > 2:  # most clocks must agree for a verdict
+            moves += [("skew", 2 * i + behind) for i in in_service if self._crossing(self.config.drones[i])
+                      for behind in (0, 1)]
+        moves += [("verdict", i) for i, d in enumerate(self.config.drones)
+                  if self.told.get(d, frozenset()) != self.skewed]
         return moves
 
     def _in_order(self, message: InFlight) -> bool:
@@ -550,6 +589,44 @@ class World:
             if any(r.id == mail_id for r in stack.mail.queue):
                 return drone
         return None
+
+    def _crossing(self, drone: str) -> bool:
+        """Whether the rest of ``drone``'s plan enters a cell the rest of another drone's does: only plans
+        made in step with a clock can meet once it is off, so the tester spends that fault there."""
+        rest = self._rest_of_plan(drone)
+        return drone not in self.skewed and any(rest & self._rest_of_plan(d) for d in self.config.drones if d != drone)
+
+    def _rest_of_plan(self, drone: str) -> set[Cell]:
+        trajectory = self.stacks[drone].protocol.trajectory
+        return set(trajectory.suffix_from(self.steps[drone]).cells) if trajectory is not None else set()
+
+    def _skew(self, drone: str, ahead: bool) -> None:
+        """``drone``'s clock goes beyond the fleet's bound, Delta + SKEW_STEPS steps ahead or behind. Until
+        every clock check has said so, the clocks still keep within Delta (a drifting clock is found off
+        as it crosses the bound), and every check does within VERDICT_STEPS; then its steps keep within
+        Delta of the others' shifted so."""
+        self.used = replace(self.used, skews=self.used.skews + 1)
+        self.skewed |= {drone}
+        self.offsets[drone] = (1 if ahead else -1) * (self.config.delta + SKEW_STEPS)
+        self.verdict_by = min(self.steps.values()) + VERDICT_STEPS
+        self.trace.append(f"{drone}: its clock goes {'ahead of' if ahead else 'behind'} the fleet's bound")
+
+    def _verdict(self, drone: str) -> None:
+        """``drone``'s clock check finds the skewed clocks off (its own, or its peers'): as the agent, it
+        tells its stack, and takes no task while its own is off. Once every drone knows of a skewed
+        clock, that clock keeps to its offset (see _skew)."""
+        self.told[drone] = self.skewed
+        mine_off = drone in self.skewed
+        self.monitors.clock_verdict(drone, self.skewed)
+        self.trace.append(f"{drone}: its clock check finds off {sorted(self.skewed)}")
+        self._carry_out(drone, self.stacks[drone].clock_bound(mine_off, self.skewed - {drone},
+                                                              f"clock beyond the bound: {sorted(self.skewed)}"))
+        known = frozenset.intersection(*(self.told.get(d, frozenset()) for d in self.config.drones))
+        if known == self.skewed:
+            self.verdict_by = None
+        if known - self.unbound:
+            self.monitors.unbound({d: self.offsets[d] for d in known - self.unbound}, self.steps)
+            self.unbound = known
 
     def _crash(self, drone: str) -> None:
         """Its agent dies: the vehicle holds the cell it is in, in the air; its mail is handed back
@@ -650,11 +727,11 @@ class World:
         self.trace.append(f"{drone} steps to {step} (battery {self.battery[drone]:.0f})")
         # The model's vehicles fly their plans exactly: each is where its last step took it.
         self._carry_out(drone, stack.step(step, self.battery[drone], flown=self._where(drone),
-                                          may_plan=drone not in self.down))
+                                          may_plan=drone not in self.down and not self._off(drone)))
         # A vehicle down stays where it came down, whatever its stack's plan says.
         self.monitors.position(drone, step, self._where(drone), self.steps, flies=drone not in self.down)
         if self.injected == len(self.config.requests):
-            out = set(self.down) | self.crashed
+            out = set(self.down) | self.crashed | {d for d in self.config.drones if self._off(d)}
             blocked = frozenset(self._where(d) for d in out)
             fleet = {d: Flier(s.executor.cell, self.battery[d], s.config.recharged_mark, s.protocol.lead_steps + 1)
                      for d, s in self.stacks.items() if d not in out}
@@ -777,7 +854,12 @@ class World:
 
     def _serving(self) -> list[str]:
         """The drones the service may give mail: vehicle flying, agent alive, in touch."""
-        return [d for d in self.config.drones if d not in self.down and d not in self.crashed and d not in self.apart]
+        return [d for d in self.config.drones
+                if d not in self.down and d not in self.crashed and d not in self.apart and not self._off(d)]
+
+    def _off(self, drone: str) -> bool:
+        """Its clock check found its own clock off: it takes no task (its health says so to the service)."""
+        return drone in self.told.get(drone, frozenset())
 
     def _reassign(self, request: MailRequest, handed_back_by: str, serving: list[str]) -> str:
         """The drone the service gives ``request`` to, by the fleet's one rule (as ``drona serve``'s):
@@ -849,6 +931,7 @@ class World:
             frozenset(self.holder.items()), frozenset(self.cleared),
             tuple((d, tuple(r.items())) for d, r in sorted(self.unheard.items())),
             frozenset(self.crashed), self.apart, self.heal_by, frozenset(self.monitors.settled),
+            self.skewed, frozenset(self.told.items()), self.unbound, frozenset(self.offsets.items()), self.verdict_by,
             # In drone order, not in the order the drones first stepped, which is no part of the state.
             tuple(tuple(history[d][-keep:]) for d in self.config.drones if d in history),
             self.monitors.key(),

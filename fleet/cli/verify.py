@@ -22,6 +22,7 @@ from drona_gcs.verify.explore import (
     decode_token,
     encode_token,
 )
+from drona_gcs.verify.monitors import SKEW_STEPS
 from drona_gcs.verify.mutants import SEEDED_BUGS
 from drona_gcs.verify.sweep import SweepRow, configurations, run_sweep
 from drona_gcs.verify.world import PARTITION_STEPS
@@ -64,6 +65,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--partitions", type=int, default=0, metavar="N",
                         help="also let the network cut a drone off from the rest N times in each run, each "
                              f"healing within {PARTITION_STEPS} steps (default 0)")
+    parser.add_argument("--skews", type=int, default=0, metavar="N",
+                        help="also let N drones' clocks go beyond the fleet's bound in each run: every clock "
+                             f"check says so in its turn, and that clock then keeps Delta + {SKEW_STEPS} steps "
+                             "ahead of or behind the others' (default 0; not with --crashes or --partitions)")
     parser.add_argument("--sweep", type=int, metavar="N",
                         help="run N configurations drawn from --seed (2-6 drones, 2-10 requests, Delta 0-2, 8x8 "
                              "and 16x16, with and without obstacles, random and pct), --time-limit each; prints a "
@@ -139,7 +144,8 @@ def _scenario(args: argparse.Namespace) -> Scenario:
         delta = load_workspace(args.workspace).delta if args.workspace else 1
     return Scenario(drones=args.drones, requests=args.requests, delta=delta, seed=args.seed, grid=grid,
                     obstacles=args.obstacles, workspace_path=args.workspace, bugs=tuple(args.seed_bug),
-                    max_delay=max_delay, faults=not args.no_faults, crashes=args.crashes, partitions=args.partitions)
+                    max_delay=max_delay, faults=not args.no_faults, crashes=args.crashes, partitions=args.partitions,
+                    skews=args.skews)
 
 
 def _sweep(args: argparse.Namespace) -> int:
@@ -158,7 +164,7 @@ def _sweep(args: argparse.Namespace) -> int:
             print(f"       {o.violation}\n       replay: drona verify --replay {row.token}", flush=True)
 
     configs = configurations(args.seed, args.sweep, faults=not args.no_faults, crashes=args.crashes,
-                             partitions=args.partitions)
+                             partitions=args.partitions, skews=args.skews)
     rows = run_sweep(configs, args.schedules, args.max_depth, stop_after, on_row)
     failed = [row for row in rows if not row.clean]
     by_monitor = sorted({row.outcome.violation.monitor for row in failed if row.outcome.violation is not None})
