@@ -32,7 +32,12 @@ def manhattan(a: Cell, b: Cell) -> int:
 
 def choose_drone(candidates: Sequence[Candidate], pickup: Cell, distance: Distance = manhattan) -> str | None:
     """The drone to give a mail picked up at ``pickup``; None if there is none."""
-    if not candidates:
-        return None
-    best = min(candidates, key=lambda c: (not c.healthy, c.held, c.busy, distance(c.cell, pickup), c.drone))
-    return best.drone
+    ranked = rank_drones(candidates, pickup, distance)
+    return ranked[0] if ranked else None
+
+
+def rank_drones(candidates: Sequence[Candidate], pickup: Cell, distance: Distance = manhattan) -> list[str]:
+    """Every candidate, the one to give the mail first: whoever offers it goes down the list while the
+    drones refuse (an alarm may be about a peer, and a drone may take no mail for a reason of its own)."""
+    ranked = sorted(candidates, key=lambda c: (not c.healthy, c.held, c.busy, distance(c.cell, pickup), c.drone))
+    return [c.drone for c in ranked]

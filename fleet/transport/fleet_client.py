@@ -9,7 +9,7 @@ from __future__ import annotations
 import asyncio
 import time
 
-from drona_gcs.dispatch import Candidate, choose_drone
+from drona_gcs.dispatch import Candidate, rank_drones
 from drona_gcs.errors import DronaError
 from drona_gcs.stack.protocol import State
 from fleet.transport.keys import FleetKeys
@@ -64,16 +64,24 @@ class FleetClient:
         raise FleetUnavailable(f"drone {drone} did not answer the mail order {order.id}")
 
     async def dispatch(self, order: MailOrder, drone: str | None, timeout_s: float) -> MailAck:
-        """Give ``order`` to ``drone``, or to the best candidate among the live drones."""
+        """Give ``order`` to ``drone``, or to the best candidate among the live drones that takes it (the
+        next while they refuse; every refusal, if all do)."""
         states = await self.wait_for_drones(timeout_s)
-        if drone is None:
-            pickup = (order.pickup[0], order.pickup[1], order.pickup[2])
-            drone = choose_drone([candidate(s) for s in states.values()], pickup)
-            if drone is None:
-                raise FleetUnavailable(f"no drone of fleet {self.keys.fleet!r} answered within {timeout_s:g} s")
-        elif drone not in states:
-            raise FleetUnavailable(f"drone {drone} of fleet {self.keys.fleet!r} did not answer")
-        return await self.assign(drone, order)
+        if drone is not None:
+            if drone not in states:
+                raise FleetUnavailable(f"drone {drone} of fleet {self.keys.fleet!r} did not answer")
+            return await self.assign(drone, order)
+        pickup = (order.pickup[0], order.pickup[1], order.pickup[2])
+        refused: list[MailAck] = []
+        for name in rank_drones([candidate(s) for s in states.values()], pickup):
+            ack = await self.assign(name, order)
+            if ack.accepted:
+                return ack
+            refused.append(ack)
+        if not refused:
+            raise FleetUnavailable(f"no drone of fleet {self.keys.fleet!r} answered within {timeout_s:g} s")
+        why = "; ".join(f"{ack.drone}: {ack.reason}" for ack in refused)
+        return MailAck(id=order.id, drone=refused[0].drone, accepted=False, reason=f"every drone refused it ({why})")
 
 
 def candidate(state: DroneState) -> Candidate:
