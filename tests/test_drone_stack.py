@@ -514,3 +514,15 @@ def test_a_drone_whose_clock_is_off_lands_where_its_plan_ends() -> None:
     for step in range(stack.executor.step + 1, stack.executor.step + 40):
         stack.step(step, 100.0, stack.executor.cell, may_plan=False)
     assert stack.protocol.state is State.WAIT_FOR_TASK and stack.landed
+
+
+def test_a_pickup_where_a_peer_whose_clock_is_off_rests_is_handed_back_at_once() -> None:
+    """A drone whose clock is off lands where its plan ends and stays there while it is off, as a vehicle
+    down does: a pickup there is cut off, and handed back before any round is spent on it."""
+    ws = Workspace.build(size=(6, 6, 1), drones={"d1": (0, 5, 0), "d2": MAIL.pickup})
+    stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+    stack.clock_bound(False, frozenset({"d2"}), "d2's clock is off")
+    stack.assign(MAIL)
+    actions = stack.step(0, 100.0, stack.executor.cell)
+    assert [a.reason for a in of(MailRejected, actions)] == [  # type: ignore[attr-defined]
+        "its pickup [3, 0, 0] is cut off from here (obstacles, vehicles down, drones whose clock is off)"]

@@ -178,9 +178,12 @@ class DroneStack:
         self.late = False  #: my vehicle came to a cell later than lambda (see :meth:`tracking_bound`)
 
     def distance(self, a: Cell, b: Cell) -> int:
-        """Steps from ``a`` to ``b``, around the drones resting now and never through a vehicle down
-        (the task planner's distance; see :func:`_distance_function`)."""
-        return self.ways(a, b, self.resting_now, frozenset(self.protocol.peers_down.values()))
+        """Steps from ``a`` to ``b``, around the drones resting now and never through a vehicle down, nor
+        where a peer whose clock is off rests, for as long as it is off (the task planner's distance; see
+        :func:`_distance_function`). The rest of its plan is only passed through."""
+        protocol = self.protocol
+        off = (protocol.known[p].last for p in protocol.outliers if p in protocol.known)
+        return self.ways(a, b, self.resting_now, frozenset((*protocol.peers_down.values(), *off)))
 
     def copy(self) -> DroneStack:
         """A copy whose task planner measures ways with the copy's state (the tester's clones)."""

@@ -549,7 +549,7 @@ class MailPlanner:
         cut_off = self._cut_off_end(best)
         if cut_off is not None:
             self.queue.pop(0)
-            why = f"its {cut_off} is cut off from here (obstacles and vehicles down)"
+            why = f"its {cut_off} is cut off from here (obstacles, vehicles down, drones whose clock is off)"
             return [MailRejected(best, why), *self.decide_again(budget, taken)]
         if budget.allows(self._need(self.cell, best)):
             self.queue.pop(0)
@@ -612,7 +612,8 @@ class MailPlanner:
             self.phase = Phase.CHARGING  # (at another charger: enough to get to one of those first)
             return []
         if self.queue and not self._reachable(self.chargers):
-            return self.release("no charger can be reached from here (obstacles and vehicles down wall it in)")
+            return self.release("no charger can be reached from here (obstacles, vehicles down and drones "
+                                "whose clock is off wall it in)")
         return self._to_one_of(staging, budget, taken, Phase.TO_CHARGER)
 
     def _staging_chargers(self) -> Sequence[Cell]:
