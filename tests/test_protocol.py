@@ -1255,6 +1255,18 @@ def test_a_drone_whose_clock_is_off_stops_short_of_every_cell_of_its_peers_plans
     assert not set(proto.holds()) & set(B_AWAY.cells)
 
 
+def test_a_drone_whose_clock_is_off_tells_every_peer_at_once_that_it_rests() -> None:
+    """Found by the systematic tester (sweep 20132 with --skews 1): peers hold every cell of the plan they
+    last heard a drone off fly, and one braked short of a charger that drone had left long before, walling
+    it in. At its plan's end the drone off says it rests in one cell, without waiting to be asked."""
+    proto, _ = flying_past_b()
+    proto.handle(ClockBound(mine_off=True), 2)
+    assert proto.trajectory is not None
+    rest = Trajectory.stationary(proto.trajectory.last, proto.trajectory.end_step)
+    told = proto.handle(PlanCompleted(), proto.trajectory.end_step)
+    assert told == [Present(peer, rest, braked=False) for peer in ("b", "c")]
+
+
 def test_a_request_of_a_round_whose_plan_was_decided_is_late_even_after_a_rejoin() -> None:
     """Found by a partition sweep (seed 9201): b's decision made it a member again (and forgot its newest
     request, as a join does); b's request of that same round came after, was taken as current, and

@@ -667,12 +667,14 @@ class CoordinationProtocol:
 
     def _on_completed(self, event: PlanCompleted, now: int) -> list[Action]:
         """I rest at my plan's end. Out of the fleet's bound, my steps are not the fleet's: peers hold for
-        good every cell I answer with, so from now on I answer with the one I rest in."""
+        good every cell of the plan they last heard of, so I tell them at once that I rest in one, and
+        answer with it from now on."""
         assert self.trajectory is not None
         self.location, self.state, self.task = self.trajectory.last, State.WAIT_FOR_TASK, None
-        if self.off_since is not None:
-            self.trajectory = Trajectory.stationary(self.location, now)
-        return []
+        if self.off_since is None:
+            return []
+        self.trajectory = Trajectory.stationary(self.location, now)
+        return [Present(peer, self.trajectory, braked=False) for peer in sorted(self.peers) if peer != self.me]
 
     def _on_completed_while_rerouting(self, event: PlanCompleted, now: int) -> list[Action]:
         """The plan ended before its new rest was planned: the round is moot, and I rest at its end."""

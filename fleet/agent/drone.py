@@ -34,6 +34,7 @@ from typing import TextIO
 
 from drona_gcs.errors import ProblemError
 from drona_gcs.geo import GeoFrame
+from drona_gcs.motion import Trajectory
 from drona_gcs.stack.battery import BatteryLow, BatteryRecharged
 from drona_gcs.stack.drone import DroneAction, DroneStack, LegNotFlown
 from drona_gcs.stack.mail import GoTo, MailDelivered, MailLost, MailPickedUp, MailRejected, MailStarted
@@ -342,6 +343,7 @@ class DroneAgent:
         # other drones send their requests first.
         # Mostly one answer, or nothing: a process hands every request of a burst to each of its drones.
         ordered = coalesced(sorted(actions, key=urgency)) if len(actions) > 1 else actions
+        presented: Trajectory | None = None  # one put on plan/<me> reaches every peer
         for action in ordered:
             if isinstance(action, Send):
                 self._send(self.keys.proto(action.to, self.me), from_core(action.message))
@@ -374,7 +376,8 @@ class DroneAgent:
                 flies = self.stack.protocol.current_trajectory(self.stack.now)
                 told = PlanAnnounce(trajectory=WireTrajectory.of(flies), lost=True, holds=action.cells)
                 self.node.put(self.keys.plan(self.me), encode(self.me, self.clock(), told))
-            elif isinstance(action, Present):
+            elif isinstance(action, Present) and action.trajectory != presented:
+                presented = action.trajectory
                 told = PlanAnnounce(trajectory=WireTrajectory.of(action.trajectory), braked=action.braked)
                 self.node.put(self.keys.plan(self.me), encode(self.me, self.clock(), told))
             elif isinstance(action, Braked):
