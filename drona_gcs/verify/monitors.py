@@ -244,7 +244,7 @@ class Monitors:
         if flies and cell != planned:
             raise Violation("g", f"{drone} is in {cell_text(cell)} at step {step}, but its plan "
                                  f"({cells_text(self.committed[drone])}) puts it in {cell_text(planned)}")
-        widest = max((self._window(d, d)[0] for d, _, _ in self.drifts), default=self.config.delta)
+        widest = max((self._window(skewed, skewed)[0] for skewed, _, _ in self.drifts), default=self.config.delta)
         while self.judged < min(steps.values()) - widest - 1:
             self.judged += 1
             self._judge(self.judged)

@@ -386,7 +386,7 @@ class World:
         moves: list[Transition] = []
         for i in drones:
             drone = self.config.drones[i]
-            nxt = self.steps[drone] + 1 - self.offsets.get(drone, 0) * (drone in self.unbound)
+            nxt = self._true(drone) + 1
             others_low = min((self._true(d) for d in self.steps if d != drone), default=nxt)
             # A clock off steps on its own even at Delta 0 (the others in one transition): a step apart.
             ahead = self.config.delta if drone not in self.unbound else max(self.config.delta, 1)
