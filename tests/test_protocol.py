@@ -1267,6 +1267,19 @@ def test_a_drone_whose_clock_is_off_tells_every_peer_at_once_that_it_rests() -> 
     assert told == [Present(peer, rest, braked=False) for peer in ("b", "c")]
 
 
+def test_a_drone_found_off_at_rest_after_a_plan_tells_every_peer_at_once_that_it_rests() -> None:
+    """Found by the systematic tester (sweep 20132, seed 74613): the clock check found a drone off after
+    its plan had ended; it still answered with that plan, so peers held the charger it had left for good."""
+    proto, _ = flying_past_b()
+    assert proto.trajectory is not None
+    end = proto.trajectory.end_step
+    proto.handle(PlanCompleted(), end)
+    rest = Trajectory.stationary(proto.trajectory.last, end + 3)
+    told = proto.handle(ClockBound(mine_off=True), end + 3)
+    assert told == [Present(peer, rest, braked=False) for peer in ("b", "c")]
+    assert proto.current_trajectory(end + 4) == rest
+
+
 def test_a_request_of_a_round_whose_plan_was_decided_is_late_even_after_a_rejoin() -> None:
     """Found by a partition sweep (seed 9201): b's decision made it a member again (and forgot its newest
     request, as a join does); b's request of that same round came after, was taken as current, and

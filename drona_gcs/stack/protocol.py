@@ -671,8 +671,10 @@ class CoordinationProtocol:
         answer with it from now on."""
         assert self.trajectory is not None
         self.location, self.state, self.task = self.trajectory.last, State.WAIT_FOR_TASK, None
-        if self.off_since is None:
-            return []
+        return self._tell_rest(now) if self.off_since is not None else []
+
+    def _tell_rest(self, now: int) -> list[Action]:
+        """With my clock off, I say at once that I rest in my location alone, and answer with it."""
         self.trajectory = Trajectory.stationary(self.location, now)
         return [Present(peer, self.trajectory, braked=False) for peer in sorted(self.peers) if peer != self.me]
 
@@ -894,6 +896,8 @@ class CoordinationProtocol:
         if newly_off and self.state in (State.EXECUTING, State.REROUTING) and self.trajectory is not None:
             entry = self._entry(now)  # no rest can be planned anew with my clock off: stop short
             return self._brake(entry) if entry is not None else []
+        if newly_off and self.trajectory is not None:  # at rest after a plan peers hold for good
+            return self._tell_rest(now)
         return [action for drone in sorted(new) for action in self._steer_clear(drone, now)]
 
     def _on_vehicle_lost(self, event: VehicleLost, now: int) -> list[Action]:
