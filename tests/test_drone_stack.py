@@ -19,9 +19,28 @@ from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.battery import BatteryModel
 from drona_gcs.stack.drone import DroneAction, DroneStack, LegNotFlown, StackConfig, yield_spot
-from drona_gcs.stack.mail import MAX_MISSES, GoTo, MailDelivered, MailPickedUp, MailRejected, MailRequest, Phase
+from drona_gcs.stack.mail import (
+    DRAINED,
+    MAX_MISSES,
+    GoTo,
+    MailDelivered,
+    MailPickedUp,
+    MailRejected,
+    MailRequest,
+    Phase,
+)
 from drona_gcs.stack.messages import CurrentTraj, Message, PlanAck, PlanProposal, ReqForCurrentTraj, Task, TaskId
-from drona_gcs.stack.protocol import Braked, Broadcast, NewTask, Reroute, Send, StartExecuting, State, Threatened
+from drona_gcs.stack.protocol import (
+    Braked,
+    Broadcast,
+    Grounded,
+    NewTask,
+    Reroute,
+    Send,
+    StartExecuting,
+    State,
+    Threatened,
+)
 from drona_gcs.workspace import Cell, Workspace
 
 WS = Workspace.build(size=(6, 6, 1), drones={"d1": (0, 0, 0)})
@@ -526,3 +545,44 @@ def test_a_pickup_where_a_peer_whose_clock_is_off_rests_is_handed_back_at_once()
     actions = stack.step(0, 100.0, stack.executor.cell)
     assert [a.reason for a in of(MailRejected, actions)] == [  # type: ignore[attr-defined]
         "its pickup [3, 0, 0] is cut off from here (obstacles, vehicles down, drones whose clock is off)"]
+
+
+@pytest.mark.parametrize("moves", [0, 1])
+def test_a_drone_whose_battery_affords_no_move_off_a_charger_is_down_for_good(moves: int) -> None:
+    """Found by the systematic tester (sweep 20142 with --skews 1): a drone whose clock was off landed on a
+    charger; a low drone beside it, on a drop-off, could not afford one move, and the mail's carrier
+    tried that drop-off for good. Grounded by its battery, it says so as a vehicle down does: its peers
+    hold its cell for good, and its mail goes back. One move more in the battery, it is not."""
+    ws = Workspace.build(size=(6, 6, 1), drones={"d1": (3, 3, 0), "d2": (0, 5, 0)}, charging_stations=[(0, 0, 0)])
+    stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+    stack.assign(MAIL)
+    battery = stack.config.battery
+    level = battery.safe_threshold + battery.drain_per_step * (stack.mail.leg_overhead + moves) + 0.5
+    actions = stack.step(0, level, stack.executor.cell)
+    grounded = of(Grounded, actions)
+    if moves:
+        assert grounded == [] and stack.protocol.down is None
+        return
+    assert [g.trajectory.last for g in grounded] == [(3, 3, 0)]  # type: ignore[attr-defined]
+    assert [(r.request, r.reason) for r in of(MailRejected, actions)] == [  # type: ignore[attr-defined]
+        (MAIL, f"drone d1: {DRAINED}")]
+    stack.assign(MAIL)
+    later = stack.step(1, level, stack.executor.cell)  # mail given later goes back too
+    assert stack.landed and of(GoTo, later) == [] and [r.request for r in of(MailRejected, later)] == [MAIL]  # type: ignore[attr-defined]
+
+
+def test_a_plan_that_ends_short_of_the_legs_goal_is_no_leg_done() -> None:
+    """Found by the systematic tester (sweep 20162 with --skews 1): a round to stop short of a charger held
+    for good gave way to news, and the next, to the same spot, no longer knew it was short. Seen there,
+    the drone took itself for charging at no charger, for good. Only the leg's own goal ends the leg."""
+    stack, _ = fly(ideal, 3)
+    assert stack.protocol.state is State.EXECUTING and stack.mail.phase is Phase.TO_PICKUP
+    short = (0, 1, 0)
+    stack._protocol(Reroute(Task(stack.clock.next_id(stack.now), short, None, hovering_since=stack.now)))
+    actions: list[DroneAction] = []
+    while stack.executor.cell != short or stack.protocol.state is not State.WAIT_FOR_TASK:
+        assert stack.now < 40
+        actions += stack.step(stack.now + 1, 100.0, stack.executor.cell)
+    actions += stack.step(stack.now + 1, 100.0, stack.executor.cell)
+    assert of(MailPickedUp, actions) == [] and stack.mail.cell == short
+    assert [g.goal for g in of(GoTo, actions)] == [MAIL.pickup]  # type: ignore[attr-defined]

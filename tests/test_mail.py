@@ -24,6 +24,7 @@ from drona_gcs.stack.drone import _distance_function
 from drona_gcs.stack.mail import (
     NO_WAY,
     NOT_CLEARED,
+    STRANDED,
     Distance,
     GoTo,
     MailAction,
@@ -738,6 +739,24 @@ def test_a_drone_walled_off_from_every_charger_hands_its_mail_back() -> None:
     actions = mp.decide(0, 38.0, set())
     assert sorted(a.request.id for a in actions if isinstance(a, MailRejected)) == ["a", "b"]
     assert mp.queue == []
+
+
+def test_a_low_drone_whose_battery_reaches_no_charger_makes_way_and_hands_its_mail_back() -> None:
+    """Found by the systematic tester (sweep 20142 with --skews 1): a drone whose clock was off landed on
+    one charger for good. A low drone beside it could afford the way off a drop-off, but not that and the
+    way to the other charger after it: it stayed, and the mail was never delivered. Energy kept for a
+    charger out of reach is kept for nothing; the floor still holds."""
+    mp = MailPlanner(c(1, 0), (Q1, Q2), (P1, P2), walled_off(Q1), MODEL)
+    mp.assign(mail("queued", c(6, 6), c(7, 7)))
+    mp.battery_low()
+    mp.make_way(c(2, 1))
+    level = MODEL.safe_threshold + 6 * MODEL.drain_per_step  # 2 steps to the spot; Q2 is 8 away
+    actions = mp.decide(0, level, set())
+    assert goto(actions) == GoTo(c(2, 1), 6, Phase.MAKING_WAY)
+    assert mp.why_spent == STRANDED
+    mp.leg_done()
+    handed = mp.decide(30, level - 2, set())
+    assert [(a.request.id, a.reason) for a in handed if isinstance(a, MailRejected)] == [("queued", STRANDED)]
 
 
 def test_the_reserve_counts_only_the_chargers_a_way_joins() -> None:

@@ -360,6 +360,23 @@ def test_liveness_excuses_mail_no_drone_can_fly_once_a_vehicle_down_takes_its_ch
     Monitors(config).liveness(1, blocked=frozenset({(8, 0, 0)}), fleet=low)
 
 
+@pytest.mark.parametrize("moves", [0, 1])
+def test_liveness_holds_a_drone_whose_battery_affords_no_move_off_a_charger_as_down(moves: int) -> None:
+    """A drone resting on the drop-off with the battery for less than one move (a leg's overhead and a
+    step) never leaves it: the mail is excused. With one move more, it can, and the mail is owed."""
+    ws = Workspace.build(size=(9, 1, 1), charging_stations=((0, 0, 0), (8, 0, 0)))
+    request = MailRequest("m", (2, 0, 0), (4, 0, 0), 5)
+    config = WorldConfig(ws, ("d0", "d1"), ((1, 0, 0), (4, 0, 0)), (request,), ("d0",), delta=0, liveness_steps=0)
+    overhead = 3
+    level = config.battery.safe_threshold + config.battery.drain_per_step * (overhead + moves) + 0.5
+    fleet = {"d0": Flier((1, 0, 0), 100.0, 95.0, overhead), "d1": Flier((4, 0, 0), level, 95.0, overhead)}
+    if moves:
+        with pytest.raises(Violation, match=r"\(d\) mail \['m'\]"):
+            Monitors(config).liveness(1, fleet=fleet)
+    else:
+        Monitors(config).liveness(1, fleet=fleet)
+
+
 def test_a_counterexample_is_the_same_whatever_the_hash_seed() -> None:
     """Two processes with different string hashing find the same trace, naming the same peers."""
     def run(hash_seed: str) -> list[str]:

@@ -38,7 +38,7 @@ from drona_gcs.planner import SafePlanner
 from drona_gcs.planner.heuristic import UNREACHABLE, GoalDistance
 from drona_gcs.stack.battery import BatteryLow, BatteryModel, BatteryMonitor, BatteryRecharged
 from drona_gcs.stack.executor import Completed, PlanExecutor, Setpoint
-from drona_gcs.stack.mail import NO_WAY, GoTo, MailAction, MailPlanner, MailRequest, Phase
+from drona_gcs.stack.mail import DRAINED, NO_WAY, GoTo, MailAction, MailPlanner, MailRequest, Phase
 from drona_gcs.stack.messages import HybridClock, Message, ReqForCurrentTraj, Task, task_of
 from drona_gcs.stack.protocol import Action as ProtocolAction
 from drona_gcs.stack.protocol import (
@@ -286,6 +286,16 @@ class DroneStack:
         self.arrival = None
         return [*actions, *self._protocol(VehicleDown(cell))]
 
+    def _ground_if_drained(self) -> list[DroneAction]:
+        """A drone at rest whose battery affords no move off a charger stays there for good: as for a
+        vehicle down, its mail goes back and every peer holds its cell (a pickup or drop-off it rests
+        on is handed back by those who need it, not waited for)."""
+        if self.protocol.down is not None or self.protocol.state is not State.WAIT_FOR_TASK \
+                or self.mail.busy or not self.mail.drained(self.level):
+            return []
+        self.mail.land()
+        return self.vehicle_down(f"drone {self.me}: {DRAINED}", self.protocol.location)
+
     def release(self, drone: str) -> list[DroneAction]:
         """The operator saw ``drone``, gone from the fleet, out of the air for good: hold none of its
         cells (ProblemError if it is no departed drone)."""
@@ -371,6 +381,7 @@ class DroneStack:
                 self.mail.battery_recharged()
         self.level = battery_level
         actions += self._cut_off()
+        actions += self._ground_if_drained()
         self._land_if_spent(step)
         if not may_plan and self.protocol.off_since is not None and self.protocol.state is State.WAIT_FOR_TASK:
             self.mail.land()  # out of bounds, it holds where its plan ended for long: on the ground, for free
@@ -475,7 +486,7 @@ class DroneStack:
             return []
         if flown == arrival.goal:
             self.arrival = None
-            if arrival.goal in (self.stop_short, self.braked):  # stopped short: not done, decided anew here
+            if arrival.goal != self.mail.goal:  # stopped short of it: not done, decided anew here
                 self.stop_short = self.braked = None
                 self.mail.relocate(arrival.goal, landed=True)
                 return []

@@ -78,6 +78,9 @@ NO_WAY = 10**6  #: the distance between cells no path joins (a vehicle down may 
 MAX_MISSES = 3  #: plans to a pickup that end with the vehicle not there, before the mail is handed back
 #: Why a drone whose battery is low flies no mail, where no charger can fill it up again.
 SPENT = "its battery is low, and the workspace has no charger"
+DRAINED = "its battery affords no move above the floor, and it rests off every charger"
+STRANDED = ("its battery is low, and reaches no charger from here (the others are walled in by obstacles, "
+            "vehicles down or drones whose clock is off)")
 MAX_FAILURES = 4  #: rounds in a row that find no plan, before mail not on board is handed back (see leg_failed)
 MAX_STRIKES = 8  #: legs to a mail's pickup that found no plan, in a row or not, before it is handed back
 NOT_CLEARED = "at the pickup, not cleared by the service to take it on board"
@@ -212,6 +215,8 @@ class MailPlanner:
     occupied: frozenset[Cell] = frozenset()  #: chargers other drones rested on at the last decision
     passing: frozenset[Cell] = frozenset()  #: where plans under way ended, at the last decision
     cut_offs: int = 0  #: legs in a row whose goal no path at all joined
+    #: at the last decision, the battery reached no charger a way joins to ours: none will fill it again
+    stranded: bool = False
     #: mail whose leg no path joined from here: tried after the rest, until the drone has moved
     cut_off_mail: frozenset[str] = frozenset()
     strikes: dict[str, int] = field(default_factory=dict)  #: legs to each mail's pickup that found no plan
@@ -306,8 +311,19 @@ class MailPlanner:
 
     @property
     def spent(self) -> bool:
-        """Low, in a workspace with no charger to fill up at: it flies no more mail."""
-        return self.low and not self.chargers
+        """Low, with no charger to fill up at: it flies no more mail."""
+        return self.why_spent is not None
+
+    def drained(self, level: float) -> bool:
+        """Off every charger, ``level`` affords no move: the vehicle never flies again (the floor kept)."""
+        return (bool(self.chargers) and self.cell not in self.chargers
+                and not self._budget(0, level).allows(self.leg_overhead + 1))
+
+    @property
+    def why_spent(self) -> str | None:
+        if not self.low:
+            return None
+        return SPENT if not self.chargers else STRANDED if self.stranded else None
 
     def battery_recharged(self) -> None:
         self.low = False
@@ -473,6 +489,8 @@ class MailPlanner:
         if self.busy or self.phase is Phase.CHARGING:
             return []
         budget = self._budget(now, level)
+        self.stranded = bool(self.chargers) and not any(
+            budget.allows(self._leg(self.cell, c)) for c in self._reachable(self.chargers))
         if self.make_way_to is not None:
             return self._make_way(budget, taken)
         if now < self.retry_at and (self.blocked is None or self.blocked in taken):
@@ -595,7 +613,7 @@ class MailPlanner:
     def _park_spent(self, budget: Budget, taken: Collection[Cell]) -> list[MailAction]:
         """Spent: the mail not on board goes to drones that can fly it, and this one parks and lands
         there (or lands where it is, with nowhere to park), off the cells others need."""
-        handed = self.release(SPENT) if self.queue else []
+        handed = self.release(self.why_spent or SPENT) if self.queue else []
         spots = self._parking_spots()
         if spots and not self._parked():
             return handed + self._to_one_of(spots, budget, taken, Phase.TO_PARKING)
@@ -683,8 +701,11 @@ class MailPlanner:
         The nearest charger may be taken by a drone charging there by then, so this is
         the leg to the second nearest when there are two or more. Chargers other drones
         rest on now do not count, while one is free: one may be a vehicle down for good; nor do
-        chargers no way joins, while one can be reached (vehicles down may wall one off).
+        chargers no way joins, while one can be reached (vehicles down may wall one off). None when
+        stranded: no energy is worth keeping for a charger out of reach.
         """
+        if self.stranded:
+            return 0
         free = [c for c in self.chargers if c not in self.occupied] or self.chargers
         legs = [self._leg(cell, c) for c in free]
         ways = sorted(w for w in legs if w < NO_WAY) or legs

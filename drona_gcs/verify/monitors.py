@@ -23,7 +23,7 @@ shares nothing with the code it judges: no production ranking, no protocol query
     cancelled, lost on board a vehicle that came down, cleared for pickup to an agent that
     crashed (the service cannot tell whether it is on board), or cut off from its drop-off by
     obstacles and the vehicles down: no path from the drone carrying it, or from any drone in
-    service through its pickup);
+    service through its pickup; a drone off every charger whose battery affords no move is down);
 (e) no battery drops below the safe threshold;
 (f) a drone carrying mail flies only to its drop-off, or to a charger, or off a way a peer asked
     it to leave (its request named the cell the drone rested on), or short of the rest of its plan
@@ -347,11 +347,22 @@ class Monitors:
         vehicles that came down rest on for good; ``fleet``: the drones still in service."""
         if steps_since_last_request <= self.config.liveness_steps:
             return
+        if fleet is not None:  # a drone that can never fly again is in the way for good
+            grounded = {d for d, flier in fleet.items() if self._grounded(flier)}
+            blocked = blocked | {fleet[d].cell for d in grounded}
+            fleet = {d: flier for d, flier in fleet.items() if d not in grounded}
         missing = sorted(r.id for r in self.config.requests
                          if r.id not in self.settled and self._deliverable(r, blocked, fleet))
         if missing:
             raise Violation("d", f"mail {missing} not delivered {self.config.liveness_steps} steps after the "
                                  f"last request arrived. Wait-for: {wait_for()}")
+
+    def _grounded(self, flier: Flier) -> bool:
+        """Off every charger, a battery that affords no move (a leg's overhead and one step above the
+        safe threshold) never flies again."""
+        chargers, battery = self.config.workspace.charging_stations, self.config.battery
+        affordable = (flier.level - battery.safe_threshold) / battery.drain_per_step
+        return bool(chargers) and flier.cell not in chargers and affordable < flier.overhead + 1
 
     def _deliverable(self, request: MailRequest, blocked: frozenset[Cell], fleet: Mapping[str, Flier] | None) -> bool:
         """Whether a drone in service can still bring the mail to its drop-off and then reach a charger

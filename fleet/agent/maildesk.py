@@ -27,7 +27,6 @@ from collections.abc import Callable, Collection
 from drona_gcs.errors import ProblemError
 from drona_gcs.stack.drone import DroneStack
 from drona_gcs.stack.mail import (
-    SPENT,
     MailDelivered,
     MailLost,
     MailPickedUp,
@@ -136,8 +135,8 @@ class MailDesk:
             raise ProblemError(f"drone {self.me} is shutting down")
         if self.refusal is not None:
             raise ProblemError(f"drone {self.me} takes no mail: {self.refusal}")
-        if self.stack.mail.spent:
-            raise ProblemError(f"drone {self.me} takes no mail: {SPENT}")
+        if self.stack.mail.why_spent is not None:
+            raise ProblemError(f"drone {self.me} takes no mail: {self.stack.mail.why_spent}")
         if self.stack.commanded is not None:  # an order sent before the command may come after it
             raise ProblemError(f"drone {self.me} takes no mail: the operator's {self.stack.commanded} is in force")
         if order.id in self.delivered or any(m.id == order.id for m in self.held()):
