@@ -1044,6 +1044,16 @@ def test_a_peer_that_braked_overrides_its_older_answer_until_its_next_plan() -> 
     assert proto.known["b"] == later and "b" not in proto.braked
 
 
+def test_a_peer_that_braked_twice_on_one_plan_holds_where_it_braked_last_whatever_the_order_heard() -> None:
+    """Found by the tester (sweep 20164 with --skews 1): a drone braked, then braked again shorter on the
+    same plan; its first cut came last, and a peer planned through where it held."""
+    proto = machine()
+    first, second = traj(0, (3, 2), (3, 1), (3, 0), (3, 0)), traj(0, (3, 2), (3, 1), (3, 1))
+    proto.handle(PeerBraked("b", second), 0)
+    proto.handle(PeerBraked("b", first), 0)
+    assert proto.known["b"] == second and proto.braked["b"] == second
+
+
 def test_a_peer_that_braked_on_my_plan_has_me_brake_or_plan_anew() -> None:
     """A brake holds a cell that plans made before it did not avoid: the plan flown steers clear of it."""
     proto, plan = flying_past_b()

@@ -805,6 +805,9 @@ class CoordinationProtocol:
         if drone == self.me or drone not in self.members or (
                 not reporting and cut.start_step < self.known[drone].start_step):
             return []  # a plan of its made since ended the brake
+        held = self.braked.get(drone)
+        if held is not None and held.start_step == cut.start_step and held.end_step < cut.end_step:
+            return []  # it cut that plan again since, shorter: a brake only ever shortens a plan
         self.braked[drone] = self.known[drone] = cut
         if drone in self.received:
             self.received[drone] = self._news(drone, self.received[drone])
