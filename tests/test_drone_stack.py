@@ -264,6 +264,22 @@ def test_a_drone_in_the_air_from_its_plan_on_keeps_its_battery_above_the_floor()
         assert sorted(m.id for m in delivered) == sorted(m.id for m in mails), f"seed {seed}"
 
 
+def test_a_plan_made_anew_in_flight_is_budgeted_as_a_leg_from_the_air_is() -> None:
+    """Found by the systematic tester (sweep 20171 with --skews 1): a low drone's way to a charger was
+    planned anew around a cell a drone whose clock was off held. The new rest was budgeted with its first
+    step free, as no leg from the air is (see DroneStack._task), and the battery fell to 19 %."""
+    stack, _ = fly(ideal, 8, workspace=OPEN)
+    assert stack.protocol.state is State.EXECUTING and not stack.landed
+    plan = stack.protocol.trajectory
+    assert plan is not None
+    level = 60.0
+    stack.level = level
+    rest = stack._reroute_task(Threatened("x", (plan.cells[-2],)))
+    leg = GoTo(rest.goal, stack.mail.flight_to(rest.goal, level), Phase.TO_PICKUP)
+    assert rest.flight_steps is not None
+    assert rest.flight_steps == stack._task(leg, stack.now, stack.now).flight_steps
+
+
 # ------------------------------------------------------------ making way
 #: A ring around a wall: from the pickup (2, 0) to the drop-off (3, 2), the way is by (0, 1) or
 #: by (6, 1). A vehicle down rests on one, a drone parks on the other: together they wall it off.

@@ -1054,6 +1054,20 @@ def test_a_peer_that_braked_twice_on_one_plan_holds_where_it_braked_last_whateve
     assert proto.known["b"] == second and proto.braked["b"] == second
 
 
+def test_a_brake_heard_after_the_peers_rest_still_overtakes_the_answer_my_round_holds() -> None:
+    """Found by the tester (sweep 20171 with --skews 1): b answered my round with its plan, braked on it,
+    and, its clock off, said at once that it rests. The rest came first, so its brake was taken for old
+    news, and I planned with the plan it had cut."""
+    proto = machine()
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    plan = traj(0, (3, 2), (3, 1), (3, 0), (4, 0))
+    cut = traj(0, (3, 2), (3, 1), (3, 1))
+    proto.handle(CurrentTraj("b", plan, ID_A), 0)
+    proto.handle(PeerAnnounced("b", Trajectory.stationary((3, 1, 0), 3)), 3)
+    proto.handle(PeerBraked("b", cut), 3)
+    assert proto.received["b"] == cut
+
+
 def test_a_peer_that_braked_on_my_plan_has_me_brake_or_plan_anew() -> None:
     """A brake holds a cell that plans made before it did not avoid: the plan flown steers clear of it."""
     proto, plan = flying_past_b()

@@ -274,7 +274,7 @@ class DroneStack:
         if stop == trajectory.last:
             return []
         self.stop_short, self.threat = stop, None
-        task = Task(self.clock.next_id(self.now), stop, self.mail.flight_to(stop, self.level), hovering_since=self.now)
+        task = self._hovering_task(stop)
         return self._protocol(Reroute(task))
 
     def vehicle_down(self, reason: str, cell: Cell) -> list[DroneAction]:
@@ -434,12 +434,20 @@ class DroneStack:
         less what must remain there; it is flown from now on (hovering, as far as budgets go). When
         the goal itself may be held for good, the leg stops short, at the nearest cell off the held
         ones, and is decided anew from there (see :meth:`_arrive`)."""
-        trajectory, now = self.protocol.trajectory, self.now
+        trajectory = self.protocol.trajectory
         assert trajectory is not None
         goal, self.stop_short, self.threat = trajectory.last, None, threat
         if goal in threat.cells:
             goal = self._short_of(threat) or goal
-        return Task(self.clock.next_id(now), goal, self.mail.flight_to(goal, self.level), hovering_since=now)
+        return self._hovering_task(goal)
+
+    def _hovering_task(self, goal: Cell) -> Task:
+        """A new rest of the plan flown, to ``goal``: flown from now on, as far as budgets go, with what
+        the battery affords now less what must remain there, and less the plan's first step (see
+        :meth:`_task`)."""
+        flight = self.mail.flight_to(goal, self.level)
+        return Task(self.clock.next_id(self.now), goal, None if flight is None else flight - 1,
+                    hovering_since=self.now)
 
     def _short_of(self, threat: Threatened) -> Cell | None:
         """Where the leg flown stops short of the cells ``threat`` holds: the nearest cell off them from
@@ -460,7 +468,7 @@ class DroneStack:
         stop = self._short_of(threat)
         if stop is None:
             return []
-        task = Task(self.clock.next_id(self.now), stop, self.mail.flight_to(stop, self.level), hovering_since=self.now)
+        task = self._hovering_task(stop)
         return self._protocol(Reroute(task))
 
     def _way_to_clear(self, leg: GoTo) -> tuple[Cell, ...]:

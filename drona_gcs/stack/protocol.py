@@ -801,13 +801,16 @@ class CoordinationProtocol:
         overrides what it answered of that plan, and the plan I fly steers clear of it as of a vehicle
         down (brake, or plan its rest anew)."""
         drone, cut = event.drone, event.trajectory
-        reporting = self._reported(drone)
-        if drone == self.me or drone not in self.members or (
-                not reporting and cut.start_step < self.known[drone].start_step):
-            return []  # a plan of its made since ended the brake
+        if drone == self.me or drone not in self.members:
+            return []
         held = self.braked.get(drone)
-        if held is not None and held.start_step == cut.start_step and held.end_step < cut.end_step:
-            return []  # it cut that plan again since, shorter: a brake only ever shortens a plan
+        if held is not None and not _cut_overtakes(cut, held):
+            return []  # it cut that plan again since, shorter
+        if not self._reported(drone) and cut.start_step < self.known[drone].start_step:
+            answered = self.received.get(drone)
+            if answered is not None and _cut_overtakes(cut, answered):
+                self.received[drone] = cut  # my round's answer was of the plan it cut
+            return []  # a plan of its made since ended the brake
         self.braked[drone] = self.known[drone] = cut
         if drone in self.received:
             self.received[drone] = self._news(drone, self.received[drone])
@@ -1166,6 +1169,13 @@ class CoordinationProtocol:
         pending, self.pending = self.pending, {}
         holds = self.holds()
         return [Send(peer, CurrentTraj(self.me, trajectory, task_id, holds)) for peer, task_id in pending.items()]
+
+
+def _cut_overtakes(cut: Trajectory, older: Trajectory) -> bool:
+    """Whether a peer's brake ``cut`` is news over ``older``, what I held of it: a plan that starts later
+    ended the brake, and a brake only ever shortens a plan (of two cuts of one plan, the shorter is
+    the newer)."""
+    return older.start_step < cut.start_step or (older.start_step == cut.start_step and older.end_step > cut.end_step)
 
 
 def _failure_last(abandoned: list[Action], then: list[Action]) -> list[Action]:
