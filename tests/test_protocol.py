@@ -1068,6 +1068,34 @@ def test_a_brake_heard_after_the_peers_rest_still_overtakes_the_answer_my_round_
     assert proto.received["b"] == cut
 
 
+def test_a_peers_brake_holds_on_past_the_rest_it_says_it_takes_there() -> None:
+    """Found by the tester (sweep 20181 with --skews 1): b braked and, its clock off, said at once that it
+    rests where it braked. Its answer to my round, sent before, came after both: the rest had ended the
+    brake, and I planned with the plan b had cut."""
+    proto = machine()
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    plan, cut = traj(0, (4, 4), (4, 3), (3, 3), (2, 3)), traj(0, (4, 4), (4, 3), (4, 3))
+    proto.handle(PeerBraked("b", cut), 1)
+    proto.handle(PeerAnnounced("b", Trajectory.stationary((4, 3, 0), 3)), 3)
+    proto.handle(CurrentTraj("b", plan, ID_A), 3)  # sent before it braked
+    assert proto.received["b"] == cut
+
+
+def test_a_peers_brake_heard_after_its_rest_drops_the_plan_i_made_with_what_it_cut() -> None:
+    """Found by the tester (sweep 20181 with --skews 1): b answered my round with its plan, braked, said
+    it rests there, and acked my plan; its rest came first, so its brake was taken for old news and my
+    plan, made with what it cut, was flown."""
+    proto = machine()
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    plan, cut = traj(0, (4, 4), (4, 3), (3, 3), (2, 3)), traj(0, (4, 4), (4, 3), (4, 3))
+    proto.handle(CurrentTraj("b", plan, ID_A), 0)
+    proto.handle(CurrentTraj("c", location_of("c"), ID_A), 0)
+    assert proto.state is State.CONFIRMING
+    proto.handle(PeerAnnounced("b", Trajectory.stationary((4, 3, 0), 3)), 3)
+    proto.handle(PeerBraked("b", cut), 3)
+    assert proto.state is not State.CONFIRMING and proto.proposed is None
+
+
 def test_a_peer_that_braked_on_my_plan_has_me_brake_or_plan_anew() -> None:
     """A brake holds a cell that plans made before it did not avoid: the plan flown steers clear of it."""
     proto, plan = flying_past_b()
@@ -1266,6 +1294,17 @@ def test_the_plan_i_fly_steers_clear_of_the_plan_of_a_peer_found_with_its_clock_
     else:
         assert proto.trajectory is not None and (3, 0, 0) not in proto.trajectory.suffix_from(verdict_at).cells
     assert proto.handle(ClockBound(mine_off=False, outliers=frozenset({"b"})), verdict_at) == []  # news once
+
+
+def test_two_peers_found_off_at_once_have_the_plan_i_fly_planned_anew_once() -> None:
+    """Found by the tester (sweep 20182 with --skews 2): one clock check found b and c off, each on the
+    rest of my plan. Each was reported Threatened; the first had the rest planned anew, and the second
+    asked for a new rest while that round was under way, which no state takes."""
+    proto, _ = flying_past_b()
+    proto.handle(PeerAnnounced("c", traj(1, (0, 4), (1, 4), (1, 3), (4, 3), (4, 1), (4, 0))), 1)
+    actions = proto.handle(ClockBound(mine_off=False, outliers=frozenset({"b", "c"})), 2)
+    assert [type(a) for a in actions] == [Threatened]
+    assert actions == [Threatened("b, c", ((3, 0, 0), (4, 0, 0)))]
 
 
 def test_a_drone_whose_clock_is_off_stops_short_of_every_cell_of_its_peers_plans() -> None:

@@ -21,7 +21,7 @@ from drona_gcs.errors import DronaError, ProblemError
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.mail import MailPickedUp, MailPlanner, MailRequest, MailStarted
 from drona_gcs.stack.messages import Task, TaskId
-from drona_gcs.stack.protocol import CoordinationProtocol, StartExecuting
+from drona_gcs.stack.protocol import CoordinationProtocol, Present, StartExecuting
 from drona_gcs.verify.explore import SEEDED_BUGS, Explorer, Scenario, Strategy, decode_token, encode_token
 from drona_gcs.verify.monitors import Flier, Monitors, Violation
 from drona_gcs.verify.sweep import configurations
@@ -470,6 +470,26 @@ def test_mail_on_board_may_answer_any_way_asked_since_its_last_plan() -> None:
     with pytest.raises(Violation, match=r"\(f\) d0 carries mail m"):  # the ways asked end with the plan
         monitors.action("d0", StartExecuting(Task(TaskId(6, "d0", 3), (1, 1, 0)),
                                              Trajectory(6, ((1, 0, 0), (1, 1, 0))), others))
+
+
+@pytest.mark.parametrize("rest_at", [(2, 0, 0), (1, 0, 0)])
+def test_a_rest_said_at_the_end_of_a_plan_stands_for_that_plan_and_nowhere_else(rest_at: Cell) -> None:
+    """(a): a drone whose clock is off says it rests once its plan ends (sweep 20182 with --skews 2); a
+    plan made with that rest is made with what it is committed to. A rest said elsewhere is no such thing."""
+    ws = Workspace.build(size=(5, 3, 1))
+    config = WorldConfig(ws, ("d0", "d1"), ((0, 2, 0), (0, 0, 0)), (), (), delta=0)
+    monitors = Monitors(config)
+    flown = Trajectory(1, ((0, 0, 0), (1, 0, 0), (2, 0, 0)))
+    monitors.action("d1", StartExecuting(Task(TaskId(1, "d1", 1), (2, 0, 0)), flown,
+                                         {"d0": Trajectory(0, ((0, 2, 0),))}))
+    rest = Trajectory.stationary(rest_at, 3)
+    if rest_at != flown.last:
+        with pytest.raises(Violation, match=r"\(a\) d1 says it rests"):
+            monitors.action("d1", Present("d0", rest, braked=False))
+        return
+    monitors.action("d1", Present("d0", rest, braked=False))
+    monitors.action("d0", StartExecuting(Task(TaskId(2, "d0", 2), (4, 2, 0)),  # d0's clock behind d1's
+                                         Trajectory(2, ((0, 2, 0), (1, 2, 0))), {"d1": rest}))
 
 
 @pytest.mark.parametrize("told, collides", [(None, False), (1, False), (0, True)])

@@ -659,7 +659,8 @@ class CoordinationProtocol:
         cut = self.braked.get(drone)
         if cut is not None and trajectory.start_step <= cut.start_step:
             return cut
-        self.braked.pop(drone, None)
+        if cut is None or not _rests_after(trajectory, cut):
+            self.braked.pop(drone, None)
         return trajectory
 
     def _ignore(self, event: Event, now: int) -> list[Action]:
@@ -806,12 +807,16 @@ class CoordinationProtocol:
         held = self.braked.get(drone)
         if held is not None and not _cut_overtakes(cut, held):
             return []  # it cut that plan again since, shorter
-        if not self._reported(drone) and cut.start_step < self.known[drone].start_step:
+        known = self.known[drone]
+        resting = _rests_after(known, cut)  # it said it rests where it braked: the brake holds on
+        if not self._reported(drone) and cut.start_step < known.start_step and not resting:
             answered = self.received.get(drone)
             if answered is not None and _cut_overtakes(cut, answered):
                 self.received[drone] = cut  # my round's answer was of the plan it cut
             return []  # a plan of its made since ended the brake
-        self.braked[drone] = self.known[drone] = cut
+        self.braked[drone] = cut
+        if not resting:
+            self.known[drone] = cut
         if drone in self.received:
             self.received[drone] = self._news(drone, self.received[drone])
         return self._steer_clear(drone, now)
@@ -904,7 +909,7 @@ class CoordinationProtocol:
             return self._brake(entry) if entry is not None else []
         if newly_off and self.trajectory is not None:  # at rest after a plan peers hold for good
             return self._tell_rest(now)
-        return [action for drone in sorted(new) for action in self._steer_clear(drone, now)]
+        return self._steer_clear(", ".join(sorted(new)), now) if new else []  # once, clear of them all
 
     def _on_vehicle_lost(self, event: VehicleLost, now: int) -> list[Action]:
         """Every peer is told at once where my vehicle may be: plans made before avoided only my plan."""
@@ -1070,12 +1075,20 @@ class CoordinationProtocol:
         if isinstance(event, PeerDown):
             return event.drone in self.peers and event.drone != self.me
         if isinstance(event, PeerBraked):
-            return event.drone in self.members and event.trajectory.start_step >= self.known[event.drone].start_step
+            return event.drone in self.members and (event.trajectory.start_step >= self.known[event.drone].start_step
+                                                    or self._planned_before(event.drone, event.trajectory))
         if isinstance(event, ClockBound):
             return event.mine_off or bool(event.outliers - self.outliers)
         if isinstance(event, PeerLost):
             return event.drone in self.peers and event.drone != self.me and bool(event.cells)
         return True
+
+    def _planned_before(self, drone: str, cut: Trajectory) -> bool:
+        """Whether the plan I propose avoided what ``drone`` flew before its brake ``cut`` (its rest, heard
+        since, can come before the brake)."""
+        assert self.proposed is not None
+        used = dict(self.proposed.psi).get(drone)
+        return used is not None and _cut_overtakes(cut, used)
 
     # -------------------------------------------------- peers' proposals
     def _on_proposal(self, event: PlanProposal, now: int) -> list[Action]:
@@ -1169,6 +1182,12 @@ class CoordinationProtocol:
         pending, self.pending = self.pending, {}
         holds = self.holds()
         return [Send(peer, CurrentTraj(self.me, trajectory, task_id, holds)) for peer, task_id in pending.items()]
+
+
+def _rests_after(trajectory: Trajectory, cut: Trajectory) -> bool:
+    """Whether ``trajectory`` is a peer's rest where its brake ``cut`` ends (one whose clock is off says
+    so at once), not a new plan: the brake still overtakes older answers."""
+    return trajectory.cells == (cut.last,) and trajectory.start_step >= cut.start_step
 
 
 def _cut_overtakes(cut: Trajectory, older: Trajectory) -> bool:

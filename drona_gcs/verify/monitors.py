@@ -48,7 +48,7 @@ from typing import TYPE_CHECKING
 from drona_gcs.errors import DronaError
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.mail import MailDelivered, MailLost, MailPickedUp, MailRejected, MailRequest, MailStarted
-from drona_gcs.stack.protocol import Braked, StartExecuting
+from drona_gcs.stack.protocol import Braked, Present, StartExecuting
 from drona_gcs.workspace import Cell, Workspace
 
 if TYPE_CHECKING:
@@ -114,6 +114,8 @@ class Monitors:
     #: (a) what a drone down, or braked, was committed to before; (a, b) who has heard of it, at which
     #: of its own steps: (observer, drone) -> step
     before_news: dict[str, Trajectory] = field(default_factory=dict)
+    #: (a) where a drone said it rests, at the end of the plan it is committed to: that plan, told so
+    rests: dict[str, Trajectory] = field(default_factory=dict)
     told: dict[tuple[str, str], int] = field(default_factory=dict)
     #: (f) the ways each drone was asked to leave since its last plan
     asked_to_clear: tuple[tuple[str, frozenset[Cell]], ...] = ()
@@ -134,6 +136,7 @@ class Monitors:
                 tuple(sorted((d, r.id) for d, r in self.carrying.items())),
                 tuple(sorted((d, tuple(sorted(p))) for d, p in self.departed.items())),
                 tuple(sorted((d, t.start_step, t.cells) for d, t in self.before_news.items())),
+                tuple(sorted((d, t.start_step, t.cells) for d, t in self.rests.items())),
                 tuple(sorted(self.told.items())), tuple(sorted(self.stopped.items())),
                 tuple(sorted((d, tuple(sorted(w))) for d, w in self.asked_to_clear)),
                 tuple(sorted(self.found_off.items())), self.drifts)
@@ -148,8 +151,11 @@ class Monitors:
             self._consistent(drone, action)
             self._carried_to_its_dropoff(drone, action)
             self.committed[drone] = action.trajectory
+            self.rests.pop(drone, None)
         elif isinstance(action, Braked):
             self._news(drone, action.trajectory)
+        elif isinstance(action, Present) and not action.braked and action.trajectory != self.committed[drone]:
+            self._rests(drone, action.trajectory)
         elif isinstance(action, MailStarted):
             self._in_order(drone, action.request)
         elif isinstance(action, MailPickedUp):
@@ -195,7 +201,8 @@ class Monitors:
             used = action.psi.get(peer)
             if used is None:
                 raise Violation("a", f"{drone} planned task {action.task.id} without {peer}")
-            if not same_future(used, self.committed[peer], since) and not self._not_told_yet(drone, peer, used, since):
+            if (not same_future(used, self.committed[peer], since) and used != self.rests.get(peer)
+                    and not self._not_told_yet(drone, peer, used, since)):
                 raise Violation("a", f"{drone} planned task {action.task.id} with a stale trajectory of "
                                      f"{peer}: used {cells_text(used)}, but {peer} is committed to "
                                      f"{cells_text(self.committed[peer])}")
@@ -211,8 +218,18 @@ class Monitors:
         """``observer``, at its step ``step``, heard that ``peer``'s vehicle came down, or that it braked."""
         self.told = {**self.told, (observer, peer): step}
 
+    def _rests(self, drone: str, rest: Trajectory) -> None:
+        """``drone`` says it rests where it is, at the end of the plan it is committed to (its clock is off,
+        and peers hold every cell of that plan for good): that plan flown, the rest stands for it."""
+        flown = self.committed[drone]
+        if rest.cells != (flown.last,) or rest.start_step < flown.end_step:
+            raise Violation("a", f"{drone} says it rests at {cells_text(rest)}, before the end of the plan it "
+                                 f"is committed to: {cells_text(flown)}")
+        self.rests[drone] = rest
+
     def _news(self, drone: str, now: Trajectory) -> None:
         """``drone`` flies ``now`` instead of what it was committed to, and nobody has heard yet."""
+        self.rests.pop(drone, None)
         self.before_news[drone] = self.committed[drone]
         self.committed[drone] = now
         self.told = {k: v for k, v in self.told.items() if k[1] != drone}
