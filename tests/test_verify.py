@@ -21,7 +21,7 @@ from drona_gcs.errors import DronaError, ProblemError
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.mail import MailPickedUp, MailPlanner, MailRequest, MailStarted
 from drona_gcs.stack.messages import Task, TaskId
-from drona_gcs.stack.protocol import CoordinationProtocol, Present, StartExecuting
+from drona_gcs.stack.protocol import Braked, CoordinationProtocol, Grounded, Present, StartExecuting
 from drona_gcs.verify.explore import SEEDED_BUGS, Explorer, Scenario, Strategy, decode_token, encode_token
 from drona_gcs.verify.monitors import Flier, Monitors, Violation
 from drona_gcs.verify.sweep import configurations
@@ -654,6 +654,32 @@ def test_a_stop_short_of_a_cell_a_departed_drone_may_hold_is_no_detour(d1_flies:
     judged(saw_d1_leave=True)
     with pytest.raises(Violation, match=r"\(f\) d0 carries mail m"):  # nothing held for good on the way
         judged(saw_d1_leave=False)
+
+
+@pytest.mark.parametrize("news", ["braked", "grounded", "none"])
+def test_a_stop_short_of_where_a_peer_braked_or_grounded_itself_is_no_detour(news: str) -> None:
+    """Found by sweep 20191 with --skews 1: d1 braked (or, its battery spent, grounded itself) on the way
+    to d0's drop-off, and d0, told, stopped short of it; monitor (f) held only vehicles down, departed
+    drones and clocks off, and called the stop a detour."""
+    ws = Workspace.build(size=(8, 8, 1))
+    request = MailRequest("m", (0, 0, 0), (7, 0, 0), 5)
+    config = WorldConfig(ws, ("d0", "d1"), ((0, 0, 0), (5, 1, 0)), (request,), ("d0",), delta=1, liveness_steps=0)
+    monitors = Monitors(config)
+    monitors.committed["d0"] = Trajectory(10, tuple((x, 0, 0) for x in range(8)))  # to the drop-off
+    monitors.committed["d1"] = Trajectory(5, ((5, 1, 0), (5, 0, 0)))
+    monitors.carrying["d0"] = request
+    if news == "braked":
+        monitors.action("d1", Braked(Trajectory(5, ((5, 1, 0), (5, 0, 0), (5, 0, 0))), (5, 1, 0)))
+    elif news == "grounded":
+        monitors.action("d1", Grounded(Trajectory.stationary((5, 0, 0), 6)))
+    monitors.heard_news("d0", "d1", 11)
+    short = StartExecuting(Task(TaskId(12, "d0", 2), (7, 0, 0)), Trajectory(10, tuple((x, 0, 0) for x in range(4))),
+                           {})  # parts from the old plan at step 14, in (3, 0, 0)
+    if news == "none":
+        with pytest.raises(Violation, match=r"\(f\) d0 carries mail m"):
+            monitors._carried_to_its_dropoff("d0", short)
+    else:
+        monitors._carried_to_its_dropoff("d0", short)
 
 
 def test_a_brake_announced_across_a_partition_reaches_the_peer_once_it_is_back() -> None:

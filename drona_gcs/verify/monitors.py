@@ -27,8 +27,8 @@ shares nothing with the code it judges: no production ranking, no protocol query
 (e) no battery drops below the safe threshold;
 (f) a drone carrying mail flies only to its drop-off, or to a charger, or off a way a peer asked
     it to leave (its request named the cell the drone rested on), or short of the rest of its plan
-    when a vehicle down, a drone it saw leave, or one it was told has its clock off may hold a
-    cell of that rest;
+    when a vehicle down, a drone it heard brake, a drone it saw leave, or one it was told has its
+    clock off may hold a cell of that rest;
 (g) each executor flies its plan: at every step, the cell the plan it last started puts it
     in (its last cell once the plan is over), one cell a period;
 (h) one owner per mail: no drone takes a mail on board while another has it on board, and no
@@ -48,7 +48,7 @@ from typing import TYPE_CHECKING
 from drona_gcs.errors import DronaError
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.mail import MailDelivered, MailLost, MailPickedUp, MailRejected, MailRequest, MailStarted
-from drona_gcs.stack.protocol import Braked, Present, StartExecuting
+from drona_gcs.stack.protocol import Braked, Grounded, Present, StartExecuting
 from drona_gcs.workspace import Cell, Workspace
 
 if TYPE_CHECKING:
@@ -116,6 +116,8 @@ class Monitors:
     before_news: dict[str, Trajectory] = field(default_factory=dict)
     #: (a) where a drone said it rests, at the end of the plan it is committed to: that plan, told so
     rests: dict[str, Trajectory] = field(default_factory=dict)
+    #: (f) the plans drones cut short (braked) and hold at the end of, until their next plan
+    cuts: dict[str, Trajectory] = field(default_factory=dict)
     told: dict[tuple[str, str], int] = field(default_factory=dict)
     #: (f) the ways each drone was asked to leave since its last plan
     asked_to_clear: tuple[tuple[str, frozenset[Cell]], ...] = ()
@@ -137,6 +139,7 @@ class Monitors:
                 tuple(sorted((d, tuple(sorted(p))) for d, p in self.departed.items())),
                 tuple(sorted((d, t.start_step, t.cells) for d, t in self.before_news.items())),
                 tuple(sorted((d, t.start_step, t.cells) for d, t in self.rests.items())),
+                tuple(sorted((d, t.start_step, t.cells) for d, t in self.cuts.items())),
                 tuple(sorted(self.told.items())), tuple(sorted(self.stopped.items())),
                 tuple(sorted((d, tuple(sorted(w))) for d, w in self.asked_to_clear)),
                 tuple(sorted(self.found_off.items())), self.drifts)
@@ -152,10 +155,15 @@ class Monitors:
             self._carried_to_its_dropoff(drone, action)
             self.committed[drone] = action.trajectory
             self.rests.pop(drone, None)
+            self.cuts.pop(drone, None)
         elif isinstance(action, Braked):
             self._news(drone, action.trajectory)
+            self.cuts[drone] = action.trajectory
         elif isinstance(action, Present) and not action.braked and action.trajectory != self.committed[drone]:
             self._rests(drone, action.trajectory)
+        elif isinstance(action, Grounded) and drone not in dict(self.down):
+            self._rests(drone, action.trajectory)  # its battery affords no move: it rests where its plan ended
+            self.down = (*self.down, (drone, action.trajectory.last))  # held for good, as a vehicle down
         elif isinstance(action, MailStarted):
             self._in_order(drone, action.request)
         elif isinstance(action, MailPickedUp):
@@ -220,7 +228,8 @@ class Monitors:
 
     def _rests(self, drone: str, rest: Trajectory) -> None:
         """``drone`` says it rests where it is, at the end of the plan it is committed to (its clock is off,
-        and peers hold every cell of that plan for good): that plan flown, the rest stands for it."""
+        and peers hold every cell of that plan for good; or it is grounded for good): that plan flown, the
+        rest stands for it."""
         flown = self.committed[drone]
         if rest.cells != (flown.last,) or rest.start_step < flown.end_step:
             raise Violation("a", f"{drone} says it rests at {cells_text(rest)}, before the end of the plan it "
@@ -451,8 +460,9 @@ class Monitors:
 
     def _stops_short(self, drone: str, new: Trajectory) -> bool:
         """The plan flown, made new from some step on, ends short of its goal: fine when the rest of
-        the old one crossed a cell a vehicle down, or a drone this one saw leave, may hold for good:
-        on what it is committed to, or on what it was before a brake this drone has not heard of."""
+        the old one crossed a cell a vehicle down, a drone this one heard brake (where it holds), or a
+        drone this one saw leave, may hold for good: on what it is committed to, or on what it was
+        before a brake this drone has not heard of."""
         old = self.committed[drone]
         horizon = max(new.end_step, old.end_step)  # a stop where it stands is one cell: it parts after it
         parting = next((t for t in range(new.start_step, horizon + 1) if _at(new, t) != _at(old, t)), None)
@@ -460,6 +470,7 @@ class Monitors:
             return False  # not the rest of the plan flown made new
         rest = {_at(old, t) for t in range(parting, old.end_step + 1)}
         held = {c for _, c in self.down}
+        held |= {cut.last for peer, cut in self.cuts.items() if (drone, peer) in self.told}
         for peer in self.found_off.get(drone, frozenset()) - {drone}:  # its steps are not ours: all of it
             earlier = self.before_news.get(peer)
             held |= {*self.committed[peer].cells, *(earlier.cells if earlier is not None else ())}
