@@ -231,7 +231,8 @@ class Monitors:
         and peers hold every cell of that plan for good; or it is grounded for good): that plan flown, the
         rest stands for it."""
         flown = self.committed[drone]
-        if rest.cells != (flown.last,) or rest.start_step < flown.end_step:
+        moves = set(flown.cells) != {flown.last}  # (a drone at rest says so again: to a peer that joins)
+        if rest.cells != (flown.last,) or (moves and rest.start_step < flown.end_step):
             raise Violation("a", f"{drone} says it rests at {cells_text(rest)}, before the end of the plan it "
                                  f"is committed to: {cells_text(flown)}")
         self.rests[drone] = rest
