@@ -58,7 +58,7 @@ class RecordingNode:
     def __init__(self) -> None:
         self.puts: list[tuple[str, bytes]] = []
 
-    def put(self, key: str, payload: bytes, once: bool = False) -> None:
+    def put(self, key: str, payload: bytes, once: bool = False, now: bool = False) -> None:
         self.puts.append((key, payload))
 
     def statuses(self, mail_id: str) -> list[tuple[MailStatus, str]]:

@@ -348,15 +348,17 @@ class DroneAgent:
             if isinstance(action, Send):
                 self._send(self.keys.proto(action.to, self.me), from_core(action.message))
             elif isinstance(action, Broadcast):
-                # One put that Zenoh fans out to every peer (N - 1 messages on the wire, one call here).
+                # One put that Zenoh fans out to every peer (N - 1 messages on the wire, one call here),
+                # at once: a plan proposed while a decision is handed round is the next in line's.
                 self._send(self.keys.proto(BROADCAST, self.me), from_core(action.message),
-                           copies=len(self.stack.protocol.members))
+                           copies=len(self.stack.protocol.members), now=True)
             elif isinstance(action, Answers):
                 self._send(self.keys.answers(self.me), answers(action.trajectory, action.replies, action.holds),
                            copies=len(action.replies))
             elif isinstance(action, Decided):
                 decided = answering(action.decision, action.replies, action.holds)
-                self._send(self.keys.proto(BROADCAST, self.me), decided, copies=len(self.stack.protocol.members))
+                self._send(self.keys.proto(BROADCAST, self.me), decided, copies=len(self.stack.protocol.members),
+                           now=True)
             elif isinstance(action, GoTo):
                 self.task_since = self.clock()
             elif isinstance(action, StartExecuting):
@@ -398,9 +400,9 @@ class DroneAgent:
             elif isinstance(action, (BatteryLow, BatteryRecharged)):
                 log.info("%s: battery %s", self.me, type(action).__name__)
 
-    def _send(self, key: str, body: ProtocolBody | CurTrajTo, copies: int = 1) -> None:
+    def _send(self, key: str, body: ProtocolBody | CurTrajTo, copies: int = 1, now: bool = False) -> None:
         payload = encode(self.me, self.clock(), body)
-        self.node.put(key, payload)
+        self.node.put(key, payload, now=now)
         self.metrics.messages_sent += copies
 
     def _started(self, action: StartExecuting) -> None:

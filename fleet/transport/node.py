@@ -19,7 +19,8 @@ A subscription may *gather* (``subscribe(..., gather=True)``): what the
 session's nodes put while its sample is handed round goes out at the end, one
 message per key. A request to everyone reaches every drone of a host at once;
 their answers to the requester then cross the network, and its event loop, as
-one message instead of one per drone. Payloads are framed with newlines (a
+one message instead of one per drone (a put ``now`` goes at once: a key only one
+node puts to gathers nothing). Payloads are framed with newlines (a
 payload never contains one: :func:`~fleet.transport.wire.encode` writes
 compact JSON), and every subscription hands each frame to its handlers.
 
@@ -286,16 +287,17 @@ class ZenohNode:
                     log.warning("%s: could not send %d message(s) on %s: %s", self.name, len(parts), to, exc)
 
     # -------------------------------------------------------------- send
-    def put(self, key: str, payload: bytes, once: bool = False) -> None:
+    def put(self, key: str, payload: bytes, once: bool = False, now: bool = False) -> None:
         """Reliable; blocks rather than drop when the link is congested. ``once``: a key used
         once (a mail's status), put without declaring a publisher that would live on. While the
-        session hands round a gathering sample, held and sent with the other puts to ``key``."""
+        session hands round a gathering sample, held and sent with the other puts to ``key``, unless
+        ``now``: a key only this node puts to gathers nothing, and peers may wait on it."""
         if self.closed:
             return
         if FRAME_END in payload:
             raise ValueError(f"{self.name}: a payload for {key} holds a newline, the transport's frame end")
         root = self.owner or self
-        if root._gathered is not None and not once:
+        if root._gathered is not None and not once and not now:
             root._gathered.setdefault(key, []).append(payload)
             return
         self._put(key, payload, once)
