@@ -656,11 +656,12 @@ def test_a_stop_short_of_a_cell_a_departed_drone_may_hold_is_no_detour(d1_flies:
         judged(saw_d1_leave=False)
 
 
-@pytest.mark.parametrize("news", ["braked", "grounded", "none"])
+@pytest.mark.parametrize("news", ["braked", "grounded", "off", "none"])
 def test_a_stop_short_of_where_a_peer_braked_or_grounded_itself_is_no_detour(news: str) -> None:
-    """Found by sweep 20191 with --skews 1: d1 braked (or, its battery spent, grounded itself) on the way
-    to d0's drop-off, and d0, told, stopped short of it; monitor (f) held only vehicles down, departed
-    drones and clocks off, and called the stop a detour."""
+    """Found by sweeps 20191 and 20201 with --skews 1: d1 braked (or, its battery spent, grounded itself)
+    on the way to d0's drop-off, or was found off with a plan there before its last; d0 stopped short of
+    it. Monitor (f) held only vehicles down, departed drones and the last plans of clocks off, and
+    called the stop a detour."""
     ws = Workspace.build(size=(8, 8, 1))
     request = MailRequest("m", (0, 0, 0), (7, 0, 0), 5)
     config = WorldConfig(ws, ("d0", "d1"), ((0, 0, 0), (5, 1, 0)), (request,), ("d0",), delta=1, liveness_steps=0)
@@ -672,6 +673,12 @@ def test_a_stop_short_of_where_a_peer_braked_or_grounded_itself_is_no_detour(new
         monitors.action("d1", Braked(Trajectory(5, ((5, 1, 0), (5, 0, 0), (5, 0, 0))), (5, 1, 0)))
     elif news == "grounded":
         monitors.action("d1", Grounded(Trajectory.stationary((5, 0, 0), 6)))
+    elif news == "off":  # found off after a plan since (sweep 20201): d0 may not know of that one yet
+        later = Trajectory(7, ((5, 1, 0), (5, 2, 0)))
+        psi = {"d0": monitors.committed["d0"]}
+        monitors.action("d1", StartExecuting(Task(TaskId(6, "d1", 2), (5, 0, 0)), monitors.committed["d1"], psi))
+        monitors.action("d1", StartExecuting(Task(TaskId(7, "d1", 3), (5, 2, 0)), later, psi))
+        monitors.clock_verdict("d0", frozenset({"d1"}))
     monitors.heard_news("d0", "d1", 11)
     short = StartExecuting(Task(TaskId(12, "d0", 2), (7, 0, 0)), Trajectory(10, tuple((x, 0, 0) for x in range(4))),
                            {})  # parts from the old plan at step 14, in (3, 0, 0)

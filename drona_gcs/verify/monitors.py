@@ -28,7 +28,7 @@ shares nothing with the code it judges: no production ranking, no protocol query
 (f) a drone carrying mail flies only to its drop-off, or to a charger, or off a way a peer asked
     it to leave (its request named the cell the drone rested on), or short of the rest of its plan
     when a vehicle down, a drone it heard brake, a drone it saw leave, or one it was told has its
-    clock off may hold a cell of that rest;
+    clock off (on any of its last plans) may hold a cell of that rest;
 (g) each executor flies its plan: at every step, the cell the plan it last started puts it
     in (its last cell once the plan is over), one cell a period;
 (h) one owner per mail: no drone takes a mail on board while another has it on board, and no
@@ -56,6 +56,8 @@ if TYPE_CHECKING:
 
 #: How many steps beyond Delta the tester puts a clock found off (its scheduler keeps to that offset).
 SKEW_STEPS = 1
+#: (f) How many of a drone's last plans a peer may still know as what it flies (a decision may be late).
+RECENT_PLANS = 3
 
 
 @dataclass(frozen=True)
@@ -118,6 +120,8 @@ class Monitors:
     rests: dict[str, Trajectory] = field(default_factory=dict)
     #: (f) the plans drones cut short (braked) and hold at the end of, until their next plan
     cuts: dict[str, Trajectory] = field(default_factory=dict)
+    #: (f) each drone's last plans: a peer that heard none since may still hold any as what it flies
+    flown: dict[str, tuple[Trajectory, ...]] = field(default_factory=dict)
     told: dict[tuple[str, str], int] = field(default_factory=dict)
     #: (f) the ways each drone was asked to leave since its last plan
     asked_to_clear: tuple[tuple[str, frozenset[Cell]], ...] = ()
@@ -140,6 +144,7 @@ class Monitors:
                 tuple(sorted((d, t.start_step, t.cells) for d, t in self.before_news.items())),
                 tuple(sorted((d, t.start_step, t.cells) for d, t in self.rests.items())),
                 tuple(sorted((d, t.start_step, t.cells) for d, t in self.cuts.items())),
+                tuple(sorted((d, tuple((t.start_step, t.cells) for t in ts)) for d, ts in self.flown.items())),
                 tuple(sorted(self.told.items())), tuple(sorted(self.stopped.items())),
                 tuple(sorted((d, tuple(sorted(w))) for d, w in self.asked_to_clear)),
                 tuple(sorted(self.found_off.items())), self.drifts)
@@ -156,6 +161,7 @@ class Monitors:
             self.committed[drone] = action.trajectory
             self.rests.pop(drone, None)
             self.cuts.pop(drone, None)
+            self.flown[drone] = (*self.flown.get(drone, ())[-(RECENT_PLANS - 1):], action.trajectory)
         elif isinstance(action, Braked):
             self._news(drone, action.trajectory)
             self.cuts[drone] = action.trajectory
@@ -475,6 +481,7 @@ class Monitors:
         for peer in self.found_off.get(drone, frozenset()) - {drone}:  # its steps are not ours: all of it
             earlier = self.before_news.get(peer)
             held |= {*self.committed[peer].cells, *(earlier.cells if earlier is not None else ())}
+            held |= {c for plan in self.flown.get(peer, ()) for c in plan.cells}
         for peer in self.departed.get(drone, ()):
             earlier = self.before_news.get(peer) if (drone, peer) not in self.told else None
             for gone in (self.committed[peer], *([earlier] if earlier is not None else [])):
