@@ -1096,6 +1096,19 @@ def test_a_peers_brake_heard_after_its_rest_drops_the_plan_i_made_with_what_it_c
     assert proto.state is not State.CONFIRMING and proto.proposed is None
 
 
+def test_a_peer_that_braked_holds_there_until_the_plan_it_made_since_starts() -> None:
+    """Found by the tester (sweep 20213 with --partitions 2): b braked across a cut; told once it healed,
+    my rest could not be planned anew, and NextStep would have braked, but b's next plan, from where it
+    held and starting later, came first and ended the brake. I flew into b, still waiting there."""
+    proto, plan = flying_past_b()
+    proto.handle(PeerBraked("b", traj(0, (3, 1), (3, 0), (3, 0))), 1)  # holds (3, 0) from step 2
+    proto.heard("b", traj(9, (3, 0), (3, 1)))  # its next plan, from there, starts at step 9
+    actions = proto.handle(NextStep(), 4)
+    assert [type(a) for a in actions] == [Braked]
+    assert proto.trajectory is not None and (3, 0, 0) not in proto.trajectory.suffix_from(4).cells
+    assert plan.at(5) == (3, 0, 0)
+
+
 def test_a_peer_that_braked_on_my_plan_has_me_brake_or_plan_anew() -> None:
     """A brake holds a cell that plans made before it did not avoid: the plan flown steers clear of it."""
     proto, plan = flying_past_b()

@@ -433,6 +433,8 @@ class CoordinationProtocol:
     peers_down: dict[str, Cell] = field(default_factory=dict)  #: peers whose vehicle came down, and where
     #: peers that braked, with the plan cut short they hold at the end of, until their next plan
     braked: dict[str, Trajectory] = field(default_factory=dict)
+    #: peers that braked, then planned anew from where they hold: that cell, and the step that plan starts
+    held_until: dict[str, tuple[Cell, int]] = field(default_factory=dict)
     proposed: Proposed | None = None  #: my plan, until every member holds it (CONFIRMING)
     acked: set[str] = field(default_factory=set)  #: the members that hold it
     proposals: dict[str, PlanProposal] = field(default_factory=dict)  #: peers' plans not yet decided
@@ -660,6 +662,8 @@ class CoordinationProtocol:
         if cut is not None and trajectory.start_step <= cut.start_step:
             return cut
         if cut is None or not _rests_after(trajectory, cut):
+            if cut is not None and trajectory.first == cut.last:  # it waits there until that plan starts
+                self.held_until[drone] = (cut.last, trajectory.start_step)
             self.braked.pop(drone, None)
         return trajectory
 
@@ -741,7 +745,7 @@ class CoordinationProtocol:
         """The steps from ``now`` on at which the plan I fly is in a cell held for good: a vehicle down's,
         one a departed drone may hold, one of the plan of a peer whose clock is off (or of any peer's, with
         mine off: our steps are not the same), or one a braked peer holds from when it gets there (less my
-        lead, a margin for its clock)."""
+        lead, a margin for its clock) until the plan it made since starts (and Delta more)."""
         assert self.trajectory is not None
         trajectory = self.trajectory
         here = trajectory.at(now)
@@ -752,7 +756,8 @@ class CoordinationProtocol:
         def taken(step: int) -> bool:
             cell = trajectory.at(step)
             return cell in held or any(cut.last == cell and step >= cut.end_step - self.lead_steps
-                                       for cut in self.braked.values())
+                                       for cut in self.braked.values()) or any(
+                c == cell and step <= until + self.delta for c, until in self.held_until.values())
 
         return [t for t in range(now, max(now, trajectory.end_step) + 1) if taken(t)]
 
@@ -826,7 +831,7 @@ class CoordinationProtocol:
         if event.drone == self.me or event.drone in self.members or event.drone not in self.peers:
             raise ProblemError(f"{event.drone} is not a drone gone from the fleet: nothing to release")
         for held in (self.ghosts, self.maybe_flown, self.peers_down, self.braked, self.known, self.peers_lost,
-                     self.hearsay):
+                     self.hearsay, self.held_until):
             held.pop(event.drone, None)
         self.released.add(event.drone)
         return []
@@ -891,7 +896,8 @@ class CoordinationProtocol:
         if drone not in self.unreported:
             return False
         self.unreported.discard(drone)
-        for gone in (self.ghosts, self.maybe_flown, self.hearsay, self.peers_down, self.peers_lost, self.braked):
+        for gone in (self.ghosts, self.maybe_flown, self.hearsay, self.peers_down, self.peers_lost, self.braked,
+                     self.held_until):
             gone.pop(drone, None)
         return True
 
