@@ -2,7 +2,8 @@
 
 * Waiting mails are served in priority order (9 the most urgent), oldest first among equals.
 * Each goes to the drone that can take it soonest, by the fleet's one rule
-  (:func:`drona_gcs.dispatch.choose_drone`, also used by ``drona mail``): the fewest
+  (:func:`drona_gcs.dispatch.choose_drone`; ``drona mail`` goes down the same ranking,
+  :func:`~drona_gcs.dispatch.rank_drones`, while drones refuse): the fewest
   unfinished mails, idle before busy, the nearest to the pickup by static distance,
   then by id. A drone takes at most ``per_drone`` unfinished mails from the service, so
   urgent mail that arrives later is not stuck behind long queues on board.

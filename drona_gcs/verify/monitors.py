@@ -239,8 +239,8 @@ class Monitors:
         flown = self.committed[drone]
         moves = set(flown.cells) != {flown.last}  # (a drone at rest says so again: to a peer that joins)
         if rest.cells != (flown.last,) or (moves and rest.start_step < flown.end_step):
-            raise Violation("a", f"{drone} says it rests at {cells_text(rest)}, before the end of the plan it "
-                                 f"is committed to: {cells_text(flown)}")
+            raise Violation("a", f"{drone} says it rests at {cells_text(rest)}, elsewhere than where the plan it "
+                                 f"is committed to ends, or before: {cells_text(flown)}")
         self.rests[drone] = rest
 
     def _news(self, drone: str, now: Trajectory) -> None:
