@@ -98,6 +98,8 @@ def check_pair(mine: Trajectory, other: Trajectory, delta: int, other_id: str = 
     horizon = max(mine.end_step, other.end_step) + delta + 1 if until is None else until
     found: list[Violation] = []
     theirs = set(other.cells)  # both a collision and a swap put me in a cell of theirs
+    if theirs.isdisjoint(mine.cells):
+        return found  # every cell I am in at any step is one of mine
     for t in range(n, horizon + 1):
         here = mine.at(t)
         if here not in theirs:
