@@ -22,6 +22,7 @@ from fleet.transport.keys import FleetKeys
 from fleet.transport.wire import (
     CommandAck,
     CommandAction,
+    CurTraj,
     CurTrajTo,
     Decide,
     DroneState,
@@ -493,6 +494,22 @@ def test_a_message_whose_sender_is_not_its_keys_writer_is_dropped() -> None:
     assert known_after(KEYS.plan("d3"), "d2", announce) != lie
     assert known_after(KEYS.answers("d2"), "d2", answer) == lie
     assert known_after(KEYS.answers("d3"), "d2", answer) != lie
+
+
+@pytest.mark.parametrize("host", [None, "pair"])
+def test_a_hosts_drone_sends_to_one_drone_on_its_hosts_key(host: str | None) -> None:
+    """A drone flown by a host (several in one session) answers on ``proto/<host>/<to>``: the answers of the
+    host's drones to one request are then one put; flown alone, on its own key."""
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0, drones={"d1": (0, 0, 0), "d2": (7, 0, 0)})
+    node = RecordingNode()
+    stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+    agent = DroneAgent(stack, node, KEYS, ScriptedVehicle(), GeoFrame(ws), lambda: 1000.0,  # type: ignore[arg-type]
+                       host=host)
+    agent.tick(0)
+    request = ReqForCurrentTraj(TaskId(5, "d2", 1), "d2", Trajectory.stationary((7, 0, 0), 0), ("d1",))
+    agent._on_protocol(KEYS.proto("all", "d2"), encode("d2", 1000.0, from_core(request)))
+    answered = [k for k, p in node.puts if isinstance(decode(p).body, CurTraj)]
+    assert answered == [KEYS.proto("d2", host or "d1")]
 
 
 def test_an_operators_command_reaches_the_stack_and_is_acknowledged() -> None:

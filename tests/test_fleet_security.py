@@ -31,7 +31,7 @@ from drona_gcs.workspace import Workspace
 from fleet.agent.drone import DroneAgent
 from fleet.sim.ports import free_port
 from fleet.transport.gateway import ZenohGateway
-from fleet.transport.identity import SERVICE, IdentityError, access_control, identity_for, make_certs
+from fleet.transport.identity import SERVICE, IdentityError, Speakers, access_control, identity_for, make_certs
 from fleet.transport.keys import FleetKeys
 from fleet.transport.node import ZenohNode, ZenohSettings
 from fleet.transport.wire import MailStatus, answers, encode
@@ -295,3 +295,39 @@ def test_a_host_speaks_for_its_drones_and_no_other(tmp_path: Path) -> None:
         pair.put(KEYS.plan("d1"), b"forged")
         pair.put(KEYS.plan("d3"), b"mine too")
         assert inbox.wait_for(KEYS.plan("d3")) and KEYS.plan("d1") not in inbox.keys
+        pair.put(KEYS.proto("d1", "pair"), b"its drones' acks, joined")
+        assert inbox.wait_for(KEYS.proto("d1", "pair"))
+
+
+def test_only_a_host_writes_its_drones_joined_messages(tmp_path: Path) -> None:
+    """``proto/<host>/<to>`` carries messages of the host's drones, and each says which: a drone's own
+    session may not write there, or it could speak for the host's other drones."""
+    tls = tmp_path / "tls"
+    make_certs(tls, DRONES, hosts={"pair": ["d2", "d3"]})
+    endpoint, inbox = _endpoint(), Inbox()
+    with session("d1", listen=endpoint, tls_dir=tls) as d1, session("d2", connect=endpoint, tls_dir=tls) as d2:
+        d1.subscribe(f"{KEYS.root}/**", inbox)
+        assert _until(lambda: d2.put(KEYS.plan("d2"), b"mine"), inbox, KEYS.plan("d2"))
+        d2.put(KEYS.proto("d1", "pair"), b"as d3, forged")
+        d2.put(KEYS.proto("d1", "d2"), b"mine")
+        assert inbox.wait_for(KEYS.proto("d1", "d2")) and KEYS.proto("d1", "pair") not in inbox.keys
+
+
+def test_a_drone_takes_a_hosts_message_only_from_a_drone_it_flies() -> None:
+    """A forged message that reached a receiver all the same (a host that speaks for others than
+    hosts.json says) changes nothing: d3 is not pair's."""
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0,
+                         drones={"d1": (0, 0, 0), "d2": (7, 0, 0), "d3": (7, 7, 0)})
+
+    def believed(sender: str) -> bool:
+        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+        agent = DroneAgent(stack, RecordingNode(), KEYS, ScriptedVehicle(), GeoFrame(ws),  # type: ignore[arg-type]
+                           lambda: 1000.0, speakers=Speakers({"pair": frozenset({"d2"})}))
+        agent.tick(0)
+        x, y, z = ws.drones[sender]
+        lie = Trajectory(5, ((x, y, z), (x - 1, y, z)))
+        agent._on_protocol(KEYS.proto("d1", "pair"), encode(sender, 1000.0, answers(lie, {"d9": TaskId(9, "d9", 1)})))
+        return stack.protocol.known.get(sender) == lie
+
+    assert believed("d2")
+    assert not believed("d3")

@@ -306,16 +306,17 @@ def test_drones_sharing_a_session_each_get_every_message_and_leave_alone() -> No
     asyncio.run(scenario())
 
 
-@pytest.mark.parametrize("now", [False, True])
-def test_the_answers_of_a_sessions_drones_to_one_request_travel_as_one_message(now: bool) -> None:
+@pytest.mark.parametrize(("now", "max_frames"), [(False, None), (True, None), (False, 2)])
+def test_the_answers_of_a_sessions_drones_to_one_request_travel_as_one_message(now: bool,
+                                                                               max_frames: int | None) -> None:
     """Three drones share a session and each answers a request to everyone: the requester gets the
     three answers, each handed to its handler alone, in one Zenoh message (gathered). Put ``now`` (a
     plan proposed while a decision is handed round: the next drone in line waits on it), each goes
-    at once, alone."""
+    at once, alone. A session that takes at most ``max_frames`` messages a sample sends no more in one."""
     endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
 
     async def scenario() -> tuple[list[bytes], list[bytes]]:
-        host = await ZenohNode.open(ZenohSettings(listen=(endpoint,)), "host")
+        host = await ZenohNode.open(ZenohSettings(listen=(endpoint,), max_frames=max_frames), "host")
         asker = await ZenohNode.open(ZenohSettings(connect=(endpoint,)), "asker")
         answers: list[bytes] = []
         messages: list[bytes] = []  # what Zenoh carried, before the node splits it
@@ -349,7 +350,12 @@ def test_the_answers_of_a_sessions_drones_to_one_request_travel_as_one_message(n
 
     answers, messages = asyncio.run(scenario())
     assert sorted(answers[:3]) == [b"a", b"b", b"c"]
-    assert messages[:3] == answers[:3] if now else messages[0].split(b"\n") == answers[:3]
+    if now:
+        assert messages[:3] == answers[:3]
+    elif max_frames is None:
+        assert messages[0].split(b"\n") == answers[:3]
+    else:
+        assert [m.split(b"\n") for m in messages[:2]] == [answers[:2], answers[2:3]]
 
 
 #: A fleet peer in a process of its own, as an agent is: it listens where the gateway connects, says

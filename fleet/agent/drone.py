@@ -60,6 +60,7 @@ from fleet.agent.vehicle import VehicleSupervisor
 from fleet.agent.watch import Seen, VehicleWatch, Verdict, record_line
 from fleet.executor import Sample, SetpointLoop, StepReport
 from fleet.logs import Throttled
+from fleet.transport.identity import Speakers
 from fleet.transport.keys import FleetKeys
 from fleet.transport.node import Query, ZenohNode
 from fleet.transport.wire import (
@@ -108,8 +109,12 @@ class Metrics:
 class DroneAgent:
     def __init__(self, stack: DroneStack, node: ZenohNode, keys: FleetKeys, link: VehicleLink,
                  frame: GeoFrame, clock: Callable[[], float], record: TextIO | None = None,
-                 timeouts: Timeouts = DEFAULT_TIMEOUTS, epoch_s: float = 0.0) -> None:
+                 timeouts: Timeouts = DEFAULT_TIMEOUTS, epoch_s: float = 0.0, *, host: str | None = None,
+                 speakers: Speakers | None = None) -> None:
         self.me, self.stack, self.node, self.keys = stack.me, stack, node, keys
+        #: the writer its messages to one drone name: its host's (joined with the host's other drones'), or its own
+        self.speaks_as = host or self.me
+        self.speakers = speakers or Speakers()
         self.epoch_s = epoch_s  #: the fleet epoch: step k starts at epoch + k tau
         self.link, self.frame, self.clock, self.record = link, frame, clock, record
         self.ws: Workspace = stack.config.workspace
@@ -346,7 +351,7 @@ class DroneAgent:
         presented: Trajectory | None = None  # one put on plan/<me> reaches every peer
         for action in ordered:
             if isinstance(action, Send):
-                self._send(self.keys.proto(action.to, self.me), from_core(action.message))
+                self._send(self.keys.proto(action.to, self.speaks_as), from_core(action.message))
             elif isinstance(action, Broadcast):
                 # One put that Zenoh fans out to every peer (N - 1 messages on the wire, one call here),
                 # at once: a plan proposed while a decision is handed round is the next in line's.
@@ -473,9 +478,10 @@ class DroneAgent:
         return max(self.stack.now, math.floor((self.clock() - self.epoch_s) / self.ws.tau_s))
 
     def _check_sender(self, key: str, sender: str) -> None:
-        """A peer of this fleet, speaking on its own key (the access control lets only it write there)."""
-        if sender != self.keys.writer(key):
-            raise WireError(f"sender {sender!r} is not the key's writer {self.keys.writer(key)!r}")
+        """A peer of this fleet, speaking on its own key or its host's (the access control lets only it, or
+        that host, write there)."""
+        if not self.speakers.may_say(writer := self.keys.writer(key), sender):
+            raise WireError(f"sender {sender!r} is not the key's writer {writer!r}, nor a drone it flies")
         if sender not in self.stack.protocol.peers:
             raise WireError(f"sender {sender!r} is not a peer of this fleet")
 

@@ -39,7 +39,7 @@ from fleet.agent.drone import BROADCAST, DroneAgent
 from fleet.agent.settings import AgentSettings
 from fleet.clock import cancel_all, periodic
 from fleet.executor import Sample, SetpointFleet, SetpointLoop, StepReport
-from fleet.transport.identity import identity_for
+from fleet.transport.identity import Speakers, identity_for
 from fleet.transport.keys import FleetKeys, check_name
 from fleet.transport.node import ZenohNode, ZenohSettings, agent_endpoint
 from fleet.vehicle.link import REOPEN_S, VehicleLink
@@ -105,8 +105,15 @@ def zenoh_settings(settings: AgentSettings, workspace: Workspace, names: Sequenc
         connect = tuple(agent_endpoint(i) for i, drone in enumerate(drones) if drone not in names)
     plain = ZenohSettings(listen=listen, connect=connect, config_file=settings.zenoh_config, lease_s=settings.lease_s,
                           max_frames=len(workspace.drones))
-    name = identity_for(settings.tls_dir, names) if settings.tls_dir is not None else names[0]
+    name = host_name(settings, names) or names[0]
     return plain.secured(settings.tls_dir, name, FleetKeys(settings.fleet), list(workspace.drones))
+
+
+def host_name(settings: AgentSettings, names: Sequence[str]) -> str | None:
+    """The host a session of several drones speaks as (None: one drone's session, or no TLS to name a host)."""
+    if settings.tls_dir is None or len(names) < 2:
+        return None
+    return identity_for(settings.tls_dir, names)
 
 
 def _shift_port(endpoint: str, offset: int) -> str:
@@ -138,6 +145,8 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
     sessions = await _all_or_none([ZenohNode.open(zenoh_settings(settings, ws, group, host.names.index(group[0])),
                                                   "+".join(group)) for group in groups], lambda node: node.close())
     nodes = [session.view(name) for session, group in zip(sessions, groups, strict=True) for name in group]
+    hosts = {name: host_name(settings, group) for group in groups for name in group}
+    speakers = Speakers.of(settings.tls_dir, ws.drones)
     links: list[VehicleLink] = []
     try:
         # Nothing flies yet: a signal while a vehicle is awaited leaves at once.
@@ -150,7 +159,7 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
         for node, link, name in zip(nodes, links, host.names, strict=True):
             stack = DroneStack(name, config, ws.drones, epoch=time.time_ns() // 1_000_000)
             agent = DroneAgent(stack, node, keys, link, frame, host.clock, record, timeouts(settings),
-                               epoch_s=settings.epoch)
+                               epoch_s=settings.epoch, host=hosts[name], speakers=speakers)
             agent.mail.adopt = settings.adopt_mail
             if not settings.adopt_mail:  # a service dispatches the mail: it clears each for pickup
                 stack.mail.cleared = set()

@@ -5,14 +5,16 @@ drone's id, :data:`SERVICE` for the service (and operators' tools such as ``dron
 :data:`ROUTER` for a Zenoh router. Links are mutual TLS: a node without a certificate of
 the fleet's CA gets no link at all. Zenoh's access control then ties each key to the one
 identity that may write it (:func:`access_control`): drone ``dX`` puts only on its own
-keys (``proto/<to>/dX``, ``answers/dX``, ``plan/dX``, ``state/dX``, ``held/dX``,
+keys (``proto/dX/<to>``, ``answers/dX``, ``plan/dX``, ``state/dX``, ``held/dX``,
 ``mail/status/dX/<mail>``), declares only the liveliness token ``alive/dX``, serves only its
 own queryables; only the service may ask (assign, cancel mail) and declare the token ``service``.
 Everything else is denied.
 A router relays what its clients may say, so what comes from a router is taken as its
 clients': the router enforces the same rules at its ingress. A *host* (a process flying several
 drones in one session, ``--shared-session``: a simulation, or a ground computer) has a certificate
-of its own, and ``hosts.json`` beside the certificates says which drones it speaks for.
+of its own, and ``hosts.json`` beside the certificates says which drones it speaks for. It writes
+its drones' keys, and ``proto/<host>/<to>``: its drones' messages to one drone, joined in one
+sample; a receiver takes each only from a drone that host flies (:class:`Speakers`).
 
 The CA's key signs; keep it off the drones (``drona certs`` makes everything in one
 directory: copy ``ca.pem`` and a node's own folder to each host).
@@ -23,8 +25,8 @@ from __future__ import annotations
 import datetime
 import ipaddress
 import json
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Collection, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -123,6 +125,9 @@ def access_control(keys: FleetKeys, drones: Sequence[str],
         speakers = [drone, *(host for host, flown in hosts.items() if drone in flown)]
         policies.append({"id": f"own-{drone}", "rules": [f"{drone}-{kind}" for kind in ("puts", "token", "serves")],
                          "subjects": speakers})
+    for host in hosts:  # its drones' protocol messages, joined (a receiver checks each one's sender is its drone)
+        rules.append(_rule(f"{host}-puts", ["ingress"], ["put"], [keys.proto("*", check_name("host", host))]))
+        policies.append({"id": f"own-{host}", "rules": [f"{host}-puts"], "subjects": [host]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
 
@@ -140,6 +145,23 @@ def _own_keys(keys: FleetKeys, drone: str) -> list[dict[str, Any]]:
 def _rule(rule_id: str, flows: Sequence[str], messages: Sequence[str], key_exprs: Sequence[str]) -> dict[str, Any]:
     return {"id": rule_id, "permission": "allow", "flows": list(flows), "messages": list(messages),
             "key_exprs": list(key_exprs)}
+
+
+@dataclass(frozen=True)
+class Speakers:
+    """Who may say what comes on a key: its writer, and each drone of a host on the host's keys."""
+
+    hosts: Mapping[str, frozenset[str]] = field(default_factory=dict)  #: host -> the drones it flies
+
+    @classmethod
+    def of(cls, tls_dir: Path | None, drones: Collection[str]) -> Speakers:
+        """The hosts in ``tls_dir``'s ``hosts.json`` (none without TLS: no access control names them), but one
+        named as a drone is."""
+        hosts = read_hosts(tls_dir) if tls_dir is not None else {}
+        return cls({host: frozenset(flown) for host, flown in hosts.items() if host not in drones})
+
+    def may_say(self, writer: str, sender: str) -> bool:
+        return sender == writer or sender in self.hosts.get(writer, ())
 
 
 # ------------------------------------------------------------------ certificates

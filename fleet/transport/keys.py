@@ -2,7 +2,8 @@
 
 =============================  =============================================
 ``alive/<drone>``              liveliness token: the drone is a member
-``proto/<sender>/<drone>``     Protocol 1 messages to the drone (``proto/<sender>/all``: to every drone)
+``proto/<sender>/<drone>``     Protocol 1 messages to the drone (``proto/<sender>/all``: to every drone;
+                               ``proto/<host>/<drone>``: from the drones of a host, joined)
 ``answers/<sender>``           one trajectory answering several drones' requests (each takes its own)
 ``state/<drone>``              the drone's state (published each step; queryable)
 ``plan/<drone>``               the drone's new plan, once made
@@ -16,7 +17,7 @@
 
 Whoever writes a key is named in it (``<sender>``, or the drone the key is of): the fleet's access
 control (:mod:`fleet.transport.identity`) lets only that identity write there, and a receiver
-checks that a message's sender is the key's (:meth:`FleetKeys.writer`).
+checks that a message's sender is the key's (:meth:`FleetKeys.writer`), or a drone of the host that is.
 """
 
 from __future__ import annotations

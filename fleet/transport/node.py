@@ -76,7 +76,8 @@ class ZenohSettings:
     extra: tuple[tuple[str, str], ...] = field(default=())  #: more (key, JSON5 value) pairs
     identity: Identity | None = None  #: mutual TLS with this certificate (None: plain TCP, --insecure)
     access: dict[str, Any] | None = None  #: Zenoh's access_control (see fleet.transport.identity)
-    #: the most messages (lines) one sample may carry: a host gathers one per drone it hosts at most
+    #: the most messages (lines) one sample may carry; a host's gathered puts to one key go in samples of
+    #: at most this many
     max_frames: int | None = None
 
     def config(self) -> zenoh.Config:
@@ -281,10 +282,11 @@ class ZenohNode:
         finally:
             gathered, self._gathered = self._gathered, None
             for to, parts in gathered.items():
-                try:
-                    self._put(to, FRAME_END.join(parts))
-                except zenoh.ZError as exc:  # one key's failure must not lose the others'
-                    log.warning("%s: could not send %d message(s) on %s: %s", self.name, len(parts), to, exc)
+                for chunk in _runs(parts, self.max_frames):  # a peer refuses a sample of more
+                    try:
+                        self._put(to, FRAME_END.join(chunk))
+                    except zenoh.ZError as exc:  # one key's failure must not lose the others'
+                        log.warning("%s: could not send %d message(s) on %s: %s", self.name, len(chunk), to, exc)
 
     # -------------------------------------------------------------- send
     def put(self, key: str, payload: bytes, once: bool = False, now: bool = False) -> None:
@@ -492,6 +494,12 @@ class _Fanout:
             self.subscriber.undeclare()
         except zenoh.ZError as exc:
             log.debug("%s: undeclare: %s", name, exc)
+
+
+def _runs(parts: list[bytes], most: int | None) -> list[list[bytes]]:
+    """``parts`` in runs of at most ``most`` (None: one run)."""
+    step = most or len(parts)
+    return [parts[first:first + step] for first in range(0, len(parts), step)]
 
 
 def _guarded(name: str, callback: Callable[..., None], args: Sequence[Any]) -> None:

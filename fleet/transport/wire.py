@@ -10,7 +10,8 @@ fatal).
 
 The bodies, by key (see :mod:`fleet.transport.keys`):
 
-* ``proto/<sender>/<drone>``: ``req_traj`` and ``cur_traj``, Protocol 1's two messages
+* ``proto/<sender>/<drone>``: ``req_traj`` and ``cur_traj``, Protocol 1's two messages (``<sender>``
+  may be a host: then each frame is from one of its drones)
   (``req_traj`` carries the requester's trajectory: see :mod:`drona_gcs.stack.protocol`).
 * ``proto/<sender>/all``: a ``req_traj`` to everyone; ``propose``, a plan made, and ``decide``, whether
   it is flown (``proto/<sender>/<drone>``: ``ack``, the drone holds the proposal).
