@@ -112,7 +112,7 @@ class DroneAgent:
                  timeouts: Timeouts = DEFAULT_TIMEOUTS, epoch_s: float = 0.0, *, host: str | None = None,
                  speakers: Speakers | None = None) -> None:
         self.me, self.stack, self.node, self.keys = stack.me, stack, node, keys
-        #: the writer its messages to one drone name: its host's (joined with the host's other drones'), or its own
+        #: who its messages to one drone go out as: its host (joined with the host's other drones'), or itself
         self.speaks_as = host or self.me
         self.speakers = speakers or Speakers()
         self.epoch_s = epoch_s  #: the fleet epoch: step k starts at epoch + k tau
