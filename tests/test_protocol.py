@@ -1109,6 +1109,22 @@ def test_a_peer_that_braked_holds_there_until_the_plan_it_made_since_starts() ->
     assert plan.at(5) == (3, 0, 0)
 
 
+@pytest.mark.parametrize("brake_heard_last", [False, True])
+def test_a_peer_down_elsewhere_no_longer_holds_where_it_braked(brake_heard_last: bool) -> None:
+    """Found by the tester (sweep 20242 with --skews 1): b braked on a plan it never flew (its clock off),
+    then its vehicle came down where it was. Its brake held a cell for good, which plans did not avoid: a
+    drone planned into it, braked at once, and planned again, for good, its mail never delivered. A
+    vehicle down stays where it came down: nothing else of it holds, nor does its brake heard late."""
+    proto, plan = flying_past_b()
+    down = PeerDown("b", (6, 6, 0))
+    brake = PeerBraked("b", traj(0, (3, 1), (3, 0), (3, 0)))  # holds (3, 0) from step 2
+    for event in (down, brake) if brake_heard_last else (brake, down):
+        proto.handle(event, 2)
+    assert "b" not in proto.braked
+    assert proto.handle(NextStep(), 4) == []
+    assert proto.trajectory == plan and plan.at(5) == (3, 0, 0)
+
+
 def test_a_peer_that_braked_on_my_plan_has_me_brake_or_plan_anew() -> None:
     """A brake holds a cell that plans made before it did not avoid: the plan flown steers clear of it."""
     proto, plan = flying_past_b()

@@ -713,6 +713,8 @@ class CoordinationProtocol:
         self._reported(event.drone)
         self.peers_down[event.drone] = event.cell
         self.proposals.pop(event.drone, None)
+        self.braked.pop(event.drone, None)  # it stays where it came down: where it braked is free
+        self.held_until.pop(event.drone, None)
         stays = Trajectory.stationary(event.cell, now)
         self.known[event.drone] = stays
         if event.drone in self.received:
@@ -807,8 +809,8 @@ class CoordinationProtocol:
         overrides what it answered of that plan, and the plan I fly steers clear of it as of a vehicle
         down (brake, or plan its rest anew)."""
         drone, cut = event.drone, event.trajectory
-        if drone == self.me or drone not in self.members:
-            return []
+        if drone == self.me or drone not in self.members or drone in self.peers_down:
+            return []  # (a vehicle down stays where it came down, whatever it cut before)
         held = self.braked.get(drone)
         if held is not None and not _cut_overtakes(cut, held):
             return []  # it cut that plan again since, shorter
