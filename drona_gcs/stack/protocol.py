@@ -121,7 +121,9 @@ settled here, and one message it sends is saved (the second point):
   round under way with no plan and plan nothing more, and tell each peer that joins
   (a restarted agent missed the news). A peer told (``PeerDown``)
   holds that cell for good in every plan, takes it over any answer of mine the news
-  overtook, and plans anew the rest of the plan it flies if that crosses it.
+  overtook, and plans anew the rest of the plan it flies if that crosses it. Where I
+  braked before no longer holds: held, it walled off a cell plans did not avoid, and a
+  drone planned into it and braked, for good (found by the tester with a clock off).
 * **Too close to plan around it: brake.** If the plan I fly enters that cell (or one a
   departed drone may hold) before a new
   rest could start (within ``lead_steps``), or a round to plan around it has not ended when
