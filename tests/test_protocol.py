@@ -1125,6 +1125,18 @@ def test_a_peer_down_elsewhere_no_longer_holds_where_it_braked(brake_heard_last:
     assert proto.trajectory == plan and plan.at(5) == (3, 0, 0)
 
 
+def test_a_peer_down_then_restarted_holds_where_it_braked_since() -> None:
+    """A second review: a peer's vehicle came down, its agent was restarted (it left and joined again), and
+    it braked on a plan flown since. That brake is news of its new run, not of the vehicle down."""
+    proto, plan = flying_past_b()
+    proto.handle(PeerDown("b", (6, 6, 0)), 1)
+    proto.handle(PeerLeft("b", silent_since=1), 1)
+    proto.handle(PeerJoined("b", (6, 6, 0)), 1)
+    actions = proto.handle(PeerBraked("b", traj(2, (3, 1), (3, 0), (3, 0))), 2)  # holds (3, 0) from step 3
+    assert [type(a) for a in actions] in ([Threatened], [Braked])
+    assert plan.at(5) == (3, 0, 0)
+
+
 def test_a_peer_that_braked_on_my_plan_has_me_brake_or_plan_anew() -> None:
     """A brake holds a cell that plans made before it did not avoid: the plan flown steers clear of it."""
     proto, plan = flying_past_b()

@@ -811,8 +811,8 @@ class CoordinationProtocol:
         overrides what it answered of that plan, and the plan I fly steers clear of it as of a vehicle
         down (brake, or plan its rest anew)."""
         drone, cut = event.drone, event.trajectory
-        if drone == self.me or drone not in self.members or drone in self.peers_down:
-            return []  # (a vehicle down stays where it came down, whatever it cut before)
+        if drone == self.me or drone not in self.members:
+            return []
         held = self.braked.get(drone)
         if held is not None and not _cut_overtakes(cut, held):
             return []  # it cut that plan again since, shorter
