@@ -319,15 +319,22 @@ def test_a_drone_takes_a_hosts_message_only_from_a_drone_it_flies() -> None:
     ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0,
                          drones={"d1": (0, 0, 0), "d2": (7, 0, 0), "d3": (7, 7, 0)})
 
-    def believed(sender: str) -> bool:
+    def believed(sender: str, key: str = KEYS.proto("d1", "pair")) -> bool:
         stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
         agent = DroneAgent(stack, RecordingNode(), KEYS, ScriptedVehicle(), GeoFrame(ws),  # type: ignore[arg-type]
                            lambda: 1000.0, speakers=Speakers({"pair": frozenset({"d2"})}))
         agent.tick(0)
         x, y, z = ws.drones[sender]
         lie = Trajectory(5, ((x, y, z), (x - 1, y, z)))
-        agent._on_protocol(KEYS.proto("d1", "pair"), encode(sender, 1000.0, answers(lie, {"d9": TaskId(9, "d9", 1)})))
+        agent._on_protocol(key, encode(sender, 1000.0, answers(lie, {"d9": TaskId(9, "d9", 1)})))
         return stack.protocol.known.get(sender) == lie
 
     assert believed("d2")
     assert not believed("d3")
+    assert not believed("d2", KEYS.answers("pair"))  # a host writes its drones' protocol messages only
+
+
+def test_hosts_named_as_a_drone_the_service_or_a_router_speak_for_nobody(tmp_path: Path) -> None:
+    (tmp_path / "hosts.json").write_text('{"pair": ["d2"], "d1": ["d2"], "service": ["d2"], "router": ["d2"]}')
+    assert Speakers.of(tmp_path, DRONES).hosts == {"pair": frozenset({"d2"})}
+    assert Speakers.of(None, DRONES).hosts == {}

@@ -23,7 +23,7 @@ from fleet.sim.transport import UdpLink
 from fleet.transport import node as node_module
 from fleet.transport.gateway import ZenohGateway
 from fleet.transport.keys import FleetKeys, check_name
-from fleet.transport.node import ORDINARY_WAITS_AT_MOST_S, ZenohNode, ZenohSettings, _Inbox
+from fleet.transport.node import ORDINARY_WAITS_AT_MOST_S, ZenohNode, ZenohSettings, _Gathered, _Inbox
 from fleet.transport.wire import (
     VERSION,
     MailOrder,
@@ -66,7 +66,7 @@ def envelope(body: dict[str, object], **over: object) -> bytes:
 
 @pytest.mark.parametrize("payload, problem", [
     (b"not json", "JSON is malformed"),
-    (b'{"v": 12, "sender": "d\xff", "sent_at": 1.0, "body": {"kind": "clock_ping"}}', "not UTF-8"),
+    (b'{"v": 13, "sender": "d\xff", "sent_at": 1.0, "body": {"kind": "clock_ping"}}', "not UTF-8"),
     (envelope({"kind": "clock_ping"}, v=3), "Invalid enum value 3 - at `$.v`"),
     (envelope({"kind": "teleport"}), "Invalid value 'teleport' - at `$.body.kind`"),
     (envelope({"kind": "req_traj", "task_id": {"stamp": "12", "drone": "d1", "seq": 1}}),
@@ -110,7 +110,7 @@ def test_the_wire_format_is_the_documented_json() -> None:
     """Other tools read these bytes: the envelope's fields in order, the body tagged by its kind."""
     request = ReqForCurrentTraj(TASK, "d1", Trajectory(40, ((1, 2, 0), (2, 2, 0))), ("d2",))
     payload = encode("d1", 5.5, from_core(request))
-    assert payload == (b'{"v":12,"sender":"d1","sent_at":5.5,"body":{"kind":"req_traj",'
+    assert payload == (b'{"v":13,"sender":"d1","sent_at":5.5,"body":{"kind":"req_traj",'
                        b'"task_id":{"stamp":%d,"drone":"%s","seq":%d,"epoch":0},'
                        b'"trajectory":{"start_step":40,"cells":[[1,2,0],[2,2,0]]},"asked":["d2"],"holds":[],"clear":[]}}'
                        % (TASK.stamp, TASK.drone.encode(), TASK.seq))
@@ -356,6 +356,19 @@ def test_the_answers_of_a_sessions_drones_to_one_request_travel_as_one_message(n
         assert messages[0].split(b"\n") == answers[:3]
     else:
         assert [m.split(b"\n") for m in messages[:2]] == [answers[:2], answers[2:3]]
+
+
+def test_gathered_puts_join_by_key_and_never_send_a_nodes_put_before_its_earlier_one() -> None:
+    """d2 and d3 (one host) ack on one key: one message. d3 then answers on its own key, and acks again on
+    the first: joined to the first message, that ack would go out before d3's answer."""
+    gathered = _Gathered()
+    gathered.add("d2", "proto/pair/d1", b"ack d2")
+    gathered.add("d3", "proto/pair/d1", b"ack d3")
+    gathered.add("d3", "answers/d3", b"answer d3")
+    gathered.add("d3", "proto/pair/d1", b"again d3")
+    gathered.add("d2", "proto/pair/d1", b"again d2")
+    assert gathered.runs == [("proto/pair/d1", [b"ack d2", b"ack d3"]), ("answers/d3", [b"answer d3"]),
+                             ("proto/pair/d1", [b"again d3", b"again d2"])]
 
 
 #: A fleet peer in a process of its own, as an agent is: it listens where the gateway connects, says

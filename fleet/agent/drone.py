@@ -1,9 +1,10 @@
 """One drone's agent: the core stack wired to Zenoh, to its vehicle and to the local clock.
 
 Everything the stack decides comes back as actions, carried out here:
-protocol messages go out on ``proto/<peer>``, requests to everyone on
-``proto/all`` (one put that Zenoh fans out; a round is 2(N-1) messages,
-fewer when drones coordinate at once: a request is its sender's answer to
+protocol messages go out on ``proto/<me>/<peer>`` (``proto/<host>/<peer>`` when a host flies
+several drones in one session), requests to everyone on ``proto/<me>/all``
+(one put that Zenoh fans out; a round is 2(N-1) messages, fewer when drones
+coordinate at once: a request is its sender's answer to
 those before it in line), a plan made to everyone (``propose``), each member's ``ack``, whether
 it is flown to everyone (``decide``), then its answers to the drones that waited for it on
 ``answers`` (one put, each of them takes its own), mail progress on
@@ -478,10 +479,13 @@ class DroneAgent:
         return max(self.stack.now, math.floor((self.clock() - self.epoch_s) / self.ws.tau_s))
 
     def _check_sender(self, key: str, sender: str) -> None:
-        """A peer of this fleet, speaking on its own key or its host's (the access control lets only it, or
-        that host, write there)."""
-        if not self.speakers.may_say(writer := self.keys.writer(key), sender):
-            raise WireError(f"sender {sender!r} is not the key's writer {writer!r}, nor a drone it flies")
+        """A peer of this fleet, speaking on its own key, or on its host's protocol key (the access control
+        lets only it, or that host, write there)."""
+        writer = self.keys.writer(key)
+        if sender != writer and not (FleetKeys.is_proto(key) and self.speakers.flies(writer, sender)):
+            unknown = writer not in self.stack.protocol.peers and writer not in self.speakers.hosts
+            raise WireError(f"sender {sender!r} is not the key's writer {writer!r}" + (
+                f" (no host {writer!r} in the hosts.json beside this drone's certificates)" if unknown else ""))
         if sender not in self.stack.protocol.peers:
             raise WireError(f"sender {sender!r} is not a peer of this fleet")
 

@@ -149,19 +149,20 @@ def _rule(rule_id: str, flows: Sequence[str], messages: Sequence[str], key_exprs
 
 @dataclass(frozen=True)
 class Speakers:
-    """Who may say what comes on a key: its writer, and each drone of a host on the host's keys."""
+    """The drones each host flies: on ``proto/<host>/<to>``, each frame is from one of them."""
 
     hosts: Mapping[str, frozenset[str]] = field(default_factory=dict)  #: host -> the drones it flies
 
     @classmethod
     def of(cls, tls_dir: Path | None, drones: Collection[str]) -> Speakers:
         """The hosts in ``tls_dir``'s ``hosts.json`` (none without TLS: no access control names them), but one
-        named as a drone is."""
+        named as a drone, the service or a router is."""
         hosts = read_hosts(tls_dir) if tls_dir is not None else {}
-        return cls({host: frozenset(flown) for host, flown in hosts.items() if host not in drones})
+        taken = {*drones, SERVICE, ROUTER}
+        return cls({host: frozenset(flown) for host, flown in hosts.items() if host not in taken})
 
-    def may_say(self, writer: str, sender: str) -> bool:
-        return sender == writer or sender in self.hosts.get(writer, ())
+    def flies(self, host: str, drone: str) -> bool:
+        return drone in self.hosts.get(host, ())
 
 
 # ------------------------------------------------------------------ certificates

@@ -90,6 +90,11 @@ class FleetKeys:
         return key.rsplit("/", 1)[-1]
 
     @staticmethod
+    def is_proto(key: str) -> bool:
+        """Whether ``key`` carries Protocol 1 messages (``proto/<sender>/<to>``)."""
+        return key.split("/")[2:3] == ["proto"]
+
+    @staticmethod
     def writer(key: str) -> str:
         """Who may write ``key`` (of any fleet): its sender chunk, or the drone the key is of."""
         chunks = key.split("/")[2:]  # after drona/<fleet>/

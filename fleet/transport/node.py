@@ -17,7 +17,8 @@ subscriber, so a broadcast crosses into Python once per process.
 
 A subscription may *gather* (``subscribe(..., gather=True)``): what the
 session's nodes put while its sample is handed round goes out at the end, one
-message per key. A request to everyone reaches every drone of a host at once;
+message per key (in runs of at most ``max_frames``, and split where joining would send a node's
+put before one it made earlier). A request to everyone reaches every drone of a host at once;
 their answers to the requester then cross the network, and its event loop, as
 one message instead of one per drone (a put ``now`` goes at once: a key only one
 node puts to gathers nothing). Payloads are framed with newlines (a
@@ -178,7 +179,7 @@ class ZenohNode:
         self._declared: list[Any] = []
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._pending: set[asyncio.Future[None]] = set()  #: queries waiting for their last reply
-        self._gathered: dict[str, list[bytes]] | None = None  #: puts held while a gathering sample is handed round
+        self._gathered: _Gathered | None = None  #: puts held while a gathering sample is handed round
         self.closed = False
         self.max_frames: int | None = None  #: see ZenohSettings.max_frames
         self._refused = Throttled(log)
@@ -275,13 +276,13 @@ class ZenohNode:
             for frame in frames:
                 fanout.deliver(key, frame)
             return
-        self._gathered = {}
+        self._gathered = _Gathered()
         try:
             for frame in frames:
                 fanout.deliver(key, frame)
         finally:
             gathered, self._gathered = self._gathered, None
-            for to, parts in gathered.items():
+            for to, parts in gathered.runs:
                 for chunk in _runs(parts, self.max_frames):  # a peer refuses a sample of more
                     try:
                         self._put(to, FRAME_END.join(chunk))
@@ -300,7 +301,7 @@ class ZenohNode:
             raise ValueError(f"{self.name}: a payload for {key} holds a newline, the transport's frame end")
         root = self.owner or self
         if root._gathered is not None and not once and not now:
-            root._gathered.setdefault(key, []).append(payload)
+            root._gathered.add(self.name, key, payload)
             return
         self._put(key, payload, once)
 
@@ -494,6 +495,24 @@ class _Fanout:
             self.subscriber.undeclare()
         except zenoh.ZError as exc:
             log.debug("%s: undeclare: %s", name, exc)
+
+
+@dataclass
+class _Gathered:
+    """Puts held while a sample is handed round: runs of puts to one key, sent in order. A put joins its
+    key's newest run unless its node has put to a later run since (it would go out before that put)."""
+
+    runs: list[tuple[str, list[bytes]]] = field(default_factory=list)
+    newest: dict[str, int] = field(default_factory=dict)  #: key -> its newest run
+    last: dict[str, int] = field(default_factory=dict)  #: node -> the run of its newest put
+
+    def add(self, node: str, key: str, payload: bytes) -> None:
+        run = self.newest.get(key)
+        if run is None or self.last.get(node, -1) > run:
+            run = self.newest[key] = len(self.runs)
+            self.runs.append((key, []))
+        self.runs[run][1].append(payload)
+        self.last[node] = run
 
 
 def _runs(parts: list[bytes], most: int | None) -> list[list[bytes]]:

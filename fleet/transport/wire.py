@@ -73,7 +73,8 @@ from drona_gcs.stack.messages import (
 #: 9: ``propose``, ``ack`` and ``decide``: a plan is flown once every member holds it; ``plan`` says ``lost``.
 #: 10: ``held`` lists mail handed back that no peer holds yet, and a status says ``handed_back``; ``refuse``.
 #: 11: ``mail_clear``, the service's clearance to take a mail on board.
-VERSION: Final = 12
+#: 13: a host's drones send to one drone on ``proto/<host>/<to>``, several messages in one.
+VERSION: Final = 13
 
 CellList = Annotated[list[int], msgspec.Meta(min_length=3, max_length=3)]
 #: A mail id is a Zenoh key chunk (mail/status/<id>); \Z, not $: "$" would let a final newline through.
@@ -347,7 +348,7 @@ Body = (ReqTraj | CurTraj | CurTrajTo | Propose | Ack | Refuse | Decide | PlanAn
 
 
 class Envelope(_Strict, frozen=True, kw_only=True):
-    v: Literal[12] = VERSION
+    v: Literal[13] = VERSION
     sender: Annotated[str, msgspec.Meta(min_length=1)]
     sent_at: float
     body: Body
