@@ -371,6 +371,53 @@ def test_gathered_puts_join_by_key_and_never_send_a_nodes_put_before_its_earlier
                              ("proto/pair/d1", [b"again d3", b"again d2"])]
 
 
+def test_a_put_that_goes_at_once_sends_what_its_node_gathered_before_it() -> None:
+    """d3 acks a proposal (gathered), then proposes its own plan at once: its ack goes first, with what was
+    gathered before it; what comes after starts anew."""
+    gathered = _Gathered()
+    gathered.add("d2", "proto/pair/d1", b"ack d2")
+    gathered.add("d3", "proto/pair/d1", b"ack d3")
+    gathered.add("d4", "answers/d4", b"answer d4")
+    assert gathered.due("d3") == [("proto/pair/d1", [b"ack d2", b"ack d3"])]
+    assert gathered.due("d5") == []  # nothing of d5's gathered: nothing to send first
+    gathered.add("d2", "proto/pair/d1", b"again d2")
+    assert gathered.due() == [("answers/d4", [b"answer d4"]), ("proto/pair/d1", [b"again d2"])]
+
+
+def test_a_put_at_once_leaves_after_what_its_node_put_before_in_the_round() -> None:
+    """Over real sessions: a drone handed a request to everyone answers one peer (gathered), then puts a
+    plan at once; the peer gets the answer first."""
+    endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+
+    async def scenario() -> list[bytes]:
+        host = await ZenohNode.open(ZenohSettings(listen=(endpoint,)), "host")
+        peer = await ZenohNode.open(ZenohSettings(connect=(endpoint,)), "peer")
+        got: list[bytes] = []
+        try:
+            view = host.view("a")
+
+            def on_request(key: str, payload: bytes) -> None:
+                view.put("t/answer", b"answer")
+                view.put("t/plan", b"plan", now=True)
+
+            view.subscribe("t/all", on_request, gather=True)
+            peer._declared.append(peer.session.declare_subscriber(
+                "t/*", lambda sample: got.append(sample.payload.to_bytes()) if str(sample.key_expr) != "t/all"
+                else None))
+            for _ in range(100):  # until the host's subscription has reached the peer
+                peer.put("t/all", b"request")
+                await asyncio.sleep(0.05)
+                if len(got) >= 2:
+                    break
+            return got
+        finally:
+            await peer.close()
+            await host.close()
+
+    got = asyncio.run(scenario())
+    assert got[:2] == [b"answer", b"plan"]
+
+
 #: A fleet peer in a process of its own, as an agent is: it listens where the gateway connects, says
 #: "up", and closes its session when its stdin ends, then exits.
 PEER = """

@@ -282,27 +282,33 @@ class ZenohNode:
                 fanout.deliver(key, frame)
         finally:
             gathered, self._gathered = self._gathered, None
-            for to, parts in gathered.runs:
-                for chunk in _runs(parts, self.max_frames):  # a peer refuses a sample of more
-                    try:
-                        self._put(to, FRAME_END.join(chunk))
-                    except zenoh.ZError as exc:  # one key's failure must not lose the others'
-                        log.warning("%s: could not send %d message(s) on %s: %s", self.name, len(chunk), to, exc)
+            self._send_runs(gathered.due())
+
+    def _send_runs(self, runs: list[tuple[str, list[bytes]]]) -> None:
+        for to, parts in runs:
+            for chunk in _runs(parts, self.max_frames):  # a peer refuses a sample of more
+                try:
+                    self._put(to, FRAME_END.join(chunk))
+                except zenoh.ZError as exc:  # one key's failure must not lose the others'
+                    log.warning("%s: could not send %d message(s) on %s: %s", self.name, len(chunk), to, exc)
 
     # -------------------------------------------------------------- send
     def put(self, key: str, payload: bytes, once: bool = False, now: bool = False) -> None:
         """Reliable; blocks rather than drop when the link is congested. ``once``: a key used
         once (a mail's status), put without declaring a publisher that would live on. While the
         session hands round a gathering sample, held and sent with the other puts to ``key``, unless
-        ``now``: a key only this node puts to gathers nothing, and peers may wait on it."""
+        ``now``: a key only this node puts to gathers nothing, and peers may wait on it (what this node
+        put before goes first)."""
         if self.closed:
             return
         if FRAME_END in payload:
             raise ValueError(f"{self.name}: a payload for {key} holds a newline, the transport's frame end")
         root = self.owner or self
-        if root._gathered is not None and not once and not now:
-            root._gathered.add(self.name, key, payload)
-            return
+        if root._gathered is not None and not once:
+            if not now:
+                root._gathered.add(self.name, key, payload)
+                return
+            root._send_runs(root._gathered.due(self.name))
         self._put(key, payload, once)
 
     def _put(self, key: str, payload: bytes, once: bool = False) -> None:
@@ -505,14 +511,21 @@ class _Gathered:
     runs: list[tuple[str, list[bytes]]] = field(default_factory=list)
     newest: dict[str, int] = field(default_factory=dict)  #: key -> its newest run
     last: dict[str, int] = field(default_factory=dict)  #: node -> the run of its newest put
+    sent: int = 0  #: the runs before this one are sent
 
     def add(self, node: str, key: str, payload: bytes) -> None:
         run = self.newest.get(key)
-        if run is None or self.last.get(node, -1) > run:
+        if run is None or run < self.sent or self.last.get(node, -1) > run:
             run = self.newest[key] = len(self.runs)
             self.runs.append((key, []))
         self.runs[run][1].append(payload)
         self.last[node] = run
+
+    def due(self, node: str | None = None) -> list[tuple[str, list[bytes]]]:
+        """The runs not sent yet, in order: all, or (before ``node`` puts at once) up to its newest put's."""
+        end = len(self.runs) if node is None else self.last.get(node, -1) + 1
+        due, self.sent = self.runs[self.sent:end], max(self.sent, end)
+        return due
 
 
 def _runs(parts: list[bytes], most: int | None) -> list[list[bytes]]:
