@@ -17,7 +17,7 @@ from drona_gcs.stack.messages import CurrentTraj, Message, PlanAck, PlanDecision
 from drona_gcs.stack.protocol import Braked, State
 from drona_gcs.workspace import Cell, Workspace
 from fleet.agent.drone import DroneAgent
-from fleet.executor import Sample, StepReport
+from fleet.setpoint_loop import Sample, StepReport
 from fleet.transport.keys import FleetKeys
 from fleet.transport.wire import (
     CommandAck,

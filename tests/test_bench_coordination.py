@@ -15,7 +15,7 @@ import yaml
 
 from drona_gcs.stack.protocol import State
 from drona_gcs.workspace_files import workspace_from_mapping
-from fleet.bench_coordination import (
+from fleet.bench.coordination import (
     PlanLatencies,
     _between_rounds,
     audit_records,

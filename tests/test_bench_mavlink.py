@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from fleet.bench_mavlink import expected_rate
+from fleet.bench.mavlink import expected_rate
 from fleet.cli import main as drona_main
 
 TINY = ["bench", "mavlink", "--vehicles", "4", "--seconds", "2", "--warmup", "1", "--loops", "2", "--tau", "0.2",

@@ -12,12 +12,12 @@ from typing import Any
 
 import pytest
 
-from api.bench import Result as ApiResult
-from fleet import bench_plot
-from fleet.bench_coordination import CoordinationResult
-from fleet.bench_mavlink import JitterRow, TelemetryRow
+from fleet.bench import plot as bench_plot
+from fleet.bench.api import Result as ApiResult
+from fleet.bench.coordination import CoordinationResult
+from fleet.bench.mavlink import JitterRow, TelemetryRow
+from fleet.bench.planner import Row
 from fleet.cli import main
-from fleet.cli.bench import Row
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 SVG = "{http://www.w3.org/2000/svg}svg"

@@ -85,7 +85,7 @@ def test_the_planner_runs_compiled_where_the_build_had_to_compile_it() -> None:
 _STREAM = """
 import json, random, sys
 import drona_gcs.planner as planner
-from drona_gcs.bench.workload import TaskStream, random_workspace
+from drona_gcs.workload import TaskStream, random_workspace
 from drona_gcs.errors import NoPlanFound
 from drona_gcs.planner import sipp
 

@@ -6,11 +6,11 @@ import random
 
 import pytest
 
-from drona_gcs.bench.workload import TaskStream, random_workspace
 from drona_gcs.errors import NoPlanFound
 from drona_gcs.motion import Primitive, Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.safety import check_trajectory
+from drona_gcs.workload import TaskStream, random_workspace
 
 
 @pytest.mark.parametrize(("width", "drones", "delta"), [(12, 10, 0), (16, 16, 1), (20, 24, 0)])

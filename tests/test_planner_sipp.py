@@ -20,13 +20,13 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from drona_gcs.bench.workload import TaskStream, random_workspace
 from drona_gcs.errors import NoPlanFound
 from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.planner.astar import search
 from drona_gcs.planner.reservations import ALWAYS_FREE, FOREVER, ReservationTable
 from drona_gcs.safety import check_trajectory
+from drona_gcs.workload import TaskStream, random_workspace
 from tests.test_planner_properties import (
     Problem,
     _settings,

@@ -14,7 +14,7 @@ from drona_gcs.geo import GeoFrame, Ned
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.executor import Completed, ExecutorAction, PlanExecutor
 from drona_gcs.workspace import Cell, Workspace
-from fleet.executor import Sample, SetpointLoop, StepReport
+from fleet.setpoint_loop import Sample, SetpointLoop, StepReport
 from fleet.vehicle.link import Position
 
 WS = Workspace.build(size=(6, 4, 1), cell_size_m=4.0, tau_s=0.1)

@@ -27,7 +27,6 @@ from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, TypeVar
 
-from drona_gcs.bench.workload import random_workspace
 from drona_gcs.dispatch import Candidate, choose_drone
 from drona_gcs.errors import ProblemError
 from drona_gcs.motion import Trajectory
@@ -61,6 +60,7 @@ from drona_gcs.stack.protocol import (
 )
 from drona_gcs.verify.monitors import SKEW_STEPS, Flier, Monitors, cell_text, cells_text
 from drona_gcs.verify.mutants import planner_delta, plant
+from drona_gcs.workload import random_workspace
 from drona_gcs.workspace import Cell, Workspace
 
 Transition = tuple[str, int]

@@ -59,8 +59,8 @@ from fleet.agent.maildesk import MailDesk
 from fleet.agent.outbox import Answers, Decided, coalesced, urgency
 from fleet.agent.vehicle import VehicleSupervisor
 from fleet.agent.watch import Seen, VehicleWatch, Verdict, record_line
-from fleet.executor import Sample, SetpointLoop, StepReport
 from fleet.logs import Throttled
+from fleet.setpoint_loop import Sample, SetpointLoop, StepReport
 from fleet.transport.identity import Speakers
 from fleet.transport.keys import FleetKeys
 from fleet.transport.node import Query, ZenohNode

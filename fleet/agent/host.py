@@ -38,7 +38,7 @@ from fleet import runtime
 from fleet.agent.drone import BROADCAST, DroneAgent
 from fleet.agent.settings import AgentSettings
 from fleet.clock import cancel_all, periodic
-from fleet.executor import Sample, SetpointFleet, SetpointLoop, StepReport
+from fleet.setpoint_loop import Sample, SetpointFleet, SetpointLoop, StepReport
 from fleet.transport.identity import Speakers, identity_for
 from fleet.transport.keys import FleetKeys, check_name
 from fleet.transport.node import ZenohNode, ZenohSettings, agent_endpoint

@@ -39,7 +39,7 @@ from drona_gcs.stack.drone import default_lead_steps
 from drona_gcs.stack.protocol import State
 from drona_gcs.workspace import Cell, Workspace
 from drona_gcs.workspace_files import load_workspace
-from fleet import bench_plot
+from fleet.bench import plot as bench_plot
 from fleet.sim.ports import free_port_block, free_udp_base
 from fleet.transport.fleet_client import FleetClient
 from fleet.transport.identity import SERVICE, make_certs
@@ -386,6 +386,24 @@ def default_processes() -> int:
     (measured on 2 cores, 32 agents, interleaved: 4 processes p50 26-27 ms and CPU per agent
     6.1-6.6 ms/s; 2 processes 18-24 ms and 5.1-5.5 ms/s)."""
     return len(os.sched_getaffinity(0))
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--agents", type=int,
+                        help="agents, each with its own fake vehicle (default 32; 8 with --quick)")
+    parser.add_argument("--seconds", type=float, help="how long to keep them busy (default 60; 15 with --quick)")
+    parser.add_argument("--processes", type=int,
+                        help="agent processes the agents are spread over (default: one per CPU core available)")
+    parser.add_argument("--session-per-drone", action="store_true",
+                        help="each agent with its own Zenoh session, as on a real fleet (default: the agents of a "
+                             "process share one, `drona agent --shared-session`, under a host certificate)")
+    parser.add_argument("--insecure", action="store_true",
+                        help="plain TCP (default: mutual TLS and the fleet's access control, with certificates made "
+                             "for the run)")
+    parser.add_argument("--record", type=Path, help="record every drone's flight here (JSON Lines, with the "
+                        "workspace beside it) and audit it after the run")
+    parser.add_argument("--steady-after", type=float, default=10.0,
+                        help="also report the plans after this many seconds, past the opening burst (default 10)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -27,10 +27,10 @@ if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-    from api.bench import Result as ApiResult
-    from fleet.bench_coordination import CoordinationResult
-    from fleet.bench_mavlink import JitterRow, TelemetryRow
-    from fleet.cli.bench import Row
+    from fleet.bench.api import Result as ApiResult
+    from fleet.bench.coordination import CoordinationResult
+    from fleet.bench.mavlink import JitterRow, TelemetryRow
+    from fleet.bench.planner import Row
 
 FORMATS = {".png": "png", ".svg": "svg"}
 INSTALL = "pip install 'drona-gcs[plot]' (or matplotlib>=3.8)"
@@ -116,7 +116,7 @@ def planner_figure(rows: Sequence[Row]) -> Figure:
 
 
 def mavlink_figure(rows: Sequence[TelemetryRow | JitterRow]) -> Figure:
-    from fleet.bench_mavlink import TelemetryRow
+    from fleet.bench.mavlink import TelemetryRow
 
     figure, axes = _figure(panels=len(rows), width=6.0)
     for ax, row in zip(axes, rows, strict=True):
@@ -155,7 +155,7 @@ def coordination_figure(result: CoordinationResult) -> Figure:
 def api_figure(result: ApiResult) -> Figure:
     figure, (ax,) = _figure()
     _bars(ax, ["p50", "p90", "p99", "max"], [result.p50_ms, result.p90_ms, result.p99_ms, result.max_ms])
-    from api.bench import TARGET_P99_MS
+    from fleet.bench.api import TARGET_P99_MS
 
     _target(ax, TARGET_P99_MS, f"p99 target {TARGET_P99_MS:g} ms")
     ax.set_ylabel("submission latency, ms")

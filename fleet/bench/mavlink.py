@@ -13,10 +13,10 @@ Two measurements, each with the issue's target beside it:
    are read for each process (``/proc/<pid>/stat`` for the vehicles, ``time.process_time`` here),
    so the vehicles' cost and the links' cost come out separately, per vehicle.
 2. **Setpoint jitter.** ``--loops`` vehicles (default 32) in a second subprocess, one link and one
-   :class:`~fleet.executor.SetpointLoop` each, run by one :class:`~fleet.executor.SetpointFleet`
+   :class:`~fleet.setpoint_loop.SetpointLoop` each, run by one :class:`~fleet.setpoint_loop.SetpointFleet`
    as an agent process hosting several drones does, all sharing one epoch at ``--tau`` (1 s): every
    loop takes ``--boundaries`` step boundaries of a trajectory that shuttles between two cells,
-   and the p50/p99/max of :attr:`~fleet.executor.StepReport.late_s` over all of them is the jitter.
+   and the p50/p99/max of :attr:`~fleet.setpoint_loop.StepReport.late_s` over all of them is the jitter.
    The vehicles stay on the ground (the setpoints still travel and are decoded): the jitter is the
    ground station's, and flying would only add the arming sequence to the run.
 
@@ -47,17 +47,17 @@ from drona_gcs.geo import GeoFrame
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.executor import ExecutorAction, PlanExecutor
 from drona_gcs.workspace import Workspace
-from fleet import bench_plot
-from fleet.executor import SetpointFleet, SetpointLoop, StepReport
+from fleet.bench import plot as bench_plot
+from fleet.setpoint_loop import SetpointFleet, SetpointLoop, StepReport
 from fleet.sim.fleet import DEFAULT_HOME, DEFAULT_SPACING_M
 from fleet.sim.ports import free_udp_base
 from fleet.vehicle import mavlink_link
 from fleet.vehicle.mavlink_link import PymavlinkLink
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 HOST = "127.0.0.1"
 
-#: The issue's targets (the options' defaults are in fleet.cli.bench, which must not import this module).
+#: The issue's targets (the options take them when not given).
 TARGET_VEHICLES = 128
 TARGET_STREAM_HZ = 10.0
 TARGET_LOOPS = 32
@@ -158,6 +158,19 @@ def settings(args: argparse.Namespace) -> Settings:
     if not s.warmup >= 0:
         raise ValueError(f"--warmup must be >= 0, got {s.warmup}")
     return s
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--vehicles", type=int, help="vehicles and links for telemetry (default 128; 16 with --quick)")
+    parser.add_argument("--seconds", type=float, help="seconds of telemetry measured (default 20; 5 with --quick)")
+    parser.add_argument("--warmup", type=float, default=2.0, help="seconds of telemetry before measuring (default 2)")
+    parser.add_argument("--stream-hz", type=float, default=10.0, help="telemetry rate the links ask for (default 10)")
+    parser.add_argument("--loops", type=int, help="setpoint loops for the jitter (default 32; 8 with --quick)")
+    parser.add_argument("--tau", type=float, default=1.0, help="seconds per step (default 1)")
+    parser.add_argument("--boundaries", type=int, help="step boundaries per loop (default 20; 5 with --quick)")
+    parser.add_argument("--rate-hz", type=float, default=10.0,
+                        help="Hz at which each link repeats its setpoint (default 10)")
+    parser.add_argument("--only", choices=["telemetry", "jitter"], help="run only one of the two measurements")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -29,9 +29,10 @@ from pathlib import Path
 from urllib.parse import urlsplit
 
 from api.validation import MailChecker
-from drona_gcs.bench.workload import random_workspace
+from drona_gcs.workload import random_workspace
 from drona_gcs.workspace import Workspace
-from fleet import bench_plot, runtime
+from fleet import runtime
+from fleet.bench import plot as bench_plot
 
 Pair = tuple[tuple[int, int, int], tuple[int, int, int]]  #: a pickup and a drop-off
 TARGET_RATE = 1000.0
@@ -57,14 +58,13 @@ class Result:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The options of ``bench api`` only; it shares ``--quick``, ``--json``, ``--seconds``, ``--warmup`` and
-    ``--seed`` with the other benchmarks (:func:`main` adds those when run on its own)."""
-    group = parser.add_argument_group("bench api")
-    group.add_argument("--rate", type=float, default=TARGET_RATE, help="submissions per second (default 1000)")
-    group.add_argument("--connections", type=int, default=64, help="keep-alive connections (default 64)")
-    group.add_argument("--sim-drones", type=int, default=8, help="simulated drones flying the mail (default 8)")
-    group.add_argument("--url", help="measure this running service instead of starting one")
-    group.add_argument("--token", help="with --url: an operator or submitter token")
+    parser.add_argument("--seconds", type=float, help="seconds measured (default 10; 3 with --quick)")
+    parser.add_argument("--warmup", type=float, default=2.0, help="seconds at the rate before measuring (default 2)")
+    parser.add_argument("--rate", type=float, default=TARGET_RATE, help="submissions per second (default 1000)")
+    parser.add_argument("--connections", type=int, default=64, help="keep-alive connections (default 64)")
+    parser.add_argument("--sim-drones", type=int, default=8, help="simulated drones flying the mail (default 8)")
+    parser.add_argument("--url", help="measure this running service instead of starting one")
+    parser.add_argument("--token", help="with --url: an operator or submitter token")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -260,18 +260,3 @@ def _print(result: Result, as_json: bool) -> None:
         print(f"  durable       {r.stored} mails in the database after the run (201 answers: {r.created})")
     print(f"  target        >= {TARGET_RATE:.0f}/s with p99 <= {TARGET_P99_MS:.0f} ms: "
           f"{'yes' if r.meets_target else 'NO'}")
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m api.bench", description=__doc__.split("\n")[0])
-    parser.add_argument("--quick", action="store_true", help="3 s measured instead of 10")
-    parser.add_argument("--json", action="store_true", help="print one JSON object")
-    parser.add_argument("--seconds", type=float, help="seconds measured (default 10; 3 with --quick)")
-    parser.add_argument("--warmup", type=float, default=2.0, help="seconds at the rate before measuring (default 2)")
-    parser.add_argument("--seed", type=int, default=2017)
-    add_arguments(parser)
-    return run(parser.parse_args(argv))
-
-
-if __name__ == "__main__":
-    sys.exit(main())

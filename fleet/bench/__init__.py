@@ -1,0 +1,1 @@
+"""The benchmarks behind ``drona bench`` (see :mod:`fleet.cli.bench`), one module each."""
