@@ -122,7 +122,8 @@ class AlarmBook:
     def __init__(self, store: Store, on_change: ChangeListener) -> None:
         self.store = store
         self.on_change = on_change
-        self._open: set[tuple[str, str]] = {(a.drone, a.kind) for a in recent(store.reader, 10_000, open_only=True)}
+        open_now = store.read(lambda c: recent(c, 10_000, open_only=True))
+        self._open: set[tuple[str, str]] = {(a.drone, a.kind) for a in open_now}
         self._ops: asyncio.Queue[tuple[str, _Op]] = asyncio.Queue()
 
     def observe(self, drone: str, texts: Iterable[str], at: float) -> None:
@@ -159,7 +160,7 @@ class AlarmBook:
                 alarm = await self.store.write(op)
                 if alarm is not None:
                     self.on_change(alarm, what)
-            except (sqlite3.Error, ApiError) as exc:  # the alarm is still shown on its drone
+            except ApiError as exc:  # the alarm is still shown on its drone
                 log.error("an alarm change was not stored: %s", exc)
             finally:
                 self._ops.task_done()

@@ -73,7 +73,8 @@ class FleetCommands:
 
     def restore(self) -> None:
         """After a restart: the fleet paused, and the drones held, as the recorded commands left them."""
-        for action, drone in self.store.reader.execute("SELECT action, drone FROM command ORDER BY n"):
+        rows = self.store.read(lambda c: c.execute("SELECT action, drone FROM command ORDER BY n").fetchall())
+        for action, drone in rows:
             self._apply(Action(action), drone)
 
     def _apply(self, action: Action, drone: str | None) -> None:
@@ -90,8 +91,8 @@ class FleetCommands:
 
     def history(self, limit: int) -> list[CommandRecord]:
         """The newest ``limit`` commands, newest first."""
-        rows = self.store.reader.execute(
-            "SELECT n, at, by, action, drone, acks FROM command ORDER BY n DESC LIMIT ?", (limit,)).fetchall()
+        rows = self.store.read(lambda c: c.execute(
+            "SELECT n, at, by, action, drone, acks FROM command ORDER BY n DESC LIMIT ?", (limit,)).fetchall())
         return [CommandRecord(n, at, by, Action(action), drone, tuple(CommandAck(**a) for a in json.loads(acks)))
                 for n, at, by, action, drone, acks in rows]
 

@@ -6,6 +6,7 @@
         ├── IllegalTransition     a mail cannot go from its status to the one asked (names both)
         ├── MailNotFound          no mail has that id (for this caller)
         ├── IdempotencyConflict   an Idempotency-Key was reused with another request
+        ├── StoreError            the database could not be opened, read or written (answered 503)
         └── ConfigError           the settings cannot run a service (no token, bad token file, ...)
 """
 
@@ -49,6 +50,11 @@ class IdempotencyConflict(ApiError):
         self.key = key
         self.mail_id = mail_id
         super().__init__(f"Idempotency-Key {key!r} was already used for mail {mail_id} with another request")
+
+
+class StoreError(ApiError):
+    """SQLite failed (the message names the file and what SQLite said): a full disk, a file that is not
+    a database, a lock held too long. Mapped from ``sqlite3.Error`` in one place, :mod:`api.store`."""
 
 
 class ConfigError(ApiError):

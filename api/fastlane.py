@@ -20,7 +20,8 @@ from fastapi.exceptions import RequestValidationError
 from starlette.exceptions import HTTPException
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from api.handlers import http_error, validation_error
+from api.errors import StoreError
+from api.handlers import http_error, store_unavailable, validation_error
 
 Endpoint = Callable[[Request], Awaitable[Response]]
 
@@ -43,4 +44,6 @@ class FastLane:
             response = await validation_error(request, exc)
         except HTTPException as exc:
             response = await http_error(request, exc)
+        except StoreError as exc:
+            response = await store_unavailable(request, exc)
         await response(scope, receive, send)

@@ -4,10 +4,13 @@
   (``msg``). What it echoes back (``input``, ``ctx``) is made JSON-safe first: a body with
   ``1e400`` or ``NaN`` in it gets its 422, not a 500 from the JSON encoder.
 * :func:`http_error`: FastAPI's answer, except that a 405's ``Allow`` lists every method of the path.
+* :func:`store_unavailable`: a 503 when the database failed (:class:`~api.errors.StoreError`); what SQLite
+  said goes to the log, not to the caller. Nothing was stored: a retry (with its Idempotency-Key) is safe.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from typing import Any
 
@@ -19,6 +22,10 @@ from fastapi.routing import iter_route_contexts
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException
 
+from api.errors import StoreError
+
+log = logging.getLogger(__name__)
+RETRY_AFTER_S = 1  #: a 503's Retry-After
 #: What a mount of static files answers to.
 STATIC_METHODS = frozenset({"GET", "HEAD"})
 
@@ -34,6 +41,13 @@ async def http_error(request: Request, exc: Exception) -> Response:
         allowed = allowed_methods(request.app, request.url.path)
         exc = HTTPException(405, exc.detail, headers={**(exc.headers or {}), "Allow": ", ".join(allowed)})
     return await http_exception_handler(request, exc)
+
+
+async def store_unavailable(request: Request, exc: Exception) -> Response:
+    assert isinstance(exc, StoreError)
+    log.error("%s %s: %s", request.method, request.url.path, exc)
+    return JSONResponse({"detail": "the mail store cannot be read or written now: try again"}, status_code=503,
+                        headers={"Retry-After": str(RETRY_AFTER_S)})
 
 
 def allowed_methods(app: FastAPI, path: str) -> list[str]:

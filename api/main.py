@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import sqlite3
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from typing import Any
@@ -23,11 +22,11 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from api.commands import FleetCommands
 from api.deps import BEARER_SCHEME, Service
 from api.dispatcher import Dispatcher
-from api.errors import ConfigError
+from api.errors import ConfigError, StoreError
 from api.events import EventBus
 from api.fastlane import FastLane
 from api.gateway import FleetGateway
-from api.handlers import http_error, validation_error
+from api.handlers import http_error, store_unavailable, validation_error
 from api.headlimit import HeadLimit
 from api.models import AlarmPublic, BaseMapPublic, LogEntryPublic, MailCreate, MailPublic, WorkspacePublic
 from api.routes import alarms, dashboard, docs, events, fleet, health, mail, stats
@@ -104,6 +103,7 @@ def create_app(settings: ApiSettings, gateway: FleetGateway, workspace: Workspac
     app.openapi = lambda: _openapi(app)  # type: ignore[method-assign]
     app.add_exception_handler(StarletteHTTPException, http_error)
     app.add_exception_handler(RequestValidationError, validation_error)
+    app.add_exception_handler(StoreError, store_unavailable)
     return app
 
 
@@ -145,7 +145,7 @@ async def _checkpointer(store: Store, every_s: float) -> None:
         await asyncio.sleep(every_s)
         try:
             busy, frames, done = await store.checkpoint()
-        except sqlite3.Error as exc:  # tried again at the next period
+        except StoreError as exc:  # tried again at the next period
             log.warning("WAL checkpoint failed: %s", exc)
             continue
         if busy:

@@ -17,19 +17,20 @@ data.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hashlib
 import logging
 import secrets
 import sqlite3
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
-from api.errors import ApiError, IdempotencyConflict, IllegalTransition, MailNotFound
+from api.errors import ApiError, IdempotencyConflict, IllegalTransition, MailNotFound, StoreError
 from api.lifecycle import Status, check_transition
 from drona_gcs.workspace import Cell
 
@@ -172,8 +173,13 @@ class Store:
         self.max_batch = max_batch
         self.listeners: list[CommitListener] = []
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="drona-sqlite-writer")
-        self._writer = self._pool.submit(_connect, path, synchronous, True).result()
-        self._reader = _connect(path, synchronous, False)
+        try:
+            with sqlite_errors(path):
+                self._writer = self._pool.submit(_connect, path, synchronous, True).result()
+                self._reader = _connect(path, synchronous, False)
+        except StoreError:
+            self._pool.shutdown()
+            raise
         self._pending: deque[_Op] = deque()
         self._has_pending: asyncio.Event | None = None
 
@@ -222,8 +228,9 @@ class Store:
 
     def _checkpoint(self, op: _Op) -> None:
         try:
-            op.result = op.apply(self._writer)
-        except sqlite3.Error as exc:
+            with sqlite_errors(self.path):
+                op.result = op.apply(self._writer)
+        except StoreError as exc:
             op.error = exc
 
     async def _write(self, batch: list[_Op], loop: asyncio.AbstractEventLoop) -> None:
@@ -236,20 +243,22 @@ class Store:
         """
         conn = self._writer
         try:
-            conn.execute("BEGIN IMMEDIATE")
-            for op in batch:
-                conn.execute("SAVEPOINT op")
-                try:
-                    op.result = op.apply(conn)
-                except ApiError as exc:
-                    op.error, op.result = exc, None
-                    conn.execute("ROLLBACK TO op")
-                conn.execute("RELEASE op")
-            await loop.run_in_executor(self._pool, conn.execute, "COMMIT")
-        except sqlite3.Error as exc:
+            with sqlite_errors(self.path):
+                conn.execute("BEGIN IMMEDIATE")
+                for op in batch:
+                    conn.execute("SAVEPOINT op")
+                    try:
+                        op.result = op.apply(conn)
+                    except ApiError as exc:
+                        op.error, op.result = exc, None
+                        conn.execute("ROLLBACK TO op")
+                    conn.execute("RELEASE op")
+                await loop.run_in_executor(self._pool, conn.execute, "COMMIT")
+        except StoreError as exc:
             log.error("write of %d change(s) failed: %s", len(batch), exc)
-            if conn.in_transaction:
-                conn.execute("ROLLBACK")
+            with contextlib.suppress(sqlite3.Error):  # the failure already says what went wrong
+                if conn.in_transaction:
+                    conn.execute("ROLLBACK")
             for op in batch:
                 op.error, op.result = exc, None
 
@@ -291,18 +300,19 @@ class Store:
         return result
 
     # ------------------------------------------------------------- reads
-    @property
-    def reader(self) -> sqlite3.Connection:
-        """The read connection (the event loop's thread only): committed data, never waiting for the writer."""
-        return self._reader
+    def read(self, query: Callable[[sqlite3.Connection], T]) -> T:
+        """``query(connection)`` on the read connection (the event loop's thread only): committed data, never
+        waiting for the writer. It must fetch all it needs: SQLite's errors are mapped only while it runs."""
+        with sqlite_errors(self.path):
+            return query(self._reader)
 
     def get(self, mail_id: str) -> MailRecord | None:
-        row = self._reader.execute(f"SELECT {_COLUMNS} FROM mail WHERE id = ?", (mail_id,)).fetchone()
+        row = self.read(lambda c: c.execute(f"SELECT {_COLUMNS} FROM mail WHERE id = ?", (mail_id,)).fetchone())
         return MailRecord.from_row(row) if row else None
 
     def history(self, seq: int) -> list[AuditEntry]:
-        rows = self._reader.execute("SELECT status, at, drone, reason FROM audit WHERE mail_seq = ? ORDER BY n",
-                                    (seq,))
+        rows = self.read(lambda c: c.execute(
+            "SELECT status, at, drone, reason FROM audit WHERE mail_seq = ? ORDER BY n", (seq,)).fetchall())
         return [AuditEntry(Status(r[0]), r[1], r[2], r[3]) for r in rows]
 
     def page(self, *, status: Status | None, owner: str | None, limit: int, before: int | None,
@@ -315,22 +325,33 @@ class Store:
                 where.append(clause)
                 args.append(value)
         sql = f"SELECT {_COLUMNS} FROM mail WHERE {' AND '.join(where)} ORDER BY seq DESC LIMIT ?"
-        return [MailRecord.from_row(r) for r in self._reader.execute(sql, (*args, limit))]
+        return self._records(sql, (*args, limit))
 
     def waiting(self, limit: int, offset: int = 0) -> list[MailRecord]:
         """Queued mails in dispatch order: most urgent first, oldest first among equals."""
-        sql = (f"SELECT {_COLUMNS} FROM mail WHERE status = 'queued' "
-               "ORDER BY priority DESC, seq LIMIT ? OFFSET ?")
-        return [MailRecord.from_row(r) for r in self._reader.execute(sql, (limit, offset))]
+        return self._records(f"SELECT {_COLUMNS} FROM mail WHERE status = 'queued' "
+                             "ORDER BY priority DESC, seq LIMIT ? OFFSET ?", (limit, offset))
 
     def with_status(self, statuses: frozenset[Status]) -> list[MailRecord]:
         marks = ",".join("?" * len(statuses))
-        sql = f"SELECT {_COLUMNS} FROM mail WHERE status IN ({marks}) ORDER BY seq"
-        return [MailRecord.from_row(r) for r in self._reader.execute(sql, [s.value for s in statuses])]
+        return self._records(f"SELECT {_COLUMNS} FROM mail WHERE status IN ({marks}) ORDER BY seq",
+                             [s.value for s in statuses])
 
     def count(self, status: Status) -> int:
-        row = self._reader.execute("SELECT count(*) FROM mail WHERE status = ?", (status.value,)).fetchone()
+        row = self.read(lambda c: c.execute("SELECT count(*) FROM mail WHERE status = ?", (status.value,)).fetchone())
         return int(row[0])
+
+    def _records(self, sql: str, args: Sequence[Any]) -> list[MailRecord]:
+        return [MailRecord.from_row(r) for r in self.read(lambda c: c.execute(sql, args).fetchall())]
+
+
+@contextlib.contextmanager
+def sqlite_errors(path: Path) -> Iterator[None]:
+    """SQLite's errors as :class:`StoreError` naming the file: the one place they are mapped."""
+    try:
+        yield
+    except sqlite3.Error as exc:
+        raise StoreError(f"{path}: {exc}") from exc
 
 
 def _connect(path: Path, synchronous: str, writer: bool) -> sqlite3.Connection:
@@ -340,16 +361,18 @@ def _connect(path: Path, synchronous: str, writer: bool) -> sqlite3.Connection:
     if writer:
         mode = conn.execute("PRAGMA journal_mode = WAL").fetchone()[0]
         if mode != "wal":
-            raise ApiError(f"{path}: SQLite refused WAL mode (journal mode is {mode})")
+            raise StoreError(f"{path}: SQLite refused WAL mode (journal mode is {mode})")
         conn.executescript(SCHEMA)
-        migrate(conn)
+        if migrate(conn) > len(MIGRATIONS):
+            raise StoreError(f"{path}: its schema is version {_version(conn)}, newer than this drona-gcs knows "
+                             f"({len(MIGRATIONS)}): run the version that wrote it, or a newer one")
     conn.execute(f"PRAGMA synchronous = {synchronous}")
     return conn
 
 
 def migrate(conn: sqlite3.Connection) -> int:
     """Bring the schema up to date (see :data:`MIGRATIONS`); the version it is at now."""
-    version = int(conn.execute("PRAGMA user_version").fetchone()[0])
+    version = _version(conn)
     for target, script in enumerate(MIGRATIONS[version:], version + 1):
         conn.execute("BEGIN IMMEDIATE")
         try:
@@ -363,6 +386,10 @@ def migrate(conn: sqlite3.Connection) -> int:
         conn.execute("COMMIT")
         log.info("schema migrated to version %d", target)
     return max(version, len(MIGRATIONS))
+
+
+def _version(conn: sqlite3.Connection) -> int:
+    return int(conn.execute("PRAGMA user_version").fetchone()[0])
 
 
 def _insert(conn: sqlite3.Connection, new: NewMail, now: float) -> Change:

@@ -23,7 +23,7 @@ router = APIRouter(prefix="/v1", tags=["alarms"], responses={
 async def alarms(caller: OperatorDep, active: Annotated[bool, Query(description="only those not cleared")] = False,
                  limit: Annotated[int, Query(ge=1, le=500)] = 100) -> AlarmPage:
     """The fleet's alarms, newest first (operators only)."""
-    return AlarmPage(items=[AlarmPublic.of(a) for a in recent(caller.service.store.reader, limit, active)])
+    return AlarmPage(items=[AlarmPublic.of(a) for a in caller.service.store.read(lambda c: recent(c, limit, active))])
 
 
 @router.post("/alarms/{n}/ack", response_model=AlarmPublic, responses={

@@ -23,12 +23,12 @@ async def fleet_stats(caller: OperatorDep,
                       ) -> StatsPublic:
     """Deliveries over time, mail waiting time by priority, coordination latency, battery per drone."""
     now, service = time.time(), caller.service
-    reader, watch = service.store.reader, service.watch
+    store, watch = service.store, service.watch
     battery = [s for series in watch.battery.values() for s in series if s.at > now - window_s]
     coordination = [s for s in watch.coordination if s.at > now - window_s]
     return StatsPublic(
-        now=now, bucket_s=bucket_s, deliveries=stats.deliveries(reader, now, window_s, bucket_s),
-        waiting=[WaitingPublic(**w.__dict__) for w in stats.waiting(reader, now, window_s)],
+        now=now, bucket_s=bucket_s, deliveries=store.read(lambda c: stats.deliveries(c, now, window_s, bucket_s)),
+        waiting=[WaitingPublic(**w.__dict__) for w in store.read(lambda c: stats.waiting(c, now, window_s))],
         coordination_ms=_samples(coordination), battery_pct=_samples(battery))
 
 

@@ -197,3 +197,25 @@ def test_a_request_is_durable_when_acknowledged(settings: ApiSettings, workspace
             assert row == ("queued",)
 
     run(body())
+
+
+def test_a_database_that_fails_is_answered_503_and_loses_nothing(settings: ApiSettings,
+                                                                 workspace: Workspace) -> None:
+    async def body() -> None:
+        async with running(settings, workspace) as h:
+            kept = await h.submit([1, 1, 0], [7, 6, 0])
+            store = h.service.store
+            store._writer.execute("PRAGMA query_only = ON")  # as a disk gone read-only
+            res = await h.client.post("/v1/mail", json={"pickup": [1, 1, 0], "dropoff": [7, 6, 0], "priority": 5},
+                                      headers=auth())
+            assert res.status_code == 503 and res.headers["Retry-After"] == "1"
+            assert str(settings.db) not in res.text  # SQLite's words go to the log
+            store._writer.execute("PRAGMA query_only = OFF")
+            store._reader.set_authorizer(lambda *_: 1)  # SQLITE_DENY
+            res = await h.client.get("/v1/mail", headers=auth())
+            assert res.status_code == 503
+            store._reader.set_authorizer(None)
+            page = (await h.client.get("/v1/mail", headers=auth())).json()
+            assert [m["id"] for m in page["items"]] == [kept["id"]]
+
+    run(body())

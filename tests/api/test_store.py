@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from api.errors import IdempotencyConflict, IllegalTransition, MailNotFound
+from api.errors import IdempotencyConflict, IllegalTransition, MailNotFound, StoreError
 from api.lifecycle import Status
-from api.store import Change, NewMail, Store
+from api.store import MIGRATIONS, Change, NewMail, Store
 from tests.api.conftest import run
 
 
@@ -113,3 +113,44 @@ def test_pages_and_dispatch_order(tmp_path: Path) -> None:
         assert [r.id for r in older] == [made[1].id, made[0].id]
 
     run(with_store(tmp_path / "m.db", body))
+
+
+def test_a_failed_write_names_the_file_and_the_store_writes_again_after(tmp_path: Path) -> None:
+    db = tmp_path / "m.db"
+
+    async def body(store: Store) -> None:
+        store._writer.execute("PRAGMA query_only = ON")  # as a disk gone read-only
+        with pytest.raises(StoreError, match=rf"{db}: attempt to write a readonly database") as failed:
+            await store.create(new())
+        assert isinstance(failed.value.__cause__, sqlite3.Error)
+        store._writer.execute("PRAGMA query_only = OFF")
+        record, created = await store.create(new())
+        assert created and [r.id for r in store.waiting(10)] == [record.id]
+
+    run(with_store(db, body))
+
+
+def test_a_failed_read_is_a_store_error(tmp_path: Path) -> None:
+    async def body(store: Store) -> None:
+        store._reader.set_authorizer(lambda *_: sqlite3.SQLITE_DENY)
+        with pytest.raises(StoreError, match="not authorized"):
+            store.waiting(10)
+
+    run(with_store(tmp_path / "m.db", body))
+
+
+def test_a_file_that_is_not_a_database_is_refused_by_name(tmp_path: Path) -> None:
+    db = tmp_path / "notes.db"
+    db.write_text("not a database, but notes worth keeping\n" * 100)
+    with pytest.raises(StoreError, match=rf"{db}: file is not a database"):
+        Store(db)
+    assert db.read_text().startswith("not a database")  # left as it was
+
+
+def test_a_database_of_a_newer_schema_is_refused(tmp_path: Path) -> None:
+    db = tmp_path / "m.db"
+    run(with_store(db, lambda store: store.create(new())))
+    with sqlite3.connect(db) as conn:
+        conn.execute(f"PRAGMA user_version = {len(MIGRATIONS) + 1}")
+    with pytest.raises(StoreError, match=rf"version {len(MIGRATIONS) + 1}, newer than this drona-gcs knows"):
+        Store(db)
