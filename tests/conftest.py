@@ -1,9 +1,8 @@
-"""Shared test fixtures: where the shared data lives, and a file writer.
+"""Shared test fixtures: where the test data lives, and a file writer.
 
-The original DRONA workspaces and the MovingAI maps live outside the repository,
-in ``../shared`` beside the clone. Tests that take one of the arguments named in
-:data:`SHARED_FILES` run once per matching file (one test id each); when none
-is found they are skipped with a reason that says where we looked.
+The original DRONA workspaces and the MovingAI maps are in ``tests/data`` (its README says
+where they come from). Tests that take one of the arguments named in :data:`DATA_FILES` run
+once per matching file (one test id each).
 """
 
 from __future__ import annotations
@@ -16,25 +15,20 @@ import pytest
 
 from fleet.transport.identity import ROUTER, SERVICE, make_certs
 
-SHARED_DIR = Path(__file__).resolve().parents[1].parent / "shared"
+DATA_DIR = Path(__file__).resolve().parent / "data"
 
-#: Test argument -> glob patterns under SHARED_DIR of the files it runs over.
-SHARED_FILES: dict[str, tuple[str, ...]] = {
+#: Test argument -> glob patterns under DATA_DIR of the files it runs over.
+DATA_FILES: dict[str, tuple[str, ...]] = {
     "drona_xml": ("drona-workspaces/*/Workspace.xml",),
     "movingai_map": ("movingai/*.map", "movingai/*.grid"),
 }
 
 
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
-    for arg, patterns in SHARED_FILES.items():
-        if arg not in metafunc.fixturenames:
-            continue
-        files = sorted(f for pattern in patterns for f in SHARED_DIR.glob(pattern))
-        params = [pytest.param(f, id=f.relative_to(SHARED_DIR).as_posix()) for f in files]
-        if not params:
-            wanted = " or ".join(str(SHARED_DIR / p) for p in patterns)
-            params = [pytest.param(None, marks=pytest.mark.skip(reason=f"shared data not found: no {wanted}"))]
-        metafunc.parametrize(arg, params)
+    for arg, patterns in DATA_FILES.items():
+        if arg in metafunc.fixturenames:
+            files = sorted(f for pattern in patterns for f in DATA_DIR.glob(pattern))
+            metafunc.parametrize(arg, [pytest.param(f, id=f.relative_to(DATA_DIR).as_posix()) for f in files])
 
 
 #: Every test's fleet runs as `drona demo` and deploy/ do: mutual TLS and the fleet's access control, with
@@ -60,11 +54,9 @@ def fleet_tls_dir() -> Path:
 
 
 @pytest.fixture(scope="session")
-def shared_dir() -> Path:
-    """The shared data folder (``../shared`` beside the repository); skips when it is missing."""
-    if not SHARED_DIR.is_dir():
-        pytest.skip(f"shared data folder not found: looked for {SHARED_DIR}")
-    return SHARED_DIR
+def data_dir() -> Path:
+    """The test data folder (``tests/data``)."""
+    return DATA_DIR
 
 
 @pytest.fixture

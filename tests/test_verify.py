@@ -256,8 +256,8 @@ def test_cli_exit_codes_and_replay(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 @pytest.mark.parametrize("name", ["16_4", "Delta", "Exp1", "Exp6", "32_32"])
-def test_clean_stack_on_the_original_drona_workspaces(name: str, shared_dir: Path) -> None:
-    path = shared_dir / "drona-workspaces" / name / "Workspace.xml"
+def test_clean_stack_on_the_original_drona_workspaces(name: str, data_dir: Path) -> None:
+    path = data_dir / "drona-workspaces" / name / "Workspace.xml"
     explorer = Explorer(Scenario(drones=2, requests=4, delta=1, seed=1, workspace_path=str(path)))
     outcome = explorer.run(Strategy.RANDOM, schedules=10, max_depth=6000, seed=1)
     assert outcome.violation is None, str(outcome.violation)

@@ -21,9 +21,9 @@ def _xml_cell(elem: ET.Element) -> Cell:
     return (int(elem.attrib["x"]), int(elem.attrib["y"]), int(elem.attrib["z"]))
 
 
-def test_shared_folder_holds_the_drona_workspaces(shared_dir: Path) -> None:
+def test_data_folder_holds_the_drona_workspaces(data_dir: Path) -> None:
     # Guards the parametrized tests below against a glob that silently matches less.
-    names = {p.parent.name for p in shared_dir.glob("drona-workspaces/*/Workspace.xml")}
+    names = {p.parent.name for p in data_dir.glob("drona-workspaces/*/Workspace.xml")}
     assert {"16_4", "16_8", "32_32", "64_64", "Delta", "Exp1"} <= names
 
 
