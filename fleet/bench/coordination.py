@@ -33,6 +33,7 @@ import tempfile
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any, cast
 
 from drona_gcs.audit import audit
 from drona_gcs.stack.drone import default_lead_steps
@@ -271,9 +272,14 @@ async def _up_or_gone(all_up: asyncio.Event, children: list[subprocess.Popen[byt
     loop = asyncio.get_running_loop()
     gone: asyncio.Future[None] = loop.create_future()
     fds = [os.pidfd_open(child.pid) for child in children]
+
+    def one_gone() -> None:
+        if not gone.done():
+            gone.set_result(None)
+
     for fd in fds:
-        loop.add_reader(fd, lambda: gone.done() or gone.set_result(None))
-    up = asyncio.create_task(all_up.wait())
+        loop.add_reader(fd, one_gone)
+    up: asyncio.Future[Any] = asyncio.create_task(all_up.wait())
     try:
         await asyncio.wait([up, gone], timeout=timeout_s, return_when=asyncio.FIRST_COMPLETED)
     finally:
@@ -289,7 +295,7 @@ async def _up_or_gone(all_up: asyncio.Event, children: list[subprocess.Popen[byt
 def _check_alive(children: list[subprocess.Popen[bytes]]) -> None:
     for child in children:
         if (code := child.poll()) is not None:
-            command = child.args[3]  # type: ignore[index]  # [python, -m, fleet.cli, command, ...]
+            command = cast(list[str], child.args)[3]  # [python, -m, fleet.cli, command, ...] (see _spawn)
             raise BenchError(f"`drona {command}` (pid {child.pid}) exited with code {code}; its error is above")
 
 

@@ -45,7 +45,7 @@ from typing import IO, Any
 
 from drona_gcs.geo import GeoFrame
 from drona_gcs.motion import Trajectory
-from drona_gcs.stack.executor import ExecutorAction, PlanExecutor
+from drona_gcs.stack.executor import PlanExecutor
 from drona_gcs.workspace import Workspace
 from fleet.bench import plot as bench_plot
 from fleet.setpoint_loop import SetpointFleet, SetpointLoop, StepReport
@@ -292,7 +292,7 @@ async def bench_jitter(loops: int, tau: float, boundaries: int, stream_hz: float
 
         stop = asyncio.Event()
 
-        def on_step(index: int, report: StepReport, actions: Sequence[ExecutorAction]) -> None:
+        def on_step(index: int, report: StepReport, actions: Sequence[object]) -> None:
             late.append(report.late_s)
             if all(r.executor.step + 1 >= boundaries for r in runners):
                 stop.set()

@@ -128,7 +128,8 @@ def _workspace_file(args: argparse.Namespace, state: Path) -> Path:
     if args.workspace is None:
         data = demo_workspace(args.drones, args.tau or DEMO_TAU_S)
     elif args.tau is None:
-        return args.workspace
+        given: Path = args.workspace
+        return given
     elif args.workspace.suffix.lower() in (".yaml", ".yml", ".json"):
         data = yaml.safe_load(args.workspace.read_text())
         data["tau_s"] = args.tau

@@ -14,7 +14,7 @@ import asyncio
 import contextlib
 import logging
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from api.errors import AssignRefused
@@ -113,11 +113,11 @@ class ZenohGateway:
             await node.get(self.keys.clear(drone), encode("drona-serve", 0.0, MailClear(id=mail_id)),
                            QUERY_TIMEOUT_S)
 
-    async def command(self, drone: str | None, action: str, by: str, about: str | None = None) -> list[CommandAck]:
+    async def command(self, drone: str | None, action: str, by: str, about: str | None = None) -> list[GatewayAck]:
         node = (await self._client()).node
         order = encode(SERVICE, time.time(), FleetCommand(action=CommandAction(action), by=by, about=about))
         replies = await node.get(self.keys.command(drone or "*"), order, QUERY_TIMEOUT_S, block=True)
-        acks = []
+        acks: list[GatewayAck] = []
         for reply in replies:
             try:
                 envelope = decode(reply.payload)
@@ -208,5 +208,5 @@ def _vehicle(v: VehicleView | None) -> VehicleInfo | None:
                        height_m=v.height_m, gps_fix=v.gps_fix, satellites=v.satellites, battery_v=v.battery_v)
 
 
-def _cell(values: list[int]) -> Cell:
+def _cell(values: Sequence[int]) -> Cell:
     return (values[0], values[1], values[2])

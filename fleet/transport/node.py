@@ -239,7 +239,7 @@ class ZenohNode:
         try:
             handler(key, payload, query)
         finally:
-            query.drop()  # the query ends (the asker stops waiting) once every reply is sent
+            query.drop()  # type: ignore[no-untyped-call]  # ends the query once every reply is sent
 
     def linked(self) -> bool:
         """Whether the session has a link to another Zenoh peer or router (an open session may have none:
@@ -358,7 +358,7 @@ class ZenohNode:
                                on_reply)
         return set(keys)
 
-    async def _until_done(self, start: Callable[[zenoh.handlers.Callback], object],
+    async def _until_done(self, start: Callable[[zenoh.handlers.Callback[zenoh.Reply]], object],
                           on_reply: Callable[[zenoh.Reply], None]) -> None:
         done: asyncio.Future[None] = self.loop.create_future()
 
