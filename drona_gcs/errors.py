@@ -1,16 +1,37 @@
 """The one error tree of drona-gcs.
 
-Every error the core raises is a :class:`DronaError`; the edges (``fleet/``,
-``api/``) map library errors into it with ``raise ... from exc``::
+Every error drona-gcs raises is a :class:`DronaError`. The edges map a library's errors into it in
+one place each, with ``raise ... from exc``: Zenoh's in ``fleet.transport.node.zenoh_errors``,
+SQLite's in ``api.store.sqlite_errors``. The whole tree (``tests/test_errors.py`` keeps it whole)::
 
     DronaError
-    ├── WorkspaceError          a workspace file or object is invalid
-    ├── ProblemError            a planning problem is malformed
-    ├── NoPlanFound             no safe plan exists within L_max
-    ├── UnsafeTrajectory        the safety checker rejected a trajectory
-    ├── ProtocolViolation       a state machine got an event it cannot take
-    └── VehicleError            the vehicle link failed
-        └── VehicleCommandRejected(result, reason)
+    ├── WorkspaceError            a workspace file or object is invalid
+    ├── ProblemError              a planning problem is malformed
+    ├── NoPlanFound               no safe plan exists within L_max
+    │   ├── GoalCutOff            the goal is walled off for good
+    │   └── SmtTimeout            the Z3 generator ran out of time (drona_gcs.planner.smt)
+    ├── BudgetExceeded            internal to the planner: a search used its budget (planner.result)
+    ├── UnsafeTrajectory          the safety checker rejected a trajectory
+    ├── ProtocolViolation         a state machine got an event it cannot take
+    ├── Violation                 a monitor of the systematic tester found a bug (verify.monitors)
+    ├── VehicleError              the vehicle link failed
+    │   └── VehicleCommandRejected(result, reason)
+    ├── LinkUrlError              a vehicle connection string is wrong (fleet.vehicle.urls)
+    ├── SigningKeyError           a MAVLink signing key is unusable (fleet.vehicle.signing)
+    ├── TransportError            Zenoh failed: configure, open, declare, put, ask (fleet.transport.node)
+    ├── WireError                 a message is malformed or foreign (fleet.transport.wire)
+    ├── IdentityError             certificates or hosts.json are unusable (fleet.transport.identity)
+    ├── FleetUnavailable          no fleet to talk to (fleet.transport.fleet_client)
+    ├── BenchError                a benchmark could not run (fleet.bench)
+    │   └── PlotError             --plot cannot be honoured
+    └── ApiError                  the service refused or could not do something (api.errors)
+        ├── AssignRefused         a drone refused a mail or could not be reached
+        ├── IllegalTransition     a mail cannot go from its status to the one asked
+        ├── MailNotFound          no mail has that id (for this caller)
+        ├── IdempotencyConflict   an Idempotency-Key was reused with another request
+        ├── AlarmNotFound         no alarm has that number (api.alarms)
+        ├── StoreError            the database could not be opened, read or written (answered 503)
+        └── ConfigError           the settings cannot run a service
 """
 
 from __future__ import annotations

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from drona_gcs.errors import DronaError
 from drona_gcs.motion import Primitive, Trajectory
 
 
-class BudgetExceeded(Exception):
+class BudgetExceeded(DronaError):
     """Internal: the search used its expansion budget (not an error of the plan)."""
 
 

@@ -40,6 +40,7 @@ from drona_gcs.stack.drone import default_lead_steps
 from drona_gcs.stack.protocol import State
 from drona_gcs.workspace import Cell, Workspace
 from drona_gcs.workspace_files import load_workspace
+from fleet.bench import BenchError
 from fleet.bench import plot as bench_plot
 from fleet.sim.ports import free_port_block, free_udp_base
 from fleet.transport.fleet_client import FleetClient
@@ -228,10 +229,6 @@ class PlanLatencies:
     def since(self, when: float = -math.inf) -> list[float]:
         """The latencies (ms) of the plans first seen at ``when`` or later, sorted."""
         return sorted(ms for seen, ms in self._seen.values() if seen >= when)
-
-
-class BenchError(RuntimeError):
-    """The fleet under test did not come up, or lost a process."""
 
 
 #: Each agent process records its drones' flights in the bench's own directory, in a file named so.

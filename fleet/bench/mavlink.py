@@ -47,6 +47,7 @@ from drona_gcs.geo import GeoFrame
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.executor import PlanExecutor
 from drona_gcs.workspace import Workspace
+from fleet.bench import BenchError
 from fleet.bench import plot as bench_plot
 from fleet.setpoint_loop import SetpointFleet, SetpointLoop, StepReport
 from fleet.sim.fleet import DEFAULT_HOME, DEFAULT_SPACING_M
@@ -72,10 +73,6 @@ CONNECT_TIMEOUT_S = 30.0  #: the subprocess's start-up (imports) plus every link
 STOP_TIMEOUT_S = 5.0
 LAG_PROBE_S = 0.01  #: the event-loop lag probe's period
 HEARTBEAT_HZ = 1.0  #: the fake vehicle's HEARTBEAT rate (always on)
-
-
-class BenchError(RuntimeError):
-    """The benchmark could not run (the vehicles did not start, a link did not connect)."""
 
 
 @dataclass(frozen=True)

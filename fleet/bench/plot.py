@@ -23,6 +23,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from fleet.bench import BenchError
+
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
@@ -36,7 +38,7 @@ FORMATS = {".png": "png", ".svg": "svg"}
 INSTALL = "pip install 'drona-gcs[plot]' (or matplotlib>=3.8)"
 
 
-class PlotError(ValueError):
+class PlotError(BenchError, ValueError):
     """``--plot`` cannot be honoured: a bad file name, or no matplotlib."""
 
 

@@ -39,7 +39,7 @@ import logging
 import threading
 import time
 import weakref
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol
@@ -61,7 +61,16 @@ RETRY = {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor":
 
 
 class TransportError(DronaError):
-    """Zenoh could not be configured or opened."""
+    """Zenoh failed: the message says what was being done (configure, open, declare, put, ask)."""
+
+
+@contextlib.contextmanager
+def zenoh_errors(what: str) -> Iterator[None]:
+    """Zenoh's errors as :class:`TransportError` saying ``what`` was being done: the one place they are mapped."""
+    try:
+        yield
+    except zenoh.ZError as exc:
+        raise TransportError(f"{what}: {exc}") from exc
 
 
 @dataclass(frozen=True)
@@ -83,33 +92,37 @@ class ZenohSettings:
 
     def config(self) -> zenoh.Config:
         """The Zenoh configuration; :class:`TransportError` naming what is wrong."""
+        source = f" in {self.config_file}" if self.config_file else ""
         try:
-            cfg = zenoh.Config.from_file(str(self.config_file)) if self.config_file else zenoh.Config()
-            if self.config_file is None or self.mode != "peer":
-                cfg.insert_json5("mode", json.dumps(self.mode))
-            if self.listen:
-                cfg.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
-            if self.connect:
-                cfg.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
-            if self.identity is not None:
-                _mutual_tls(cfg, self.identity)
-            if self.access is not None:
-                cfg.insert_json5("access_control", json.dumps(self.access))
-            if self.config_file is None:
-                cfg.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast))
-                # Endpoints not up yet are retried in the background; retry often, so a fleet
-                # started in any order meshes within a second (Zenoh's default backs off to 4 s).
-                cfg.insert_json5("connect/retry", json.dumps(RETRY))
-            if self.lease_s is not None:
-                lease_ms = round(self.lease_s * 1000)
-                cfg.insert_json5("transport/link/tx/lease", json.dumps(lease_ms))
-                # Keep-alives must come several times per lease, or a busy link looks dead.
-                cfg.insert_json5("transport/link/tx/keep_alive", json.dumps(4))
-            for key, value in self.extra:
-                cfg.insert_json5(key, value)
-        except (zenoh.ZError, OSError, ValueError) as exc:
-            source = f" in {self.config_file}" if self.config_file else ""
+            with zenoh_errors(f"Zenoh configuration{source}"):
+                return self._config()
+        except (OSError, ValueError) as exc:
             raise TransportError(f"Zenoh configuration{source}: {exc}") from exc
+
+    def _config(self) -> zenoh.Config:
+        cfg = zenoh.Config.from_file(str(self.config_file)) if self.config_file else zenoh.Config()
+        if self.config_file is None or self.mode != "peer":
+            cfg.insert_json5("mode", json.dumps(self.mode))
+        if self.listen:
+            cfg.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
+        if self.connect:
+            cfg.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+        if self.identity is not None:
+            _mutual_tls(cfg, self.identity)
+        if self.access is not None:
+            cfg.insert_json5("access_control", json.dumps(self.access))
+        if self.config_file is None:
+            cfg.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast))
+            # Endpoints not up yet are retried in the background; retry often, so a fleet
+            # started in any order meshes within a second (Zenoh's default backs off to 4 s).
+            cfg.insert_json5("connect/retry", json.dumps(RETRY))
+        if self.lease_s is not None:
+            lease_ms = round(self.lease_s * 1000)
+            cfg.insert_json5("transport/link/tx/lease", json.dumps(lease_ms))
+            # Keep-alives must come several times per lease, or a busy link looks dead.
+            cfg.insert_json5("transport/link/tx/keep_alive", json.dumps(4))
+        for key, value in self.extra:
+            cfg.insert_json5(key, value)
         return cfg
 
     def secured(self, tls_dir: Path | None, name: str, keys: FleetKeys,
@@ -195,10 +208,8 @@ class ZenohNode:
     async def open(cls, settings: ZenohSettings, name: str) -> ZenohNode:
         """Open a session (in a thread: opening blocks while Zenoh tries the connect endpoints)."""
         config = settings.config()
-        try:
+        with zenoh_errors(f"{name}: cannot open a Zenoh session"):
             session = await asyncio.to_thread(zenoh.open, config)
-        except zenoh.ZError as exc:
-            raise TransportError(f"{name}: cannot open a Zenoh session: {exc}") from exc
         node = cls(session, asyncio.get_running_loop(), name)
         node.max_frames = settings.max_frames
         return node
@@ -215,16 +226,22 @@ class ZenohNode:
         """
         fanout = self._fanouts.get(key)
         if fanout is None:
-            fanout = self._fanouts[key] = _Fanout(self.name, gather=gather)
-            root = self.owner or self  # open as long as the session is, whichever node subscribed first
-
-            def on_sample(sample: zenoh.Sample) -> None:
-                root._to_loop(root._hand_round, fanout, str(sample.key_expr), sample.payload.to_bytes(),
-                              first=first)
-
-            fanout.subscriber = self.session.declare_subscriber(key, on_sample)
+            fanout = self._fanout(key, gather, first)
         fanout.handlers.append(handler)
         self._subscribed.append((key, handler))
+
+    def _fanout(self, key: str, gather: bool, first: bool) -> _Fanout:
+        """A new Zenoh subscriber for ``key``, kept once declared."""
+        fanout = _Fanout(self.name, gather=gather)
+        root = self.owner or self  # open as long as the session is, whichever node subscribed first
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            root._to_loop(root._hand_round, fanout, str(sample.key_expr), sample.payload.to_bytes(), first=first)
+
+        with zenoh_errors(f"{self.name}: subscribe to {key}"):
+            fanout.subscriber = self.session.declare_subscriber(key, on_sample)
+        self._fanouts[key] = fanout
+        return fanout
 
     def queryable(self, key: str, handler: QueryHandler) -> None:
         """``handler(key, payload, query)`` on the loop; it must reply (or not) at once."""
@@ -233,7 +250,8 @@ class ZenohNode:
             payload = query.payload.to_bytes() if query.payload is not None else b""
             self._to_loop(self._answer, handler, str(query.key_expr), payload, query)
 
-        self._declared.append(self.session.declare_queryable(key, on_query))
+        with zenoh_errors(f"{self.name}: answer on {key}"):
+            self._declared.append(self.session.declare_queryable(key, on_query))
 
     def _answer(self, handler: QueryHandler, key: str, payload: bytes, query: zenoh.Query) -> None:
         try:
@@ -247,13 +265,15 @@ class ZenohNode:
         if self.closed:
             return False
         try:
-            info = self.session.info
-            return any(True for _ in info.peers_zid()) or any(True for _ in info.routers_zid())
-        except zenoh.ZError:  # closed under us
+            with zenoh_errors(f"{self.name}: links"):
+                info = self.session.info
+                return any(True for _ in info.peers_zid()) or any(True for _ in info.routers_zid())
+        except TransportError:  # closed under us
             return False
 
     def token(self, key: str) -> None:
-        self._declared.append(self.session.liveliness().declare_token(key))
+        with zenoh_errors(f"{self.name}: declare token {key}"):
+            self._declared.append(self.session.liveliness().declare_token(key))
 
     def watch_liveliness(self, key: str, on_change: Callable[[str, bool], None], first: bool = False) -> None:
         """``on_change(key, alive)`` for every token under ``key``, those already alive first. ``first``:
@@ -262,7 +282,8 @@ class ZenohNode:
         def on_sample(sample: zenoh.Sample) -> None:
             self._to_loop(on_change, str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT, first=first)
 
-        self._declared.append(self.session.liveliness().declare_subscriber(key, on_sample, history=True))
+        with zenoh_errors(f"{self.name}: watch tokens {key}"):
+            self._declared.append(self.session.liveliness().declare_subscriber(key, on_sample, history=True))
 
     def _hand_round(self, fanout: _Fanout, key: str, payload: bytes) -> None:
         """(On the session's root.) Each frame of a sample to the fanout's handlers; the puts they
@@ -289,8 +310,8 @@ class ZenohNode:
             for chunk in _runs(parts, self.max_frames):  # a peer refuses a sample of more
                 try:
                     self._put(to, FRAME_END.join(chunk))
-                except zenoh.ZError as exc:  # one key's failure must not lose the others'
-                    log.warning("%s: could not send %d message(s) on %s: %s", self.name, len(chunk), to, exc)
+                except TransportError as exc:  # one key's failure must not lose the others'
+                    log.warning("could not send %d message(s): %s", len(chunk), exc)
 
     # -------------------------------------------------------------- send
     def put(self, key: str, payload: bytes, once: bool = False, now: bool = False) -> None:
@@ -314,6 +335,10 @@ class ZenohNode:
     def _put(self, key: str, payload: bytes, once: bool = False) -> None:
         if self.closed:
             return
+        with zenoh_errors(f"{self.name}: put on {key}"):
+            self._put_now(key, payload, once)
+
+    def _put_now(self, key: str, payload: bytes, once: bool) -> None:
         if once:
             self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
             return
@@ -370,7 +395,8 @@ class ZenohNode:
             raise TransportError(f"{self.name}: the Zenoh session is closed")
         self._pending.add(done)
         try:
-            start(zenoh.handlers.Callback(on_reply, on_end))
+            with zenoh_errors(f"{self.name}: ask"):
+                start(zenoh.handlers.Callback(on_reply, on_end))
             await done
         finally:
             self._pending.discard(done)
@@ -386,10 +412,7 @@ class ZenohNode:
             self._unsubscribe(key, handler)
         self._subscribed.clear()
         for declaration in reversed(self._declared):
-            try:
-                declaration.undeclare()
-            except zenoh.ZError as exc:  # already gone with its link: nothing left to undeclare
-                log.debug("%s: undeclare: %s", self.name, exc)
+            _undeclare(declaration, self.name)
         self._declared.clear()
         if self.owner is None:
             for key in list(self._fanouts):  # views left open: their subscriptions go with the session
@@ -497,10 +520,15 @@ class _Fanout:
             _guarded(self.name, handler, (key, payload))
 
     def undeclare(self, name: str) -> None:
-        try:
-            self.subscriber.undeclare()
-        except zenoh.ZError as exc:
-            log.debug("%s: undeclare: %s", name, exc)
+        _undeclare(self.subscriber, name)
+
+
+def _undeclare(declaration: Any, name: str) -> None:
+    try:
+        with zenoh_errors(f"{name}: undeclare"):
+            declaration.undeclare()
+    except TransportError as exc:  # already gone with its link: nothing left to undeclare
+        log.debug("%s", exc)
 
 
 @dataclass
