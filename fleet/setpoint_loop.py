@@ -264,9 +264,8 @@ class SetpointFleet:
     """The setpoint loops of every drone a process hosts, on one timer.
 
     At a boundary every executor takes its step first (no I/O, microseconds
-    each), then the new targets are sent. Loops that each woke on their own
-    timer took their boundaries one send apart: with 32 drones in one process
-    the last was 15 ms late.
+    each), then the new targets are sent: loops that each woke on their own
+    timer would take their boundaries one send apart, the last drone latest.
     """
 
     def __init__(self, loops: Sequence[SetpointLoop]) -> None:

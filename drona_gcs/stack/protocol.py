@@ -97,7 +97,7 @@ settled here, and one message it sends is saved (the second point):
   it holds for good for each drone the proposer held as gone; the proposer drops the plan at once and
   holds those cells too (``hearsay``, until that drone is back or released), so its next plan keeps
   clear of them. Without it, a drone that knew less of where a gone drone had stopped proposed the
-  same plan until its mail was given up (found in the suite: a member frozen while a drone died).
+  same plan until its mail was given up (a member frozen while a drone died).
   Confirming, I ack no proposal: mine was made without it. A message that says what a drone I held
   as gone flies (an answer, an ack, a decision, a request) proves it alive: a member again, there.
 * **Membership can change.** ``PeerLeft`` means the drone's liveliness was

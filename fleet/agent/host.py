@@ -169,8 +169,7 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
             _check_placement(agent)
         runtime.settle_gc()  # before the drones join: nobody waits on this process yet
         # Together: each joins with two queries to the fleet, and the process steps only once all have
-        # joined, while those alive already take work (one after the other, a 16-drone process of a
-        # 32-drone bench began stepping 270-430 ms after the other; together, 60-230 ms).
+        # joined, while the drones already flying elsewhere take work without it.
         joined = await asyncio.gather(*(agent.start() for agent in host.agents), return_exceptions=True)
         failures = [failure for failure in joined if isinstance(failure, BaseException)]
         if len(failures) == 1:

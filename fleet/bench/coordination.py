@@ -322,8 +322,8 @@ async def _keep_busy(node: ZenohNode, client: FleetClient, keys: FleetKeys, work
                                              priority=rng.randint(0, 9)))
 
     node.subscribe(keys.status(), on_report)
-    # Every order at once: one after the other, 64 orders took 540 ms here, longer than a step, so the
-    # drones took their mail at two or three boundaries, in bursts of a size left to chance.
+    # Every order at once: one after the other they can take longer than a step, and the drones would
+    # take their mail at several boundaries, in bursts of a size left to chance.
     async with asyncio.TaskGroup() as group:
         for drone in names:
             for _ in range(2):
@@ -385,9 +385,7 @@ def _cpu_of(pid: int) -> float:
 
 def default_processes() -> int:
     """One agent process per CPU core this process may run on. A round waits for every process
-    to answer; with more processes than cores, each round also waits for them to be scheduled
-    (measured on 2 cores, 32 agents, interleaved: 4 processes p50 26-27 ms and CPU per agent
-    6.1-6.6 ms/s; 2 processes 18-24 ms and 5.1-5.5 ms/s)."""
+    to answer; with more processes than cores, each round also waits for them to be scheduled."""
     return len(os.sched_getaffinity(0))
 
 

@@ -7,8 +7,8 @@ everything else in the process. A subscription may go *first*: its samples
 are handed round before those of ordinary ones already waiting. The agents'
 protocol messages go first (see fleet.agent.drone): a drone that coordinates
 waits on them, while announced plans, states and mail can wait their turn
-when the whole fleet asks at once. Protocol messages are put with congestion control BLOCK (the
-default DROP lost 19% of a burst here).
+when the whole fleet asks at once. Protocol messages are put with congestion control BLOCK: the
+default, DROP, loses messages of a burst.
 
 Drones hosted in one process with ``--shared-session`` share one session
 (:meth:`ZenohNode.view`; by default each drone has a session of its own, and a
