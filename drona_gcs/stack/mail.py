@@ -134,6 +134,36 @@ class Phase(enum.Enum):
     MAKING_WAY = "making_way"  #: leaving a cell another drone's way crosses
 
 
+class MailEvent(enum.Enum):
+    """What moves a mail planner from one :class:`Phase` to another (see :data:`TRANSITIONS`)."""
+
+    LEG = "leg"  #: a leg starts: to the phase of its purpose
+    CHARGE_HERE = "charge_here"  #: already on a charger: charge without flying
+    ARRIVED = "arrived"  #: the leg's plan was flown to its goal
+    NOT_FLOWN = "not_flown"  #: the leg's plan ended with the vehicle not seen at its goal
+    FAILED = "failed"  #: no plan was found for the leg
+    RECHARGED = "recharged"  #: the battery is full again
+    RELOCATED = "relocated"  #: the vehicle, lost, is back somewhere
+    RELOCATED_ON_CHARGER = "relocated_on_charger"  #: ... landed on a charger
+
+
+_LEGS = (Phase.TO_PICKUP, Phase.TO_DROPOFF, Phase.TO_CHARGER, Phase.TO_PARKING, Phase.MAKING_WAY)
+_Event = MailEvent | tuple[MailEvent, Phase]  #: a leg's event is (LEG, its purpose)
+_LEG_ENDS: dict[_Event, Phase] = {MailEvent.NOT_FLOWN: Phase.IDLE, MailEvent.FAILED: Phase.IDLE,
+                                  MailEvent.RELOCATED: Phase.IDLE}
+#: phase -> event -> the next phase. Every change of phase goes through MailPlanner._enter, which raises
+#: ProtocolViolation naming the phase and the event for one not here.
+TRANSITIONS: dict[Phase, dict[_Event, Phase]] = {
+    Phase.IDLE: {**{(MailEvent.LEG, leg): leg for leg in _LEGS}, MailEvent.CHARGE_HERE: Phase.CHARGING,
+                 MailEvent.RECHARGED: Phase.IDLE, MailEvent.RELOCATED: Phase.IDLE,
+                 **_LEG_ENDS},  # a leg already ended (its vehicle relocated) may still report how
+    **{leg: {MailEvent.ARRIVED: Phase.CHARGING if leg is Phase.TO_CHARGER else Phase.IDLE, **_LEG_ENDS,
+             MailEvent.RECHARGED: leg} for leg in _LEGS},
+    Phase.CHARGING: {MailEvent.RECHARGED: Phase.IDLE, MailEvent.RELOCATED: Phase.IDLE,
+                     MailEvent.RELOCATED_ON_CHARGER: Phase.CHARGING},
+}
+
+
 # --------------------------------------------------------------- actions
 @dataclass(frozen=True)
 class GoTo:
@@ -198,7 +228,7 @@ class MailPlanner:
     #: their plans start (climbing, or hovering) and the plans' first steps, held in the start cell
     leg_overhead: int = 0
     spare_parking: Sequence[Cell] = ()  #: other drones' parking cells, for when ours is out of reach
-    phase: Phase = Phase.IDLE
+    _phase: Phase = field(default=Phase.IDLE, init=False, repr=False)
     queue: list[MailRequest] = field(default_factory=list)
     current: MailRequest | None = None
     low: bool = False
@@ -227,6 +257,18 @@ class MailPlanner:
     held: bool = False  #: the operator landed the drone where it is: no leg at all until resumed
     #: mail the dispatcher cleared for pickup; None: no clearance needed (no service dispatches the mail)
     cleared: set[str] | None = None
+
+    @property
+    def phase(self) -> Phase:
+        return self._phase
+
+    def _enter(self, event: _Event) -> None:
+        """The one place the phase changes: to where :data:`TRANSITIONS` says ``event`` leads."""
+        target = TRANSITIONS[self._phase].get(event)
+        if target is None:
+            name = event.value if isinstance(event, MailEvent) else f"{event[0].value} {event[1].value}"
+            raise ProtocolViolation(f"mail planner: no {name!r} while {self._phase.value}")
+        self._phase = target
 
     # ---------------------------------------------------------- inputs
     def assign(self, request: MailRequest) -> None:
@@ -327,8 +369,7 @@ class MailPlanner:
 
     def battery_recharged(self) -> None:
         self.low = False
-        if self.phase is Phase.CHARGING:
-            self.phase = Phase.IDLE
+        self._enter(MailEvent.RECHARGED)
 
     def leg_done(self) -> list[MailAction]:
         """The protocol completed the current leg: we are at ``goal``."""
@@ -340,20 +381,17 @@ class MailPlanner:
         self.blocked, self.backoff = None, 0
         done, actions = self.phase, list[MailAction]()
         self.landed_here = self._parked() or self.cell in self.chargers or done is Phase.MAKING_WAY
+        self._enter(MailEvent.ARRIVED)  # a drop-off leg starts at the next decision
         if done is Phase.TO_PICKUP and self.current is not None and not self._may_pick_up(self.current):
             actions.append(MailRejected(self.current, NOT_CLEARED, True))
-            self.current, self.phase = None, Phase.IDLE
+            self.current = None
         elif done is Phase.TO_PICKUP and self.current is not None:
             self.strikes.pop(self.current.id, None)
             actions.append(MailPickedUp(self.current))
-            self.carrying, self.phase = True, Phase.IDLE  # the drop-off leg starts at the next decision
+            self.carrying = True
         elif done is Phase.TO_DROPOFF and self.current is not None:
             actions.append(MailDelivered(self.current))
-            self.current, self.carrying, self.phase = None, False, Phase.IDLE
-        elif done is Phase.TO_CHARGER:
-            self.phase = Phase.CHARGING
-        else:
-            self.phase = Phase.IDLE
+            self.current, self.carrying = None, False
         return actions
 
     def leg_not_flown(self, now: int) -> list[MailAction]:
@@ -362,7 +400,8 @@ class MailPlanner:
         times in a row is handed back, for another drone to fly. Mail on board stays on board."""
         current, carrying = self.current, self.carrying
         self.misses += 1
-        self.goal, self.phase, self.retry_at = None, Phase.IDLE, now
+        self.goal, self.retry_at = None, now
+        self._enter(MailEvent.NOT_FLOWN)
         if current is None or carrying:
             return []
         self.current = None
@@ -380,8 +419,9 @@ class MailPlanner:
         if self.current is not None and not self.carrying:
             self.queue.append(self.current)
             self.current = None
-        if self.phase is not Phase.CHARGING or cell not in self.chargers or not landed:
-            self.phase = Phase.IDLE  # charging goes on only on the charger: elsewhere it would wait for good
+        # Charging goes on only on the charger: elsewhere it would wait for good.
+        on_charger = self.phase is Phase.CHARGING and cell in self.chargers and landed
+        self._enter(MailEvent.RELOCATED_ON_CHARGER if on_charger else MailEvent.RELOCATED)
         self.tried.clear()
 
     def leg_failed(self, now: int, asked: bool = True, cut_off: bool = False) -> list[MailAction]:
@@ -408,7 +448,7 @@ class MailPlanner:
             # Not picked up yet: back in the queue, to be weighed again against priorities and battery.
             self.queue.append(self.current)
             self.current = None
-        self.phase = Phase.IDLE
+        self._enter(MailEvent.FAILED)
         self.failures += asked and (to_pickup or to_dropoff or to_charger)
         self.cut_offs = self.cut_offs + 1 if cut_off else 0 if asked else self.cut_offs
         if to_pickup and not passing and self._struck(self.queue[-1]):
@@ -590,7 +630,7 @@ class MailPlanner:
         self.low = True
         self.landed_here = True  # on the ground while it coordinates the way to the charger, or charges
         if self.cell in free:
-            self.phase = Phase.CHARGING
+            self._enter(MailEvent.CHARGE_HERE)
             return []
         return self._to_one_of(free, budget, taken, Phase.TO_CHARGER)
 
@@ -627,7 +667,7 @@ class MailPlanner:
         staging = self._staging_chargers()
         if self.cell in staging or (self.cell in self.chargers
                                     and not any(budget.allows(self._leg(self.cell, c)) for c in staging)):
-            self.phase = Phase.CHARGING  # (at another charger: enough to get to one of those first)
+            self._enter(MailEvent.CHARGE_HERE)  # (at another charger: enough to get to one of those first)
             return []
         if self.queue and not self._reachable(self.chargers):
             return self.release("no charger can be reached from here (obstacles, vehicles down and drones "
@@ -685,7 +725,8 @@ class MailPlanner:
             taken: Collection[Cell]) -> list[MailAction]:
         """The leg to ``goal``; none (a failure, without a round) while it is known taken and no
         real round is due."""
-        self.goal, self.phase, self.goal_taken = goal, purpose, goal in taken
+        self.goal, self.goal_taken = goal, goal in taken
+        self._enter((MailEvent.LEG, purpose))
         if self.goal_taken and self.backoff < self.max_retry_steps:
             return self.leg_failed(budget.now, asked=False)
         return [GoTo(goal, budget.flight(reserve), purpose)]
