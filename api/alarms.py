@@ -5,7 +5,7 @@ kinds come from the texts in a drone's state (``health.alarms``; the agent write
 ``KIND: what``), and one is the service's own: ``left``, the drone's link or agent went.
 An alarm opens when its kind appears in the drone's state, and clears when a state comes
 without it. Opening, clearing and every acknowledgement are stored (table ``alarm``, see
-:data:`api.store.MIGRATIONS`): an operator's acknowledgement is part of the audit trail.
+:data:`api.schema.MIGRATIONS`): an operator's acknowledgement is part of the audit trail.
 """
 
 from __future__ import annotations

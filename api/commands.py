@@ -4,7 +4,7 @@
 ``release`` goes to every live drone, about one that is gone (its vehicle seen out of the air).
 The service stops handing out mail (the fleet paused, or a drone held) before it tells the drones,
 and records every command with the drones' answers in the audit trail (table ``command``, made by
-api.store.MIGRATIONS).
+api.schema.MIGRATIONS).
 What a drone does with each is :meth:`drona_gcs.stack.drone.DroneStack.command`'s: legs under way
 are flown, mail on board is delivered, and a landed drone stops only through the protocol.
 """

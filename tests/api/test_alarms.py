@@ -6,8 +6,8 @@ from __future__ import annotations
 import sqlite3
 from typing import Any
 
+from api.schema import MIGRATIONS, SCHEMA
 from api.settings import ApiSettings
-from api.store import MIGRATIONS, SCHEMA
 from drona_gcs.workspace import Workspace
 from tests.api.conftest import SUBMITTER, Harness, auth, run, running
 

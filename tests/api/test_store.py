@@ -10,7 +10,8 @@ import pytest
 
 from api.errors import IdempotencyConflict, IllegalTransition, MailNotFound, StoreError
 from api.lifecycle import Status
-from api.store import MIGRATIONS, Change, NewMail, Store
+from api.schema import MIGRATIONS
+from api.store import Change, NewMail, Store
 from tests.api.conftest import run
 
 
