@@ -26,6 +26,7 @@ from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.messages import HybridClock, Message, Task, task_of
 from drona_gcs.stack.protocol import (
+    Action,
     Broadcast,
     CoordinationProtocol,
     Event,
@@ -33,7 +34,6 @@ from drona_gcs.stack.protocol import (
     PlanCompleted,
     Send,
     StartExecuting,
-    TaskFailed,
 )
 from drona_gcs.workspace import Cell, Workspace
 
@@ -62,7 +62,7 @@ class ProtocolCluster:
         self.clocks = {d: HybridClock(d) for d in starts}
         self.network: list[tuple[str, str, Message]] = []
         self.started: list[Started] = []
-        self.failed: list[tuple[str, TaskFailed]] = []
+        self.failed: list[tuple[str, Action]] = []  #: every other action (TaskFailed, Threatened, Braked, ...)
         self.now = 0
 
     # ----------------------------------------------------------- inputs

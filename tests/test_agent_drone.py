@@ -208,6 +208,11 @@ def _coordinating(ws: Workspace, node: RecordingNode, pickup: list[int],
     return agent, stack, mine
 
 
+def _protocol_state(stack: DroneStack) -> State:
+    """The protocol's state now: read anew after a message (mypy keeps the state an earlier check found)."""
+    return stack.protocol.state
+
+
 def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_everyone() -> None:
     """Drones that asked while this one coordinated wait for its new plan; it goes to them in the plan's
     ``decide``, which every drone gets, not one message each (a fleet given mail at once chains every
@@ -231,7 +236,7 @@ def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_ever
         for peer in ("d2", "d3", "d4"):
             ack = PlanAck(peer, mine, Trajectory.stationary(ws.drones[peer], 0))
             agent._on_protocol(KEYS.proto("d1", peer), encode(peer, 1000.0, from_core(ack)))
-        assert stack.protocol.state is State.EXECUTING
+        assert _protocol_state(stack) is State.EXECUTING
         await asyncio.sleep(0)  # the plan's announcement, if any, goes out once the answers have
         protocol = (f"{KEYS.root}/proto/", f"{KEYS.root}/answers/", KEYS.plan("d1"))
         return [(k, decode(p)) for k, p in node.puts if k.startswith(protocol)]
@@ -341,7 +346,8 @@ def test_a_drone_whose_vehicle_waits_for_its_position_says_so_and_takes_no_mail(
             raise AssertionError("a drone whose vehicle has no position took mail")
         vehicle.estimate = True
         agent.tick(1)
-        assert agent.state().vehicle.status == "ready"  # type: ignore[union-attr]
+        view = agent.state().vehicle
+        assert view is not None and view.status == "ready"
         assert agent.mail.take(order)
         agent.tick(2)
         assert stack.protocol.state is not State.WAIT_FOR_TASK  # a task under way
@@ -528,7 +534,7 @@ def test_an_operators_command_reaches_the_stack_and_is_acknowledged() -> None:
         agent = DroneAgent(stack, node, KEYS, ScriptedVehicle(), FRAME, lambda: 1000.0)  # type: ignore[arg-type]
         agent.mail.take(MailOrder(id="m", pickup=[3, 3, 0], dropoff=[5, 5, 0], priority=1))
         command = FleetCommand(action=CommandAction.RECALL, by="operator ops")
-        agent._on_command(KEYS.command("d1"), encode("service", 1000.0, command), Query())  # type: ignore[arg-type]
+        agent._on_command(KEYS.command("d1"), encode("service", 1000.0, command), Query())
         await asyncio.sleep(0)  # mail progress goes out after the work at hand
         return agent, node
 
@@ -583,7 +589,7 @@ def test_a_release_command_frees_a_departed_drones_cells_and_is_refused_for_a_me
         held = stack.taken_cells()
         for about in ("d2", "d3"):
             order = FleetCommand(action=CommandAction.RELEASE, by="operator ops", about=about)
-            agent._on_command(KEYS.command("d1"), encode("service", 1000.0, order), Query())  # type: ignore[arg-type]
+            agent._on_command(KEYS.command("d1"), encode("service", 1000.0, order), Query())
         return held, stack
 
     held, stack = asyncio.run(scenario())

@@ -32,8 +32,8 @@ def ws_file(tmp_path: Path) -> Path:
 def sessions(ws_file: Path, **flags: object) -> list[tuple[list[str], tuple[str, ...], tuple[str, ...]]]:
     """(drones, listen, connect) of every session the process would open for drones d2 and d3."""
     # Plain TCP: a shared session has no one drone's identity (the endpoints are what is tested here).
-    settings = AgentSettings(workspace=ws_file, drone="d2", count=2, tls_dir=None, insecure=True,  # type: ignore[arg-type]
-                             **flags)
+    settings = AgentSettings.model_validate({"workspace": ws_file, "drone": "d2", "count": 2, "tls_dir": None,
+                                             "insecure": True, **flags})
     ws, names = load_workspace(ws_file), ["d2", "d3"]
     out = []
     for group in session_groups(settings, names):

@@ -6,6 +6,7 @@ The workspace is 5 x 5 x 1, free. Records are written as the agents write them.
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +21,7 @@ from fleet.cli import main
 WS = Workspace.build(size=(5, 5, 1), obstacles=frozenset())
 
 
-def flight(drone: str, start: int, flown: list[tuple[int, int]], planned: list[tuple[int, int] | None],
+def flight(drone: str, start: int, flown: list[tuple[int, int]], planned: Sequence[tuple[int, int] | None],
            delta: int = 1) -> list[dict[str, Any]]:
     """Records of one drone; a flown cell of (-1, -1) is a step without a record."""
     lines = []

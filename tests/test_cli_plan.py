@@ -39,7 +39,7 @@ def test_ok_result_has_the_contract_fields_and_is_safe(tmp_path: Path) -> None:
     assert result["cost"] == 10  # Manhattan distance, reachable around the obstacles
     assert isinstance(result["ms"], float) and result["ms"] >= 0
     ws = workspace_from_mapping(WS)
-    mine = Trajectory(2, tuple(tuple(c) for c in result["cells"]))  # type: ignore[misc]
+    mine = Trajectory(2, tuple(tuple(c) for c in result["cells"]))
     theirs = {"a": Trajectory(0, ((5, 0, 0), (4, 0, 0), (3, 0, 0), (3, 1, 0)))}
     assert check_trajectory(ws, mine, theirs, 1, (5, 5, 0)) == []
 

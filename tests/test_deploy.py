@@ -60,7 +60,8 @@ REFUSAL_S = 1.0  #: how long a refused node is watched for samples after the oth
 # ------------------------------------------------------------------ zenoh helpers
 @pytest.fixture(scope="module")
 def zenoh() -> ModuleType:
-    return pytest.importorskip("zenoh")
+    module: ModuleType = pytest.importorskip("zenoh")
+    return module
 
 
 def _endpoint(proto: str = "tcp") -> str:

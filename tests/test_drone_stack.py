@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import random
 from collections.abc import Callable, Mapping
+from typing import TypeVar
 
 import pytest
 
@@ -33,6 +34,7 @@ from drona_gcs.stack.messages import CurrentTraj, Message, PlanAck, PlanProposal
 from drona_gcs.stack.protocol import (
     Braked,
     Broadcast,
+    CoordinationProtocol,
     Grounded,
     NewTask,
     Reroute,
@@ -47,6 +49,7 @@ WS = Workspace.build(size=(6, 6, 1), drones={"d1": (0, 0, 0)})
 MAIL = MailRequest("m1", pickup=(3, 0, 0), dropoff=(3, 3, 0), priority=5)
 #: How the test's vehicle flies: from the stack and the step, the cell telemetry puts it in (None: none).
 Vehicle = Callable[[DroneStack, int], Cell | None]
+A = TypeVar("A")
 
 
 def ideal(stack: DroneStack, step: int) -> Cell | None:
@@ -70,8 +73,24 @@ def fly(vehicle: Vehicle, steps: int, stack: DroneStack | None = None,
     return stack, actions
 
 
-def of(kind: type, actions: list[DroneAction]) -> list[DroneAction]:
+def of(kind: type[A], actions: list[DroneAction]) -> list[A]:
     return [a for a in actions if isinstance(a, kind)]
+
+
+def state_of(protocol: CoordinationProtocol) -> State:
+    """The protocol's state now: read anew after an action (mypy keeps the state an earlier check found)."""
+    return protocol.state
+
+
+def in_touch(stack: DroneStack) -> bool:
+    """Whether the drone is in touch with most of the fleet now (read anew, as :func:`state_of`)."""
+    return stack.in_touch
+
+
+def pair(cells: list[Cell]) -> tuple[Cell, Cell]:
+    """The two cells of ``rng.sample(cells, 2)``, as a pair."""
+    first, second = cells
+    return first, second
 
 
 def test_an_ideal_vehicle_picks_up_and_delivers_once_seen_at_each_cell() -> None:
@@ -87,8 +106,8 @@ def test_a_vehicle_that_never_flew_picks_nothing_up_and_the_mail_is_handed_back(
     assert of(MailPickedUp, actions) == [] and of(MailDelivered, actions) == []
     missed = of(LegNotFlown, actions)
     assert missed[:MAX_MISSES] == [LegNotFlown(MAIL.pickup, (0, 0, 0))] * MAX_MISSES
-    assert of(MailRejected, actions)[0].request == MAIL  # type: ignore[union-attr]
-    assert "never reached the pickup" in of(MailRejected, actions)[0].reason  # type: ignore[union-attr]
+    assert of(MailRejected, actions)[0].request == MAIL
+    assert "never reached the pickup" in of(MailRejected, actions)[0].reason
 
 
 @pytest.mark.parametrize("steps_late", [1, 2, 3])
@@ -248,7 +267,7 @@ def test_a_drone_in_the_air_from_its_plan_on_keeps_its_battery_above_the_floor()
     for seed in range(40):
         rng = random.Random(seed)
         stack = DroneStack("d1", StackConfig(OPEN, planner), dict(OPEN.drones))
-        mails = [MailRequest(f"m{i}", *rng.sample(free, 2), rng.randint(0, 9), i) for i in range(6)]
+        mails = [MailRequest(f"m{i}", *pair(rng.sample(free, 2)), rng.randint(0, 9), i) for i in range(6)]
         for m in mails:
             stack.assign(m)
         level, delivered = float(rng.randint(35, 60)), []
@@ -385,7 +404,7 @@ def test_a_paused_drone_still_delivers_the_mail_on_board() -> None:
 def test_a_recalled_drone_hands_back_the_mail_not_on_board() -> None:
     stack, _ = fly(ideal, 2)  # planning its way to the pickup
     handed = stack.command("recall", "recall by ops")
-    assert [(a.request, a.reason) for a in of(MailRejected, handed)] == [(MAIL, "recall by ops")]  # type: ignore[union-attr]
+    assert [(a.request, a.reason) for a in of(MailRejected, handed)] == [(MAIL, "recall by ops")]
     _, actions = fly(ideal, 40, stack)
     assert of(MailPickedUp, actions) == [] and stack.mail.current is None
 
@@ -409,12 +428,12 @@ def test_a_drone_landed_by_the_operator_mid_flight_stops_through_a_round_and_sta
     assert plan is not None
     stop = plan.at(stack.now + stack.protocol.lead_steps)
     landed = stack.command("land", "land by ops")
-    assert [a.request for a in of(MailRejected, landed)] == [far]  # type: ignore[union-attr]
+    assert [a.request for a in of(MailRejected, landed)] == [far]
     assert stack.protocol.trajectory is not None and stack.protocol.trajectory.last == stop  # alone: planned at once
     for _ in range(40):
         boundary()
     assert stack.executor.cell == stop != plan.last and stack.landed
-    assert stack.protocol.state is State.WAIT_FOR_TASK and not of(GoTo, actions[-40:])
+    assert state_of(stack.protocol) is State.WAIT_FOR_TASK and not of(GoTo, actions[-40:])
 
 
 def test_a_drone_that_brakes_short_of_a_vehicle_down_decides_its_leg_anew_from_there() -> None:
@@ -440,7 +459,7 @@ def test_a_drone_that_brakes_short_of_a_vehicle_down_decides_its_leg_anew_from_t
         assert stack.executor.cell != (2, 0, 0)
         assert not of(MailPickedUp, out) or stack.executor.cell == MAIL.pickup
     braked = of(Braked, actions)
-    assert len(braked) == 1 and braked[0].trajectory.last == (1, 0, 0)  # type: ignore[union-attr]
+    assert len(braked) == 1 and braked[0].trajectory.last == (1, 0, 0)
     assert of(MailPickedUp, actions) == [MailPickedUp(MAIL)] and of(MailDelivered, actions) == [MailDelivered(MAIL)]
 
 
@@ -457,7 +476,7 @@ def test_a_drone_cut_off_from_most_of_the_fleet_hands_back_its_mail_not_on_board
     stack.peer_left("d2")
     handed = stack.step(2, 100.0, (0, 5, 0))
     assert of(MailRejected, handed) == [MailRejected(MAIL, "cut off from most of the fleet", True)]
-    assert not stack.in_touch and stack.mail.queue == [] and stack.mail.current is None
+    assert not in_touch(stack) and stack.mail.queue == [] and stack.mail.current is None
     assert of(MailRejected, stack.step(3, 100.0, (0, 5, 0))) == []  # once
 
 
@@ -477,7 +496,7 @@ def test_news_while_confirming_a_reroute_that_threatens_again_reroutes_once() ->
     stack.receive(CurrentTraj("c", Trajectory.stationary((4, 2, 0), 0), task))
     assert protocol.state is State.CONFIRMING
     actions = stack.peer_left("c")  # c may hold (4, 2) for good: on the plan flown
-    assert protocol.state is State.REROUTING and len([a for a in actions if isinstance(a, Threatened)]) == 1
+    assert state_of(protocol) is State.REROUTING and len([a for a in actions if isinstance(a, Threatened)]) == 1
 
 
 def test_a_drone_starting_up_before_it_meets_its_peers_hands_back_nothing() -> None:
@@ -509,8 +528,8 @@ def test_a_drone_with_nowhere_to_park_leaves_a_mail_stop_once_idle() -> None:
     ws = Workspace.build(size=(6, 6, 1), drones={"d1": (0, 0, 0)}, pickups=((3, 0, 0), (3, 3, 0)))
     stack, actions = fly(ideal, 60, DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones)), ws)
     assert of(MailDelivered, actions) == [MailDelivered(MAIL)]
-    [leave] = [a for a in of(GoTo, actions) if a.purpose is Phase.MAKING_WAY]  # type: ignore[union-attr]
-    assert leave.goal not in ws.pickups and stack.executor.cell == leave.goal  # type: ignore[union-attr]
+    [leave] = [a for a in of(GoTo, actions) if a.purpose is Phase.MAKING_WAY]
+    assert leave.goal not in ws.pickups and stack.executor.cell == leave.goal
     assert stack.protocol.state is State.WAIT_FOR_TASK
 
 
@@ -548,7 +567,7 @@ def test_a_drone_whose_clock_is_off_lands_where_its_plan_ends() -> None:
     stack.clock_bound(True, frozenset(), "my clock is off")
     for step in range(stack.executor.step + 1, stack.executor.step + 40):
         stack.step(step, 100.0, stack.executor.cell, may_plan=False)
-    assert stack.protocol.state is State.WAIT_FOR_TASK and stack.landed
+    assert state_of(stack.protocol) is State.WAIT_FOR_TASK and stack.landed
 
 
 def test_a_pickup_where_a_peer_whose_clock_is_off_rests_is_handed_back_at_once() -> None:
@@ -559,7 +578,7 @@ def test_a_pickup_where_a_peer_whose_clock_is_off_rests_is_handed_back_at_once()
     stack.clock_bound(False, frozenset({"d2"}), "d2's clock is off")
     stack.assign(MAIL)
     actions = stack.step(0, 100.0, stack.executor.cell)
-    assert [a.reason for a in of(MailRejected, actions)] == [  # type: ignore[attr-defined]
+    assert [a.reason for a in of(MailRejected, actions)] == [
         "its pickup [3, 0, 0] is cut off from here (obstacles, vehicles down, drones whose clock is off)"]
 
 
@@ -579,12 +598,12 @@ def test_a_drone_whose_battery_affords_no_move_off_a_charger_is_down_for_good(mo
     if moves:
         assert grounded == [] and stack.protocol.down is None
         return
-    assert [g.trajectory.last for g in grounded] == [(3, 3, 0)]  # type: ignore[attr-defined]
-    assert [(r.request, r.reason) for r in of(MailRejected, actions)] == [  # type: ignore[attr-defined]
+    assert [g.trajectory.last for g in grounded] == [(3, 3, 0)]
+    assert [(r.request, r.reason) for r in of(MailRejected, actions)] == [
         (MAIL, f"drone d1: {DRAINED}")]
     stack.assign(MAIL)
     later = stack.step(1, level, stack.executor.cell)  # mail given later goes back too
-    assert stack.landed and of(GoTo, later) == [] and [r.request for r in of(MailRejected, later)] == [MAIL]  # type: ignore[attr-defined]
+    assert stack.landed and of(GoTo, later) == [] and [r.request for r in of(MailRejected, later)] == [MAIL]
 
 
 def test_a_plan_that_ends_short_of_the_legs_goal_is_no_leg_done() -> None:
@@ -596,9 +615,9 @@ def test_a_plan_that_ends_short_of_the_legs_goal_is_no_leg_done() -> None:
     short = (0, 1, 0)
     stack._protocol(Reroute(Task(stack.clock.next_id(stack.now), short, None, hovering_since=stack.now)))
     actions: list[DroneAction] = []
-    while stack.executor.cell != short or stack.protocol.state is not State.WAIT_FOR_TASK:
+    while stack.executor.cell != short or state_of(stack.protocol) is not State.WAIT_FOR_TASK:
         assert stack.now < 40
         actions += stack.step(stack.now + 1, 100.0, stack.executor.cell)
     actions += stack.step(stack.now + 1, 100.0, stack.executor.cell)
     assert of(MailPickedUp, actions) == [] and stack.mail.cell == short
-    assert [g.goal for g in of(GoTo, actions)] == [MAIL.pickup]  # type: ignore[attr-defined]
+    assert [g.goal for g in of(GoTo, actions)] == [MAIL.pickup]

@@ -67,6 +67,12 @@ def goto(actions: list[MailAction]) -> GoTo:
     return found[0]
 
 
+def request_of(action: MailAction) -> MailRequest:
+    """The mail a progress report is about (a GoTo is about none)."""
+    assert not isinstance(action, GoTo), action
+    return action.request
+
+
 def assert_energy_rules(goal_from: Cell, action: GoTo, level: float, chargers: tuple[Cell, ...],
                         distance: Distance, model: BatteryModel = MODEL) -> None:
     """The leg is affordable, and on arrival the way from the goal to a charger is still left."""
@@ -614,7 +620,7 @@ def test_a_drone_no_round_takes_to_a_charger_hands_back_the_mail_it_waits_with()
             handed += mp.leg_failed(now)  # every round finds the charger another drone's for good
         if handed:
             break
-    assert [(type(a), a.request) for a in handed] == [(MailRejected, waiting)]
+    assert [(type(a), request_of(a)) for a in handed] == [(MailRejected, waiting)]
 
 
 # ------------------------------------------------------------ making way
@@ -663,7 +669,7 @@ def test_mail_whose_pickup_stays_taken_is_handed_back_even_with_other_legs_betwe
     urgent, later = mail("urgent", c(2, 2), c(4, 4), priority=8), mail("later", c(1, 1), c(2, 0), priority=1)
     mp.assign(urgent)
     mp.assign(later)
-    taken, handed, now, legs = {c(2, 2)}, list[MailAction](), 0, 0
+    taken, handed, now, legs = {c(2, 2)}, list[MailRejected](), 0, 0
     while not handed and now < 2000:
         level = 100.0 if mp.cell in (Q1, Q2) else 45.0  # a full battery on a charger; afar, too little
         actions = mp.decide(now, level, taken)
@@ -917,6 +923,6 @@ def test_out_of_touch_with_its_dispatcher_a_drone_keeps_only_cleared_mail() -> N
     goto(mp.decide(0, 100, ()))
     assert mp.current == started
     handed = mp.release("out of touch", keep_cleared=True)
-    assert [(type(a), a.request.id) for a in handed] == [(MailRejected, "waiting"), (MailRejected, "later")]
+    assert [(type(a), request_of(a).id) for a in handed] == [(MailRejected, "waiting"), (MailRejected, "later")]
     assert mp.current == started and mp.queue == []
-    assert [a.request.id for a in mp.release("lost")] == ["started"]  # without keep_cleared: all not on board
+    assert [request_of(a).id for a in mp.release("lost")] == ["started"]  # without keep_cleared: all not on board

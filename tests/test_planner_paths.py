@@ -24,7 +24,7 @@ def test_forced_long_path_finds_the_same_costs(width: int, drones: int, delta: i
     for _ in range(120):
         task = stream.next_task()
         results: list[Trajectory | None] = []
-        costs = []
+        costs: list[float | None] = []
         for planner in (quick, slow):
             try:
                 plan = planner.plan(task.start, task.goal, task.start_step, task.others)

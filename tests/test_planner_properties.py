@@ -24,6 +24,7 @@ import math
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import TypeVar
 from unittest.mock import patch
 
 import pytest
@@ -39,6 +40,7 @@ from drona_gcs.safety import ViolationKind, check_fleet, check_pair, check_traje
 from drona_gcs.workspace import Cell, Workspace
 
 P = Primitive
+R = TypeVar("R")
 MOVES = (P.XP, P.XM, P.YP, P.YM, P.ZP, P.ZM)
 UNIT: dict[Primitive, float] = {}
 COST_TABLES: list[dict[Primitive, float]] = [
@@ -89,7 +91,7 @@ def assert_valid(problem: Problem, plan: Plan) -> None:
     assert math.isclose(plan.cost, MotionModel(problem.ws, problem.costs).plan_cost(plan.primitives))
 
 
-def outcome(solve: Callable[[], Plan]) -> Plan | None:
+def outcome(solve: Callable[[], R]) -> R | None:
     try:
         return solve()
     except NoPlanFound:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import random
+from functools import partial
 from itertools import pairwise
 
 import pytest
@@ -25,6 +26,7 @@ from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.planner.astar import search
 from drona_gcs.planner.reservations import ALWAYS_FREE, FOREVER, ReservationTable
+from drona_gcs.planner.result import SearchResult
 from drona_gcs.safety import check_trajectory
 from drona_gcs.workload import TaskStream, random_workspace
 from tests.test_planner_properties import (
@@ -133,13 +135,13 @@ def test_interval_search_agrees_with_the_space_time_astar(problem: Problem) -> N
     planner, ws = SafePlanner(problem.ws, delta=problem.delta), problem.ws
     start, goal = ws.cell_id(problem.start), ws.cell_id(problem.goal)
     limit = ws.plan_length_limit if problem.max_length is None else problem.max_length
-    found = []
+    found: list[SearchResult | None] = []
     for intervals in (False, True):
         table = ReservationTable(ws, problem.delta, vertex_keys=not intervals)
         table.sync(problem.others)
         heuristic = planner.graph.distances(goal, table.blocked_throughout(problem.start_step))
         args = (planner.grid, table, heuristic, start, goal, problem.start_step, limit)
-        found.append(outcome(lambda args=args: search(*args)))  # type: ignore[misc]  # the table picks the search
+        found.append(outcome(partial(search, *args)))  # the table picks the search
     timed, by_interval = found
     assert (timed is None) == (by_interval is None), (problem, timed, by_interval)
     if timed is not None and by_interval is not None:
@@ -161,7 +163,7 @@ def test_interval_search_matches_astar_on_the_bench_stream(width: int, drones: i
     for _ in range(150):
         task = stream.next_task()
         start, goal = ws.cell_id(task.start), ws.cell_id(task.goal)
-        results = []
+        results: list[SearchResult | None] = []
         for table in tables.values():  # space-time, then safe intervals
             table.sync(task.others)
             heuristic = planner.graph.distances(goal, table.blocked_throughout(task.start_step))

@@ -101,7 +101,7 @@ def test_a_drone_stays_at_its_last_cell_forever(ws: Workspace) -> None:
     visitor = traj(20, (3, 1), (4, 1), (4, 2), (4, 3), (4, 4))  # through (4, 2) at step 22
     found = check_trajectory(ws, visitor, {"parked": parked}, 0)
     assert found == [Violation(COLLISION, 22, (4, 2, 0), "parked", 22)]
-    assert found[0].other_step > parked.end_step
+    assert found[0].other_step is not None and found[0].other_step > parked.end_step
     # The drone that parked first is checked past its own end, so it sees the visitor too.
     assert check_trajectory(ws, parked, {"visitor": visitor}, 0) == [Violation(COLLISION, 22, (4, 2, 0), "visitor", 22)]
     # Parking on the cell where another drone parked long ago is a collision as well.

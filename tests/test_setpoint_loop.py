@@ -12,7 +12,7 @@ import pytest
 from drona_gcs.audit import moves
 from drona_gcs.geo import GeoFrame, Ned
 from drona_gcs.motion import Trajectory
-from drona_gcs.stack.executor import Completed, ExecutorAction, PlanExecutor
+from drona_gcs.stack.executor import Completed, ExecutorAction, PlanExecutor, Setpoint
 from drona_gcs.workspace import Cell, Workspace
 from fleet.setpoint_loop import Sample, SetpointLoop, StepReport
 from fleet.vehicle.link import Position
@@ -39,6 +39,20 @@ class RecordingSink:
         return self.position
 
 
+def executor_actions(done: Sequence[object]) -> list[ExecutorAction]:
+    """A step's actions, as the loop reports them: its executor's."""
+    actions = [a for a in done if isinstance(a, Setpoint | Completed)]
+    assert len(actions) == len(done), done
+    return actions
+
+
+def cell_of(ned: Ned) -> Cell:
+    """The cell a position is in (it is in the workspace)."""
+    cell = FRAME.locate(ned).cell
+    assert cell is not None, ned
+    return cell
+
+
 async def fly(follow: bool, steps: int = 7) -> tuple[list[StepReport], list[ExecutorAction], RecordingSink, float]:
     loop = asyncio.get_running_loop()
     sink = RecordingSink(loop, follow)
@@ -49,9 +63,9 @@ async def fly(follow: bool, steps: int = 7) -> tuple[list[StepReport], list[Exec
     actions: list[ExecutorAction] = []
     stop = asyncio.Event()
 
-    def on_step(report: StepReport, done: Sequence[ExecutorAction]) -> None:
+    def on_step(report: StepReport, done: Sequence[object]) -> None:
         reports.append(report)
-        actions.extend(done)
+        actions.extend(executor_actions(done))
         if len(reports) == steps:
             stop.set()
 
@@ -136,7 +150,7 @@ def cruise(plan: Trajectory, cells_a_step: float, tau: float,
         reports: list[StepReport] = []
         stop = asyncio.Event()
 
-        def on_step(report: StepReport, done: Sequence[ExecutorAction]) -> None:
+        def on_step(report: StepReport, done: Sequence[object]) -> None:
             reports.append(report)
             if stall is not None and report.step == stall[0]:
                 time.sleep(stall[1])
@@ -220,7 +234,7 @@ def test_a_vehicle_behind_on_a_straight_line_is_sent_one_cell_ahead_at_most() ->
     sink, _ = cruise(STRAIGHT, 0.6, tau, record, check_hz=100.0)
     assert max(r.target[0] - here[0] for r, here in seen if here is not None) >= 2  # it fell behind
     for start, end in sink.legs:  # every setpoint, from where the vehicle was when it went out
-        assert moves(FRAME.locate(start).cell, FRAME.locate(end).cell) <= 1, (start, end)
+        assert moves(cell_of(start), cell_of(end)) <= 1, (start, end)
     assert [FRAME.locate(end).cell for _, end in sink.legs] == list(STRAIGHT.cells[1:])
 
 
@@ -233,7 +247,8 @@ def test_each_step_is_sampled_lambda_after_its_boundary_with_how_late_the_vehicl
     """A vehicle that flies straight at its setpoint (0.3 of a cell past the centre, on a straight
     line) enters each cell soon after the boundary: every sample, lambda after the boundary, saw it
     in the step's cell, and says how late it came."""
-    tau, samples = 0.3, []
+    tau = 0.3
+    samples: list[Sample] = []
     cruise(STRAIGHT, cells_a_step, tau, lambda report, _: report.step == 10, check_hz=200.0,
            lateness_s=lateness_s, samples=samples)
     moving = [s for s in samples if 4 <= s.step <= 7]  # under way: the first move starts at a centre

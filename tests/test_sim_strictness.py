@@ -8,7 +8,7 @@ is what these tests are for: each one failed on the fake before it was made this
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, TypeVar
 
 import pytest
 
@@ -25,6 +25,7 @@ from tests.test_sim_vehicle import GCS, POSITION_ONLY, ack_of, deliver, run_for
 ML = mavlink2
 GUIDED = 4
 ARM, TAKEOFF, SET_MODE = ML.MAV_CMD_COMPONENT_ARM_DISARM, ML.MAV_CMD_NAV_TAKEOFF, ML.MAV_CMD_DO_SET_MODE
+M = TypeVar("M")
 
 
 def arducopter(**settings: Any) -> VehicleModel:
@@ -36,6 +37,12 @@ def armed_and_taking_off(model: VehicleModel, now: float, height: float = 10.0) 
     assert ack_of(model, now, SET_MODE, 1, GUIDED) == ML.MAV_RESULT_ACCEPTED
     assert ack_of(model, now, ARM, 1) == ML.MAV_RESULT_ACCEPTED
     assert ack_of(model, now, TAKEOFF, 0, 0, 0, 0, 0, 0, height) == ML.MAV_RESULT_ACCEPTED
+
+
+def sent(message: M | None) -> M:
+    """A message the model sends (None: it sends none)."""
+    assert message is not None
+    return message
 
 
 def setpoint(model: VehicleModel, now: float, north: float, east: float, down: float) -> None:
@@ -50,14 +57,14 @@ def test_arducopter_takes_41_s_from_boot_to_its_position_estimate_and_says_so() 
     model = arducopter()
     assert (model.config.gps_s, model.config.ready_s) == (10.0, 41.5)
     early, fixed, ready = 5.0, 20.0, 42.0
-    assert gps_raw_int(model, early).fix_type < 3 and global_position_int(model, early).lat == 0
+    assert gps_raw_int(model, early).fix_type < 3 and sent(global_position_int(model, early)).lat == 0
     assert local_position_ned(model, early) is None
     assert gps_raw_int(model, fixed).fix_type == ML.GPS_FIX_TYPE_RTK_FIXED
-    assert global_position_int(model, fixed).lat != 0 and local_position_ned(model, fixed) is None
-    assert not ekf_has_position(ekf_status_report(model, fixed).flags, armed=False)
+    assert sent(global_position_int(model, fixed)).lat != 0 and local_position_ned(model, fixed) is None
+    assert not ekf_has_position(sent(ekf_status_report(model, fixed)).flags, armed=False)
     assert ack_of(model, fixed, SET_MODE, 1, GUIDED) == ML.MAV_RESULT_ACCEPTED and model.mode == "GUIDED"
     assert ack_of(model, fixed, ARM, 1) == ML.MAV_RESULT_FAILED
-    assert ekf_has_position(ekf_status_report(model, ready).flags, armed=False)
+    assert ekf_has_position(sent(ekf_status_report(model, ready)).flags, armed=False)
     assert local_position_ned(model, ready) is not None
     assert ack_of(model, ready, ARM, 1) == ML.MAV_RESULT_ACCEPTED
 
@@ -119,7 +126,7 @@ def test_a_higher_wpnav_accel_closes_in_on_a_setpoint_more_slowly_as_arducopter_
     store = ParamStore(VehicleConfig(personality=ARDUPILOT))
     assert store.limits.gain == pytest.approx(1.0)
     store.set("WPNAV_ACCEL", 500.0)
-    assert (store.limits.max_accel, store.limits.gain) == (pytest.approx(5.0), pytest.approx(0.5))
+    assert (store.limits.max_accel, store.limits.gain) == pytest.approx((5.0, 0.5))
     store.set("PSC_JERK_XY", 20.0)
     assert store.limits.gain == pytest.approx(2.0)
 

@@ -332,7 +332,8 @@ def terminate(proc: subprocess.Popen[bytes]) -> bytes:
 def stderr_lines(proc: subprocess.Popen[bytes], count: int, timeout: float) -> list[str]:
     """The first ``count`` lines the process writes to stderr, waiting at most ``timeout`` s in all."""
     assert proc.stderr is not None
-    lines, buffer, deadline = [], b"", time.monotonic() + timeout
+    lines: list[str] = []
+    buffer, deadline = b"", time.monotonic() + timeout
     while len(lines) < count and (left := deadline - time.monotonic()) > 0:
         readable, _, _ = select.select([proc.stderr], [], [], left)
         if not readable:
@@ -396,7 +397,7 @@ def test_cli_says_on_exit_when_a_serial_line_had_no_room() -> None:
 def test_cli_refuses_serial_flags_that_do_not_fit(flags: list[str], problem: str,
                                                   capsys: pytest.CaptureFixture[str]) -> None:
     try:
-        code = drona_main(["sim-vehicle", *flags])
+        code: str | int | None = drona_main(["sim-vehicle", *flags])
     except SystemExit as exc:  # argparse's own refusals
         code = exc.code
     assert code == 2

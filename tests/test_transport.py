@@ -23,7 +23,15 @@ from fleet.sim.transport import UdpLink
 from fleet.transport import node as node_module
 from fleet.transport.gateway import ZenohGateway
 from fleet.transport.keys import FleetKeys, check_name
-from fleet.transport.node import ORDINARY_WAITS_AT_MOST_S, ZenohNode, ZenohSettings, _Gathered, _Inbox
+from fleet.transport.node import (
+    ORDINARY_WAITS_AT_MOST_S,
+    Reply,
+    SampleHandler,
+    ZenohNode,
+    ZenohSettings,
+    _Gathered,
+    _Inbox,
+)
 from fleet.transport.wire import (
     VERSION,
     MailOrder,
@@ -206,7 +214,7 @@ def test_a_query_under_way_ends_when_its_session_closes() -> None:
     """A peer that never answers must not hang a closing agent (every wait is bounded)."""
     endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
 
-    async def scenario() -> list[object]:
+    async def scenario() -> list[Reply]:
         silent = await ZenohNode.open(ZenohSettings(listen=(endpoint,)), "silent")
         asker = await ZenohNode.open(ZenohSettings(connect=(endpoint,)), "asker")
         held: list[object] = []  # queries kept unanswered: the asker waits up to its 30 s timeout
@@ -247,7 +255,7 @@ def test_drones_sharing_a_session_each_get_every_message_and_leave_alone() -> No
         heard: dict[str, list[bytes]] = {"a": [], "b": []}
         got = asyncio.Event()
 
-        def hear(name: str):  # type: ignore[no-untyped-def]
+        def hear(name: str) -> SampleHandler:
             def on(key: str, payload: bytes) -> None:
                 heard[name].append(payload)
                 got.set()
@@ -326,11 +334,13 @@ def test_the_answers_of_a_sessions_drones_to_one_request_travel_as_one_message(n
             answers.append(payload)
             got.set()
 
+        def answering(view: ZenohNode) -> SampleHandler:
+            return lambda key, payload: view.put("t/answer", view.name.encode(), now=now)
+
         try:
             for name in ("a", "b", "c"):
                 view = host.view(name)
-                view.subscribe("t/all", lambda key, payload, view=view: view.put("t/answer", view.name.encode(),
-                                                                                   now=now), gather=True)
+                view.subscribe("t/all", answering(view), gather=True)
             asker.subscribe("t/answer", on_answer)
             asker._declared.append(asker.session.declare_subscriber(
                 "t/answer", lambda sample: messages.append(sample.payload.to_bytes())))
@@ -509,7 +519,11 @@ def test_a_subscription_that_goes_first_is_handed_its_samples_before_ordinary_on
         def send_while_busy(*keys: str, waiting: int) -> None:
             """From another thread, while the loop is held here until Zenoh (on its own threads) has
             handed every sample to the inbox: ``waiting`` items in it then."""
-            sender = threading.Thread(target=lambda: [outside.put(k, k.encode()) for k in keys])
+            def send() -> None:
+                for k in keys:
+                    outside.put(k, k.encode())
+
+            sender = threading.Thread(target=send)
             sender.start()
             sender.join()
             deadline = time.monotonic() + 5
@@ -585,7 +599,7 @@ def test_an_ordinary_item_that_waited_too_long_goes_before_first_ones() -> None:
     """Protocol messages go first, but not for ever: a process busy coordinating for long must
     still take mail orders and answer queries."""
     async def scenario() -> list[str]:
-        inbox, handled = _Inbox(asyncio.get_running_loop()), []
+        inbox, handled = _Inbox(asyncio.get_running_loop()), list[str]()
         inbox.put(False, "t", handled.append, ("old",))
         time.sleep(ORDINARY_WAITS_AT_MOST_S * 1.5)  # the loop busy: nothing is taken meanwhile
         inbox.put(True, "t", handled.append, ("first 1",))

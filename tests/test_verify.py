@@ -11,6 +11,7 @@ import subprocess
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import TypedDict
 
 import pytest
 
@@ -22,8 +23,9 @@ from drona_gcs.motion import Trajectory
 from drona_gcs.stack.mail import MailPickedUp, MailPlanner, MailRequest, MailStarted
 from drona_gcs.stack.messages import Task, TaskId
 from drona_gcs.stack.protocol import Braked, CoordinationProtocol, Grounded, Present, StartExecuting
-from drona_gcs.verify.explore import SEEDED_BUGS, Explorer, Scenario, Strategy, decode_token, encode_token
+from drona_gcs.verify.explore import Explorer, Scenario, Strategy, decode_token, encode_token
 from drona_gcs.verify.monitors import Flier, Monitors, Violation
+from drona_gcs.verify.mutants import SEEDED_BUGS
 from drona_gcs.verify.sweep import configurations
 from drona_gcs.verify.world import Joined, Left, World, WorldConfig
 from drona_gcs.workspace import Cell, Workspace
@@ -46,8 +48,18 @@ EXPECTED = {
     # A clock off by more than Delta: plans made in step with it meet once it keeps its offset.
     "skew-blind": {"b"},
 }
+
+
+class Needs(TypedDict, total=False):
+    """The faults of a :class:`Scenario` a bug needs."""
+
+    partitions: int
+    skews: int
+
+
 #: The fault that makes a bug show (none but for these).
-NEEDS = {"fly-unheld": {"partitions": 1}, "pickup-uncleared": {"partitions": 1}, "skew-blind": {"skews": 1}}
+NEEDS: dict[str, Needs] = {"fly-unheld": {"partitions": 1}, "pickup-uncleared": {"partitions": 1},
+                           "skew-blind": {"skews": 1}}
 
 
 def test_every_seeded_bug_has_an_expectation() -> None:
@@ -416,8 +428,8 @@ def test_a_vehicle_down_stays_where_it_came_down_in_the_model() -> None:
     separation monitor judged where the vehicle was not."""
     world = Explorer(Scenario(drones=3, requests=3, delta=1, seed=1)).world()
     for _ in range(400):
-        flying = [i for i, d in enumerate(world.config.drones) if world.stacks[d].executor.trajectory is not None
-                  and world.steps[d] < world.stacks[d].executor.trajectory.end_step - 2]
+        flying = [i for i, d in enumerate(world.config.drones) if (plan := world.stacks[d].executor.trajectory)
+                  is not None and world.steps[d] < plan.end_step - 2]
         if flying:
             break
         world.apply(next(m for m in world.enabled() if m[0] in ("step", "inject", "deliver")))

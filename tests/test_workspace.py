@@ -6,6 +6,7 @@ import dataclasses
 import itertools
 import json
 import xml.etree.ElementTree as ET
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import pytest
@@ -15,9 +16,12 @@ from drona_gcs.errors import WorkspaceError
 from drona_gcs.workspace import Cell, GeoOrigin, Workspace
 from drona_gcs.workspace_files import load_workspace
 
-
 # ------------------------------------------------------------ shared data
-def _xml_cell(elem: ET.Element) -> Cell:
+WriteFile = Callable[[str, str | bytes], Path]  #: the ``write_file`` fixture (tests/conftest.py)
+
+
+def _xml_cell(elem: ET.Element | None) -> Cell:
+    assert elem is not None
     return (int(elem.attrib["x"]), int(elem.attrib["y"]), int(elem.attrib["z"]))
 
 
@@ -179,20 +183,23 @@ parking: [[1, 4, 0], [2, 4, 0]]
 """
 
 
+def _cells(cs: Iterable[Cell]) -> list[list[int]]:
+    return [list(c) for c in cs]
+
+
 def _as_mapping(ws: Workspace) -> dict[str, object]:
     """The workspace written back in our file format (obstacles as plain cells)."""
-    cells = lambda cs: [list(c) for c in cs]  # noqa: E731
     return {
         "name": ws.name, "size": list(ws.size), "cell_size_m": ws.cell_size_m, "tau_s": ws.tau_s,
         "beta_s": ws.beta_s, "lambda_s": ws.lambda_s, "max_plan_length": ws.max_plan_length,
         "geo_origin": dataclasses.asdict(ws.geo),
-        "obstacles": cells(sorted(ws.obstacles)), "charging_stations": cells(ws.charging_stations),
-        "drones": {k: list(v) for k, v in ws.drones.items()}, "pickups": cells(ws.pickups),
-        "dropoffs": cells(ws.dropoffs), "parking": cells(ws.parking),
+        "obstacles": _cells(sorted(ws.obstacles)), "charging_stations": _cells(ws.charging_stations),
+        "drones": {k: list(v) for k, v in ws.drones.items()}, "pickups": _cells(ws.pickups),
+        "dropoffs": _cells(ws.dropoffs), "parking": _cells(ws.parking),
     }
 
 
-def test_yaml_example_loads_every_field(write_file) -> None:
+def test_yaml_example_loads_every_field(write_file: WriteFile) -> None:
     path = write_file("depot.yaml", EXAMPLE_YAML)
     ws = load_workspace(path)
 
@@ -213,14 +220,14 @@ def test_yaml_example_loads_every_field(write_file) -> None:
     assert len(ws.free_cells) == 6 * 5 * 2 - 6 == len(ws.main_region)
 
 
-def test_yaml_round_trips(write_file) -> None:
+def test_yaml_round_trips(write_file: WriteFile) -> None:
     first = load_workspace(write_file("depot.yaml", EXAMPLE_YAML))
     again = load_workspace(write_file("again.yaml", yaml.safe_dump(_as_mapping(first), sort_keys=False)))
     assert dataclasses.replace(again, source=first.source) == first
 
 
 @pytest.mark.parametrize("suffix", [".json", ".yml"])
-def test_json_with_the_same_content_loads_identically(write_file, suffix: str) -> None:
+def test_json_with_the_same_content_loads_identically(write_file: WriteFile, suffix: str) -> None:
     from_yaml = load_workspace(write_file("depot.yaml", EXAMPLE_YAML))
     path = write_file(f"depot{suffix}", json.dumps(yaml.safe_load(EXAMPLE_YAML), indent=2))
     loaded = load_workspace(path)
@@ -228,7 +235,7 @@ def test_json_with_the_same_content_loads_identically(write_file, suffix: str) -
     assert dataclasses.replace(loaded, source=from_yaml.source) == from_yaml
 
 
-def test_minimal_yaml_takes_the_defaults(write_file) -> None:
+def test_minimal_yaml_takes_the_defaults(write_file: WriteFile) -> None:
     ws = load_workspace(write_file("tiny.yaml", "size: [3, 2, 1]\n"))
     assert ws == Workspace(size=(3, 2, 1), name="tiny", source=ws.source)
     assert (ws.tau_s, ws.beta_s, ws.delta, ws.plan_length_limit, ws.layer_height_m) == (1.0, 0.0, 2, 6, 1.0)
@@ -368,7 +375,7 @@ BAD_FILES = [
 @pytest.mark.parametrize(("name", "content", "field", "phrases"),
                          [pytest.param(*case[1:], id=case[0]) for case in BAD_FILES])
 def test_bad_file_is_a_workspace_error_naming_file_field_and_problem(
-        write_file, name: str, content: str | bytes, field: str, phrases: list[str]) -> None:
+        write_file: WriteFile, name: str, content: str | bytes, field: str, phrases: list[str]) -> None:
     path = write_file(name, content)
     with pytest.raises(WorkspaceError) as info:
         load_workspace(path)

@@ -31,6 +31,7 @@ from fastapi import FastAPI
 from api.deps import Service
 from api.main import create_app
 from api.settings import ApiSettings
+from api.store import MailRecord
 from drona_gcs.workspace import Workspace
 from drona_gcs.workspace_files import workspace_from_mapping
 from tests.api.simulated import SimulatedGateway
@@ -66,9 +67,14 @@ def workspace() -> Workspace:
     return workspace_from_mapping(WORKSPACE, source="test.yaml")
 
 
+def api_settings(**values: Any) -> ApiSettings:
+    """``ApiSettings(**values)``, which mypy without pydantic's plugin takes as needing every field."""
+    return ApiSettings.model_validate(values)
+
+
 @pytest.fixture
 def settings(tmp_path: Path) -> ApiSettings:
-    return ApiSettings(db=tmp_path / "mail.db", tokens=TOKENS, assign_timeout_s=5.0, refuse_backoff_s=0.5)
+    return api_settings(db=tmp_path / "mail.db", tokens=TOKENS, assign_timeout_s=5.0, refuse_backoff_s=0.5)
 
 
 def auth(token: str = OPERATOR) -> dict[str, str]:
@@ -104,6 +110,11 @@ class Harness:
     def drone_of(self, mail_id: str) -> str | None:
         record = self.service.store.get(mail_id)
         return record.drone if record is not None else None
+
+    def record(self, mail_id: str) -> MailRecord:
+        record = self.service.store.get(mail_id)
+        assert record is not None
+        return record
 
     def status(self, mail_id: str) -> str:
         record = self.service.store.get(mail_id)

@@ -70,7 +70,8 @@ class SimulatedGateway:
         self.assigned: list[tuple[str, str]] = []  #: (drone, mail id) as assigned
         self.cleared: list[tuple[str, str]] = []  #: (drone, mail id) as cleared for pickup
         self.cancelled: list[tuple[str, str]] = []
-        self.commands: list[tuple[str | None, str, str]] = []  #: (drone or None: all, action, by) as told
+        #: (drone or None: all, action, by[, about]) as told
+        self.commands: list[tuple[str | None, str, str] | tuple[str | None, str, str, str]] = []
         self.commanded: dict[str, str] = {}  #: drone -> the command in force (it takes no mail)
         self.frozen: set[str] = set()  #: drones whose link is down: no state, and they stay put
         self.alarms: dict[str, tuple[str, ...]] = {}  #: drone -> the alarm texts its state carries
@@ -89,8 +90,9 @@ class SimulatedGateway:
         self.publish()
         if self.step_s is None:
             await asyncio.Event().wait()  # the test steps the drones
-        async for _ in periodic(self.step_s):
-            self.tick()
+        else:
+            async for _ in periodic(self.step_s):
+                self.tick()
 
     async def assign(self, drone: str, mail: MailOrder) -> None:
         sim = self._drones.get(drone)

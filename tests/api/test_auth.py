@@ -11,7 +11,7 @@ from api.auth import Role, parse_token_entry
 from api.errors import ConfigError
 from api.settings import ApiSettings
 from drona_gcs.workspace import Workspace
-from tests.api.conftest import OPERATOR, OTHER_SUBMITTER, SUBMITTER, auth, run, running
+from tests.api.conftest import OPERATOR, OTHER_SUBMITTER, SUBMITTER, api_settings, auth, run, running
 
 
 def test_token_entries_parse_with_role_and_owner() -> None:
@@ -28,38 +28,38 @@ def test_token_entries_parse_with_role_and_owner() -> None:
 def test_settings_refuse_to_start_without_a_token_unless_in_demo_mode(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.delenv("DRONA_API_TOKENS", raising=False)
     with pytest.raises(ConfigError, match="no API token: set DRONA_API_TOKENS or DRONA_API_TOKEN_FILE"):
-        ApiSettings()
+        api_settings()
     with pytest.raises(ConfigError, match="shorter than 16 characters"):
-        ApiSettings(tokens="operator:changeme")
-    assert not ApiSettings(demo=True).token_table()
-    assert ApiSettings(demo=True, tokens="operator:demo").token_table().lookup("demo") is not None
+        api_settings(tokens="operator:changeme")
+    assert not api_settings(demo=True).token_table()
+    assert api_settings(demo=True, tokens="operator:demo").token_table().lookup("demo") is not None
 
 
 def test_settings_come_from_the_environment(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
     monkeypatch.setenv("DRONA_API_TOKENS", f"operator:{OPERATOR},submitter:{SUBMITTER}:alice")
     monkeypatch.setenv("DRONA_API_DB", str(tmp_path / "x.db"))
     monkeypatch.setenv("DRONA_API_PER_DRONE", "3")
-    settings = ApiSettings()
+    settings = api_settings()
     assert settings.db == tmp_path / "x.db" and settings.per_drone == 3
     principal = settings.token_table().lookup(SUBMITTER)
     assert principal is not None and principal.name == "alice" and principal.role is Role.SUBMITTER
     monkeypatch.setenv("DRONA_API_PER_DRONE", "0")
     with pytest.raises(ValidationError, match="per_drone"):
-        ApiSettings()
+        api_settings()
 
 
 def test_a_token_file_names_the_line_at_fault(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.delenv("DRONA_API_TOKENS", raising=False)
     good = tmp_path / "tokens"
     good.write_text(f"# operators\noperator:{OPERATOR}:ops\n\nsubmitter:{SUBMITTER}  # alice's\n")
-    table = ApiSettings(token_file=good).token_table()
+    table = api_settings(token_file=good).token_table()
     assert table.lookup(OPERATOR) is not None and table.lookup(SUBMITTER) is not None
     bad = tmp_path / "bad"
     bad.write_text(f"operator:{OPERATOR}\nboss:{SUBMITTER}\n")
     with pytest.raises(ConfigError, match=rf"{bad}:2: unknown role 'boss'"):
-        ApiSettings(token_file=bad)
+        api_settings(token_file=bad)
     with pytest.raises(ConfigError, match="cannot read"):
-        ApiSettings(token_file=tmp_path / "missing")
+        api_settings(token_file=tmp_path / "missing")
 
 
 def test_401_without_or_with_an_unknown_token(settings: ApiSettings, workspace: Workspace) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from typing import Any
 
 import pytest
 
@@ -15,8 +16,8 @@ from tests.api.conftest import auth, run, running
 from tests.api.simulated import SimulatedGateway
 
 
-def history(mail: dict[str, object]) -> list[tuple[object, object]]:
-    return [(e["status"], e["drone"]) for e in mail["history"]]  # type: ignore[index, union-attr]
+def history(mail: dict[str, Any]) -> list[tuple[object, object]]:
+    return [(e["status"], e["drone"]) for e in mail["history"]]
 
 
 def test_a_mail_is_assigned_picked_up_and_delivered(settings: ApiSettings, workspace: Workspace) -> None:
@@ -109,7 +110,7 @@ def test_mail_cleared_to_a_drone_whose_agent_restarted_without_it_fails_and_goes
             await h.service.dispatcher.idle()
             drone = h.drone_of(started["id"])
             await h.steps(1)  # started: cleared for pickup
-            assert (drone, started["id"]) in h.gateway.cleared
+            assert drone is not None and (drone, started["id"]) in h.gateway.cleared
             h.gateway.freeze(drone)
             await h.service.dispatcher.idle()
             h.gateway.restart(drone)
@@ -153,7 +154,7 @@ def test_a_drone_that_never_mentions_its_mail_does_not_keep_it(settings: ApiSett
             await h.until(lambda: h.status(mail["id"]) == "delivered", timeout=10)
             assert [d for d, _ in gateway.assigned] == ["d1", "d2"]  # requeued after 0.3 s, then to d2
             assert ("d1", mail["id"]) in gateway.cancelled
-            trail = h.service.store.history(h.service.store.get(mail["id"]).seq)  # type: ignore[union-attr]
+            trail = h.service.store.history(h.record(mail["id"]).seq)
             assert any(e.status.value == "queued" and "d1 stopped reporting" in e.reason for e in trail)
 
     run(body())
@@ -164,11 +165,11 @@ def test_a_refusing_drone_is_passed_over(settings: ApiSettings, workspace: Works
         async with running(settings, workspace) as h:
             h.gateway.refusing["d1"] = "battery service due"
             mail = await h.submit([1, 1, 0], [3, 1, 0])
-            record = h.service.store.get(mail["id"])
+            record = h.record(mail["id"])
             await h.until(lambda: (h.service.store.get(mail["id"]) or record).drone == "d2", timeout=5)
             await h.service.dispatcher.idle()
             assert [d for d, _ in h.gateway.assigned] == ["d2"]
-            trail = h.service.store.history(h.service.store.get(mail["id"]).seq)  # type: ignore[union-attr]
+            trail = h.service.store.history(h.record(mail["id"]).seq)
             assert any("battery service due" in e.reason for e in trail)
 
     run(body())
@@ -227,7 +228,7 @@ def test_unfinished_mail_resumes_after_a_restart(settings: ApiSettings, workspac
         quick = settings.model_copy(update={"assign_timeout_s": 0.3})
         async with running(quick, workspace, SimulatedGateway(workspace, step_s=0.02)) as h:
             await h.until(lambda: h.status(held["id"]) == h.status(waiting["id"]) == "delivered", timeout=10)
-            trail = h.service.store.history(h.service.store.get(held["id"]).seq)  # type: ignore[union-attr]
+            trail = h.service.store.history(h.record(held["id"]).seq)
             assert any(e.status.value == "queued" and "sim1 stopped reporting" in e.reason for e in trail)
 
     run(body())

@@ -161,10 +161,10 @@ def _serve(fleet: FleetProcesses, hosts: Hosts, db: Path) -> str:
     raise AssertionError(f"the service did not come up\n{fleet.logs()}")
 
 
-def _post(url: str, path: str, body: dict[str, object] | None = None) -> dict[str, object]:
+def _post(url: str, path: str, body: dict[str, object] | None = None) -> dict[str, Any]:
     res = httpx.post(f"{url}{path}", headers=HEADERS, json=body, timeout=30)
     assert res.status_code in (200, 201, 202), res.text
-    result: dict[str, object] = res.json()
+    result: dict[str, Any] = res.json()
     return result
 
 
