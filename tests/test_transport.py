@@ -20,18 +20,11 @@ from drona_gcs.workspace import Workspace
 from fleet.agent.clocksync import ClockCheck, OffsetSample
 from fleet.sim.ports import free_port
 from fleet.sim.transport import UdpLink
-from fleet.transport import node as node_module
+from fleet.transport import inbox as inbox_module
 from fleet.transport.gateway import ZenohGateway
+from fleet.transport.inbox import ORDINARY_WAITS_AT_MOST_S, Inbox
 from fleet.transport.keys import FleetKeys, check_name
-from fleet.transport.node import (
-    ORDINARY_WAITS_AT_MOST_S,
-    Reply,
-    SampleHandler,
-    ZenohNode,
-    ZenohSettings,
-    _Gathered,
-    _Inbox,
-)
+from fleet.transport.node import Reply, SampleHandler, ZenohNode, ZenohSettings, _Gathered
 from fleet.transport.wire import (
     VERSION,
     MailOrder,
@@ -508,7 +501,7 @@ def test_a_subscription_that_goes_first_is_handed_its_samples_before_ordinary_on
     ordinary one is being handled: before the next."""
     endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     # The order by kind alone: no ordinary sample is to wait long enough here to go first by age.
-    monkeypatch.setattr(node_module, "ORDINARY_WAITS_AT_MOST_S", 60.0)
+    monkeypatch.setattr(inbox_module, "ORDINARY_WAITS_AT_MOST_S", 60.0)
 
     async def scenario() -> list[bytes]:
         host = await ZenohNode.open(ZenohSettings(listen=(endpoint,)), "host")
@@ -599,7 +592,7 @@ def test_an_ordinary_item_that_waited_too_long_goes_before_first_ones() -> None:
     """Protocol messages go first, but not for ever: a process busy coordinating for long must
     still take mail orders and answer queries."""
     async def scenario() -> list[str]:
-        inbox, handled = _Inbox(asyncio.get_running_loop()), list[str]()
+        inbox, handled = Inbox(asyncio.get_running_loop()), list[str]()
         inbox.put(False, "t", handled.append, ("old",))
         time.sleep(ORDINARY_WAITS_AT_MOST_S * 1.5)  # the loop busy: nothing is taken meanwhile
         inbox.put(True, "t", handled.append, ("first 1",))

@@ -2,7 +2,7 @@
 
 zenoh-python calls back on its own threads. Every callback here only hands
 the sample (key and bytes) to the event loop, through the loop's inbox
-(:class:`_Inbox`); the handlers run on the loop, one at a time, like
+(:class:`~fleet.transport.inbox.Inbox`); the handlers run on the loop, one at a time, like
 everything else in the process. A subscription may go *first*: its samples
 are handed round before those of ordinary ones already waiting. The agents'
 protocol messages go first (see fleet.agent.drone): a drone that coordinates
@@ -32,13 +32,9 @@ a callback subscriber still declared at interpreter exit hangs it.
 from __future__ import annotations
 
 import asyncio
-import collections
 import contextlib
 import json
 import logging
-import threading
-import time
-import weakref
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -49,6 +45,7 @@ import zenoh
 from drona_gcs.errors import DronaError
 from fleet.logs import Throttled
 from fleet.transport.identity import Identity, access_control, read_hosts
+from fleet.transport.inbox import guarded, inbox_of
 from fleet.transport.keys import FleetKeys
 
 log = logging.getLogger(__name__)
@@ -187,7 +184,7 @@ class ZenohNode:
         self.owner = owner  #: the node that opened the session (None: this one)
         #: Subscriptions of the session's nodes, one Zenoh subscriber per key (kept by the owner).
         self._fanouts: dict[str, _Fanout] = owner._fanouts if owner is not None else {}
-        self._inbox = _inbox(loop)
+        self._inbox = inbox_of(loop)
         self._subscribed: list[tuple[str, SampleHandler]] = []
         self._declared: list[Any] = []
         self._publishers: dict[str, zenoh.Publisher] = {}
@@ -437,72 +434,6 @@ class ZenohNode:
         self._inbox.put(first, self.name, callback, args)
 
 
-#: An ordinary item that has waited this long goes before the *first* ones: a process busy with
-#: protocol messages for long (a fleet given mail at once) still takes mail orders, answers queries
-#: and measures its clock.
-ORDINARY_WAITS_AT_MOST_S = 0.05
-
-_Item = tuple[float, str, Callable[..., None], Sequence[Any]]  #: (when handed in, node name, callback, args)
-
-
-class _Inbox:
-    """What Zenoh's threads hand to one event loop: the *first* items, then the rest, each in
-    arrival order (but an ordinary item never waits more than ``ORDINARY_WAITS_AT_MOST_S``). One
-    item per turn of the loop, so that an item handed in while another is handled (an answer to
-    a request being answered) is sorted in before the next is taken, and the loop's timers and
-    tasks keep their turns."""
-
-    def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
-        self._loop = weakref.ref(loop)  # weak: the inbox is the loop's, and must not keep it alive
-        self._lock = threading.Lock()  # Zenoh's threads put, the loop takes
-        self._first: collections.deque[_Item] = collections.deque()
-        self._ordinary: collections.deque[_Item] = collections.deque()
-        self._scheduled = False  #: a _take_one is queued on the loop
-
-    def put(self, first: bool, name: str, callback: Callable[..., None], args: Sequence[Any]) -> None:
-        loop = self._loop()
-        if loop is None or loop.is_closed():
-            return  # a session that outlived its loop: nobody is left to hand it to
-        with self._lock:
-            (self._first if first else self._ordinary).append((time.monotonic(), name, callback, args))
-            if self._scheduled:
-                return
-            self._scheduled = True
-        try:
-            loop.call_soon_threadsafe(self._take_one)
-        except RuntimeError:  # the loop closed under us during shutdown
-            with self._lock:
-                self._first.clear()
-                self._ordinary.clear()
-                self._scheduled = False
-
-    def _take_one(self) -> None:
-        with self._lock:
-            ordinary = self._ordinary
-            overdue = bool(ordinary) and time.monotonic() - ordinary[0][0] > ORDINARY_WAITS_AT_MOST_S
-            queue = ordinary if overdue or not self._first else self._first
-            _, name, callback, args = queue.popleft()
-            more = self._scheduled = bool(self._first or ordinary)
-        try:
-            _guarded(name, callback, args)
-        finally:
-            loop = self._loop()
-            if more and loop is not None:  # else a put meanwhile has queued a new turn itself
-                loop.call_soon(self._take_one)
-
-
-#: One inbox per event loop, shared by every session the process has on it.
-_INBOXES: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, _Inbox] = weakref.WeakKeyDictionary()
-
-
-def _inbox(loop: asyncio.AbstractEventLoop) -> _Inbox:
-    """The loop's inbox (made on the loop's thread, as a node is: never raced for)."""
-    found = _INBOXES.get(loop)
-    if found is None:
-        found = _INBOXES[loop] = _Inbox(loop)
-    return found
-
-
 FRAME_END = b"\n"  #: between the payloads of one Zenoh message
 
 
@@ -517,7 +448,7 @@ class _Fanout:
 
     def deliver(self, key: str, payload: bytes) -> None:
         for handler in list(self.handlers):  # a handler may close its node (and unsubscribe)
-            _guarded(self.name, handler, (key, payload))
+            guarded(self.name, handler, (key, payload))
 
     def undeclare(self, name: str) -> None:
         _undeclare(self.subscriber, name)
@@ -560,14 +491,6 @@ def _runs(parts: list[bytes], most: int | None) -> list[list[bytes]]:
     """``parts`` in runs of at most ``most`` (None: one run)."""
     step = most or len(parts)
     return [parts[first:first + step] for first in range(0, len(parts), step)]
-
-
-def _guarded(name: str, callback: Callable[..., None], args: Sequence[Any]) -> None:
-    """A handler's error is logged, never fatal: one bad message must not stop a drone."""
-    try:
-        callback(*args)
-    except Exception:
-        log.exception("%s: handler %s failed", name, getattr(callback, "__qualname__", callback))
 
 
 def _finish(done: asyncio.Future[None]) -> None:
