@@ -24,7 +24,7 @@ from pydantic import TypeAdapter
 
 from api import dispatch
 from api.dispatch import Assignment, Decision, InFlight, Requeue, Waiting
-from api.errors import AssignRefused, IllegalTransition, MailNotFound
+from api.errors import ApiError, AssignRefused, IllegalTransition, MailNotFound, StoreError
 from api.events import EventBus
 from api.gateway import DroneView, FleetGateway, MailOrder, MailStatusReport
 from api.lifecycle import FINAL, IN_FLIGHT, Status
@@ -33,6 +33,7 @@ from api.store import Change, MailRecord, Store
 from drona_gcs.workspace import Cell
 
 log = logging.getLogger(__name__)
+STORE_RETRY_S = 1.0  #: after the database failed, how long a dispatch round waits to try again
 _DRONE_JSON = TypeAdapter(DroneView)
 _Inbox = MailStatusReport | str  # a report, or the id of a lost drone
 
@@ -130,12 +131,21 @@ class Dispatcher:
         self._tasks = tasks
         while True:
             await self._sleep()
-            inbox, self._inbox = self._inbox, []
-            for item in inbox:
-                await (self._lost(item) if isinstance(item, str) else self._report(item))
-            heard = [m for m in self.in_flight.values() if m.drone not in self.gone]
-            await self._decide(dispatch.expired(heard, self.clock(), self.cleared_when_lost))
-            await self._assign_round()
+            try:
+                await self._round()
+            except StoreError as exc:  # the database failed: the round is tried again, its reports kept
+                log.error("dispatch: %s; trying again in %g s", exc, STORE_RETRY_S)
+                await asyncio.sleep(STORE_RETRY_S)
+                self._poke()
+
+    async def _round(self) -> None:
+        while self._inbox:  # each report leaves the inbox once taken in
+            item = self._inbox[0]
+            await (self._lost(item) if isinstance(item, str) else self._report(item))
+            self._inbox.pop(0)
+        heard = [m for m in self.in_flight.values() if m.drone not in self.gone]
+        await self._decide(dispatch.expired(heard, self.clock(), self.cleared_when_lost))
+        await self._assign_round()
 
     async def _sleep(self) -> None:
         """Until woken, or the next deadline (an in-flight mail's, or a refusal's end)."""
@@ -192,7 +202,7 @@ class Dispatcher:
     def _spawn(self, start: Callable[[], Coroutine[None, None, None]]) -> None:
         """Run ``start()`` as a task of the service's task group (the coroutine is made in the task)."""
         if self._tasks is None:
-            raise RuntimeError("the dispatcher is not running")
+            raise ApiError("the dispatcher is not running")
         self._sending += 1
         self._idle.clear()
         self._tasks.create_task(self._counted(start))
@@ -200,6 +210,8 @@ class Dispatcher:
     async def _counted(self, start: Callable[[], Coroutine[None, None, None]]) -> None:
         try:
             await start()
+        except StoreError as exc:  # the mail stays as stored: its deadline brings it back
+            log.error("dispatch: %s", exc)
         finally:
             self._sending -= 1
             self._poke()

@@ -5,7 +5,8 @@
   ``1e400`` or ``NaN`` in it gets its 422, not a 500 from the JSON encoder.
 * :func:`http_error`: FastAPI's answer, except that a 405's ``Allow`` lists every method of the path.
 * :func:`store_unavailable`: a 503 when the database failed (:class:`~api.errors.StoreError`); what SQLite
-  said goes to the log, not to the caller. Nothing was stored: a retry (with its Idempotency-Key) is safe.
+  said goes to the log, not to the caller. A new mail answered so was not stored (a retry with its
+  Idempotency-Key is safe); a cancel or a fleet command may have taken effect without its answer.
 """
 
 from __future__ import annotations

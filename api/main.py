@@ -141,12 +141,13 @@ def _publisher(bus: EventBus) -> Callable[[Change], None]:
 
 
 async def _checkpointer(store: Store, every_s: float) -> None:
-    while True:  # a timer, not a wait for an event: a checkpoint missed is simply the next one's work
-        await asyncio.sleep(every_s)
+    """A checkpoint at start (a WAL left by a crash), then every ``every_s``: a timer, not a wait for an event."""
+    while True:
         try:
             busy, frames, done = await store.checkpoint()
         except StoreError as exc:  # tried again at the next period
             log.warning("WAL checkpoint failed: %s", exc)
-            continue
-        if busy:
-            log.info("WAL checkpoint left %d of %d frames (readers busy)", frames - done, frames)
+        else:
+            if busy:
+                log.info("WAL checkpoint left %d of %d frames (readers busy)", frames - done, frames)
+        await asyncio.sleep(every_s)

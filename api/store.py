@@ -297,17 +297,28 @@ def sqlite_errors(path: Path) -> Iterator[None]:
 def _connect(path: Path, synchronous: str, writer: bool) -> sqlite3.Connection:
     # The writer's connection is used by the event loop's thread and the writer thread, never at once.
     conn = sqlite3.connect(path, isolation_level=None, check_same_thread=not writer)
-    conn.execute("PRAGMA busy_timeout = 5000")
-    if writer:
-        mode = conn.execute("PRAGMA journal_mode = WAL").fetchone()[0]
-        if mode != "wal":
-            raise StoreError(f"{path}: SQLite refused WAL mode (journal mode is {mode})")
-        conn.executescript(SCHEMA)
-        if migrate(conn) > len(MIGRATIONS):
-            raise StoreError(f"{path}: its schema is version {schema_version(conn)}, newer than this drona-gcs knows "
-                             f"({len(MIGRATIONS)}): run the version that wrote it, or a newer one")
-    conn.execute(f"PRAGMA synchronous = {synchronous}")
+    try:
+        conn.execute("PRAGMA busy_timeout = 5000")
+        if writer:
+            _prepare(conn, path)
+        conn.execute(f"PRAGMA synchronous = {synchronous}")
+    except BaseException:
+        conn.close()
+        raise
     return conn
+
+
+def _prepare(conn: sqlite3.Connection, path: Path) -> None:
+    """WAL mode, and the schema brought up to date; a database of a newer schema is refused before anything
+    is written to it."""
+    if (version := schema_version(conn)) > len(MIGRATIONS):
+        raise StoreError(f"{path}: its schema is version {version}, newer than this drona-gcs knows "
+                         f"({len(MIGRATIONS)}): run the version that wrote it, or a newer one")
+    mode = conn.execute("PRAGMA journal_mode = WAL").fetchone()[0]
+    if mode != "wal":
+        raise StoreError(f"{path}: SQLite refused WAL mode (journal mode is {mode})")
+    conn.executescript(SCHEMA)
+    migrate(conn)
 
 
 def _insert(conn: sqlite3.Connection, new: NewMail, now: float) -> Change:

@@ -232,3 +232,20 @@ def test_unfinished_mail_resumes_after_a_restart(settings: ApiSettings, workspac
             assert any(e.status.value == "queued" and "sim1 stopped reporting" in e.reason for e in trail)
 
     run(body())
+
+
+def test_a_database_failing_under_a_dispatch_round_is_survived_and_the_round_tried_again(
+        settings: ApiSettings, workspace: Workspace) -> None:
+    async def body() -> None:
+        async with running(settings, workspace) as h:
+            dispatcher, store = h.service.dispatcher, h.service.store
+            dispatcher.hold(paused=True)
+            mail = await h.submit([1, 1, 0], [7, 6, 0])
+            store._writer.execute("PRAGMA query_only = ON")  # as a disk gone read-only
+            dispatcher.hold(paused=False)  # the round's assignment fails
+            await asyncio.sleep(0.2)
+            assert h.status(mail["id"]) == "queued"
+            store._writer.execute("PRAGMA query_only = OFF")
+            await h.until(lambda: h.status(mail["id"]) == "assigned", timeout=5.0)
+
+    run(body())
