@@ -28,6 +28,7 @@ def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
     for arg, patterns in DATA_FILES.items():
         if arg in metafunc.fixturenames:
             files = sorted(f for pattern in patterns for f in DATA_DIR.glob(pattern))
+            assert files, f"no test data for {arg}: {patterns} under {DATA_DIR}"
             metafunc.parametrize(arg, [pytest.param(f, id=f.relative_to(DATA_DIR).as_posix()) for f in files])
 
 

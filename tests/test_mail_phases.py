@@ -59,3 +59,15 @@ def test_every_phase_is_in_the_table_and_can_get_back_to_idle() -> None:
     for _ in Phase:
         back |= {phase for phase, moves in TRANSITIONS.items() if set(moves.values()) & back}
     assert back == set(Phase)
+
+
+def test_a_failure_reported_after_its_leg_ended_is_taken_in_idle() -> None:
+    """The vehicle relocated while its round went on: the round's failure still comes, and is no error."""
+    mp = planner()
+    mp.assign(MailRequest("m1", PICKUP, DROPOFF, 5))
+    mp.decide(0, 100.0, ())
+    mp.relocate((2, 2, 0), landed=True)
+    assert mp.phase is Phase.IDLE
+    mp.leg_failed(3)
+    mp.leg_not_flown(4)
+    assert mp.phase is Phase.IDLE and [r.id for r in mp.queue] == ["m1"]

@@ -36,7 +36,9 @@ def failure(act: Callable[[ZenohNode], object]) -> TransportError:
     (lambda n: n.queryable(BAD_KEY, lambda k, p, q: None), f"n1: answer on {BAD_KEY}"),
     (lambda n: n.token(BAD_KEY), f"n1: declare token {BAD_KEY}"),
     (lambda n: n.get(BAD_KEY, b"", 1.0), "n1: ask"),
-], ids=["put", "subscribe", "queryable", "token", "get"])
+    (lambda n: n.alive(BAD_KEY, 1.0), "n1: ask"),
+    (lambda n: n.watch_liveliness(BAD_KEY, lambda k, alive: None), f"n1: watch tokens {BAD_KEY}"),
+], ids=["put", "subscribe", "queryable", "token", "get", "alive", "watch"])
 def test_a_zenoh_error_is_a_transport_error_naming_what_was_done(act: Callable[[ZenohNode], object],
                                                                   what: str) -> None:
     error = failure(act)
@@ -49,3 +51,18 @@ def test_a_bad_configuration_names_the_file(tmp_path: Path) -> None:
     config.write_text('{ mode: "peer", listen: { endpoints: ["nonsense"] } }')
     with pytest.raises(TransportError, match=f"Zenoh configuration in {config}"):
         ZenohSettings(config_file=config).config()
+
+
+def test_a_subscription_zenoh_refused_is_not_kept() -> None:
+    async def scenario() -> tuple[int, int]:
+        node = await ZenohNode.open(ZenohSettings(), "n1")
+        try:
+            with pytest.raises(TransportError):
+                node.subscribe(BAD_KEY, lambda k, p: None)
+            refused = len(node._fanouts)
+            node.subscribe("drona/t", lambda k, p: None)
+            return refused, len(node._fanouts)
+        finally:
+            await node.close()
+
+    assert asyncio.run(scenario()) == (0, 1)

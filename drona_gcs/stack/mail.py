@@ -375,13 +375,13 @@ class MailPlanner:
         """The protocol completed the current leg: we are at ``goal``."""
         if self.goal is None:
             raise ProtocolViolation(f"leg done while {self.phase.value}, with no leg under way")
+        done, actions = self.phase, list[MailAction]()
+        self._enter(MailEvent.ARRIVED)  # first: refused, nothing else changes (a drop-off leg starts next)
         self.cell, self.goal, self.misses, self.failures, self.cut_offs = self.goal, None, 0, 0, 0
         self.cut_off_mail = frozenset()
         self.tried.clear()
         self.blocked, self.backoff = None, 0
-        done, actions = self.phase, list[MailAction]()
         self.landed_here = self._parked() or self.cell in self.chargers or done is Phase.MAKING_WAY
-        self._enter(MailEvent.ARRIVED)  # a drop-off leg starts at the next decision
         if done is Phase.TO_PICKUP and self.current is not None and not self._may_pick_up(self.current):
             actions.append(MailRejected(self.current, NOT_CLEARED, True))
             self.current = None
@@ -398,10 +398,10 @@ class MailPlanner:
         """The plan ended but telemetry never put the vehicle at the goal: the leg did not happen. It
         is tried again at once (the vehicle may only be late); a pickup missed :data:`MAX_MISSES`
         times in a row is handed back, for another drone to fly. Mail on board stays on board."""
+        self._enter(MailEvent.NOT_FLOWN)
         current, carrying = self.current, self.carrying
         self.misses += 1
         self.goal, self.retry_at = None, now
-        self._enter(MailEvent.NOT_FLOWN)
         if current is None or carrying:
             return []
         self.current = None
@@ -415,13 +415,13 @@ class MailPlanner:
     def relocate(self, cell: Cell, landed: bool) -> None:
         """The vehicle was lost and is back in ``cell``: a leg under way is over (not flown), the
         mail stays as it was (on board, or in the queue), and the next decision starts from here."""
+        # Charging goes on only on the charger: elsewhere it would wait for good.
+        on_charger = self.phase is Phase.CHARGING and cell in self.chargers and landed
+        self._enter(MailEvent.RELOCATED_ON_CHARGER if on_charger else MailEvent.RELOCATED)
         self.cell, self.goal, self.landed_here, self.retry_at = cell, None, landed, 0
         if self.current is not None and not self.carrying:
             self.queue.append(self.current)
             self.current = None
-        # Charging goes on only on the charger: elsewhere it would wait for good.
-        on_charger = self.phase is Phase.CHARGING and cell in self.chargers and landed
-        self._enter(MailEvent.RELOCATED_ON_CHARGER if on_charger else MailEvent.RELOCATED)
         self.tried.clear()
 
     def leg_failed(self, now: int, asked: bool = True, cut_off: bool = False) -> list[MailAction]:
@@ -436,19 +436,19 @@ class MailPlanner:
         with one pickup, or a peer whose clock is off passing through)."""
         passing = self.goal in self.passing
         asked = asked and not passing
-        self.retry_at = now + self._retry_delay()
-        if self.goal is not None:
-            self.tried.add(self.goal)
         to_pickup = self.phase is Phase.TO_PICKUP and self.current is not None and not self.carrying
         to_dropoff = self.phase is Phase.TO_DROPOFF and self.carrying
         to_charger = self.phase is Phase.TO_CHARGER
+        self._enter(MailEvent.FAILED)
+        self.retry_at = now + self._retry_delay()
+        if self.goal is not None:
+            self.tried.add(self.goal)
         self.goal = None
         self.landed_here = self.landed_here or not passing  # a peer passing through: hover the short wait
         if self.current is not None and not self.carrying:
             # Not picked up yet: back in the queue, to be weighed again against priorities and battery.
             self.queue.append(self.current)
             self.current = None
-        self._enter(MailEvent.FAILED)
         self.failures += asked and (to_pickup or to_dropoff or to_charger)
         self.cut_offs = self.cut_offs + 1 if cut_off else 0 if asked else self.cut_offs
         if to_pickup and not passing and self._struck(self.queue[-1]):
@@ -725,8 +725,8 @@ class MailPlanner:
             taken: Collection[Cell]) -> list[MailAction]:
         """The leg to ``goal``; none (a failure, without a round) while it is known taken and no
         real round is due."""
-        self.goal, self.goal_taken = goal, goal in taken
         self._enter((MailEvent.LEG, purpose))
+        self.goal, self.goal_taken = goal, goal in taken
         if self.goal_taken and self.backoff < self.max_retry_steps:
             return self.leg_failed(budget.now, asked=False)
         return [GoTo(goal, budget.flight(reserve), purpose)]

@@ -1,6 +1,6 @@
 """``drona bench api``: sustained durable mail submissions against a running service.
 
-It starts ``drona serve`` in its own process (simulated fleet of ``--drones`` drones
+It starts ``drona serve`` in its own process (simulated fleet of ``--sim-drones`` drones
 flying the mail meanwhile, a fresh SQLite file with ``synchronous=FULL``), then,
 from this process, submits mail **open-loop** at ``--rate`` per second for
 ``--seconds`` over ``--connections`` keep-alive HTTP/1.1 connections. A request's
@@ -32,6 +32,7 @@ from api.validation import MailChecker
 from drona_gcs.workload import random_workspace
 from drona_gcs.workspace import Workspace
 from fleet import runtime
+from fleet.bench import BenchError
 from fleet.bench import plot as bench_plot
 
 Pair = tuple[tuple[int, int, int], tuple[int, int, int]]  #: a pickup and a drop-off
@@ -75,7 +76,11 @@ def run(args: argparse.Namespace) -> int:
     if args.url and not args.token:
         print("drona bench api: --url needs --token", file=sys.stderr)
         return 2
-    return runtime.run(_main(args, seconds))
+    try:
+        return runtime.run(_main(args, seconds))
+    except BenchError as exc:
+        print(f"drona bench api: {exc}", file=sys.stderr)
+        return 1
 
 
 async def _main(args: argparse.Namespace, seconds: float) -> int:
@@ -121,7 +126,7 @@ async def _wait_listening(proc: asyncio.subprocess.Process) -> str:
         while line := (await proc.stdout.readline()).decode():
             if "listening on" in line:
                 return line.rsplit(" ", 1)[-1].strip()
-    raise RuntimeError(f"drona serve exited ({proc.returncode}) before listening")
+    raise BenchError(f"drona serve exited ({proc.returncode}) before listening")
 
 
 def _pairs(ws: Workspace, rng: random.Random, count: int = 400) -> list[Pair]:

@@ -252,7 +252,8 @@ class ZenohNode:
 
     def _answer(self, handler: QueryHandler, key: str, payload: bytes, query: zenoh.Query) -> None:
         try:
-            handler(key, payload, query)
+            with zenoh_errors(f"{self.name}: reply on {key}"):  # the handler's replies
+                handler(key, payload, query)
         finally:
             query.drop()  # type: ignore[no-untyped-call]  # ends the query once every reply is sent
 
@@ -414,7 +415,8 @@ class ZenohNode:
         if self.owner is None:
             for key in list(self._fanouts):  # views left open: their subscriptions go with the session
                 self._fanouts.pop(key).undeclare(self.name)
-            await asyncio.to_thread(self.session.close)
+            with zenoh_errors(f"{self.name}: close"):
+                await asyncio.to_thread(self.session.close)
 
     def _unsubscribe(self, key: str, handler: SampleHandler) -> None:
         fanout = self._fanouts.get(key)
