@@ -3,7 +3,7 @@
 Every error class of drona-gcs is a :class:`DronaError` (arguments of the wrong kind are still
 ``ValueError``, as in Python itself). The edges map a library's errors into it in
 one place each, with ``raise ... from exc``: Zenoh's in ``fleet.transport.node.zenoh_errors``,
-SQLite's in ``api.store.sqlite_errors``. The whole tree (``tests/test_errors.py`` keeps it whole)::
+SQLite's in ``api.store.sqlite_errors``. The whole tree (``tests/drona_gcs/test_errors.py`` keeps it whole)::
 
     DronaError
     ├── WorkspaceError            a workspace file or object is invalid

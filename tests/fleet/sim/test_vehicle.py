@@ -45,7 +45,7 @@ from fleet.sim.telemetry import Streams, battery_status, sys_status
 from fleet.sim.transport import SERIAL_TX_BUFFER, PtyLink
 
 ML = mavutil.mavlink
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 SIGNING_KEY = bytes(range(32))
 GUIDED, STABILIZE = 4, 0
 POSITION_ONLY = 0b110111111000  # SET_POSITION_TARGET type_mask: use x, y, z only

@@ -18,7 +18,7 @@ from api.auth import Principal, Role
 from fleet.cli import build_parser
 from fleet.cli.serve import _settings
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 
 #: A child on a lifeline that starts a grandchild in its process group and prints the grandchild's pid.
 CHILD = ("import subprocess, sys, time\n"

@@ -37,7 +37,16 @@ from fleet.sim.personality import ARDUPILOT, PX4, Personality
 from fleet.sim.physics import Limits
 from fleet.sim.ports import free_port
 from fleet.sim.telemetry import sys_status
-from tests.test_sim_vehicle import GCS, POSITION_ONLY, REPO, ack_of, airborne_guided, deliver, run_for, stderr_lines
+from tests.fleet.sim.test_vehicle import (
+    GCS,
+    POSITION_ONLY,
+    REPO,
+    ack_of,
+    airborne_guided,
+    deliver,
+    run_for,
+    stderr_lines,
+)
 
 ML = mavlink2
 BOTH = pytest.mark.parametrize("personality", [ARDUPILOT, PX4], ids=lambda p: p.name)

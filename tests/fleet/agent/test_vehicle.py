@@ -17,7 +17,7 @@ from drona_gcs.geo import Ned
 from fleet.agent.vehicle import VehicleSupervisor
 from fleet.clock import cancel_all
 from fleet.vehicle.link import Autopilot, LandedState, Telemetry, VehicleLink
-from tests.test_vehicle_link import connected, fake_vehicle, run
+from tests.fleet.vehicle.test_link import connected, fake_vehicle, run
 
 FLIGHT_ALT_M = 8.0
 

@@ -29,9 +29,9 @@ from fleet.sim.ports import free_port
 from fleet.vehicle.link import VehicleLink
 from fleet.vehicle.mavlink_link import PymavlinkLink
 from fleet.vehicle.signing import sign_outgoing
-from tests.test_vehicle_link import Fake, fake_vehicle, run
+from tests.fleet.vehicle.test_link import Fake, fake_vehicle, run
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 KEY = bytes(range(32))
 OTHER_KEY = bytes(range(1, 33))
 QUAD, ARDUPILOT = mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA

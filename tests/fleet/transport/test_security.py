@@ -37,7 +37,7 @@ from fleet.transport.node import ZenohNode, ZenohSettings
 from fleet.transport.wire import MailStatus, answers, encode
 from fleet.transport.wire import MailStatusReport as WireReport
 from tests.conftest import fleet_tls_dir
-from tests.test_agent_drone import RecordingNode, ScriptedVehicle
+from tests.fleet.agent.test_drone import RecordingNode, ScriptedVehicle
 
 KEYS = FleetKeys("sec")
 DRONES = ["d1", "d2", "d3"]

@@ -3,7 +3,7 @@
 Unit tests feed one drone's machine events by hand on an open 5 x 5 x 1 grid
 (the unit tests use delta 0, so the shortest plan is the Manhattan path);
 the cluster tests join two or three machines through
-:class:`tests.stack_cluster.ProtocolCluster` and check, under several message
+:class:`tests.drona_gcs.stack.cluster.ProtocolCluster` and check, under several message
 orders, that everyone starts, plans against what its peers had committed,
 and that the flown trajectories are safe by the independent checker.
 """
@@ -65,7 +65,7 @@ from drona_gcs.stack.protocol import (
     VehicleLost,
 )
 from drona_gcs.workspace import Cell, Workspace
-from tests.stack_cluster import ProtocolCluster
+from tests.drona_gcs.stack.cluster import ProtocolCluster
 
 OPEN = Workspace.build(size=(5, 5, 1))
 A, B, C = (0, 0, 0), (4, 4, 0), (0, 4, 0)
