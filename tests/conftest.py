@@ -74,11 +74,3 @@ def write_file(tmp_path: Path) -> Callable[[str, str | bytes], Path]:
 
     return write
 
-
-#: Folders whose files take longest (runs over real processes, the systematic tester's searches).
-SLOW_FIRST = ("integration", "verify")
-
-
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """The longest files first, so that the two workers end together."""
-    items.sort(key=lambda item: not set(SLOW_FIRST) & set(item.path.parts))
