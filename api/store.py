@@ -24,7 +24,7 @@ import secrets
 import sqlite3
 import time
 from collections import deque
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,6 +33,7 @@ from typing import Any, Literal, TypeVar
 from api.errors import ApiError, IdempotencyConflict, IllegalTransition, MailNotFound, StoreError
 from api.lifecycle import Status, check_transition
 from api.schema import MIGRATIONS, SCHEMA, migrate, schema_version
+from drona_gcs.errors import mapped
 from drona_gcs.workspace import Cell
 
 log = logging.getLogger(__name__)
@@ -285,13 +286,9 @@ class Store:
         return [MailRecord.from_row(r) for r in self.read(lambda c: c.execute(sql, args).fetchall())]
 
 
-@contextlib.contextmanager
-def sqlite_errors(path: Path) -> Iterator[None]:
+def sqlite_errors(path: Path) -> contextlib.AbstractContextManager[None]:
     """SQLite's errors as :class:`StoreError` naming the file: the one place they are mapped."""
-    try:
-        yield
-    except sqlite3.Error as exc:
-        raise StoreError(f"{path}: {exc}") from exc
+    return mapped(sqlite3.Error, StoreError, str(path))
 
 
 def _connect(path: Path, synchronous: str, writer: bool) -> sqlite3.Connection:

@@ -37,11 +37,22 @@ SQLite's in ``api.store.sqlite_errors``. The whole tree (``tests/drona_gcs/test_
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import contextlib
+from collections.abc import Iterator, Sequence
 
 
 class DronaError(Exception):
     """Base class of every error raised by drona-gcs."""
+
+
+@contextlib.contextmanager
+def mapped(library_error: type[Exception], to: type[DronaError], what: str) -> Iterator[None]:
+    """A library's ``library_error`` raised inside as ``to``, saying ``what`` was being done: each edge maps
+    its library's errors with this, in one place per library."""
+    try:
+        yield
+    except library_error as exc:
+        raise to(f"{what}: {exc}") from exc
 
 
 class WorkspaceError(DronaError):

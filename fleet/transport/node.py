@@ -35,14 +35,14 @@ import asyncio
 import contextlib
 import json
 import logging
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol
 
 import zenoh
 
-from drona_gcs.errors import DronaError
+from drona_gcs.errors import DronaError, mapped
 from fleet.logs import Throttled
 from fleet.transport.identity import Identity, access_control, read_hosts
 from fleet.transport.inbox import guarded, inbox_of
@@ -61,13 +61,9 @@ class TransportError(DronaError):
     """Zenoh failed: the message says what was being done (configure, open, declare, put, ask)."""
 
 
-@contextlib.contextmanager
-def zenoh_errors(what: str) -> Iterator[None]:
+def zenoh_errors(what: str) -> contextlib.AbstractContextManager[None]:
     """Zenoh's errors as :class:`TransportError` saying ``what`` was being done: the one place they are mapped."""
-    try:
-        yield
-    except zenoh.ZError as exc:
-        raise TransportError(f"{what}: {exc}") from exc
+    return mapped(zenoh.ZError, TransportError, what)
 
 
 @dataclass(frozen=True)
