@@ -28,12 +28,12 @@ BENCHES: dict[str, tuple[str, str]] = {
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    _add_shared(parser, None)
+    _add_shared(parser, defaults=True)
     sub = parser.add_subparsers(dest="what", required=True, metavar="BENCH")
     modules = {name: importlib.import_module(module) for name, (module, _) in BENCHES.items()}
     for name, (module, help_text) in BENCHES.items():
         bench = sub.add_parser(name, help=help_text, description=help_text)
-        _add_shared(bench, argparse.SUPPRESS)  # given before the bench's name, a value stays
+        _add_shared(bench, defaults=False)
         modules[name].add_arguments(bench)
         for other, found in modules.items():
             if other != name:
@@ -41,9 +41,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         bench.set_defaults(_bench=module)
 
 
-def _add_shared(parser: argparse.ArgumentParser, default: Any) -> None:
+def _add_shared(parser: argparse.ArgumentParser, defaults: bool) -> None:
+    """The options every bench takes; without ``defaults`` (a bench's own parser), a value given before the
+    bench's name stays."""
     def given(value: Any) -> Any:
-        return argparse.SUPPRESS if default is argparse.SUPPRESS else value
+        return value if defaults else argparse.SUPPRESS
 
     parser.add_argument("--quick", action="store_true", default=given(False),
                         help="a short run (each option says its own)")
