@@ -3,8 +3,8 @@
 ``pause`` and ``resume`` go to the whole fleet, ``recall``, ``land`` and ``resume`` to one drone too;
 ``release`` goes to every live drone, about one that is gone (its vehicle seen out of the air).
 The service stops handing out mail (the fleet paused, or a drone held) before it tells the drones,
-and records every command with the drones' answers in the audit trail (table ``command``, made by
-api.schema.MIGRATIONS).
+and records every command in the audit trail (table ``command``, made by api.schema.MIGRATIONS) before
+it takes effect, then the drones' answers: a command the database refused has done nothing.
 What a drone does with each is :meth:`drona_gcs.stack.drone.DroneStack.command`'s: legs under way
 are flown, mail on board is delivered, and a landed drone stops only through the protocol.
 """
@@ -13,16 +13,21 @@ from __future__ import annotations
 
 import enum
 import json
+import logging
 import sqlite3
 import time
 from dataclasses import dataclass
+from typing import Any
 
 from pydantic import TypeAdapter
 
 from api.dispatcher import Dispatcher
+from api.errors import StoreError
 from api.events import EventBus
 from api.gateway import CommandAck, FleetGateway
 from api.store import Store
+
+log = logging.getLogger(__name__)
 
 
 class Action(enum.Enum):
@@ -35,7 +40,9 @@ class Action(enum.Enum):
 
 @dataclass(frozen=True)
 class CommandRecord:
-    """One command as the audit trail keeps it: ``drone`` None for the whole fleet."""
+    """One command as the audit trail keeps it: ``drone`` None for the whole fleet; ``answered`` False
+    when the drones' answers were never stored (the service stopped, or the database failed, after the
+    command was recorded)."""
 
     n: int
     at: float  #: Unix seconds
@@ -43,6 +50,7 @@ class CommandRecord:
     action: Action
     drone: str | None
     acks: tuple[CommandAck, ...]
+    answered: bool = True
 
 
 _RECORD_JSON = TypeAdapter(CommandRecord)
@@ -53,8 +61,10 @@ class FleetCommands:
         self.store, self.dispatcher, self.fleet, self.bus = store, dispatcher, fleet, bus
 
     async def run(self, action: Action, drone: str | None, by: str) -> CommandRecord:
-        """Stop handing out mail, tell the drones, then record it all (durably); a resume takes effect
-        once the drones heard it, so that mail handed out then is taken up."""
+        """Record the command (durably), stop handing out mail, tell the drones, then store their answers;
+        a resume takes effect once the drones heard it, so that mail handed out then is taken up."""
+        at = time.time()
+        n = await self.store.write(lambda conn: _insert(conn, at, by, action, drone))
         if action is not Action.RESUME:
             self._apply(action, drone)
         if action is Action.RELEASE:
@@ -65,11 +75,20 @@ class FleetCommands:
             acks = tuple(await self.fleet.command(drone, action.value, by))
         if action is Action.RESUME:
             self._apply(action, drone)
-        at = time.time()
-        n = await self.store.write(lambda conn: _insert(conn, at, by, action, drone, acks))
-        record = CommandRecord(n, at, by, action, drone, acks)
+        record = CommandRecord(n, at, by, action, drone, acks, await self._store_answers(n, acks))
         self.bus.publish("command", lambda: _RECORD_JSON.dump_json(record).decode())  # other operators' pages
         return record
+
+    async def _store_answers(self, n: int, acks: tuple[CommandAck, ...]) -> bool:
+        """Whether the answers were stored: the command has taken effect either way, so a failure here
+        is logged, not raised, and the record says the answers are missing."""
+        try:
+            await self.store.write(lambda conn: conn.execute("UPDATE command SET acks = ? WHERE n = ?",
+                                                             (_answers_json(acks), n)))
+        except StoreError as exc:
+            log.error("command %d took effect, but its answers were not stored: %s", n, exc)
+            return False
+        return True
 
     def restore(self) -> None:
         """After a restart: the fleet paused, and the drones held, as the recorded commands left them."""
@@ -93,14 +112,23 @@ class FleetCommands:
         """The newest ``limit`` commands, newest first."""
         rows = self.store.read(lambda c: c.execute(
             "SELECT n, at, by, action, drone, acks FROM command ORDER BY n DESC LIMIT ?", (limit,)).fetchall())
-        return [CommandRecord(n, at, by, Action(action), drone, tuple(CommandAck(**a) for a in json.loads(acks)))
+        return [_record(n, at, by, Action(action), drone, json.loads(acks))
                 for n, at, by, action, drone, acks in rows]
 
 
-def _insert(conn: sqlite3.Connection, at: float, by: str, action: Action, drone: str | None,
-            acks: tuple[CommandAck, ...]) -> int:
-    answers = json.dumps([{"drone": a.drone, "accepted": a.accepted, "reason": a.reason} for a in acks])
-    cur = conn.execute("INSERT INTO command (at, by, action, drone, acks) VALUES (?, ?, ?, ?, ?)",
-                       (at, by, action.value, drone, answers))
+def _record(n: int, at: float, by: str, action: Action, drone: str | None,
+            answers: list[dict[str, Any]] | None) -> CommandRecord:
+    acks = tuple(CommandAck(**a) for a in answers or ())
+    return CommandRecord(n, at, by, action, drone, acks, answered=answers is not None)
+
+
+def _answers_json(acks: tuple[CommandAck, ...]) -> str:
+    return json.dumps([{"drone": a.drone, "accepted": a.accepted, "reason": a.reason} for a in acks])
+
+
+def _insert(conn: sqlite3.Connection, at: float, by: str, action: Action, drone: str | None) -> int:
+    """The command, its answers not yet in (``acks`` is JSON null until :meth:`FleetCommands._store_answers`)."""
+    cur = conn.execute("INSERT INTO command (at, by, action, drone, acks) VALUES (?, ?, ?, ?, 'null')",
+                       (at, by, action.value, drone))
     assert cur.lastrowid is not None
     return cur.lastrowid

@@ -6,7 +6,7 @@
 * :func:`http_error`: FastAPI's answer, except that a 405's ``Allow`` lists every method of the path.
 * :func:`store_unavailable`: a 503 when the database failed (:class:`~api.errors.StoreError`); what SQLite
   said goes to the log, not to the caller. A new mail answered so was not stored (a retry with its
-  Idempotency-Key is safe); a cancel or a fleet command may have taken effect without its answer.
+  Idempotency-Key is safe); a cancel may have taken effect without its answer; a fleet command has not.
 """
 
 from __future__ import annotations

@@ -5,7 +5,9 @@ tests/integration/test_fleet_commands.py.)"""
 from __future__ import annotations
 
 import json
+from typing import Any
 
+from api.gateway import CommandAck
 from api.settings import ApiSettings
 from drona_gcs.workspace import Workspace
 from tests.api.conftest import SUBMITTER, auth, run, running
@@ -120,5 +122,43 @@ def test_a_drone_gone_from_the_fleet_is_released_only_while_it_is_gone(
             history = (await h.client.get("/v1/fleet/commands", headers=auth())).json()
             assert [(c["action"], c["drone"], c["by"]) for c in history] == [("release", "d2", "ops")]
             assert (await h.client.post("/v1/fleet/drones/d9/release", headers=auth())).status_code == 404
+
+    run(body())
+
+
+def test_a_command_the_database_refuses_does_nothing(settings: ApiSettings, workspace: Workspace) -> None:
+    """Recorded before it takes effect: a 503 means the fleet was neither told nor held."""
+    async def body() -> None:
+        async with running(settings, workspace) as h:
+            h.service.store._writer.execute("PRAGMA query_only = ON")  # as a disk gone read-only
+            res = await h.client.post("/v1/fleet/pause", headers=auth())
+            assert res.status_code == 503, res.text
+            assert h.gateway.commands == [] and not h.service.dispatcher.paused
+            h.service.store._writer.execute("PRAGMA query_only = OFF")
+            assert (await h.client.get("/v1/fleet/commands", headers=auth())).json() == []
+
+    run(body())
+
+
+def test_a_command_whose_answers_were_not_stored_says_so(settings: ApiSettings, workspace: Workspace) -> None:
+    """The database fails after the drones were told: the command stands, recorded, its answers missing."""
+    async def body() -> None:
+        async with running(settings, workspace) as h:
+            tell = h.gateway.command
+
+            async def told_then_disk_fails(*args: Any, **kwargs: Any) -> list[CommandAck]:
+                acks = await tell(*args, **kwargs)
+                h.service.store._writer.execute("PRAGMA query_only = ON")
+                return acks
+
+            h.gateway.command = told_then_disk_fails  # type: ignore[method-assign]
+            res = await h.client.post("/v1/fleet/drones/d1/land", headers=auth())
+            assert res.status_code == 200, res.text
+            assert res.json()["answered"] is False and res.json()["acks"][0]["drone"] == "d1"
+            h.service.store._writer.execute("PRAGMA query_only = OFF")
+            assert h.service.dispatcher.held == {"d1"}
+            history = (await h.client.get("/v1/fleet/commands", headers=auth())).json()
+            assert [(c["action"], c["drone"], c["answered"], c["acks"]) for c in history] == [
+                ("land", "d1", False, [])]
 
     run(body())
