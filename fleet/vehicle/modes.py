@@ -12,9 +12,6 @@ ARDUCOPTER_MODES = {"STABILIZE": 0, "ALT_HOLD": 2, "AUTO": 3, "GUIDED": 4, "LOIT
 #: PX4 mode name -> (main mode, sub mode); custom_mode = main << 16 | sub << 24.
 PX4_MODES = {"MANUAL": (1, 0), "ALTCTL": (2, 0), "POSCTL": (3, 0), "AUTO.TAKEOFF": (4, 2), "AUTO.LOITER": (4, 3),
              "AUTO.MISSION": (4, 4), "AUTO.RTL": (4, 5), "AUTO.LAND": (4, 6), "OFFBOARD": (6, 0)}
-FOLLOW_MODE = {Autopilot.ARDUPILOT: "GUIDED", Autopilot.PX4: "OFFBOARD"}
-LAND_MODE = {Autopilot.ARDUPILOT: "LAND", Autopilot.PX4: "AUTO.LAND"}
-CONFIRM_HEARTBEATS = 2  #: PX4 may send one more HEARTBEAT with the old state after its ACK
 
 
 class ModeDoubt:

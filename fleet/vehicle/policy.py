@@ -15,12 +15,19 @@ Measured on ArduCopter SITL (V4.7.0-dev) and read in its sources:
 
 PX4 leaves OFFBOARD without a setpoint stream, so there setpoints stream from the start, and it
 climbs to the streamed setpoint by itself.
+
+Both links follow :class:`AutopilotPolicy` for what to send (which mode a take-off is sent in, what
+NAV_TAKEOFF's altitude means), and an :class:`Expectation` for what confirms an acknowledged command
+from the HEARTBEATs after its ACK: an autopilot may ACK what it does not do.
 """
 
 from __future__ import annotations
 
+import enum
+import math
 from dataclasses import dataclass
 
+from drona_gcs.errors import VehicleError
 from fleet.vehicle.link import Autopilot, LandedState, Telemetry
 
 
@@ -33,6 +40,106 @@ class Timeouts:
 
 
 DEFAULT_TIMEOUTS = Timeouts()
+CONFIRM_HEARTBEATS = 2  #: PX4 may send one more HEARTBEAT with the old state after its ACK
+
+
+class Command(enum.IntEnum):
+    """The MAV_CMDs both links send."""
+
+    NAV_LAND = 21
+    NAV_TAKEOFF = 22
+    DO_SET_MODE = 176
+    COMPONENT_ARM_DISARM = 400
+    SET_MESSAGE_INTERVAL = 511
+
+
+class Result(enum.IntEnum):
+    """MAV_RESULT: anything but ACCEPTED (and IN_PROGRESS, which is no answer yet) is a refusal."""
+
+    ACCEPTED = 0
+    TEMPORARILY_REJECTED = 1
+    DENIED = 2
+    UNSUPPORTED = 3
+    FAILED = 4
+    IN_PROGRESS = 5
+
+
+SERIOUS = 4  #: MAV_SEVERITY_WARNING: STATUSTEXTs at this severity or worse explain a refusal
+CUSTOM_MODE_ENABLED = 1  #: MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, DO_SET_MODE's first param
+
+
+def explains_refusal(severity: int) -> bool:
+    return severity <= SERIOUS
+
+
+@dataclass(frozen=True)
+class AutopilotPolicy:
+    """How one autopilot is commanded (see the module docstring)."""
+
+    follow_mode: str | None  #: the mode that follows setpoints (None: none known)
+    land_mode: str | None  #: the mode a NAV_LAND puts it in (None: none known)
+    takeoff_mode: str | None  #: switched to before NAV_TAKEOFF (ArduCopter takes off in GUIDED only)
+    takeoff_amsl: bool  #: NAV_TAKEOFF's altitude is above mean sea level (PX4), not above home
+    setpoints_first: bool  #: refuses its follow mode until setpoints stream (PX4's OFFBOARD)
+    setpoints_in_takeoff: bool  #: may get setpoints before its take-off is over (ArduCopter may not)
+
+
+POLICIES = {
+    Autopilot.ARDUPILOT: AutopilotPolicy("GUIDED", "LAND", "GUIDED", takeoff_amsl=False, setpoints_first=False,
+                                         setpoints_in_takeoff=False),
+    Autopilot.PX4: AutopilotPolicy("OFFBOARD", "AUTO.LAND", None, takeoff_amsl=True, setpoints_first=True,
+                                   setpoints_in_takeoff=True),
+    Autopilot.OTHER: AutopilotPolicy(None, None, None, takeoff_amsl=True, setpoints_first=False,
+                                     setpoints_in_takeoff=True),
+}
+
+
+def policy_of(autopilot: Autopilot | None) -> AutopilotPolicy:
+    """An autopilot's policy; one not known yet is flown as :attr:`Autopilot.OTHER`."""
+    return POLICIES[autopilot or Autopilot.OTHER]
+
+
+def takeoff_params(t: Telemetry, altitude_m: float, who: str) -> tuple[float, ...]:
+    """NAV_TAKEOFF's seven params for a climb to ``altitude_m`` above home. PX4 wants the altitude
+    AMSL: home's is the global position's altitude minus the height above home."""
+    if not altitude_m > 0:
+        raise ValueError(f"takeoff altitude must be > 0, got {altitude_m}")
+    if not policy_of(t.autopilot).takeoff_amsl:
+        return 0, 0, 0, 0, 0, 0, altitude_m
+    if t.global_position is None or t.height_m is None:
+        raise VehicleError(f"{who}: no global position, cannot take off")
+    return 0, 0, 0, math.nan, math.nan, math.nan, t.global_position.alt_m - t.height_m + altitude_m
+
+
+@dataclass(frozen=True)
+class Expectation:
+    """What the HEARTBEATs after a command's ACK must show: the armed state, the mode (None: any)."""
+
+    label: str  #: the command, as a refusal names it
+    armed: bool | None = None
+    mode: str | None = None
+
+    def met(self, armed: bool, mode: str | None) -> bool:
+        return (self.armed is None or armed == self.armed) and (self.mode is None or mode == self.mode)
+
+    def failure(self, mode: str | None) -> str:
+        """What the vehicle did instead, in the vehicle's mode ``mode``."""
+        if self.armed is not None:
+            return "is still disarmed" if self.armed else "is still armed"
+        return f"stayed in {mode}"
+
+
+def arming(arm: bool) -> Expectation:
+    return Expectation("ARM" if arm else "DISARM", armed=arm)
+
+
+def switching(mode: str, label: str = "") -> Expectation:
+    return Expectation(label or f"DO_SET_MODE {mode}", mode=mode)
+
+
+def landing(autopilot: Autopilot | None) -> Expectation:
+    """A landing is confirmed by the land mode, where the autopilot has one."""
+    return Expectation("LAND", mode=policy_of(autopilot).land_mode)
 
 #: EKF_STATUS_REPORT flags (EKF_STATUS_FLAGS) that give an absolute horizontal position.
 EKF_POS_HORIZ_ABS, EKF_PRED_POS_HORIZ_ABS, EKF_CONST_POS_MODE = 16, 512, 128
@@ -41,9 +148,7 @@ LIFTOFF_M = 0.3  #: a vehicle that says no landed state is off the ground above 
 
 def may_stream_setpoints(t: Telemetry) -> bool:
     """Whether movement setpoints may go out now (see the module docstring)."""
-    if t.autopilot is not Autopilot.ARDUPILOT:
-        return True
-    return t.armed and in_air(t)
+    return policy_of(t.autopilot).setpoints_in_takeoff or (t.armed and in_air(t))
 
 
 def in_air(t: Telemetry) -> bool:

@@ -1,0 +1,65 @@
+"""What the MAVSDK backend builds for MAVSDK: its connection strings, and the MAVLink messages it
+sends through MavlinkDirect (COMMAND_LONG, and ArduPilot's position setpoints) as JSON fields."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+from typing import Any
+
+from mavsdk.plugins.mavlink_direct import MavlinkMessage
+
+from drona_gcs.geo import GeoFrame, Ned
+from fleet.vehicle.policy import Result
+from fleet.vehicle.urls import LinkUrl, Scheme
+
+SYS_STATUS, EXTENDED_SYS_STATE, EKF_STATUS_REPORT = 1, 245, 193  #: message ids MAVSDK has no set_rate_* for
+POSITION_ONLY = 0b110111111000  #: SET_POSITION_TARGET_* type_mask: x, y, z only
+LOCAL_NED, GLOBAL_INT = 1, 5  #: MAV_FRAME
+#: MAVSDK's ActionResult/OffboardResult name -> MAV_RESULT, when no COMMAND_ACK says better.
+RESULTS = {"COMMAND_DENIED": Result.DENIED, "COMMAND_DENIED_LANDED_STATE_UNKNOWN": Result.DENIED,
+           "COMMAND_DENIED_NOT_LANDED": Result.DENIED, "BUSY": Result.TEMPORARILY_REJECTED,
+           "UNSUPPORTED": Result.UNSUPPORTED}
+#: Results that mean no answer came: a link problem, not a refusal.
+UNANSWERED = {"NO_SYSTEM", "CONNECTION_ERROR", "TIMEOUT", "UNKNOWN"}
+
+
+def mavsdk_url(url: LinkUrl) -> str:
+    """Our connection string in MAVSDK's form: our ``tcp://`` (a client) is its ``tcpout://``."""
+    host = f"[{url.host}]" if ":" in url.host else url.host
+    return {Scheme.UDPIN: f"udpin://{host}:{url.port}", Scheme.UDPOUT: f"udpout://{host}:{url.port}",
+            Scheme.TCP: f"tcpout://{host}:{url.port}", Scheme.SERIAL: f"serial://{url.device}:{url.baud}"}[url.scheme]
+
+
+def command_long(sysid: int, command: int, params: tuple[float, ...]) -> MavlinkMessage:
+    """COMMAND_LONG to the autopilot of ``sysid``, its params padded to seven."""
+    p = [*params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0][:7]
+    fields = {"target_system": sysid, "target_component": 1, "command": command, "confirmation": 0,
+              # JSON has no NaN: MavlinkDirect sends null as NaN (PX4: "unset")
+              **{f"param{i + 1}": None if math.isnan(v) else v for i, v in enumerate(p)}}
+    return MavlinkMessage(message_name="COMMAND_LONG", target_system_id=sysid, target_component_id=1,
+                          fields_json=json.dumps(fields))
+
+
+def setpoint(sysid: int, target: Ned, frame: GeoFrame | None, now: float) -> MavlinkMessage:
+    """SET_POSITION_TARGET_LOCAL_NED to ``target``; with ``frame``, SET_POSITION_TARGET_GLOBAL_INT."""
+    ms = round((now % 4e6) * 1000)
+    fields: dict[str, float | int] = {"time_boot_ms": ms, "target_system": sysid, "target_component": 1,
+                                      "type_mask": POSITION_ONLY, **dict.fromkeys(
+                                          ("vx", "vy", "vz", "afx", "afy", "afz", "yaw", "yaw_rate"), 0.0)}
+    if frame is None:
+        name = "SET_POSITION_TARGET_LOCAL_NED"
+        fields.update(coordinate_frame=LOCAL_NED, x=target.north, y=target.east, z=target.down)
+    else:
+        name, g = "SET_POSITION_TARGET_GLOBAL_INT", frame.ned_to_global(target)
+        fields.update(coordinate_frame=GLOBAL_INT, lat_int=round(g.lat * 1e7), lon_int=round(g.lon * 1e7),
+                      alt=g.alt_m)
+    return MavlinkMessage(message_name=name, target_system_id=sysid, target_component_id=1,
+                          fields_json=json.dumps(fields))
+
+
+def settle(future: asyncio.Future[Any], value: Any) -> None:
+    """Resolve ``future`` unless done (on the loop, from a MAVSDK callback)."""
+    if not future.done():
+        future.set_result(value)

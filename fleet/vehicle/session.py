@@ -1,0 +1,186 @@
+"""One vehicle's MAVLink session, without I/O: what both links know from the vehicle's own messages.
+
+The links decode the wire (pymavlink, MAVSDK) and hand the session :data:`Inbound` messages with
+the time they came (``now``); the session keeps the vehicle's system id, its HEARTBEAT state
+(autopilot, mode, armed), the ACKs and the STATUSTEXTs, and answers what a link asks: whether a
+message is the vehicle's, whether the vehicle fell silent, whether an acknowledged command is
+confirmed (:meth:`MavlinkSession.verdict`), and why it was refused. No socket, thread, clock or
+task lives here: the links await, the session only decides (skybrush-server's split).
+"""
+
+from __future__ import annotations
+
+import collections
+import enum
+from dataclasses import dataclass
+
+from drona_gcs.errors import VehicleCommandRejected, VehicleError
+from fleet.vehicle.link import Autopilot
+from fleet.vehicle.modes import ModeDoubt, mode_name
+from fleet.vehicle.policy import CONFIRM_HEARTBEATS, Expectation, Result, explains_refusal
+
+AUTOPILOT_COMPONENT = 1  #: MAV_COMP_ID_AUTOPILOT1
+#: MAV_AUTOPILOT -> ours; MAV_AUTOPILOT_INVALID (8) is a ground station's or a camera's HEARTBEAT.
+AUTOPILOTS = {3: Autopilot.ARDUPILOT, 12: Autopilot.PX4}
+MAV_AUTOPILOT_INVALID, MAV_TYPE_GCS = 8, 6
+SAFETY_ARMED = 128  #: MAV_MODE_FLAG_SAFETY_ARMED
+
+
+@dataclass(frozen=True)
+class Heartbeat:
+    autopilot: Autopilot | None  #: None: not said (the link knows it another way)
+    custom_mode: int
+    armed: bool
+
+    @classmethod
+    def decode(cls, autopilot: int | None, custom_mode: int, base_mode: int) -> Heartbeat:
+        """From HEARTBEAT's fields (``autopilot`` None: not read from it)."""
+        kind = None if autopilot is None else AUTOPILOTS.get(autopilot, Autopilot.OTHER)
+        return cls(kind, custom_mode, bool(base_mode & SAFETY_ARMED))
+
+
+@dataclass(frozen=True)
+class CommandAck:
+    command: int
+    result: int
+
+
+@dataclass(frozen=True)
+class StatusText:
+    severity: int
+    text: str
+
+
+Inbound = Heartbeat | CommandAck | StatusText
+
+
+@dataclass(frozen=True)
+class Ack:
+    """A command's last COMMAND_ACK: when, its MAV_RESULT, and the HEARTBEATs heard by then."""
+
+    at: float
+    result: int
+    heartbeats: int
+
+
+class Verdict(enum.Enum):
+    PENDING = "pending"  #: not enough HEARTBEATs since the ACK to tell
+    CONFIRMED = "confirmed"  #: a HEARTBEAT after the ACK shows the expected effect
+    REFUSED = "refused"  #: acknowledged, yet CONFIRM_HEARTBEATS HEARTBEATs later still not done
+
+
+def autopilot_heartbeat(autopilot: int, vehicle_type: int) -> bool:
+    """A HEARTBEAT an autopilot sends (a ground station's says MAV_TYPE_GCS; a camera's, no autopilot)."""
+    return autopilot != MAV_AUTOPILOT_INVALID and vehicle_type != MAV_TYPE_GCS
+
+
+class MavlinkSession:
+    """A vehicle as its messages describe it; ``where`` names the link in errors."""
+
+    def __init__(self, where: str, heartbeat_timeout: float, target_system: int | None = None) -> None:
+        self.where, self.heartbeat_timeout = where, heartbeat_timeout
+        self.sysid = target_system  #: the vehicle's, fixed by its first HEARTBEAT (it must match if given)
+        self.locked = False  #: sysid is fixed
+        self.autopilot: Autopilot | None = None
+        self.custom_mode: int | None = None
+        self.armed = False
+        self.heartbeats = 0
+        self.heartbeat_at: float | None = None
+        self.mode_doubt = ModeDoubt()
+        self.acks: dict[int, Ack] = {}  #: command -> its last ACK
+        self.texts: collections.deque[tuple[float, int, str]] = collections.deque(maxlen=32)
+        self.dead: VehicleError | None = None  #: closed, or the stream is gone (until it is opened again)
+        self.silent: VehicleError | None = None  #: no HEARTBEAT lately: cleared by the next one
+
+    # ------------------------------------------------------------ inbound
+    def accepts(self, system: int, component: int, heartbeat: bool) -> bool:
+        """Whether a message from ``(system, component)`` is the vehicle's; the first autopilot HEARTBEAT
+        (``heartbeat``: one of :func:`autopilot_heartbeat`) from a matching system fixes the system id."""
+        if not self.locked and heartbeat and component == AUTOPILOT_COMPONENT and self.sysid in (None, system):
+            self.sysid, self.locked = system, True
+        return self.locked and (system, component) == (self.sysid, AUTOPILOT_COMPONENT)
+
+    def receive(self, message: Inbound, now: float) -> bool:
+        """Take the vehicle's ``message``; True for a HEARTBEAT that ends a silence (ask for the streams again)."""
+        if isinstance(message, Heartbeat):
+            return self._on_heartbeat(message, now)
+        if isinstance(message, CommandAck):
+            self.acks[message.command] = Ack(now, message.result, self.heartbeats)
+        else:
+            self.texts.append((now, message.severity, message.text))
+        return False
+
+    def _on_heartbeat(self, heartbeat: Heartbeat, now: float) -> bool:
+        after_silence = self.silent is not None
+        self.autopilot = heartbeat.autopilot or self.autopilot
+        self.custom_mode, self.armed = heartbeat.custom_mode, heartbeat.armed
+        self.heartbeats += 1
+        self.heartbeat_at, self.silent = now, None
+        return after_silence
+
+    # ------------------------------------------------------------ liveness
+    def watch(self, now: float) -> VehicleError | None:
+        """The error to fail every wait with, if the vehicle has just been silent for too long."""
+        if self.heartbeat_at is None or self.silent is not None or self.dead is not None \
+                or now - self.heartbeat_at <= self.heartbeat_timeout:
+            return None
+        return VehicleError(f"vehicle {self.sysid} on {self.where}: no HEARTBEAT for "
+                            f"{now - self.heartbeat_at:.1f} s (timeout {self.heartbeat_timeout} s)")
+
+    def fail(self, error: VehicleError, final: bool = False) -> None:
+        """``final``: the link is closed or its stream gone; otherwise the vehicle is silent."""
+        if final:
+            self.dead = self.dead or error
+        else:
+            self.silent = error
+
+    def reopened(self, now: float) -> None:
+        """The stream is open again: alive, and the vehicle has a whole timeout to speak."""
+        self.dead = self.silent = None
+        self.heartbeat_at = now
+
+    def problem(self) -> str | None:
+        error = self.dead or self.silent
+        return None if error is None else str(error)
+
+    def check_alive(self) -> None:
+        if error := self.dead or self.silent:
+            raise error
+
+    # ------------------------------------------------------------ state
+    @property
+    def mode(self) -> str | None:
+        return mode_name(self.autopilot, self.custom_mode)
+
+    def in_mode(self, mode: str) -> bool:
+        """In ``mode`` for sure: no mode change is in doubt (see :class:`~fleet.vehicle.modes.ModeDoubt`)."""
+        return self.mode == mode and not self.mode_doubt.in_doubt
+
+    def prearm_text(self) -> str:
+        """The autopilot's last "PreArm: ..." text, which says what fails."""
+        return next((text for _, _, text in reversed(self.texts) if text.startswith("PreArm")), "")
+
+    def serious_since(self, since: float) -> list[str]:
+        """The STATUSTEXTs since ``since`` that may explain a refusal, oldest first."""
+        return [text for at, severity, text in self.texts if at >= since and explains_refusal(severity)]
+
+    def ack_since(self, command: int, since: float) -> Ack | None:
+        ack = self.acks.get(command)
+        return ack if ack is not None and ack.at >= since else None
+
+    # ------------------------------------------------------------ confirmation
+    def verdict(self, expect: Expectation, seen: int, at_once: bool = False) -> Verdict:
+        """Whether the HEARTBEATs after an ACK (``seen``: HEARTBEATs heard by then) confirm ``expect``:
+        from the first one after it (``at_once``: already from the last one before it), until
+        CONFIRM_HEARTBEATS have come."""
+        if self.heartbeats < seen + (0 if at_once else 1):
+            return Verdict.PENDING
+        if expect.met(self.armed, self.mode):
+            return Verdict.CONFIRMED
+        return Verdict.REFUSED if self.heartbeats >= seen + CONFIRM_HEARTBEATS else Verdict.PENDING
+
+    def refusal(self, expect: Expectation, since: float) -> VehicleCommandRejected:
+        """An acknowledged command the vehicle did not carry out, with what it said since ``since``."""
+        texts = "; ".join(self.serious_since(since))
+        reason = f"acknowledged, but the vehicle {expect.failure(self.mode)}" + (f" ({texts})" if texts else "")
+        return VehicleCommandRejected(expect.label, int(Result.ACCEPTED), reason)
