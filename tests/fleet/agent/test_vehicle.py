@@ -8,16 +8,15 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator
 
 import pytest
 
-from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from drona_gcs.geo import Ned
 from fleet.agent.vehicle import VehicleSupervisor
 from fleet.clock import cancel_all
-from fleet.vehicle.link import Autopilot, LandedState, Telemetry, VehicleLink
-from tests.fleet.vehicle.test_link import connected, fake_vehicle, run
+from fleet.vehicle.link import LandedState, Telemetry, VehicleLink
+from tests.fakes.autopilot import ScriptedArduCopter, connected, fake_vehicle, run
 
 FLIGHT_ALT_M = 8.0
 
@@ -115,34 +114,6 @@ def test_a_vehicle_just_taken_off_is_not_down_by_itself(personality: str) -> Non
             assert [a for a in alarms if a is not None] == []
 
     run(scenario)
-
-
-class ScriptedArduCopter:
-    """An ArduCopter link in GUIDED, armed, reporting ``landed`` at ``height_m`` above home. Its
-    NAV_TAKEOFF is refused (``refuses``) or climbs; told nothing else it climbs to the setpoints,
-    unless it counts itself on the ground."""
-
-    def __init__(self, landed: LandedState, height_m: float = 0.3, refuses: bool = True) -> None:
-        self.landed, self.height_m, self.refuses, self.takeoffs = landed, height_m, refuses, 0
-
-    def telemetry(self) -> Telemetry:
-        return Telemetry(Autopilot.ARDUPILOT, True, "GUIDED", None, None, None, self.height_m, 90, 16.0, 3, 10,
-                         self.landed, 1.0)
-
-    async def follow_setpoints(self) -> None:
-        pass
-
-    async def takeoff(self, altitude_m: float) -> None:
-        self.takeoffs += 1
-        if self.refuses:
-            raise VehicleCommandRejected("NAV_TAKEOFF", 4)
-        self.landed = LandedState.TAKEOFF
-
-    async def wait_until(self, predicate: Callable[[Telemetry], bool], timeout: float, what: str) -> None:
-        if self.landed is not LandedState.ON_GROUND:
-            self.landed, self.height_m = LandedState.IN_AIR, 2.0  # GUIDED follows the setpoints up
-        if not predicate(self.telemetry()):
-            raise VehicleError(f"no {what}")
 
 
 def launch_once(link: ScriptedArduCopter) -> tuple[list[str | None], bool]:

@@ -1,10 +1,9 @@
 """Contract tests of the vehicle link against the fake vehicle, and the connection-string parser.
 
-Every backend in :data:`BACKENDS` runs the same scenarios against the fake vehicle (both
-personalities, UDP and TCP): real MAVLink bytes on 127.0.0.1, free ports, the fake in the test's
-own event loop. Simulated time runs ``SPEEDUP`` times faster, so the fake's rules are scaled to
-stay realistic against the link's wall-clock rates (a 20 Hz setpoint stream is 2 Hz simulated,
-PX4's minimum). Every wait is bounded and each scenario has an overall deadline.
+Every backend in :data:`~tests.fakes.autopilot.BACKENDS` runs the same scenarios against the fake
+vehicle of :mod:`tests.fakes.autopilot` (both personalities, UDP, TCP and serial). Simulated time runs
+``SPEEDUP`` times faster (a 20 Hz setpoint stream is 2 Hz simulated, PX4's minimum). Every wait is
+bounded and each scenario has an overall deadline.
 """
 
 from __future__ import annotations
@@ -17,55 +16,25 @@ import math
 import socket
 import statistics
 import time
-from collections.abc import AsyncIterator, Callable, Coroutine
-from dataclasses import dataclass
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Protocol
 
 import pytest
 
 from drona_gcs.errors import DronaError, VehicleCommandRejected, VehicleError
 from drona_gcs.geo import GeoPoint, Ned
 from fleet.clock import cancel_all
-from fleet.sim.config import VehicleConfig
-from fleet.sim.fleet import FleetConfig, SimNode, placements, run_fleet
+from fleet.sim.fleet import placements
 from fleet.sim.mav import mavlink2
 from fleet.sim.model import VehicleModel
-from fleet.sim.personality import PERSONALITIES, Personality
 from fleet.sim.ports import free_port
 from fleet.sim.transport import PtyLink
 from fleet.vehicle.link import Autopilot, LandedState, Position, Readiness, Telemetry, VehicleLink, not_ready, readiness
 from fleet.vehicle.mavlink_link import PymavlinkLink
 from fleet.vehicle.policy import in_air
 from fleet.vehicle.urls import DEFAULT_BAUD, LinkUrl, LinkUrlError, Scheme, parse_link_url
+from tests.fakes.autopilot import BACKENDS, SERIAL_BAUD, SPEEDUP, FakeAutopilot, connected, fake_vehicle, run
 
-SPEEDUP = 10.0
-#: A companion computer's UART: the fake vehicle's telemetry, ten times faster (SPEEDUP), must fit.
-SERIAL_BAUD = 921600
-SCENARIO_DEADLINE_S = 30.0
-
-
-class Backend(Protocol):
-    def __call__(self, url: str, *, heartbeat_timeout: float = 3.0, frame: Any = None,
-                 stream_hz: float = 10.0) -> VehicleLink: ...
-
-
-def _pymavlink(url: str, *, heartbeat_timeout: float = 3.0, frame: Any = None, stream_hz: float = 10.0) -> VehicleLink:
-    return PymavlinkLink(url, heartbeat_timeout=heartbeat_timeout, frame=frame, setpoint_hz=20.0, stream_hz=stream_hz)
-
-
-def _mavsdk(url: str, *, heartbeat_timeout: float = 3.0, frame: Any = None, stream_hz: float = 10.0) -> VehicleLink:
-    try:
-        from fleet.vehicle.mavsdk_link import MavsdkLink
-    except Exception as exc:  # no package, or its native library does not load here
-        reason = f"MAVSDK cannot run here: {type(exc).__name__}: {exc}"
-        print(reason)
-        pytest.skip(reason)
-    return MavsdkLink(url, heartbeat_timeout=heartbeat_timeout, frame=frame, stream_hz=stream_hz)
-
-
-#: Backend name -> factory. Every contract test below runs against each.
-BACKENDS: dict[str, Backend] = {"pymavlink": _pymavlink, "mavsdk": _mavsdk}
 #: What a backend cannot show, as (backend, test, transport) -> why the test is skipped for it.
 CANNOT: dict[tuple[str, str, str], str] = {
     ("mavsdk", "connecting_to_nothing", "tcp"):
@@ -85,77 +54,6 @@ def skip_if_cannot(backend: str, test: str, transport: str) -> None:
     if (reason := CANNOT.get((backend, test, transport))) is not None:
         print(f"skipped: {reason}")
         pytest.skip(reason)
-
-
-# ------------------------------------------------------------------ harness
-@dataclass
-class Fake:
-    url: str
-    personality: Personality
-    stop: asyncio.Event
-    task: asyncio.Task[None]
-    nodes: list[SimNode]
-
-    async def silence(self) -> None:
-        """Stop the fake vehicle (its links close; over UDP it just goes quiet)."""
-        self.stop.set()
-        await asyncio.wait_for(self.task, 5)
-
-
-@contextlib.asynccontextmanager
-async def fake_vehicle(personality: str, transport: str, port: int | None = None, speedup: float = SPEEDUP,
-                       signing_key: bytes | None = None, **vehicle: Any) -> AsyncIterator[Fake]:
-    """One fake vehicle in this event loop; ``url`` is how a ground station reaches it. ``serial``: on a
-    pseudo-terminal at :data:`SERIAL_BAUD`, as a flight controller wired to a companion computer. With
-    ``signing_key`` it signs what it sends and ignores unsigned commands."""
-    tcp, serial = transport == "tcp", transport == "serial"
-    port = port or free_port(socket.SOCK_STREAM if tcp else socket.SOCK_DGRAM)
-    settings: dict[str, Any] = {"ready_after_s": 1.0, "auto_disarm_s": 60.0, "offboard_timeout_s": 5.0, **vehicle}
-    config = FleetConfig(vehicle=VehicleConfig(personality=PERSONALITIES[personality], **settings), tcp=tcp,
-                         base_port=port, speedup=speedup, serial_baud=SERIAL_BAUD if serial else None,
-                         signing_key=signing_key)
-    stop, started = asyncio.Event(), asyncio.Event()
-    nodes: list[SimNode] = []
-
-    def ready(opened: list[SimNode]) -> None:
-        nodes.extend(opened)
-        started.set()
-
-    task = asyncio.create_task(run_fleet(config, None, stop, on_ready=ready))
-    waiter = asyncio.ensure_future(started.wait())
-    await asyncio.wait([task, waiter], timeout=5, return_when=asyncio.FIRST_COMPLETED)
-    waiter.cancel()
-    if task.done():
-        task.result()  # raises why it did not start
-    assert started.is_set(), "the fake vehicle did not start"
-    url = f"tcp://127.0.0.1:{port}" if tcp else f"udpin://127.0.0.1:{port}"
-    if serial:
-        assert isinstance(nodes[0].link, PtyLink)
-        url = f"serial://{nodes[0].link.device}:{SERIAL_BAUD}"
-    fake = Fake(url, PERSONALITIES[personality], stop, task, nodes)
-    try:
-        yield fake
-    finally:
-        if not task.done():
-            await fake.silence()
-
-
-@contextlib.asynccontextmanager
-async def connected(backend: str, fake: Fake, **options: Any) -> AsyncIterator[VehicleLink]:
-    link = BACKENDS[backend](fake.url, **options)
-    await link.connect(timeout=5)
-    try:
-        yield link
-    finally:
-        await link.close()
-
-
-def run(scenario: Callable[[], Coroutine[Any, Any, None]]) -> None:
-    async def bounded() -> None:
-        async with asyncio.timeout(SCENARIO_DEADLINE_S):
-            await scenario()
-
-    asyncio.run(bounded())
 
 
 def near(target: Ned, tolerance: float) -> Callable[[Telemetry], bool]:
@@ -413,7 +311,7 @@ def test_a_vehicle_lost_or_silent_comes_back_with_its_telemetry_asked_for_again(
         url = {"tcp": f"tcp://127.0.0.1:{port}", "udp": f"udpin://127.0.0.1:{port}",
                "serial": f"serial://{by_id}:{SERIAL_BAUD}"}[transport]
 
-        def point_at(fake: Fake) -> None:
+        def point_at(fake: FakeAutopilot) -> None:
             if transport == "serial":
                 assert isinstance(fake.nodes[0].link, PtyLink)
                 by_id.unlink(missing_ok=True)

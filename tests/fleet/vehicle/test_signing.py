@@ -29,7 +29,7 @@ from fleet.sim.ports import free_port
 from fleet.vehicle.link import VehicleLink
 from fleet.vehicle.mavlink_link import PymavlinkLink
 from fleet.vehicle.signing import sign_outgoing
-from tests.fleet.vehicle.test_link import Fake, fake_vehicle, run
+from tests.fakes.autopilot import FakeAutopilot, fake_vehicle, run
 
 REPO = Path(__file__).resolve().parents[3]
 KEY = bytes(range(32))
@@ -73,7 +73,7 @@ def bad_crc(rng: random.Random) -> bytes:
     return bytes(frame)
 
 
-def on_the_link(fake: Fake) -> Callable[[bytes], None]:
+def on_the_link(fake: FakeAutopilot) -> Callable[[bytes], None]:
     """Bytes put on the link by the vehicle's side: from its UDP address, or inside its TCP stream."""
     transport = fake.nodes[0].link
     assert transport is not None
