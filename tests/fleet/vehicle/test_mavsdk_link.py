@@ -18,7 +18,6 @@ import asyncio
 import contextlib
 import json
 import math
-import socket
 import time
 from collections.abc import AsyncGenerator, AsyncIterator, Callable, Coroutine
 from typing import Any, TypeVar
@@ -26,10 +25,10 @@ from typing import Any, TypeVar
 import pytest
 
 from drona_gcs.geo import Ned
-from fleet.sim.config import VehicleConfig
-from fleet.sim.fleet import FleetConfig, placements, run_fleet
+from fleet.sim.fleet import placements
 from fleet.sim.personality import ARDUPILOT, PX4, Personality
-from fleet.sim.ports import free_port
+from fleet.vehicle.urls import parse_link_url
+from tests.fakes.autopilot import fake_vehicle
 
 try:
     import mavsdk
@@ -38,6 +37,8 @@ try:
     from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync, MavlinkMessage
     from mavsdk.asyncio.plugins.offboard import OffboardAsync, PositionNedYaw
     from mavsdk.asyncio.plugins.telemetry import FlightMode, LandedState, TelemetryAsync
+
+    from fleet.vehicle.mavsdk_link import mavsdk_url
 except Exception as exc:  # no package, or its native library does not load here
     _reason = f"MAVSDK cannot run here: {type(exc).__name__}: {exc}"
     print(_reason)
@@ -97,20 +98,13 @@ async def first(stream: AsyncGenerator[T, None], where: Callable[[T], bool], tim
 
 
 @contextlib.asynccontextmanager
-async def fake_vehicle(personality: Personality) -> AsyncIterator[str]:
-    """One fake vehicle in this event loop, on its SITL's link; yields MAVSDK's connection URL."""
-    tcp = personality is ARDUPILOT
-    port = free_port(socket.SOCK_STREAM if tcp else socket.SOCK_DGRAM)
-    vehicle = VehicleConfig(personality=personality, ready_after_s=READY_AFTER_S)
-    config = FleetConfig(vehicle=vehicle, tcp=tcp, base_port=port, speedup=SPEEDUP)
-    stop, ready = asyncio.Event(), asyncio.Event()
-    fleet = asyncio.create_task(run_fleet(config, None, stop, on_ready=lambda nodes: ready.set()))
-    try:
-        await bounded(ready.wait(), 5, "the fake vehicle's link")
-        yield f"tcpout://127.0.0.1:{port}" if tcp else f"udpin://127.0.0.1:{port}"
-    finally:
-        stop.set()
-        await asyncio.wait_for(fleet, 5)
+async def sitl_like(personality: Personality) -> AsyncIterator[str]:
+    """The shared fake vehicle on its SITL's link, with the personality's own timeouts; yields MAVSDK's
+    connection URL."""
+    transport = "tcp" if personality is ARDUPILOT else "udp"
+    async with fake_vehicle(personality.name, transport, speedup=SPEEDUP, ready_after_s=READY_AFTER_S,
+                            auto_disarm_s=None, offboard_timeout_s=None) as fake:
+        yield mavsdk_url(parse_link_url(fake.url))
 
 
 def near(ned: Any, goal: tuple[float, float, float]) -> bool:
@@ -120,7 +114,7 @@ def near(ned: Any, goal: tuple[float, float, float]) -> bool:
 # ------------------------------------------------------------------ the flight
 async def fly(personality: Personality) -> None:
     ardupilot = personality is ARDUPILOT
-    async with fake_vehicle(personality) as url, \
+    async with sitl_like(personality) as url, \
             Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION)) as client:
         await bounded(client.add_any_connection(url), 5, f"connecting to {url}")
         system = await bounded(client.first_autopilot(timeout_s=10.0), 12, "the autopilot")
