@@ -190,7 +190,7 @@ class MavsdkLink(ConfirmedCommands):
     async def wait_ready(self, timeout: float) -> None:
         """:func:`~fleet.vehicle.link.not_ready`; VehicleError after ``timeout``."""
         await self._updates.wait_for(lambda: not_ready(self.telemetry()) is None, timeout, "readiness",
-                             lambda: f" ({not_ready(self.telemetry())})")
+                                     lambda: f" ({not_ready(self.telemetry())})")
 
     # ------------------------------------------------------------ commands
     async def _order(self, label: str, command: Command, params: tuple[float, ...]) -> int:
@@ -209,7 +209,7 @@ class MavsdkLink(ConfirmedCommands):
         def verdict() -> Verdict:
             return self.session.verdict(expect, seen, at_once=True)
         await self._updates.wait_for(lambda: verdict() is not Verdict.PENDING, self.heartbeat_timeout,
-                             f"a HEARTBEAT after {expect.label}")
+                                     f"a HEARTBEAT after {expect.label}")
         return verdict()
 
     def _stop_setpoints(self) -> None:
