@@ -1,0 +1,94 @@
+"""Protocol 1's messages between the core (:mod:`drona_gcs.stack.messages`) and the wire."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from drona_gcs.errors import DronaError
+from drona_gcs.motion import Trajectory
+from drona_gcs.stack.messages import (
+    CurrentTraj,
+    Message,
+    PlanAck,
+    PlanDecision,
+    PlanProposal,
+    PlanRefusal,
+    ReqForCurrentTraj,
+    TaskId,
+)
+from fleet.transport.wire.base import Holds, WireError, WireTaskId, WireTrajectory
+from fleet.transport.wire.envelope import Envelope
+from fleet.transport.wire.protocol import Ack, CurTraj, CurTrajTo, Decide, Propose, Refuse, ReqTraj
+
+ProtocolBody = ReqTraj | CurTraj | Propose | Ack | Refuse | Decide
+
+
+def from_core(message: Message) -> ProtocolBody:
+    if isinstance(message, ReqForCurrentTraj):
+        return ReqTraj(task_id=WireTaskId.of(message.task_id), trajectory=WireTrajectory.of(message.trajectory),
+                       asked=message.asked, holds=message.holds, clear=message.clear)
+    if isinstance(message, PlanProposal):
+        return Propose(task_id=WireTaskId.of(message.task_id), trajectory=WireTrajectory.of(message.trajectory),
+                       members=message.members)
+    if isinstance(message, PlanAck):
+        return Ack(task_id=WireTaskId.of(message.task_id), trajectory=WireTrajectory.of(message.trajectory),
+                   holds=message.holds)
+    if isinstance(message, PlanRefusal):
+        return Refuse(task_id=WireTaskId.of(message.task_id), gone=dict(message.gone))
+    if isinstance(message, PlanDecision):
+        return Decide(task_id=WireTaskId.of(message.task_id), trajectory=WireTrajectory.of(message.trajectory),
+                      flown=message.flown)
+    return CurTraj(in_reply_to=WireTaskId.of(message.in_reply_to), trajectory=WireTrajectory.of(message.trajectory),
+                   holds=message.holds)
+
+
+def answers(trajectory: Trajectory, replies: Mapping[str, TaskId], holds: Holds = ()) -> CurTrajTo:
+    """One ``cur_traj_to`` for several ``CurrentTraj`` with the same trajectory and holds: ``replies``
+    maps each drone answered to the request it answers."""
+    return CurTrajTo(replies={drone: WireTaskId.of(task) for drone, task in replies.items()},
+                     trajectory=WireTrajectory.of(trajectory), holds=holds)
+
+
+def answering(decision: PlanDecision, replies: Mapping[str, TaskId], holds: Holds = ()) -> Decide:
+    """A ``decide`` that also answers the drones in ``replies`` with the trajectory it names."""
+    return Decide(task_id=WireTaskId.of(decision.task_id), trajectory=WireTrajectory.of(decision.trajectory),
+                  flown=decision.flown, replies={drone: WireTaskId.of(task) for drone, task in replies.items()},
+                  holds=holds)
+
+
+def answer_in(envelope: Envelope, me: str) -> CurrentTraj | None:
+    """The answer to drone ``me``'s request that a ``cur_traj_to`` or ``decide`` carries, if any."""
+    body = envelope.body
+    if not isinstance(body, (CurTrajTo, Decide)):
+        return None
+    found = body.replies.get(me)
+    return None if found is None else _answer(envelope.sender, body, found)
+
+
+def _answer(sender: str, body: CurTraj | CurTrajTo | Decide, request: WireTaskId) -> CurrentTraj:
+    try:
+        return CurrentTraj(sender, body.trajectory.core(), request.core(), body.holds)
+    except DronaError as exc:
+        raise WireError(f"{body.kind} from {sender!r}: {exc}") from exc
+
+
+def to_core(envelope: Envelope, me: str) -> Message | None:
+    """The protocol message for drone ``me`` in ``envelope`` (the sender is the envelope's); None
+    for a ``cur_traj_to`` that answers others only."""
+    body = envelope.body
+    if isinstance(body, ReqTraj):
+        return ReqForCurrentTraj(body.task_id.core(), envelope.sender, body.trajectory.core(), body.asked,
+                                 body.holds, body.clear)
+    if isinstance(body, Propose):
+        return PlanProposal(envelope.sender, body.task_id.core(), body.trajectory.core(), body.members)
+    if isinstance(body, Ack):
+        return PlanAck(envelope.sender, body.task_id.core(), body.trajectory.core(), body.holds)
+    if isinstance(body, Refuse):
+        return PlanRefusal(envelope.sender, body.task_id.core(), tuple(sorted(body.gone.items())))
+    if isinstance(body, Decide):
+        return PlanDecision(envelope.sender, body.task_id.core(), body.trajectory.core(), body.flown)
+    if isinstance(body, CurTraj):
+        return _answer(envelope.sender, body, body.in_reply_to)
+    if isinstance(body, CurTrajTo):
+        return answer_in(envelope, me)
+    raise WireError(f"{body.kind} is not a protocol message")

@@ -1,0 +1,79 @@
+"""Protocol 1's messages between drones (``proto/...``, ``answers/...``), and a plan announced to
+everyone (``plan/<drone>``)."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import msgspec
+
+from fleet.transport.wire.base import Holds, WireBody, WireTaskId, WireTrajectory
+
+
+class ReqTraj(WireBody, frozen=True, kw_only=True, tag="req_traj"):
+    task_id: WireTaskId
+    trajectory: WireTrajectory  #: the requester's, which a drone before it in line takes as its answer
+    asked: tuple[str, ...]  #: the peers its round waits for
+    holds: Holds = ()  #: cells its lost vehicle may be in, besides the trajectory
+    clear: Holds = ()  #: a way to its goal that drones resting on it are asked to leave
+
+
+class CurTraj(WireBody, frozen=True, kw_only=True, tag="cur_traj"):
+    in_reply_to: WireTaskId
+    trajectory: WireTrajectory
+    holds: Holds = ()
+
+
+class CurTrajTo(WireBody, frozen=True, kw_only=True, tag="cur_traj_to"):
+    """One trajectory answering several drones' requests: ``replies`` maps each drone to its request."""
+
+    replies: Annotated[dict[str, WireTaskId], msgspec.Meta(min_length=1)]
+    trajectory: WireTrajectory
+    holds: Holds = ()
+
+
+class Propose(WireBody, frozen=True, kw_only=True, tag="propose"):
+    """A plan made, flown once every member holds it (acknowledged with ``ack``)."""
+
+    task_id: WireTaskId
+    trajectory: WireTrajectory
+    members: tuple[str, ...]  #: the drones that must hold it
+
+
+class Ack(WireBody, frozen=True, kw_only=True, tag="ack"):
+    task_id: WireTaskId  #: the proposal held
+    trajectory: WireTrajectory  #: what the sender flies
+    holds: Holds = ()  #: cells its lost vehicle may be in, besides the trajectory
+
+
+class Refuse(WireBody, frozen=True, kw_only=True, tag="refuse"):
+    """A proposal the sender will not hold; ``gone``: for each drone the proposer held as gone, every cell
+    the sender holds it may be in for good."""
+
+    task_id: WireTaskId
+    gone: dict[str, Holds] = msgspec.field(default_factory=dict)
+
+
+class Decide(WireBody, frozen=True, kw_only=True, tag="decide"):
+    """What the proposer flies from now: the proposal (``flown``), or what it flew before. It answers
+    too, as ``cur_traj_to`` does, the drones in ``replies`` (each to its request), whose rounds waited
+    for it: one message for both, since every drone gets the decision anyway."""
+
+    task_id: WireTaskId
+    trajectory: WireTrajectory
+    flown: bool
+    replies: dict[str, WireTaskId] = msgspec.field(default_factory=dict)
+    holds: Holds = ()  #: of the answers: cells the sender's lost vehicle may be in
+
+
+class PlanAnnounce(WireBody, frozen=True, kw_only=True, tag="plan"):
+    """A drone's new plan, to everyone, once made (peers outside the round learn where it goes);
+    ``grounded``: its vehicle came down by itself, and stays at the trajectory's end for good;
+    ``braked``: it cut the plan it flies short, and holds at the trajectory's end until its next plan;
+    ``lost``: its vehicle is lost, and may be in any of ``holds`` for good (none: it is back)."""
+
+    trajectory: WireTrajectory
+    grounded: bool = False
+    braked: bool = False
+    lost: bool = False
+    holds: Holds = ()
