@@ -33,6 +33,7 @@ measured on their SITLs):
   over MAVLink; the values drive the model (motion limits, auto-disarm delays, return and take-off
   heights, offboard and GUIDED timeouts). PX4 answers parameter and mission requests addressed to
   its own system id only, ArduPilot broadcast ones (system 0) too;
+* commands (:mod:`fleet.sim.commands`): each refused as its autopilot refuses it;
 * missions (:mod:`fleet.sim.mission`): every list empty but ArduPilot's home, its item 0; uploads
   refused but empty ones. MAVLink FTP (:mod:`fleet.sim.ftp`) is refused at once, as for a file the
   autopilot does not have, so a ground station falls back to the message protocols.
@@ -44,11 +45,11 @@ import logging
 import math
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
 
 from drona_gcs.geo import GeoPoint, Ned
-from fleet.sim import flight, ftp, mission, telemetry
+from fleet.sim import commands, flight, ftp, mission, telemetry
 from fleet.sim import params as parameters
+from fleet.sim.commands import ACCEPTED, UNSUPPORTED, Command
 from fleet.sim.config import Placement, VehicleConfig
 from fleet.sim.mav import Message, mavlink2, source
 from fleet.sim.params import ParamStore, Setting
@@ -63,23 +64,9 @@ Answer = Callable[["VehicleModel", Message, float], list[Message]]
 
 log = logging.getLogger(__name__)
 
-ACCEPTED: int = mavlink2.MAV_RESULT_ACCEPTED
-UNSUPPORTED: int = mavlink2.MAV_RESULT_UNSUPPORTED
-FORCE_MAGIC = 21196  #: MAV_CMD_COMPONENT_ARM_DISARM param2 that forces arming or disarming
-
-
-@dataclass(frozen=True)
-class Command:
-    """COMMAND_LONG and COMMAND_INT, alike: params 1..7 (COMMAND_INT's x, y, z as 5..7)."""
-
-    command: int
-    params: tuple[float, float, float, float, float, float, float]
-    frame: int | None  #: COMMAND_INT's frame; None for COMMAND_LONG
-    source: tuple[int, int]
-
 
 class VehicleModel:
-    """One fake vehicle: its state, the message handlers and the command table."""
+    """One fake vehicle: its state and the message handlers (its commands: :mod:`fleet.sim.commands`)."""
 
     def __init__(self, config: VehicleConfig, placement: Placement, now: float) -> None:
         self.config = config
@@ -131,17 +118,7 @@ class VehicleModel:
             "COMMAND_ACK": _ignore,
             "MISSION_ACK": _ignore,  # the ground station's word on a transfer; nothing follows it
         }
-        self._commands: dict[int, Callable[[Command, float], tuple[int, list[Message]]]] = {
-            mavlink2.MAV_CMD_COMPONENT_ARM_DISARM: self._cmd_arm,
-            mavlink2.MAV_CMD_DO_SET_MODE: self._cmd_set_mode,
-            mavlink2.MAV_CMD_NAV_TAKEOFF: self._cmd_takeoff,
-            mavlink2.MAV_CMD_NAV_LAND: self._cmd_land,
-            mavlink2.MAV_CMD_NAV_RETURN_TO_LAUNCH: self._cmd_rtl,
-            mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL: self._cmd_message_interval,
-            mavlink2.MAV_CMD_REQUEST_MESSAGE: self._cmd_request_message,
-            mavlink2.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: self._cmd_request_version,
-            mavlink2.MAV_CMD_GET_HOME_POSITION: self._cmd_get_home,
-        }
+        self._commands: dict[int, commands.Run] = commands.COMMANDS
 
     # ------------------------------------------------------------------ state
     def ready(self, now: float) -> bool:
@@ -221,7 +198,7 @@ class VehicleModel:
 
     def _run_command(self, cmd: Command, now: float) -> None:
         run = self._commands.get(cmd.command)
-        result, after = run(cmd, now) if run else (UNSUPPORTED, [])
+        result, after = run(self, cmd, now) if run else (UNSUPPORTED, [])
         # The ACK goes first; texts follow (ArduPilot queues STATUSTEXT), then requested messages.
         self._out.insert(0, telemetry.command_ack(cmd.command, result, cmd.source))
         self._out.extend(after)
@@ -280,30 +257,6 @@ class VehicleModel:
     def text(self, severity: int, text: str) -> None:
         self._out.append(telemetry.statustext(severity, text))
 
-    def _cmd_arm(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
-        arm, force = _int(cmd.params[0]), _int(cmd.params[1]) == FORCE_MAGIC
-        if arm not in (0, 1):
-            return mavlink2.MAV_RESULT_DENIED, []
-        if arm == 0:
-            if self.armed and self.airborne and not force:
-                self.text(mavlink2.MAV_SEVERITY_CRITICAL, "Disarm: vehicle is flying")
-                return self.personality.rejected, []
-            self.disarm(now)
-            return ACCEPTED, []
-        if self.armed:
-            return ACCEPTED, []
-        if not force:
-            reason = self.arming_problem(now)
-            if reason:
-                self.text(mavlink2.MAV_SEVERITY_CRITICAL, reason)
-                return self.personality.rejected, []
-        self.armed = True
-        self.flown = False
-        self.landed_since = now
-        if self.personality is not ARDUPILOT:  # PX4 climbs to the offboard setpoint once spooled up
-            self.climb_at = now + self.config.spool_s
-        return ACCEPTED, []
-
     def arming_problem(self, now: float) -> str:
         """Why arming would be refused now (the STATUSTEXT it sends), or "" when it may arm."""
         if problem := self.prearm_problem(now):
@@ -325,12 +278,6 @@ class VehicleModel:
         self.takeoff_point = None
         self.setpoint = None
         self.landed_since = now
-
-    def _cmd_set_mode(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
-        base, main, sub = (_int(p) for p in cmd.params[:3])
-        if base is None or main is None:
-            return self.personality.rejected, []
-        return self._set_mode(base, self.personality.mode_from_command(main, sub or 0), now), []
 
     def _set_mode(self, base_mode: int, custom_mode: int, now: float) -> int:
         if not base_mode & mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
@@ -375,62 +322,6 @@ class VehicleModel:
         times = self.setpoint_times
         return bool(times) and now - times[-1] <= self.params.setting(Setting.OFFBOARD_TIMEOUT)
 
-    def _cmd_takeoff(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
-        """Refused with no effect at all, or accepted: a take-off after the spool-up."""
-        p = self.personality
-        if not self.armed or self.airborne or self.takeoff_point is not None:
-            return p.rejected, []
-        if p is ARDUPILOT:
-            if self.behaviour is not Behaviour.FOLLOW:
-                return p.rejected, []
-            height = cmd.params[6]
-        else:  # PX4: param7 is AMSL, NaN for the default height
-            relative = cmd.frame in (mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT, mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
-            alt = cmd.params[6]
-            height = (self.params.setting(Setting.TAKEOFF_ALT) if math.isnan(alt)
-                      else alt if relative else alt - self.home_global.alt_m)
-        if not height > 0:
-            return p.rejected, []
-        self.climb_at = now + self.config.spool_s
-        self.takeoff_point = Target(self.body.north, self.body.east, -height)
-        if p is ARDUPILOT:
-            self.setpoint = self.takeoff_point  # GUIDED then holds there
-        elif p.takeoff_mode:
-            self.enter_mode(p.takeoff_mode, now)
-        return ACCEPTED, []
-
-    def _cmd_land(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
-        self.enter_mode(self.personality.land_mode, now)
-        return ACCEPTED, []
-
-    def _cmd_rtl(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
-        if not self.ready(now):
-            return self.personality.rejected, []
-        self.enter_mode(self.personality.rtl_mode, now)
-        return ACCEPTED, []
-
-    def _cmd_message_interval(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
-        msg_id, interval_us = _int(cmd.params[0]), cmd.params[1]
-        if msg_id not in telemetry.STREAMABLE or not math.isfinite(interval_us):
-            return self.personality.rejected, []  # HEARTBEAT too: it stays at 1 Hz
-        self.streams.set_interval(msg_id, interval_us, now)
-        return ACCEPTED, []
-
-    def _cmd_request_message(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
-        build = telemetry.REQUESTABLE.get(_int(cmd.params[0]) or 0)
-        msg = None if build is None else build(self, now)
-        if msg is None:  # unknown, or not known yet (home before the position estimate)
-            return self.personality.rejected, []
-        return ACCEPTED, [msg]
-
-    def _cmd_request_version(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
-        return ACCEPTED, [telemetry.autopilot_version(self, now)]
-
-    def _cmd_get_home(self, cmd: Command, now: float) -> tuple[int, list[Message]]:
-        home = telemetry.home_position(self, now)
-        return (self.personality.rejected, []) if home is None else (ACCEPTED, [home])
-
-    # ------------------------------------------------------------------- time
     def step(self, now: float) -> list[Message]:
         """Advance to ``now``: flight rules, motion, battery; returns the telemetry due."""
         dt = max(0.0, now - self.last_step)
@@ -447,9 +338,4 @@ class VehicleModel:
 
 def _ignore(msg: Message, now: float) -> None:
     """A message type we receive and deliberately do nothing with."""
-
-
-def _int(value: float) -> int | None:
-    """A command parameter as an integer; None for NaN or infinity ("no value")."""
-    return round(value) if math.isfinite(value) else None
 
