@@ -41,7 +41,8 @@ from fleet.clock import cancel_all, periodic
 from fleet.setpoint_loop import Sample, SetpointFleet, SetpointLoop, StepReport
 from fleet.transport.identity import Speakers, identity_for
 from fleet.transport.keys import FleetKeys, check_name
-from fleet.transport.node import ZenohNode, ZenohSettings, agent_endpoint
+from fleet.transport.node import ZenohNode
+from fleet.transport.settings import ZenohSettings, agent_endpoint
 from fleet.vehicle.link import REOPEN_S, VehicleLink
 from fleet.vehicle.mavlink_link import PymavlinkLink
 from fleet.vehicle.policy import Timeouts

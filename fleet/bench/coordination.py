@@ -46,7 +46,8 @@ from fleet.sim.ports import free_port_block, free_udp_base
 from fleet.transport.fleet_client import FleetClient
 from fleet.transport.identity import SERVICE, make_certs
 from fleet.transport.keys import FleetKeys
-from fleet.transport.node import ZenohNode, ZenohSettings
+from fleet.transport.node import ZenohNode
+from fleet.transport.settings import ZenohSettings
 from fleet.transport.wire import DroneState, MailOrder, MailStatus, MailStatusReport, WireError, decode
 
 VEHICLE_SPEEDUP = 2.0  #: enough to track a cell per tau; telemetry rates scale with it, as in SITL

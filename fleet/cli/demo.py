@@ -32,7 +32,7 @@ from drona_gcs.workspace_files import load_workspace
 from fleet.cli.lifeline import LEFTOVERS
 from fleet.cli.security import add_security_arguments, tls_dir_from
 from fleet.transport.identity import SERVICE, make_certs
-from fleet.transport.node import AGENT_BASE_PORT
+from fleet.transport.settings import AGENT_BASE_PORT
 
 DEMO_SIDE_X, DEMO_SIDE_Y = 16, 12
 STOP_TIMEOUT_S = 90.0  #: the agents may need a plan's length to finish and land

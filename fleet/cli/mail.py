@@ -22,7 +22,8 @@ from fleet.cli.security import add_security_arguments, tls_dir_from
 from fleet.transport.fleet_client import FleetClient
 from fleet.transport.identity import SERVICE
 from fleet.transport.keys import FleetKeys, check_name
-from fleet.transport.node import ZenohNode, ZenohSettings, agent_endpoint
+from fleet.transport.node import ZenohNode
+from fleet.transport.settings import ZenohSettings, agent_endpoint
 from fleet.transport.wire import MailOrder, MailStatus, MailStatusReport, WireError, checked, decode, to_json
 
 #: With no endpoints given, look for the agents where `drona agent` listens by default on this machine.

@@ -18,7 +18,8 @@ from drona_gcs.workspace_files import load_workspace
 from fleet.cli.security import add_security_arguments, tls_dir_from
 from fleet.transport.identity import ROUTER, IdentityError
 from fleet.transport.keys import FleetKeys, check_name
-from fleet.transport.node import DEFAULT_HOST, ROUTER_PORT, ZenohNode, ZenohSettings
+from fleet.transport.node import ZenohNode
+from fleet.transport.settings import DEFAULT_HOST, ROUTER_PORT, ZenohSettings
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -26,7 +26,8 @@ from drona_gcs.workspace import Cell, Workspace
 from fleet.transport.fleet_client import QUERY_TIMEOUT_S, FleetClient, FleetUnavailable
 from fleet.transport.identity import SERVICE
 from fleet.transport.keys import FleetKeys
-from fleet.transport.node import ZenohNode, ZenohSettings, agent_endpoint
+from fleet.transport.node import ZenohNode
+from fleet.transport.settings import ZenohSettings, agent_endpoint
 from fleet.transport.wire import (
     CommandAck,
     CommandAction,

@@ -1,4 +1,4 @@
-"""One Zenoh session for asyncio: its configuration, declarations and orderly close.
+"""One Zenoh session for asyncio: its declarations, what it sends and asks, and its orderly close.
 
 zenoh-python calls back on its own threads. Every callback here only hands
 the sample (key and bytes) to the event loop, through the loop's inbox
@@ -14,16 +14,8 @@ Drones hosted in one process with ``--shared-session`` share one session
 (:meth:`ZenohNode.view`; by default each drone has a session of its own, and a
 view of it): each has its own declarations, and subscriptions to one key share one Zenoh
 subscriber, so a broadcast crosses into Python once per process.
-
-A subscription may *gather* (``subscribe(..., gather=True)``): what the
-session's nodes put while its sample is handed round goes out at the end, one
-message per key (in runs of at most ``max_frames``, and split where joining would send a node's
-put before one it made earlier). A request to everyone reaches every drone of a host at once;
-their answers to the requester then cross the network, and its event loop, as
-one message instead of one per drone (a put ``now`` goes at once: a key only one
-node puts to gathers nothing). Payloads are framed with newlines (a
-payload never contains one: :func:`~fleet.transport.wire.encode` writes
-compact JSON), and every subscription hands each frame to its handlers.
+A subscription may *gather* the puts its handlers make into one message per key
+(:mod:`fleet.transport.gather`). The session's configuration is :mod:`fleet.transport.settings`.
 
 Closing undeclares every declaration, newest first, before the session:
 a callback subscriber still declared at interpreter exit hangs it.
@@ -33,28 +25,22 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import logging
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
-from pathlib import Path
-from typing import Any, Protocol
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Protocol
 
 import zenoh
 
 from drona_gcs.errors import DronaError, mapped
 from fleet.logs import Throttled
-from fleet.transport.identity import Identity, access_control, read_hosts
+from fleet.transport.gather import FRAME_END, Gathered, in_runs
 from fleet.transport.inbox import guarded, inbox_of
-from fleet.transport.keys import FleetKeys
+
+if TYPE_CHECKING:
+    from fleet.transport.settings import ZenohSettings
 
 log = logging.getLogger(__name__)
-
-#: Where the agent of drone i listens by default on one machine (and where the others look for it).
-AGENT_BASE_PORT = 7448
-ROUTER_PORT = 7447
-DEFAULT_HOST = "127.0.0.1"
-RETRY = {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 2}
 
 
 class TransportError(DronaError):
@@ -64,91 +50,6 @@ class TransportError(DronaError):
 def zenoh_errors(what: str) -> contextlib.AbstractContextManager[None]:
     """Zenoh's errors as :class:`TransportError` saying ``what`` was being done: the one place they are mapped."""
     return mapped(zenoh.ZError, TransportError, what)
-
-
-@dataclass(frozen=True)
-class ZenohSettings:
-    """How to join the fleet's Zenoh network (plain values; the CLI's settings build it)."""
-
-    mode: str = "peer"  #: peer, client or router
-    listen: tuple[str, ...] = ()
-    connect: tuple[str, ...] = ()
-    config_file: Path | None = None  #: a Zenoh JSON5 file; listen/connect above are added to it
-    lease_s: float | None = None  #: how long a silent link lives (Zenoh's default is 10 s)
-    multicast: bool = False  #: multicast scouting (off: on this kind of host it picks the wrong interface)
-    extra: tuple[tuple[str, str], ...] = field(default=())  #: more (key, JSON5 value) pairs
-    identity: Identity | None = None  #: mutual TLS with this certificate (None: plain TCP, --insecure)
-    access: dict[str, Any] | None = None  #: Zenoh's access_control (see fleet.transport.identity)
-    #: the most messages (lines) one sample may carry; a host's gathered puts to one key go in samples of
-    #: at most this many
-    max_frames: int | None = None
-
-    def config(self) -> zenoh.Config:
-        """The Zenoh configuration; :class:`TransportError` naming what is wrong."""
-        source = f" in {self.config_file}" if self.config_file else ""
-        try:
-            with zenoh_errors(f"Zenoh configuration{source}"):
-                return self._config()
-        except (OSError, ValueError) as exc:
-            raise TransportError(f"Zenoh configuration{source}: {exc}") from exc
-
-    def _config(self) -> zenoh.Config:
-        cfg = zenoh.Config.from_file(str(self.config_file)) if self.config_file else zenoh.Config()
-        if self.config_file is None or self.mode != "peer":
-            cfg.insert_json5("mode", json.dumps(self.mode))
-        if self.listen:
-            cfg.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
-        if self.connect:
-            cfg.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
-        if self.identity is not None:
-            _mutual_tls(cfg, self.identity)
-        if self.access is not None:
-            cfg.insert_json5("access_control", json.dumps(self.access))
-        if self.config_file is None:
-            cfg.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast))
-            # Endpoints not up yet are retried in the background; retry often, so a fleet
-            # started in any order meshes within a second (Zenoh's default backs off to 4 s).
-            cfg.insert_json5("connect/retry", json.dumps(RETRY))
-        if self.lease_s is not None:
-            lease_ms = round(self.lease_s * 1000)
-            cfg.insert_json5("transport/link/tx/lease", json.dumps(lease_ms))
-            # Keep-alives must come several times per lease, or a busy link looks dead.
-            cfg.insert_json5("transport/link/tx/keep_alive", json.dumps(4))
-        for key, value in self.extra:
-            cfg.insert_json5(key, value)
-        return cfg
-
-    def secured(self, tls_dir: Path | None, name: str, keys: FleetKeys,
-                drones: Sequence[str] | None) -> ZenohSettings:
-        """These settings as ``name`` of the fleet: mutual TLS, and the fleet's access control over what the
-        ``drones`` say (None: none, for a tool that only asks and checks its answers' writers itself).
-        Unchanged without ``tls_dir`` (a plain-TCP fleet, ``--insecure``)."""
-        if tls_dir is None:
-            return self
-        access = access_control(keys, drones, read_hosts(tls_dir)) if drones is not None else None
-        return replace(self, identity=Identity.of(tls_dir, name), access=access)
-
-
-
-def _mutual_tls(cfg: zenoh.Config, identity: Identity) -> None:
-    """TLS links only, with ``identity``'s files; every ``tcp/`` endpoint (given, in the file or Zenoh's
-    default) is taken as ``tls/`` on the same address."""
-    for section in ("listen/endpoints", "connect/endpoints"):
-        cfg.insert_json5(section, json.dumps(_as_tls(json.loads(cfg.get_json(section)))))
-    cfg.insert_json5("transport/link/protocols", json.dumps(["tls"]))
-    cfg.insert_json5("transport/link/tls", json.dumps(identity.tls_config()))
-
-
-def _as_tls(endpoints: Any) -> Any:
-    """Endpoints as Zenoh's config holds them (a list, or a list per mode), ``tcp/`` ones made ``tls/``."""
-    if isinstance(endpoints, dict):
-        return {mode: _as_tls(listed) for mode, listed in endpoints.items()}
-    return [f"tls/{ep.removeprefix('tcp/')}" if ep.startswith("tcp/") else ep for ep in endpoints]
-
-
-def agent_endpoint(index: int, host: str = DEFAULT_HOST) -> str:
-    """Where drone number ``index`` of the workspace listens by default."""
-    return f"tcp/{host}:{AGENT_BASE_PORT + index}"
 
 
 class Query(Protocol):
@@ -185,7 +86,7 @@ class ZenohNode:
         self._declared: list[Any] = []
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._pending: set[asyncio.Future[None]] = set()  #: queries waiting for their last reply
-        self._gathered: _Gathered | None = None  #: puts held while a gathering sample is handed round
+        self._gathered: Gathered | None = None  #: puts held while a gathering sample is handed round
         self.closed = False
         self.max_frames: int | None = None  #: see ZenohSettings.max_frames
         self._refused = Throttled(log)
@@ -291,7 +192,7 @@ class ZenohNode:
             for frame in frames:
                 fanout.deliver(key, frame)
             return
-        self._gathered = _Gathered()
+        self._gathered = Gathered()
         try:
             for frame in frames:
                 fanout.deliver(key, frame)
@@ -301,7 +202,7 @@ class ZenohNode:
 
     def _send_runs(self, runs: list[tuple[str, list[bytes]]]) -> None:
         for to, parts in runs:
-            for chunk in _runs(parts, self.max_frames):  # a peer refuses a sample of more
+            for chunk in in_runs(parts, self.max_frames):  # a peer refuses a sample of more
                 try:
                     self._put(to, FRAME_END.join(chunk))
                 except TransportError as exc:  # one key's failure must not lose the others'
@@ -432,9 +333,6 @@ class ZenohNode:
         self._inbox.put(first, self.name, callback, args)
 
 
-FRAME_END = b"\n"  #: between the payloads of one Zenoh message
-
-
 @dataclass
 class _Fanout:
     """One Zenoh subscriber and the handlers of every node of the session subscribed to its key."""
@@ -458,37 +356,6 @@ def _undeclare(declaration: Any, name: str) -> None:
             declaration.undeclare()
     except TransportError as exc:  # already gone with its link: nothing left to undeclare
         log.debug("%s", exc)
-
-
-@dataclass
-class _Gathered:
-    """Puts held while a sample is handed round: runs of puts to one key, sent in order. A put joins its
-    key's newest run unless its node has put to a later run since (it would go out before that put)."""
-
-    runs: list[tuple[str, list[bytes]]] = field(default_factory=list)
-    newest: dict[str, int] = field(default_factory=dict)  #: key -> its newest run
-    last: dict[str, int] = field(default_factory=dict)  #: node -> the run of its newest put
-    sent: int = 0  #: the runs before this one are sent
-
-    def add(self, node: str, key: str, payload: bytes) -> None:
-        run = self.newest.get(key)
-        if run is None or run < self.sent or self.last.get(node, -1) > run:
-            run = self.newest[key] = len(self.runs)
-            self.runs.append((key, []))
-        self.runs[run][1].append(payload)
-        self.last[node] = run
-
-    def due(self, node: str | None = None) -> list[tuple[str, list[bytes]]]:
-        """The runs not sent yet, in order: all, or (before ``node`` puts at once) up to its newest put's."""
-        end = len(self.runs) if node is None else self.last.get(node, -1) + 1
-        due, self.sent = self.runs[self.sent:end], max(self.sent, end)
-        return due
-
-
-def _runs(parts: list[bytes], most: int | None) -> list[list[bytes]]:
-    """``parts`` in runs of at most ``most`` (None: one run)."""
-    step = most or len(parts)
-    return [parts[first:first + step] for first in range(0, len(parts), step)]
 
 
 def _finish(done: asyncio.Future[None]) -> None:

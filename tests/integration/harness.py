@@ -28,7 +28,8 @@ from fleet.sim.ports import free_port_block, free_udp_base
 from fleet.transport.fleet_client import FleetClient
 from fleet.transport.identity import SERVICE
 from fleet.transport.keys import FleetKeys
-from fleet.transport.node import ZenohNode, ZenohSettings
+from fleet.transport.node import ZenohNode
+from fleet.transport.settings import ZenohSettings
 from fleet.transport.wire import DroneState, MailOrder, MailStatus, MailStatusReport, WireError, decode
 from tests.conftest import fleet_tls_dir
 from tests.integration.hosts import Hosts

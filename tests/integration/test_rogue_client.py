@@ -17,7 +17,7 @@ from drona_gcs.motion import Trajectory
 from drona_gcs.stack.messages import TaskId
 from fleet.transport.identity import make_certs
 from fleet.transport.keys import FleetKeys
-from fleet.transport.node import ZenohSettings
+from fleet.transport.settings import ZenohSettings
 from fleet.transport.wire import MailOrder, MailStatus, MailStatusReport, PlanAnnounce, WireTrajectory, answers, encode
 from tests.conftest import fleet_tls_dir
 from tests.integration.harness import FleetProcesses

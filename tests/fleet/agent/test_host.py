@@ -17,7 +17,7 @@ from drona_gcs.workspace_files import load_workspace
 from fleet.agent.host import open_link, session_groups, zenoh_settings
 from fleet.agent.settings import AgentSettings
 from fleet.sim.ports import free_port, free_udp_base
-from fleet.transport.node import agent_endpoint
+from fleet.transport.settings import agent_endpoint
 from fleet.vehicle.signing import SigningKeyError
 from tests.integration.harness import DRONA, workspace_yaml
 

@@ -10,7 +10,8 @@ import pytest
 import zenoh
 
 from drona_gcs.errors import DronaError
-from fleet.transport.node import TransportError, ZenohNode, ZenohSettings
+from fleet.transport.node import TransportError, ZenohNode
+from fleet.transport.settings import ZenohSettings
 
 BAD_KEY = "drona//t"  #: an empty chunk: Zenoh refuses it
 

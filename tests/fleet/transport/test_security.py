@@ -33,7 +33,8 @@ from fleet.sim.ports import free_port
 from fleet.transport.gateway import ZenohGateway
 from fleet.transport.identity import SERVICE, IdentityError, Speakers, access_control, identity_for, make_certs
 from fleet.transport.keys import FleetKeys
-from fleet.transport.node import ZenohNode, ZenohSettings
+from fleet.transport.node import ZenohNode
+from fleet.transport.settings import ZenohSettings
 from fleet.transport.wire import MailStatus, answers, encode
 from fleet.transport.wire import MailStatusReport as WireReport
 from tests.conftest import fleet_tls_dir

@@ -22,9 +22,11 @@ from fleet.sim.ports import free_port
 from fleet.sim.transport import UdpLink
 from fleet.transport import inbox as inbox_module
 from fleet.transport.gateway import ZenohGateway
+from fleet.transport.gather import Gathered
 from fleet.transport.inbox import ORDINARY_WAITS_AT_MOST_S, Inbox
 from fleet.transport.keys import FleetKeys, check_name
-from fleet.transport.node import Reply, SampleHandler, ZenohNode, ZenohSettings, _Gathered
+from fleet.transport.node import Reply, SampleHandler, ZenohNode
+from fleet.transport.settings import ZenohSettings
 from fleet.transport.wire import (
     VERSION,
     MailOrder,
@@ -364,7 +366,7 @@ def test_the_answers_of_a_sessions_drones_to_one_request_travel_as_one_message(n
 def test_gathered_puts_join_by_key_and_never_send_a_nodes_put_before_its_earlier_one() -> None:
     """d2 and d3 (one host) ack on one key: one message. d3 then answers on its own key, and acks again on
     the first: joined to the first message, that ack would go out before d3's answer."""
-    gathered = _Gathered()
+    gathered = Gathered()
     gathered.add("d2", "proto/pair/d1", b"ack d2")
     gathered.add("d3", "proto/pair/d1", b"ack d3")
     gathered.add("d3", "answers/d3", b"answer d3")
@@ -377,7 +379,7 @@ def test_gathered_puts_join_by_key_and_never_send_a_nodes_put_before_its_earlier
 def test_a_put_that_goes_at_once_sends_what_its_node_gathered_before_it() -> None:
     """d3 acks a proposal (gathered), then proposes its own plan at once: its ack goes first, with what was
     gathered before it; what comes after starts anew."""
-    gathered = _Gathered()
+    gathered = Gathered()
     gathered.add("d2", "proto/pair/d1", b"ack d2")
     gathered.add("d3", "proto/pair/d1", b"ack d3")
     gathered.add("d4", "answers/d4", b"answer d4")
@@ -425,7 +427,7 @@ def test_a_put_at_once_leaves_after_what_its_node_put_before_in_the_round() -> N
 #: "up", and closes its session when its stdin ends, then exits.
 PEER = """
 import sys, zenoh
-from fleet.transport.node import ZenohSettings
+from fleet.transport.settings import ZenohSettings
 session = zenoh.open(ZenohSettings(listen=(sys.argv[1],)).config())
 print("up", flush=True)
 sys.stdin.read()
