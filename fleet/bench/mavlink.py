@@ -31,17 +31,12 @@ import asyncio
 import contextlib
 import json
 import math
-import os
-import signal
 import statistics
-import subprocess
 import sys
-import tempfile
 import time
-from collections.abc import AsyncIterator, Sequence
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 from drona_gcs.geo import GeoFrame
 from drona_gcs.motion import Trajectory
@@ -49,14 +44,10 @@ from drona_gcs.stack.executor import PlanExecutor
 from drona_gcs.workspace import Workspace
 from fleet.bench import BenchError
 from fleet.bench import plot as bench_plot
+from fleet.bench.loopback import linked_fleet, udp_queues
 from fleet.setpoint_loop import SetpointFleet, SetpointLoop, StepReport
 from fleet.sim.fleet import DEFAULT_HOME, DEFAULT_SPACING_M
-from fleet.sim.ports import free_udp_base
 from fleet.vehicle import mavlink_link
-from fleet.vehicle.mavlink_link import PymavlinkLink
-
-REPO = Path(__file__).resolve().parents[2]
-HOST = "127.0.0.1"
 
 #: The issue's targets (the options take them when not given).
 TARGET_VEHICLES = 128
@@ -69,8 +60,6 @@ KEEP_UP_SHARE = 0.95
 #: ... and no link's position delay grows by more than this over the window.
 MAX_DELAY_GROWTH_MS = 50.0
 
-CONNECT_TIMEOUT_S = 30.0  #: the subprocess's start-up (imports) plus every link's stream requests
-STOP_TIMEOUT_S = 5.0
 LAG_PROBE_S = 0.01  #: the event-loop lag probe's period
 HEARTBEAT_HZ = 1.0  #: the fake vehicle's HEARTBEAT rate (always on)
 
@@ -196,24 +185,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 # ------------------------------------------------------------------ 1: telemetry
-class CountingLink(PymavlinkLink):
-    """A PymavlinkLink that counts the vehicle's messages and records LOCAL_POSITION_NED's delay."""
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.received = 0
-        self.delays: list[tuple[float, float]] = []  #: (link clock, link clock - time_boot_ms) per position
-
-    def _dispatch(self, msg: Any) -> None:
-        super()._dispatch(msg)
-        if self.sysid is None or msg.get_srcSystem() != self.sysid or msg.get_type() == "BAD_DATA":
-            return
-        self.received += 1
-        if msg.get_type() == "LOCAL_POSITION_NED":
-            now = self.clock()
-            self.delays.append((now, now - msg.time_boot_ms / 1000))
-
-
 def expected_rate(stream_hz: float) -> float:
     """Messages a second a link asks for: its streams at ``stream_hz`` (shares of it) and the HEARTBEAT."""
     return HEARTBEAT_HZ + sum(stream_hz * share for share in mavlink_link.STREAMS.values())
@@ -225,10 +196,10 @@ async def bench_telemetry(vehicles: int, seconds: float, warmup: float, stream_h
         lags: list[float] = []
         probe = asyncio.create_task(_lag_probe(lags))
         ports = {link.url.port for link in links}
-        counts0, drops0 = [link.received for link in links], _udp_queues(ports)
+        counts0, drops0 = [link.received for link in links], udp_queues(ports)
         cpu0, sim0, t0 = time.process_time(), sim.cpu_seconds(), time.monotonic()
         await asyncio.sleep(seconds)
-        counts1, queues1 = [link.received for link in links], _udp_queues(ports)
+        counts1, queues1 = [link.received for link in links], udp_queues(ports)
         cpu1, sim1, t1 = time.process_time(), sim.cpu_seconds(), time.monotonic()
         probe.cancel()
         with contextlib.suppress(asyncio.CancelledError):
@@ -308,107 +279,6 @@ async def bench_jitter(loops: int, tau: float, boundaries: int, stream_hz: float
                      round(p99, 3), round(ms[-1], 3),
                      None if sim0 is None or sim1 is None else round((sim1 - sim0) / elapsed, 4),
                      round((cpu1 - cpu0) / elapsed, 4), p99 <= TARGET_JITTER_P99_MS)
-
-
-# ------------------------------------------------------------------ vehicles and links
-class SimProcess:
-    """``drona sim-vehicle --count N`` over UDP to HOST:base_port + i, stopped on exit."""
-
-    def __init__(self, count: int, base_port: int) -> None:
-        self.count, self.base_port = count, base_port
-        self.proc: subprocess.Popen[bytes] | None = None
-        self._log: IO[bytes] | None = None
-
-    def start(self) -> None:
-        cmd = [sys.executable, "-m", "fleet.cli", "sim-vehicle", "--count", str(self.count), "--host", HOST,
-               "--base-port", str(self.base_port), "--ready-after", "0.5"]
-        env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
-        self._log = tempfile.TemporaryFile()  # noqa: SIM115  # open while the process runs
-        self.proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                     stderr=self._log)
-
-    def cpu_seconds(self) -> float | None:
-        """User + system CPU seconds of the running vehicles' process (None where /proc is not there)."""
-        if self.proc is None:
-            return None
-        try:
-            stat = Path(f"/proc/{self.proc.pid}/stat").read_text()
-        except OSError:
-            return None
-        fields = stat.rpartition(")")[2].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime
-
-    def why(self) -> str:
-        """The end of what the process wrote to stderr, for an error message."""
-        if self._log is None:
-            return ""
-        self._log.seek(0)
-        lines = self._log.read().decode(errors="replace").strip().splitlines()
-        code = "" if self.proc is None or self.proc.poll() is None else f" (exit {self.proc.returncode})"
-        return f"{code}: " + " | ".join(lines[-5:]) if lines else code
-
-    async def stop(self) -> None:
-        proc = self.proc
-        if proc is not None and proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            for sig in (signal.SIGKILL, None):
-                deadline = time.monotonic() + STOP_TIMEOUT_S
-                while proc.poll() is None and time.monotonic() < deadline:
-                    await asyncio.sleep(0.05)
-                if proc.poll() is not None or sig is None:
-                    break
-                proc.send_signal(sig)
-        if self._log is not None:
-            self._log.close()
-            self._log = None
-
-
-@contextlib.asynccontextmanager
-async def linked_fleet(count: int, stream_hz: float, frame: GeoFrame | None = None,
-                       setpoint_hz: float = 10.0) -> AsyncIterator[tuple[SimProcess, list[CountingLink]]]:
-    """``count`` vehicles in a subprocess and a connected link to each (streams requested); each
-    link repeats its last setpoint at ``setpoint_hz``."""
-    try:
-        base = free_udp_base(count, HOST)
-    except OSError as exc:
-        raise BenchError(str(exc)) from exc
-    links = [CountingLink(f"udpin://{HOST}:{base + i}", stream_hz=stream_hz, frame=frame,
-                          setpoint_hz=setpoint_hz, heartbeat_timeout=5.0, ack_timeout=2.0) for i in range(count)]
-    sim = SimProcess(count, base)
-    connecting = [asyncio.create_task(link.connect(timeout=CONNECT_TIMEOUT_S)) for link in links]
-    try:
-        await asyncio.sleep(0.05)  # every link binds its port before the vehicles send to it
-        sim.start()
-        done, _ = await asyncio.wait(connecting, timeout=CONNECT_TIMEOUT_S + 10)
-        failed = [t for t in connecting if t not in done or t.exception() is not None]
-        if failed:
-            task = failed[0]
-            what = "timed out" if task not in done else str(task.exception())
-            raise BenchError(f"{len(failed)} of {count} links did not connect (first: {what}); "
-                             f"vehicles{sim.why()}")
-        yield sim, links
-    finally:
-        for task in connecting:
-            task.cancel()
-        await asyncio.gather(*connecting, return_exceptions=True)
-        await asyncio.gather(*(link.close() for link in links), return_exceptions=True)
-        await sim.stop()
-
-
-def _udp_queues(ports: set[int]) -> tuple[int, int] | None:
-    """(bytes queued unread, datagrams dropped) summed over our UDP sockets on ``ports`` (None off Linux)."""
-    try:
-        lines = Path("/proc/net/udp").read_text().splitlines()[1:]
-    except OSError:
-        return None
-    queued = drops = 0
-    for line in lines:
-        f = line.split()
-        if len(f) < 13 or int(f[1].rpartition(":")[2], 16) not in ports:
-            continue
-        queued += int(f[4].rpartition(":")[2], 16)
-        drops += int(f[12])
-    return queued, drops
 
 
 def _percentile(values: Sequence[float], q: float) -> float:

@@ -30,7 +30,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
     from fleet.bench.api import Result as ApiResult
-    from fleet.bench.coordination import CoordinationResult
+    from fleet.bench.latency import CoordinationResult
     from fleet.bench.mavlink import JitterRow, TelemetryRow
     from fleet.bench.planner import Row
 

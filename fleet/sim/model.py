@@ -338,4 +338,3 @@ class VehicleModel:
 
 def _ignore(msg: Message, now: float) -> None:
     """A message type we receive and deliberately do nothing with."""
-

@@ -15,14 +15,8 @@ import yaml
 
 from drona_gcs.stack.protocol import State
 from drona_gcs.workspace_files import workspace_from_mapping
-from fleet.bench.coordination import (
-    PlanLatencies,
-    _between_rounds,
-    audit_records,
-    bench_workspace,
-    default_processes,
-    gather_records,
-)
+from fleet.bench.coordination import audit_records, bench_workspace, default_processes, gather_records
+from fleet.bench.latency import PlanLatencies, between_rounds
 from fleet.transport.wire import DroneState
 
 
@@ -66,12 +60,12 @@ def test_a_fleet_never_between_rounds_is_measured_anyway_saying_which_drones_wer
     """The benchmark waits for the fleet between rounds, but not for ever; the figures then count part
     of a round (or mail given to drones not yet parked), and the user must be told which drones."""
     busy = _Fleet({"d1": State.WAIT_FOR_TASK, "d2": State.EXECUTING, "d3": State.COORDINATING})
-    states = asyncio.run(_between_rounds(busy, 0.1, idle=True))  # type: ignore[arg-type]
+    states = asyncio.run(between_rounds(busy, 0.1, idle=True))  # type: ignore[arg-type]
     assert set(states) == {"d1", "d2", "d3"} and busy.asked > 1
     assert "after 0.1 s, drones still flying or coordinating: d2, d3; measuring anyway" in capsys.readouterr().err
     # Between rounds a plan flown does not count; and a fleet between rounds is taken at once, silently.
     flying = _Fleet({"d1": State.WAIT_FOR_TASK, "d2": State.EXECUTING})
-    assert set(asyncio.run(_between_rounds(flying, 5.0))) == {"d1", "d2"}  # type: ignore[arg-type]
+    assert set(asyncio.run(between_rounds(flying, 5.0))) == {"d1", "d2"}  # type: ignore[arg-type]
     assert flying.asked == 1 and capsys.readouterr().err == ""
 
 

@@ -14,7 +14,7 @@ import pytest
 
 from fleet.bench import plot as bench_plot
 from fleet.bench.api import Result as ApiResult
-from fleet.bench.coordination import CoordinationResult
+from fleet.bench.latency import CoordinationResult
 from fleet.bench.mavlink import JitterRow, TelemetryRow
 from fleet.bench.planner import Row
 from fleet.cli import main
