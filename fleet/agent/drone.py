@@ -20,7 +20,9 @@ peers not alive are marked left, so nobody waits for a drone that never came.
 
 Mail orders, cancellations, progress and the heir's adoption of a departed
 peer's mail live in :mod:`fleet.agent.maildesk`; what the agent knows of its
-vehicle (ready, lost, back) in :mod:`fleet.agent.watch`. A drone takes tasks only
+vehicle (ready, lost, back) in :mod:`fleet.agent.watch`, and what it does about it at each
+boundary in :mod:`fleet.agent.tracking`; what it takes from its peers (messages, plans,
+liveliness, clocks) in :mod:`fleet.agent.peers`. A drone takes tasks only
 while its vehicle is ready, answering, and placed where the stack holds it.
 """
 
@@ -28,7 +30,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TextIO
@@ -39,7 +40,6 @@ from drona_gcs.motion import Trajectory
 from drona_gcs.stack.battery import BatteryLow, BatteryRecharged
 from drona_gcs.stack.drone import DroneAction, DroneStack, LegNotFlown
 from drona_gcs.stack.mail import GoTo, MailDelivered, MailLost, MailPickedUp, MailRejected, MailStarted
-from drona_gcs.stack.messages import CurrentTraj, PlanDecision
 from drona_gcs.stack.protocol import (
     Braked,
     Broadcast,
@@ -54,23 +54,22 @@ from drona_gcs.stack.protocol import (
     Threatened,
 )
 from drona_gcs.workspace import Cell, Workspace
-from fleet.agent.clocksync import ClockCheck, OffsetSample
+from fleet.agent.clocksync import ClockCheck
 from fleet.agent.maildesk import MailDesk
 from fleet.agent.outbox import Answers, Decided, coalesced, urgency
+from fleet.agent.peers import PeerSide
+from fleet.agent.tracking import Tracking
 from fleet.agent.vehicle import VehicleSupervisor
-from fleet.agent.watch import Seen, VehicleWatch, Verdict, record_line
+from fleet.agent.watch import VehicleWatch
 from fleet.logs import Throttled
-from fleet.setpoint_loop import Sample, SetpointLoop, StepReport
+from fleet.setpoint_loop import SetpointLoop
 from fleet.transport.identity import Speakers
 from fleet.transport.keys import FleetKeys
 from fleet.transport.node import Query, ZenohNode
 from fleet.transport.wire import (
-    ClockPing,
-    ClockPong,
     CommandAck,
     CommandAction,
     CurTrajTo,
-    Decide,
     DroneState,
     FleetCommand,
     Health,
@@ -80,14 +79,11 @@ from fleet.transport.wire import (
     TaskView,
     WireError,
     WireTrajectory,
-    answer_in,
     answering,
     answers,
-    decode,
     decode_as,
     encode,
     from_core,
-    to_core,
 )
 from fleet.vehicle.link import Readiness, VehicleLink, not_ready
 from fleet.vehicle.policy import DEFAULT_TIMEOUTS, Timeouts
@@ -107,7 +103,9 @@ class Metrics:
     plans: int = 0
 
 
-class DroneAgent:
+class DroneAgent(Tracking, PeerSide):
+    """One drone's agent: its stack, carried out over Zenoh and its vehicle (see the module docstring)."""
+
     def __init__(self, stack: DroneStack, node: ZenohNode, keys: FleetKeys, link: VehicleLink,
                  frame: GeoFrame, clock: Callable[[], float], record: TextIO | None = None,
                  timeouts: Timeouts = DEFAULT_TIMEOUTS, epoch_s: float = 0.0, *, host: str | None = None,
@@ -217,102 +215,7 @@ class DroneAgent:
             return f"its vehicle is not ready: {not_ready(self.link.telemetry())}"
         return None if self.placed else "its vehicle has not been placed yet"
 
-    # ------------------------------------------------------------- vehicle
-    def _watch_vehicle(self, step: int) -> None:
-        """Lost, back, placed: what the vehicle did since the last boundary, and what the drone does about it."""
-        protocol = self.stack.protocol
-        verdict = self.watch.boundary(step, protocol.holds(), placeable=not protocol.coordinating)
-        if verdict.seen is Seen.LOST:
-            self._lost(step, verdict)
-        elif verdict.seen is Seen.BACK:
-            self._back(verdict)
-        elif verdict.seen is Seen.BACK_ELSEWHERE:
-            self.out_of_service = f"{verdict.reason}: land it by hand, then restart its agent"
-            log.error("%s: %s", self.me, self.out_of_service)
-            self._alarm("vehicle_lost", f"vehicle_lost: {self.out_of_service}")
-        if not self.placed and not self.watch.lost and self.watch.readiness() is Readiness.READY:
-            self._place()
-
-    def _lost(self, step: int, verdict: Verdict) -> None:
-        seen = self.watch.last_seen or self.stack.executor.cell
-        log.warning("%s: vehicle lost (%s): holding every cell it may be in, taking no task", self.me, verdict.reason)
-        self._alarm("vehicle_lost", f"vehicle_lost: {verdict.reason}")
-        self.vehicle.pause(True)
-        if self.setpoints is not None:
-            self.setpoints.suspend(True)
-        self._carry_out(self.stack.vehicle_lost(step, seen, f"drone {self.me}'s vehicle is lost"))
-
-    def _back(self, verdict: Verdict) -> None:
-        assert verdict.cell is not None
-        where = "landed below" if verdict.landed else "in"
-        log.warning("%s: vehicle back, %s %s: it rests there", self.me, where, list(verdict.cell))
-        self._alarm("vehicle_lost", None)
-        self._carry_out(self.stack.vehicle_back(verdict.cell, verdict.landed))
-        self.vehicle.pause(False, airborne=not verdict.landed)
-        if self.setpoints is not None:
-            self.setpoints.suspend(False)
-
-    def _place(self) -> None:
-        """Checked once the vehicle is located (see VehicleWatch.misplaced): judged once, for good."""
-        self.placed = True
-        self.out_of_service = self.watch.misplaced(self.stack.executor.cell)
-        if self.out_of_service is not None:
-            log.error("%s: %s", self.me, self.out_of_service)
-            self._alarm("placement", f"placement: {self.out_of_service}")
-
-    def on_step(self, report: StepReport, actions: Sequence[object]) -> None:
-        """After the boundary's setpoints went out: judge the vehicle, record it, publish the state."""
-        self.actual = self.watch.seen_cell()
-        if self.actual is None:
-            log.debug("%s: no cell at step %d: position %s", self.me, report.step, self.link.last_position())
-        if not self.down and not self.watch.lost and self.vehicle.grounded_by_itself():
-            self.down = True
-            self.mail.refusal = "its vehicle came down by itself"
-            below = self.watch.recorded_cell()
-            where = f"in {list(below)}" if below is not None else "outside the grid"
-            log.warning("%s: the vehicle came down by itself %s: its mail is handed back", self.me, where)
-            cell = below if below is not None else self.stack.executor.cell
-            self._carry_out(self.stack.vehicle_down(f"drone {self.me}'s vehicle came down by itself {where}", cell))
-        self._alarm("lag", self._lag(report))
-        self._alarm("down", "vehicle: came down while its plan flew (a failsafe or a pilot?); its mail was handed "
-                    "back and it starts no task; restart its agent once it is back in service" if self.down else None)
-        self._alarm("behind", f"catching up (a stall, or a vehicle too slow at a turn): {report.behind} "
-                    "cells of its plan still to fly through" if report.behind else None)
-        # A plan scheduled but not begun still needs the climb: the lead steps are for it.
-        # Landing crosses only its own column when the cell is on the lowest layer; higher up it hovers.
-        grounded = self.stack.landed and self.stack.executor.cell[2] == 0
-        self.vehicle.want_airborne(not grounded or self.stack.protocol.state is State.EXECUTING)
-        # Half a period later: at the boundary every drone of the fleet is busy, and answers come first.
-        self.publish_state_soon(self.ws.tau_s / 2)
-
-    def on_sample(self, sample: Sample) -> None:
-        """Lambda after a boundary: record where the vehicle was, and judge how late it came."""
-        seen = self.watch.seen_cell("sample")  # None: no fresh position, a gap in the record
-        flown = sample.planned if sample.late_s is not None else seen
-        if self.record is not None and seen is not None and flown is not None:
-            self.record.write(record_line(sample.step, self.me, flown, sample.planned, self.delta))
-        if self.down or self.watch.lost:
-            return
-        if self.late is not None and seen == self.stack.executor.cell and self.stack.executor.trajectory is None:
-            self._on_time_again()  # in the air or landed below it: its vehicle is where its plan ended
-        elif self.late is None and sample.late_s is None and self.vehicle.settled:
-            self._late(sample)
-        self.mail.refusal = self._refusal()
-        self._alarm("late", None if self.late is None else f"late: {self.late}")
-
-    def _on_time_again(self) -> None:
-        log.warning("%s: its vehicle is where its plan ended: it takes tasks again", self.me)
-        self.late = None
-        self._carry_out(self.stack.tracking_bound(False, ""))
-
-    def _late(self, sample: Sample) -> None:
-        """Later than lambda, the margin peers planned with is gone: hold where the plan ends, until the
-        vehicle is there."""
-        self.late = (f"its vehicle was not in {list(sample.planned)} {self.ws.lateness_s:g} s (lambda) after "
-                     f"step {sample.step} began")
-        log.warning("%s: %s: it holds where its plan ends, and takes no task until it is on time", self.me, self.late)
-        self._carry_out(self.stack.tracking_bound(True, f"drone {self.me}'s vehicle is later than lambda"))
-
+    # -------------------------------------------------------------- actions
     def _held_for_good(self) -> str:
         """What walls a goal off, for the operator: cells departed drones may hold, and where drones rest."""
         ghosts = self.stack.protocol.ghost_obstacles()
@@ -326,22 +229,6 @@ class DroneAgent:
         plans = ", ".join(f"{drone}'s at step {step}" for step, drone in ending)
         return f" (plans that end there: {plans})" if plans else ""
 
-    def _lag(self, report: StepReport) -> str | None:
-        """Trailing its timed trajectory, or on the ground while its plan flies: the separation argument
-        assumes every drone is where its plan says."""
-        if self.down or self.watch.lost:
-            return None
-        if self.stack.executor.flying and not self.vehicle.settled:
-            return "lag: vehicle not in the air while its plan flies"
-        return f"lag: vehicle {report.error_m:.1f} m from its cell" if report.lagging and self.vehicle.settled else None
-
-    def _battery(self) -> float:
-        pct = self.link.telemetry().battery_pct
-        if pct is not None:
-            self.battery_pct = float(pct)
-        return self.battery_pct
-
-    # -------------------------------------------------------------- actions
     def _carry_out(self, actions: Sequence[DroneAction]) -> None:
         # Protocol messages first: peers wait on them (the Sends after a StartExecuting are answers
         # to peers that waited for this plan). What only informs (mail progress, the plan's
@@ -427,108 +314,6 @@ class DroneAgent:
                  "; ".join(f"{d}@{p.start_step}:{' '.join(f'{c[0]},{c[1]}' for c in p.cells)}"
                            for d, p in sorted(action.psi.items())))
 
-    # ------------------------------------------------------------- inbound
-    def _on_protocol(self, key: str, payload: bytes) -> None:
-        try:
-            envelope = decode(payload)
-            if envelope.sender == self.me:
-                return  # my own request to everyone (proto/all) comes back to me too
-            self._check_sender(key, envelope.sender)
-            self.bounds.check(envelope.body, self._step_now())
-            message = to_core(envelope, self.me)
-            answer = answer_in(envelope, self.me) if isinstance(envelope.body, Decide) else None
-        except WireError as exc:
-            self.dropped.warning(key, "%s: dropped a message on %s: %s", self.me, key, exc)
-            return
-        self.heard_at[envelope.sender] = self.stack.now
-        body = envelope.body
-        if isinstance(body, CurTrajTo) or (isinstance(body, Decide) and body.replies):
-            # The sender's new plan, whoever it answers (a drone whose round is over too): heard now, so
-            # the plan it flies must be known now too (if it leaves, it is held along this plan, not the
-            # one before); and it comes with no announcement of its own (see _started).
-            known = message.trajectory if isinstance(message, (CurrentTraj, PlanDecision)) else body.trajectory.core()
-            self._carry_out(self.stack.heard(envelope.sender, known))
-        for each in (message, answer):  # a decision first, then the answer it carries (as they were sent)
-            if each is not None and (actions := self.stack.receive(each)):
-                self._carry_out(actions)
-
-    def _on_plan(self, key: str, payload: bytes) -> None:
-        try:
-            envelope = decode(payload)
-            if envelope.sender == self.me:
-                return
-            self._check_sender(key, envelope.sender)
-            self.bounds.check(envelope.body, self._step_now())
-        except WireError as exc:
-            self.dropped.warning(key, "%s: dropped a plan on %s: %s", self.me, key, exc)
-            return
-        body, sender = envelope.body, envelope.sender
-        if isinstance(body, PlanAnnounce):
-            self.heard_at[sender] = self.stack.now
-            if body.grounded:
-                self._carry_out(self.stack.peer_down(sender, body.trajectory.core().last))
-            elif body.lost:
-                self._carry_out(self.stack.peer_lost(sender, body.holds))
-            elif body.braked:
-                self._carry_out(self.stack.peer_braked(sender, body.trajectory.core()))
-            else:
-                self._carry_out(self.stack.heard(sender, body.trajectory.core()))
-
-    def _step_now(self) -> int:
-        """The step on this clock, also before the first boundary is stepped."""
-        return max(self.stack.now, math.floor((self.clock() - self.epoch_s) / self.ws.tau_s))
-
-    def _check_sender(self, key: str, sender: str) -> None:
-        """A peer of this fleet, speaking on its own key, or on its host's protocol key (the access control
-        lets only it, or that host, write there)."""
-        writer = self.keys.writer(key)
-        if sender != writer and not (FleetKeys.is_proto(key) and self.speakers.flies(writer, sender)):
-            unknown = writer not in self.stack.protocol.peers and writer not in self.speakers.hosts
-            raise WireError(f"sender {sender!r} is not the key's writer {writer!r}" + (
-                f" (no host {writer!r} in the hosts.json beside this drone's certificates)" if unknown else ""))
-        if sender not in self.stack.protocol.peers:
-            raise WireError(f"sender {sender!r} is not a peer of this fleet")
-
-    def _on_liveliness(self, key: str, alive: bool) -> None:
-        peer = self.keys.last_chunk(key)
-        if peer == self.me:
-            return
-        if peer not in self.stack.protocol.peers:
-            log.warning("%s: drone %r is alive on the fleet's keys but not in the workspace: ignored", self.me, peer)
-            return
-        if alive:
-            self.alive.add(peer)
-            self._joined(peer)
-        else:
-            self.alive.discard(peer)
-            self.clocks.forget(peer)
-            self._carry_out(self.stack.peer_left(peer, self._silent_since(peer)))
-            self.mail.orphan(peer, self.stack.now + self.lease_steps)
-
-    def _on_service(self, key: str, alive: bool) -> None:
-        if alive:
-            log.info("%s: the service is there", self.me)
-            self.mail.service_back()
-            return
-        log.warning("%s: the service is gone: mail not on board is handed back", self.me)
-        self._carry_out(self.stack.service_lost())
-
-    def _silent_since(self, peer: str) -> int:
-        """The earliest step ``peer`` may have gone silent at. A lost link is noticed only when the
-        lease runs out, so that long ago; but not before it was last heard from (the core holds its
-        plan from ``lead_steps`` before that, which covers the skew and a message's way here). Held for
-        good are the cells of its plan from then on: too early a guess holds cells it flew through
-        long ago, and a mail there is never delivered."""
-        return max(self.stack.now - self.lease_steps, self.heard_at.get(peer, -self.lease_steps))
-
-    def _joined(self, peer: str) -> None:
-        """A peer (re)joined: take it where it was last heard of (its start, if never). A coordinating
-        drone asks it at once, and its answer is what any plan is made with."""
-        last = self.stack.protocol.known.get(peer)
-        cell = last.last if last is not None else self.stack.protocol.peers[peer]
-        self._carry_out(self.stack.peer_joined(peer, cell, last))
-        self.mail.rejoined(peer)
-
     # ----------------------------------------------------------------- state
     def state(self) -> DroneState:
         stack = self.stack
@@ -585,41 +370,6 @@ class DroneAgent:
             ack = CommandAck(drone=self.me, action=body.action, accepted=True)
         self.publish_state_soon()
         query.reply(self.keys.command(self.me), encode(self.me, self.clock(), ack))
-
-    # ----------------------------------------------------------------- clock
-    def _on_clock_query(self, key: str, payload: bytes, query: Query) -> None:
-        query.reply(self.keys.clock(self.me), encode(self.me, self.clock(), ClockPong()))
-
-    async def measure_clocks(self) -> dict[str, OffsetSample]:
-        """One offset measurement against every drone that answers (this host's clock against theirs)."""
-        sent = self.clock()
-        replies = await self.node.get(self.keys.clock(), encode(self.me, sent, ClockPing()), 1.0, self.clock)
-        samples = {}
-        for reply in replies:
-            try:
-                envelope = decode(reply.payload)
-            except WireError as exc:
-                log.warning("%s: dropped a clock reply: %s", self.me, exc)
-                continue
-            samples[envelope.sender] = OffsetSample.measure(sent, envelope.sent_at, reply.at)
-        return samples
-
-    def judge_clocks(self, samples: dict[str, OffsetSample]) -> None:
-        """Keep the samples of live peers; alarm and hold beyond beta."""
-        for peer, sample in samples.items():
-            if peer != self.me and peer in self.alive:
-                self.clocks.observe(peer, sample)
-                self.heard_at[peer] = self.stack.now
-        fleet = len(set(self.stack.protocol.peers) - {self.me})  # not just who answered first
-        alarm, mine_off = self.clocks.alarm(fleet), self.clocks.mine_is_off(fleet)
-        if alarm != self.alarms.get("clock"):
-            log.warning("%s: %s", self.me, alarm or "clock skew back within beta")
-        self.may_plan = not mine_off
-        outliers = frozenset() if mine_off else frozenset(self.clocks.violations())
-        reason = f"drone {self.me}'s clock is beyond the fleet's bound"
-        self._carry_out(self.stack.clock_bound(mine_off, outliers, reason))
-        self.mail.refusal = self._refusal()  # now, not at the next boundary: mail may come meanwhile
-        self._alarm("clock", alarm)
 
     def _alarm(self, kind: str, text: str | None) -> None:
         if text is None:

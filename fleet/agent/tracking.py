@@ -1,0 +1,163 @@
+"""How a drone's agent judges its vehicle, at every step boundary and lambda after it: lost, back,
+placed at its start, down by itself, later than lambda, lagging behind its plan.
+
+A mixin of :class:`~fleet.agent.drone.DroneAgent`, which holds the state named below; what the
+vehicle itself reports is read through :class:`~fleet.agent.watch.VehicleWatch`.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, TextIO
+
+from drona_gcs.geo import GeoFrame
+from drona_gcs.stack.drone import DroneAction, DroneStack
+from drona_gcs.stack.protocol import State
+from drona_gcs.workspace import Cell, Workspace
+from fleet.agent.maildesk import MailDesk
+from fleet.agent.vehicle import VehicleSupervisor
+from fleet.agent.watch import Seen, VehicleWatch, Verdict, record_line
+from fleet.setpoint_loop import Sample, SetpointLoop, StepReport
+from fleet.vehicle.link import Readiness, VehicleLink
+
+log = logging.getLogger("fleet.agent.drone")  # the agent's logger: its lines keep their name
+
+
+class Tracking:
+    """The vehicle's side of a drone's agent (see the module docstring)."""
+
+    me: str
+    stack: DroneStack
+    link: VehicleLink
+    frame: GeoFrame
+    ws: Workspace
+    delta: int
+    record: TextIO | None
+    vehicle: VehicleSupervisor
+    watch: VehicleWatch
+    setpoints: SetpointLoop | None
+    mail: MailDesk
+    out_of_service: str | None
+    placed: bool
+    actual: Cell | None
+    battery_pct: float
+    late: str | None
+    down: bool
+
+    if TYPE_CHECKING:  # the agent's own
+        def _carry_out(self, actions: Sequence[DroneAction]) -> None: ...
+        def _alarm(self, kind: str, text: str | None) -> None: ...
+        def _refusal(self) -> str | None: ...
+        def publish_state_soon(self, delay_s: float = 0.0) -> None: ...
+
+    def _watch_vehicle(self, step: int) -> None:
+        """Lost, back, placed: what the vehicle did since the last boundary, and what the drone does about it."""
+        protocol = self.stack.protocol
+        verdict = self.watch.boundary(step, protocol.holds(), placeable=not protocol.coordinating)
+        if verdict.seen is Seen.LOST:
+            self._lost(step, verdict)
+        elif verdict.seen is Seen.BACK:
+            self._back(verdict)
+        elif verdict.seen is Seen.BACK_ELSEWHERE:
+            self.out_of_service = f"{verdict.reason}: land it by hand, then restart its agent"
+            log.error("%s: %s", self.me, self.out_of_service)
+            self._alarm("vehicle_lost", f"vehicle_lost: {self.out_of_service}")
+        if not self.placed and not self.watch.lost and self.watch.readiness() is Readiness.READY:
+            self._place()
+
+    def _lost(self, step: int, verdict: Verdict) -> None:
+        seen = self.watch.last_seen or self.stack.executor.cell
+        log.warning("%s: vehicle lost (%s): holding every cell it may be in, taking no task", self.me, verdict.reason)
+        self._alarm("vehicle_lost", f"vehicle_lost: {verdict.reason}")
+        self.vehicle.pause(True)
+        if self.setpoints is not None:
+            self.setpoints.suspend(True)
+        self._carry_out(self.stack.vehicle_lost(step, seen, f"drone {self.me}'s vehicle is lost"))
+
+    def _back(self, verdict: Verdict) -> None:
+        assert verdict.cell is not None
+        where = "landed below" if verdict.landed else "in"
+        log.warning("%s: vehicle back, %s %s: it rests there", self.me, where, list(verdict.cell))
+        self._alarm("vehicle_lost", None)
+        self._carry_out(self.stack.vehicle_back(verdict.cell, verdict.landed))
+        self.vehicle.pause(False, airborne=not verdict.landed)
+        if self.setpoints is not None:
+            self.setpoints.suspend(False)
+
+    def _place(self) -> None:
+        """Checked once the vehicle is located (see VehicleWatch.misplaced): judged once, for good."""
+        self.placed = True
+        self.out_of_service = self.watch.misplaced(self.stack.executor.cell)
+        if self.out_of_service is not None:
+            log.error("%s: %s", self.me, self.out_of_service)
+            self._alarm("placement", f"placement: {self.out_of_service}")
+
+    def on_step(self, report: StepReport, actions: Sequence[object]) -> None:
+        """After the boundary's setpoints went out: judge the vehicle, record it, publish the state."""
+        self.actual = self.watch.seen_cell()
+        if self.actual is None:
+            log.debug("%s: no cell at step %d: position %s", self.me, report.step, self.link.last_position())
+        if not self.down and not self.watch.lost and self.vehicle.grounded_by_itself():
+            self.down = True
+            self.mail.refusal = "its vehicle came down by itself"
+            below = self.watch.recorded_cell()
+            where = f"in {list(below)}" if below is not None else "outside the grid"
+            log.warning("%s: the vehicle came down by itself %s: its mail is handed back", self.me, where)
+            cell = below if below is not None else self.stack.executor.cell
+            self._carry_out(self.stack.vehicle_down(f"drone {self.me}'s vehicle came down by itself {where}", cell))
+        self._alarm("lag", self._lag(report))
+        self._alarm("down", "vehicle: came down while its plan flew (a failsafe or a pilot?); its mail was handed "
+                    "back and it starts no task; restart its agent once it is back in service" if self.down else None)
+        self._alarm("behind", f"catching up (a stall, or a vehicle too slow at a turn): {report.behind} "
+                    "cells of its plan still to fly through" if report.behind else None)
+        # A plan scheduled but not begun still needs the climb: the lead steps are for it.
+        # Landing crosses only its own column when the cell is on the lowest layer; higher up it hovers.
+        grounded = self.stack.landed and self.stack.executor.cell[2] == 0
+        self.vehicle.want_airborne(not grounded or self.stack.protocol.state is State.EXECUTING)
+        # Half a period later: at the boundary every drone of the fleet is busy, and answers come first.
+        self.publish_state_soon(self.ws.tau_s / 2)
+
+    def on_sample(self, sample: Sample) -> None:
+        """Lambda after a boundary: record where the vehicle was, and judge how late it came."""
+        seen = self.watch.seen_cell("sample")  # None: no fresh position, a gap in the record
+        flown = sample.planned if sample.late_s is not None else seen
+        if self.record is not None and seen is not None and flown is not None:
+            self.record.write(record_line(sample.step, self.me, flown, sample.planned, self.delta))
+        if self.down or self.watch.lost:
+            return
+        if self.late is not None and seen == self.stack.executor.cell and self.stack.executor.trajectory is None:
+            self._on_time_again()  # in the air or landed below it: its vehicle is where its plan ended
+        elif self.late is None and sample.late_s is None and self.vehicle.settled:
+            self._late(sample)
+        self.mail.refusal = self._refusal()
+        self._alarm("late", None if self.late is None else f"late: {self.late}")
+
+    def _on_time_again(self) -> None:
+        log.warning("%s: its vehicle is where its plan ended: it takes tasks again", self.me)
+        self.late = None
+        self._carry_out(self.stack.tracking_bound(False, ""))
+
+    def _late(self, sample: Sample) -> None:
+        """Later than lambda, the margin peers planned with is gone: hold where the plan ends, until the
+        vehicle is there."""
+        self.late = (f"its vehicle was not in {list(sample.planned)} {self.ws.lateness_s:g} s (lambda) after "
+                     f"step {sample.step} began")
+        log.warning("%s: %s: it holds where its plan ends, and takes no task until it is on time", self.me, self.late)
+        self._carry_out(self.stack.tracking_bound(True, f"drone {self.me}'s vehicle is later than lambda"))
+
+
+    def _lag(self, report: StepReport) -> str | None:
+        """Trailing its timed trajectory, or on the ground while its plan flies: the separation argument
+        assumes every drone is where its plan says."""
+        if self.down or self.watch.lost:
+            return None
+        if self.stack.executor.flying and not self.vehicle.settled:
+            return "lag: vehicle not in the air while its plan flies"
+        return f"lag: vehicle {report.error_m:.1f} m from its cell" if report.lagging and self.vehicle.settled else None
+
+    def _battery(self) -> float:
+        pct = self.link.telemetry().battery_pct
+        if pct is not None:
+            self.battery_pct = float(pct)
+        return self.battery_pct
