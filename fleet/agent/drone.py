@@ -65,7 +65,7 @@ from fleet.logs import Throttled
 from fleet.setpoint_loop import SetpointLoop
 from fleet.transport.identity import Speakers
 from fleet.transport.keys import FleetKeys
-from fleet.transport.node import Query, ZenohNode
+from fleet.transport.node import Node, Query
 from fleet.transport.wire import (
     CommandAck,
     CommandAction,
@@ -106,7 +106,7 @@ class Metrics:
 class DroneAgent(Tracking, PeerSide):
     """One drone's agent: its stack, carried out over Zenoh and its vehicle (see the module docstring)."""
 
-    def __init__(self, stack: DroneStack, node: ZenohNode, keys: FleetKeys, link: VehicleLink,
+    def __init__(self, stack: DroneStack, node: Node, keys: FleetKeys, link: VehicleLink,
                  frame: GeoFrame, clock: Callable[[], float], record: TextIO | None = None,
                  timeouts: Timeouts = DEFAULT_TIMEOUTS, epoch_s: float = 0.0, *, host: str | None = None,
                  speakers: Speakers | None = None) -> None:

@@ -38,7 +38,7 @@ from drona_gcs.stack.mail import (
 )
 from drona_gcs.workspace import Cell
 from fleet.transport.keys import FleetKeys
-from fleet.transport.node import Query, ZenohNode
+from fleet.transport.node import Node, Query
 from fleet.transport.wire import (
     HeldMail,
     MailAck,
@@ -62,7 +62,7 @@ PROGRESS = {MailStarted: MailStatus.STARTED, MailPickedUp: MailStatus.PICKED_UP,
 
 
 class MailDesk:
-    def __init__(self, stack: DroneStack, node: ZenohNode, keys: FleetKeys, clock: Callable[[], float],
+    def __init__(self, stack: DroneStack, node: Node, keys: FleetKeys, clock: Callable[[], float],
                  on_change: Callable[[], None]) -> None:
         self.me, self.stack, self.node, self.keys, self.clock = stack.me, stack, node, keys, clock
         self.on_change = on_change  #: the drone's state changed (a mail taken)

@@ -20,7 +20,7 @@ from fleet.agent.maildesk import MailDesk
 from fleet.logs import Throttled
 from fleet.transport.identity import Speakers
 from fleet.transport.keys import FleetKeys
-from fleet.transport.node import Query, ZenohNode
+from fleet.transport.node import Node, Query
 from fleet.transport.wire import (
     ClockPing,
     ClockPong,
@@ -43,7 +43,7 @@ class PeerSide:
 
     me: str
     stack: DroneStack
-    node: ZenohNode
+    node: Node
     keys: FleetKeys
     speakers: Speakers
     clock: Callable[[], float]

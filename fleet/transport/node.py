@@ -72,6 +72,25 @@ SampleHandler = Callable[[str, bytes], None]
 QueryHandler = Callable[[str, bytes, Query], None]
 
 
+class Node(Protocol):
+    """What a drone's agent needs of its Zenoh node (:class:`ZenohNode` is one; tests pass a fake)."""
+
+    def subscribe(self, key: str, handler: SampleHandler, gather: bool = False, first: bool = False) -> None: ...
+
+    def queryable(self, key: str, handler: QueryHandler) -> None: ...
+
+    def watch_liveliness(self, key: str, on_change: Callable[[str, bool], None], first: bool = False) -> None: ...
+
+    def token(self, key: str) -> None: ...
+
+    def put(self, key: str, payload: bytes, once: bool = False, now: bool = False) -> None: ...
+
+    async def get(self, selector: str, payload: bytes, timeout_s: float,
+                  stamp: Callable[[], float] | None = None, block: bool = False) -> list[Reply]: ...
+
+    async def alive(self, key: str, timeout_s: float = 1.0) -> set[str]: ...
+
+
 class ZenohNode:
     """A session and its declarations; callbacks delivered on ``loop``."""
 
