@@ -5,9 +5,8 @@
   127.0.0.1 (UDP, TCP, or a pseudo-terminal as a serial port); :func:`connected` opens a link of
   either backend (:data:`BACKENDS`) to it. Simulated time runs ``SPEEDUP`` times faster, so the
   fake's rules are scaled to stay realistic against the link's wall-clock rates.
-* :class:`ScriptedArduCopter` is the same seam scripted, for states the fake autopilot cannot be
-  brought into on cue (a landing called back at 0.3 m, the ground above home): an ArduCopter link
-  whose telemetry and take-off answer the test sets.
+States the fake autopilot cannot be brought into on cue (a landing called back at 0.3 m, the ground
+above home) are scripted one seam up, on :class:`tests.fakes.vehicle.FakeVehicle`.
 """
 
 from __future__ import annotations
@@ -21,13 +20,12 @@ from typing import Any, Protocol
 
 import pytest
 
-from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from fleet.sim.config import VehicleConfig
 from fleet.sim.fleet import FleetConfig, SimNode, run_fleet
 from fleet.sim.personality import PERSONALITIES, Personality
 from fleet.sim.ports import free_port
 from fleet.sim.transport import PtyLink
-from fleet.vehicle.link import Autopilot, LandedState, Telemetry, VehicleLink
+from fleet.vehicle.link import VehicleLink
 from fleet.vehicle.mavlink_link import PymavlinkLink
 
 SPEEDUP = 10.0
@@ -133,31 +131,3 @@ def run(scenario: Callable[[], Coroutine[Any, Any, None]]) -> None:
 
     asyncio.run(bounded())
 
-
-# ------------------------------------------------------------------ scripted
-class ScriptedArduCopter:
-    """An ArduCopter link in GUIDED, armed, reporting ``landed`` at ``height_m`` above home. Its
-    NAV_TAKEOFF is refused (``refuses``) or climbs; told nothing else it climbs to the setpoints,
-    unless it counts itself on the ground."""
-
-    def __init__(self, landed: LandedState, height_m: float = 0.3, refuses: bool = True) -> None:
-        self.landed, self.height_m, self.refuses, self.takeoffs = landed, height_m, refuses, 0
-
-    def telemetry(self) -> Telemetry:
-        return Telemetry(Autopilot.ARDUPILOT, True, "GUIDED", None, None, None, self.height_m, 90, 16.0, 3, 10,
-                         self.landed, 1.0)
-
-    async def follow_setpoints(self) -> None:
-        pass
-
-    async def takeoff(self, altitude_m: float) -> None:
-        self.takeoffs += 1
-        if self.refuses:
-            raise VehicleCommandRejected("NAV_TAKEOFF", 4)
-        self.landed = LandedState.TAKEOFF
-
-    async def wait_until(self, predicate: Callable[[Telemetry], bool], timeout: float, what: str) -> None:
-        if self.landed is not LandedState.ON_GROUND:
-            self.landed, self.height_m = LandedState.IN_AIR, 2.0  # GUIDED follows the setpoints up
-        if not predicate(self.telemetry()):
-            raise VehicleError(f"no {what}")

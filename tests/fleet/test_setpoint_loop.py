@@ -16,27 +16,11 @@ from drona_gcs.stack.executor import Completed, ExecutorAction, PlanExecutor, Se
 from drona_gcs.workspace import Cell, Workspace
 from fleet.setpoint_loop import Sample, SetpointLoop, StepReport
 from fleet.vehicle.link import Position
+from tests.fakes.vehicle import FakeVehicle
 
 WS = Workspace.build(size=(6, 4, 1), cell_size_m=4.0, tau_s=0.1)
 FRAME = GeoFrame(WS)
 TRAJ = Trajectory(2, ((0, 0, 0), (1, 0, 0), (2, 0, 0), (2, 1, 0)))
-
-
-class RecordingSink:
-    """Records every target with its time; reports a position that follows the targets or not."""
-
-    def __init__(self, clock: asyncio.AbstractEventLoop, follow: bool) -> None:
-        self.loop, self.follow = clock, follow
-        self.sent: list[tuple[float, Ned]] = []
-        self.position = Position(FRAME.cell_to_ned((0, 0, 0)), 0.0)
-
-    async def send_position_target(self, target: Ned) -> None:
-        self.sent.append((self.loop.time(), target))
-        if self.follow:
-            self.position = Position(target, self.loop.time())
-
-    def last_position(self) -> Position | None:
-        return self.position
 
 
 def executor_actions(done: Sequence[object]) -> list[ExecutorAction]:
@@ -53,9 +37,9 @@ def cell_of(ned: Ned) -> Cell:
     return cell
 
 
-async def fly(follow: bool, steps: int = 7) -> tuple[list[StepReport], list[ExecutorAction], RecordingSink, float]:
+async def fly(follow: bool, steps: int = 7) -> tuple[list[StepReport], list[ExecutorAction], FakeVehicle, float]:
     loop = asyncio.get_running_loop()
-    sink = RecordingSink(loop, follow)
+    sink = FakeVehicle(FRAME, (0, 0, 0), at=0.0, clock=loop.time, follow=follow)
     executor = PlanExecutor((0, 0, 0))
     executor.start(TRAJ)
     epoch = loop.time() + 0.05
@@ -105,34 +89,35 @@ def test_a_drone_that_does_not_follow_is_flagged_lagging() -> None:
     assert reports[5].actual == (0, 0, 0) and reports[5].error_m == 8.0
 
 
-class CruisingSink:
-    """A vehicle that flies at ``speed`` m/s straight at the last setpoint and stops on it; it
-    records the straight legs it flew (where it was when a new setpoint came, and that setpoint)."""
+class CruisingSink(FakeVehicle):
+    """The shared fake vehicle, flying at ``speed`` m/s straight at the last setpoint and stopping on it;
+    it records the straight legs it flew (where it was when a new setpoint came, and that setpoint)."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop, start: Ned, speed: float) -> None:
-        self.loop, self.speed = loop, speed
-        self.here, self.aim, self.at = start, start, loop.time()
+        super().__init__(FRAME, at=loop.time(), clock=loop.time)
+        self.speed, self.here, self.aim = speed, start, start
         self.legs: list[tuple[Ned, Ned]] = []
 
     def _move(self) -> None:
-        now = self.loop.time()
+        now = self.clock()
         gap = math.dist((self.here.north, self.here.east), (self.aim.north, self.aim.east))
         step = min(gap, self.speed * (now - self.at))
         if gap > 0:
             f = step / gap
             self.here = Ned(self.here.north + f * (self.aim.north - self.here.north),
                             self.here.east + f * (self.aim.east - self.here.east), self.aim.down)
-        self.at = now
+        self.where, self.at = self.here, now
 
     async def send_position_target(self, target: Ned) -> None:
         self._move()
         if target != self.aim:
             self.legs.append((self.here, target))
         self.aim = target
+        await super().send_position_target(target)
 
     def last_position(self) -> Position | None:
         self._move()
-        return Position(self.here, self.at)
+        return super().last_position()
 
 
 def cruise(plan: Trajectory, cells_a_step: float, tau: float,
@@ -272,16 +257,10 @@ def test_an_arrival_counts_when_telemetry_reported_it_not_when_a_stalled_loop_lo
     """A loaded process looks 0.4 s after the boundary; the vehicle's position, reported 0.05 s after
     it, already puts it in the step's cell: it was 0.05 s late, not 0.4 s (a suite under load raised
     late alarms for vehicles on time)."""
-    class Reported:
-        async def send_position_target(self, target: Ned) -> None:
-            return None
-
-        def last_position(self) -> Position | None:
-            return Position(FRAME.cell_to_ned((1, 0, 0)), 100.05)  # on the link's clock
-
     executor = PlanExecutor((0, 0, 0))
     executor.start(Trajectory(1, ((0, 0, 0), (1, 0, 0))))
-    loop = SetpointLoop(Reported(), FRAME, executor, 0.0, 1.0, lambda: 10.4, lateness_s=0.3,
+    reported = FakeVehicle(FRAME, (1, 0, 0), at=100.05)  # on the link's clock
+    loop = SetpointLoop(reported, FRAME, executor, 0.0, 1.0, lambda: 10.4, lateness_s=0.3,
                         link_clock=lambda: 100.4)
     for step in range(3):
         loop.take(step, 10.0 if step == 2 else step - 10.0)
@@ -298,16 +277,11 @@ def test_a_vehicle_climbing_under_its_lowest_layer_cell_is_in_it(layer: int, on_
     frame = GeoFrame(ws)
     cell: Cell = (1, 1, layer)
     climbing = Ned(frame.cell_to_ned(cell).north, frame.cell_to_ned(cell).east, -0.3)
-
-    class Climbing:
-        async def send_position_target(self, target: Ned) -> None:
-            return None
-
-        def last_position(self) -> Position | None:
-            return Position(climbing, 0.1)
+    vehicle = FakeVehicle(frame, at=0.1)
+    vehicle.where = climbing
 
     executor = PlanExecutor(cell)
-    loop = SetpointLoop(Climbing(), frame, executor, 0.0, 1.0, lambda: 0.2, lateness_s=0.3)
+    loop = SetpointLoop(vehicle, frame, executor, 0.0, 1.0, lambda: 0.2, lateness_s=0.3)
     loop.take(0, 0.0)
     sample = loop.sample(0)
     assert sample is not None and (sample.late_s is not None) == on_time, sample

@@ -9,7 +9,7 @@ import json
 import pytest
 
 from drona_gcs.errors import ProblemError
-from drona_gcs.geo import GeoFrame, GeoPoint
+from drona_gcs.geo import GeoFrame
 from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.drone import DroneStack, StackConfig
@@ -45,7 +45,8 @@ from fleet.transport.wire import (
     from_core,
     to_core,
 )
-from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry
+from tests.fakes.node import FakeNode, FakeQuery
+from tests.fakes.vehicle import FakeVehicle
 
 #: With a parking cell: an idle drone that may plan flies there (a drone that is down must not).
 WS = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0, drones={"d1": (0, 0, 0)}, parking=((7, 7, 0),))
@@ -53,55 +54,23 @@ FRAME = GeoFrame(WS)
 KEYS = FleetKeys("t")
 
 
-class RecordingNode:
-    """What the agent puts, by key (the mail desk and the protocol only put)."""
-
-    def __init__(self) -> None:
-        self.puts: list[tuple[str, bytes]] = []
-
-    def put(self, key: str, payload: bytes, once: bool = False, now: bool = False) -> None:
-        self.puts.append((key, payload))
-
-    def statuses(self, mail_id: str) -> list[tuple[MailStatus, str]]:
-        reports = [decode(p).body for k, p in self.puts if k == KEYS.status("d1", mail_id)]
-        return [(r.status, r.reason) for r in reports if isinstance(r, MailStatusReport)]
+def statuses(node: FakeNode, mail_id: str) -> list[tuple[MailStatus, str]]:
+    """What d1 reported of mail ``mail_id``, in order."""
+    return [(r.status, r.reason) for r in node.bodies(KEYS.status("d1", mail_id)) if isinstance(r, MailStatusReport)]
 
 
-class ScriptedVehicle:
-    """A vehicle whose telemetry the test sets: over (0, 0, 0), ready, armed in the air until it comes
-    down; ``lost`` is the link's problem while it does not answer."""
-
-    def __init__(self) -> None:
-        self.down = False
-        self.lost: str | None = None
-        self.cell = (0, 0, 0)
-        self.seen_at = 1.0  #: the link clock time of its position
-        self.estimate = True  #: the autopilot has its position estimate
-        self.battery = 90  #: percent left
-
-    def telemetry(self) -> Telemetry:
-        landed = LandedState.ON_GROUND if self.down else LandedState.IN_AIR
-        return Telemetry(Autopilot.ARDUPILOT, not self.down, "GUIDED", self.last_position(), None,
-                         self.last_global(), None if self.down else 2.0, self.battery, 16.0, 6 if self.estimate else 1,
-                         10, landed, self.seen_at, position_ok=self.estimate)
-
-    def last_position(self) -> Position | None:
-        return Position(FRAME.cell_to_ned(self.cell), self.seen_at) if self.estimate else None
-
-    def last_global(self) -> GeoPoint | None:
-        return FRAME.cell_to_global(self.cell) if self.estimate else None
-
-    def problem(self) -> str | None:
-        return self.lost
+def vehicle_over_its_start() -> FakeVehicle:
+    """d1's vehicle, ready, armed and in the air over (0, 0, 0) of the 8 x 8 workspace."""
+    return FakeVehicle(FRAME, (0, 0, 0))
 
 
 def test_a_vehicle_down_by_itself_hands_its_mail_back_and_the_drone_starts_no_task() -> None:
     """A failsafe or a pilot lands the vehicle under a flying plan: the stack must not go on to
     report a pickup (or a delivery) the vehicle never made, nor start the next mail."""
-    async def scenario() -> tuple[RecordingNode, DroneAgent, list[object]]:
-        node, vehicle = RecordingNode(), ScriptedVehicle()
+    async def scenario() -> tuple[FakeNode, DroneAgent, list[object]]:
+        node, vehicle = FakeNode(), vehicle_over_its_start()
         stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
-        agent = DroneAgent(stack, node, KEYS, vehicle, FRAME, lambda: 1000.0)  # type: ignore[arg-type]
+        agent = DroneAgent(stack, node, KEYS, vehicle, FRAME, lambda: 1000.0)
         agent.mail.take(MailOrder(id="first", pickup=[3, 0, 0], dropoff=[5, 5, 0], priority=9))
         agent.mail.take(MailOrder(id="next", pickup=[2, 4, 0], dropoff=[6, 1, 0], priority=1))
         later: list[object] = []
@@ -109,7 +78,7 @@ def test_a_vehicle_down_by_itself_hands_its_mail_back_and_the_drone_starts_no_ta
             actions = agent.tick(step)
             if step == 3:  # taken up for its plan, then down by itself
                 agent.vehicle.airborne = True
-                vehicle.down = True
+                vehicle.come_down()
             report = StepReport(step, agent.stack.executor.cell, (0, 0, 0), 0.0, False, 0.0)
             agent.on_step(report, actions)
             if step > 3:
@@ -123,9 +92,9 @@ def test_a_vehicle_down_by_itself_hands_its_mail_back_and_the_drone_starts_no_ta
 
     node, agent, later = asyncio.run(scenario())
     why = "drone d1's vehicle came down by itself in [0, 0, 0]"
-    assert node.statuses("first") == [(MailStatus.ACCEPTED, ""), (MailStatus.STARTED, ""),
+    assert statuses(node, "first") == [(MailStatus.ACCEPTED, ""), (MailStatus.STARTED, ""),
                                       (MailStatus.HANDED_BACK, why)]
-    assert node.statuses("next") == [(MailStatus.ACCEPTED, ""), (MailStatus.HANDED_BACK, why)]
+    assert statuses(node, "next") == [(MailStatus.ACCEPTED, ""), (MailStatus.HANDED_BACK, why)]
     assert agent.mail.held() == []
     assert "came down" in agent.alarms["down"]
     kinds = {type(a).__name__ for a in later if not isinstance(a, Exception)}
@@ -142,12 +111,12 @@ def test_a_drone_low_where_no_charger_is_hands_its_mail_back_and_takes_no_more()
     """Flown on ArduCopter SITL, whose battery ran low after 5 minutes in a workspace with no charger:
     the mail went round the low drones, each handing it back in turn. A drone that cannot fly mail
     says so and takes none, so the mail goes back to whoever gave it."""
-    async def scenario() -> tuple[RecordingNode, list[str]]:
-        node, vehicle = RecordingNode(), ScriptedVehicle()
+    async def scenario() -> tuple[FakeNode, list[str]]:
+        node, vehicle = FakeNode(), vehicle_over_its_start()
         stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
-        agent = DroneAgent(stack, node, KEYS, vehicle, FRAME, lambda: 1000.0)  # type: ignore[arg-type]
+        agent = DroneAgent(stack, node, KEYS, vehicle, FRAME, lambda: 1000.0)
         agent.mail.take(MailOrder(id="queued", pickup=[3, 0, 0], dropoff=[5, 5, 0], priority=9))
-        vehicle.battery = 10
+        vehicle.battery_pct = 10
         for step in range(4):
             actions = agent.tick(step)
             agent.on_step(StepReport(step, agent.stack.executor.cell, (0, 0, 0), 0.0, False, 0.0), actions)
@@ -161,7 +130,7 @@ def test_a_drone_low_where_no_charger_is_hands_its_mail_back_and_takes_no_more()
 
     node, refused = asyncio.run(scenario())
     why = "its battery is low, and the workspace has no charger"
-    assert node.statuses("queued") == [(MailStatus.ACCEPTED, ""), (MailStatus.HANDED_BACK, why)]
+    assert statuses(node, "queued") == [(MailStatus.ACCEPTED, ""), (MailStatus.HANDED_BACK, why)]
     assert refused == [f"drone d1 takes no mail: {why}"]
 
 
@@ -175,9 +144,9 @@ def test_a_departed_peer_last_heard_after_its_plan_holds_only_where_it_rested() 
     flown = Trajectory(10, tuple((7 - min(k, 7), min(max(k - 7, 0), 7), 0) for k in range(16)))  # steps 10..25
 
     async def scenario(heard_after_the_plan: bool) -> dict[str, Trajectory]:
-        node = RecordingNode()
+        node = FakeNode()
         stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
-        agent = DroneAgent(stack, node, KEYS, ScriptedVehicle(), frame, lambda: 1000.0)  # type: ignore[arg-type]
+        agent = DroneAgent(stack, node, KEYS, vehicle_over_its_start(), frame, lambda: 1000.0)
         agent.lease_steps = 20
         for step in range(41):
             agent.tick(step)
@@ -197,11 +166,11 @@ def test_a_departed_peer_last_heard_after_its_plan_holds_only_where_it_rested() 
     assert {t.last for t in unheard.values()} == set(flown.cells[40 - 20 - ws.delta - 1 - 10:])
 
 
-def _coordinating(ws: Workspace, node: RecordingNode, pickup: list[int],
+def _coordinating(ws: Workspace, node: FakeNode, pickup: list[int],
                   dropoff: list[int]) -> tuple[DroneAgent, DroneStack, TaskId]:
     """Drone d1 of ``ws``, given a mail and past its first boundary: coordinating, its request out."""
     stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
-    agent = DroneAgent(stack, node, KEYS, ScriptedVehicle(), GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
+    agent = DroneAgent(stack, node, KEYS, vehicle_over_its_start(), GeoFrame(ws), lambda: 1000.0)
     agent.mail.take(MailOrder(id="m", pickup=pickup, dropoff=dropoff, priority=1))
     agent.tick(0)
     mine = next(b.task_id.core() for k, p in node.puts if isinstance(b := decode(p).body, ReqTraj))
@@ -221,7 +190,7 @@ def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_ever
                          drones={"d1": (0, 0, 0), "d2": (7, 0, 0), "d3": (7, 7, 0), "d4": (0, 7, 0)})
 
     async def scenario(waiting: list[str]) -> list[tuple[str, Envelope]]:
-        node = RecordingNode()
+        node = FakeNode()
         agent, stack, mine = _coordinating(ws, node, [3, 3, 0], [5, 5, 0])
         for peer in waiting:  # lower priorities (later stamps): they wait for my plan
             where = Trajectory.stationary(ws.drones[peer], 0)  # its answer too (see drona_gcs.stack.protocol)
@@ -266,7 +235,7 @@ def test_an_answer_to_other_drones_tells_this_one_the_senders_new_plan() -> None
 
     async def scenario() -> dict[str, Trajectory]:
         stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
-        agent = DroneAgent(stack, RecordingNode(), KEYS, ScriptedVehicle(), GeoFrame(ws),  # type: ignore[arg-type]
+        agent = DroneAgent(stack, FakeNode(), KEYS, vehicle_over_its_start(), GeoFrame(ws),
                            lambda: 1000.0)
         agent.lease_steps = 20
         for step in range(11):
@@ -289,7 +258,7 @@ def test_a_decision_that_answers_a_waiting_drone_lets_its_round_go_on() -> None:
     flown = Trajectory(1, ((7, 0, 0), (7, 1, 0), (7, 2, 0)))
 
     async def scenario(named: bool) -> State:
-        agent, stack, mine = _coordinating(ws, RecordingNode(), [5, 5, 0], [6, 6, 0])
+        agent, stack, mine = _coordinating(ws, FakeNode(), [5, 5, 0], [6, 6, 0])
         assert stack.protocol.state is State.COORDINATING
         replies = {"d1": mine} if named else {"d9": TaskId(mine.stamp, "d9", 1)}
         decided = answering(PlanDecision("d2", TaskId(mine.stamp - 1, "d2", 1), flown, flown=True), replies)
@@ -310,7 +279,7 @@ def test_answers_for_a_round_that_is_over_still_tell_the_senders_new_plan() -> N
 
     async def scenario() -> Trajectory:
         stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
-        agent = DroneAgent(stack, RecordingNode(), KEYS, ScriptedVehicle(), GeoFrame(ws),  # type: ignore[arg-type]
+        agent = DroneAgent(stack, FakeNode(), KEYS, vehicle_over_its_start(), GeoFrame(ws),
                            lambda: 1000.0)
         agent.tick(0)
         assert stack.protocol.state is State.WAIT_FOR_TASK  # no round of d1's under way
@@ -329,10 +298,10 @@ def test_a_drone_whose_vehicle_waits_for_its_position_says_so_and_takes_no_mail(
     """ArduCopter SITL needs about 45 s from boot to its position estimate: the drone is a member
     meanwhile, says ``waiting_for_position``, refuses mail with the reason, and takes it once ready."""
     async def scenario() -> None:
-        vehicle = ScriptedVehicle()
+        vehicle = vehicle_over_its_start()
         vehicle.estimate = False
         stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
-        agent = DroneAgent(stack, RecordingNode(), KEYS, vehicle, FRAME, lambda: 1000.0)  # type: ignore[arg-type]
+        agent = DroneAgent(stack, FakeNode(), KEYS, vehicle, FRAME, lambda: 1000.0)
         agent.tick(0)
         view = agent.state().vehicle
         assert view is not None and view.status == "waiting_for_position"
@@ -362,9 +331,9 @@ def test_a_lost_vehicle_is_its_drones_problem_and_back_in_a_held_cell_the_drone_
     ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0, drones={"d1": (0, 0, 0), "d2": (7, 7, 0)})
 
     async def scenario() -> None:
-        node, vehicle = RecordingNode(), ScriptedVehicle()
+        node, vehicle = FakeNode(), vehicle_over_its_start()
         stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
-        agent = DroneAgent(stack, node, KEYS, vehicle, GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
+        agent = DroneAgent(stack, node, KEYS, vehicle, GeoFrame(ws), lambda: 1000.0)
         agent.mail.take(MailOrder(id="m", pickup=[4, 0, 0], dropoff=[6, 3, 0], priority=5))
         d2 = Trajectory.stationary((7, 7, 0), 0)
         for step in range(30):  # coordinate (d2 answers, then holds the plan), then fly the first steps
@@ -382,19 +351,20 @@ def test_a_lost_vehicle_is_its_drones_problem_and_back_in_a_held_cell_the_drone_
                         continue
                     agent._on_protocol(KEYS.proto("d1", "d2"), encode("d2", 1000.0, from_core(reply)))
                     node.puts.remove((k, p))
-            vehicle.cell = stack.executor.cell
+            vehicle.over(stack.executor.cell)
         assert stack.executor.flying
         agent.tick(step)
         plan = stack.protocol.trajectory
         assert plan is not None
-        vehicle.cell, seen = stack.executor.cell, stack.executor.cell
+        vehicle.over(stack.executor.cell)
+        seen = stack.executor.cell
         agent.tick(step + 1)
         vehicle.lost = "vehicle 1 on udpin://127.0.0.1:14540: no HEARTBEAT for 3.1 s (timeout 3.0 s)"
         await asyncio.sleep(0)
         agent.tick(step + 2)
         await asyncio.sleep(0)
         assert agent.alarms["vehicle_lost"].startswith("vehicle_lost: vehicle 1 on udpin")
-        assert node.statuses("m")[-1] == (MailStatus.HANDED_BACK, "drone d1's vehicle is lost")
+        assert statuses(node, "m")[-1] == (MailStatus.HANDED_BACK, "drone d1's vehicle is lost")
         assert set(stack.protocol.holds()) >= set(plan.suffix_from(step + 2).cells) | {seen}
         asked = ReqForCurrentTraj(TaskId(step + 50, "d2", 9), "d2", Trajectory.stationary((7, 7, 0), step), ("d1",))
         node.puts.clear()
@@ -410,7 +380,8 @@ def test_a_lost_vehicle_is_its_drones_problem_and_back_in_a_held_cell_the_drone_
             raise AssertionError("a drone whose vehicle is lost took mail")
 
         back = plan.cells[-2]  # it held on along its plan, and is seen there
-        vehicle.lost, vehicle.seen_at, vehicle.cell = None, 2.0, back
+        vehicle.lost = None
+        vehicle.over(back, at=2.0)
         agent.tick(step + 3)
         assert "vehicle_lost" not in agent.alarms
         assert (stack.executor.cell, stack.protocol.location, stack.protocol.holds()) == (back, back, ())
@@ -423,13 +394,14 @@ def test_a_vehicle_back_outside_its_held_cells_leaves_its_drone_out_of_service()
     ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0, drones={"d1": (0, 0, 0)})
 
     async def scenario() -> None:
-        vehicle = ScriptedVehicle()
+        vehicle = vehicle_over_its_start()
         stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
-        agent = DroneAgent(stack, RecordingNode(), KEYS, vehicle, GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
+        agent = DroneAgent(stack, FakeNode(), KEYS, vehicle, GeoFrame(ws), lambda: 1000.0)
         agent.tick(0)
         vehicle.lost = "connection closed by the vehicle"
         agent.tick(1)
-        vehicle.lost, vehicle.seen_at, vehicle.cell = None, 2.0, (5, 5, 0)  # in the air, far from its cell
+        vehicle.lost = None
+        vehicle.over((5, 5, 0), at=2.0)  # in the air, far from its cell
         agent.tick(2)
         assert "not in a cell held for it" in agent.alarms["vehicle_lost"]
         assert stack.protocol.holds() != ()  # still held where it may be
@@ -442,15 +414,15 @@ def test_the_flight_record_has_only_fresh_sightings_never_a_stale_or_lost_vehicl
     """A cell is recorded at a sample only from a position reported since the previous one: a vehicle
     whose position stopped coming, or whose link is lost, leaves a gap (the audit counts it), never the
     last cell it was seen in (a killed ArduCopter SITL was recorded for 23 steps where it died)."""
-    record, vehicle = io.StringIO(), ScriptedVehicle()
+    record, vehicle = io.StringIO(), vehicle_over_its_start()
 
     async def scenario() -> None:
         stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
-        agent = DroneAgent(stack, RecordingNode(), KEYS, vehicle, FRAME, lambda: 1000.0,  # type: ignore[arg-type]
+        agent = DroneAgent(stack, FakeNode(), KEYS, vehicle, FRAME, lambda: 1000.0,
                            record)
         for step in range(8):
             if step not in (3, 4):  # no new position at steps 3 and 4
-                vehicle.seen_at += 1.0
+                vehicle.at += 1.0
             vehicle.lost = "no HEARTBEAT for 3.0 s" if step >= 6 else None
             actions = agent.tick(step)
             agent.on_step(StepReport(step, stack.executor.cell, (0, 0, 0), 0.0, False, 0.0), actions)
@@ -468,7 +440,7 @@ def test_a_peer_that_says_its_vehicle_came_down_is_an_obstacle_for_good() -> Non
 
     async def scenario() -> DroneStack:
         stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
-        agent = DroneAgent(stack, RecordingNode(), KEYS, ScriptedVehicle(), GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
+        agent = DroneAgent(stack, FakeNode(), KEYS, vehicle_over_its_start(), GeoFrame(ws), lambda: 1000.0)
         down = PlanAnnounce(trajectory=WireTrajectory.of(Trajectory.stationary((4, 4, 0), 3)), grounded=True)
         agent._on_plan(KEYS.plan("d2"), encode("d2", 1000.0, down))
         return stack
@@ -487,7 +459,7 @@ def test_a_message_whose_sender_is_not_its_keys_writer_is_dropped() -> None:
 
     def known_after(key: str, sender: str, body: PlanAnnounce | CurTrajTo) -> Trajectory | None:
         stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
-        agent = DroneAgent(stack, RecordingNode(), KEYS, ScriptedVehicle(), GeoFrame(ws),  # type: ignore[arg-type]
+        agent = DroneAgent(stack, FakeNode(), KEYS, vehicle_over_its_start(), GeoFrame(ws),
                            lambda: 1000.0)
         agent.tick(0)
         handler = agent._on_plan if isinstance(body, PlanAnnounce) else agent._on_protocol
@@ -507,9 +479,9 @@ def test_a_hosts_drone_sends_to_one_drone_on_its_hosts_key(host: str | None) -> 
     """A drone flown by a host (several in one session) answers on ``proto/<host>/<to>``: the answers of the
     host's drones to one request are then one put; flown alone, on its own key."""
     ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0, drones={"d1": (0, 0, 0), "d2": (7, 0, 0)})
-    node = RecordingNode()
+    node = FakeNode()
     stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
-    agent = DroneAgent(stack, node, KEYS, ScriptedVehicle(), GeoFrame(ws), lambda: 1000.0,  # type: ignore[arg-type]
+    agent = DroneAgent(stack, node, KEYS, vehicle_over_its_start(), GeoFrame(ws), lambda: 1000.0,
                        host=host)
     agent.tick(0)
     request = ReqForCurrentTraj(TaskId(5, "d2", 1), "d2", Trajectory.stationary((7, 0, 0), 0), ("d1",))
@@ -520,28 +492,22 @@ def test_a_hosts_drone_sends_to_one_drone_on_its_hosts_key(host: str | None) -> 
 
 def test_an_operators_command_reaches_the_stack_and_is_acknowledged() -> None:
     """``command/<me>``: a recall hands back the mail not on board and the drone says so in its state."""
-    replies: list[tuple[str, bytes]] = []
+    query = FakeQuery()
 
-    class Query:
-        payload = None
-
-        def reply(self, key: str, payload: bytes) -> None:
-            replies.append((key, payload))
-
-    async def scenario() -> tuple[DroneAgent, RecordingNode]:
-        node = RecordingNode()
+    async def scenario() -> tuple[DroneAgent, FakeNode]:
+        node = FakeNode()
         stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
-        agent = DroneAgent(stack, node, KEYS, ScriptedVehicle(), FRAME, lambda: 1000.0)  # type: ignore[arg-type]
+        agent = DroneAgent(stack, node, KEYS, vehicle_over_its_start(), FRAME, lambda: 1000.0)
         agent.mail.take(MailOrder(id="m", pickup=[3, 3, 0], dropoff=[5, 5, 0], priority=1))
         command = FleetCommand(action=CommandAction.RECALL, by="operator ops")
-        agent._on_command(KEYS.command("d1"), encode("service", 1000.0, command), Query())
+        agent._on_command(KEYS.command("d1"), encode("service", 1000.0, command), query)
         await asyncio.sleep(0)  # mail progress goes out after the work at hand
         return agent, node
 
     agent, node = asyncio.run(scenario())
-    assert node.statuses("m") == [(MailStatus.ACCEPTED, ""), (MailStatus.HANDED_BACK, "recall by operator ops")]
+    assert statuses(node, "m") == [(MailStatus.ACCEPTED, ""), (MailStatus.HANDED_BACK, "recall by operator ops")]
     assert agent.state().command == "recall"
-    [(key, payload)] = replies
+    [(key, payload)] = query.replies
     ack = decode(payload).body
     assert key == KEYS.command("d1") and isinstance(ack, CommandAck) and ack.accepted and ack.drone == "d1"
 
@@ -552,9 +518,9 @@ def test_a_brake_goes_out_as_a_plan_that_says_braked_and_peers_take_it_so() -> N
     ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0, drones={"d1": (0, 0, 0), "d2": (7, 0, 0)})
     cut = Trajectory(3, ((7, 0, 0), (6, 0, 0), (6, 0, 0)))
 
-    async def scenario() -> tuple[RecordingNode, DroneStack]:
-        node, stack = RecordingNode(), DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
-        agent = DroneAgent(stack, node, KEYS, ScriptedVehicle(), GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
+    async def scenario() -> tuple[FakeNode, DroneStack]:
+        node, stack = FakeNode(), DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+        agent = DroneAgent(stack, node, KEYS, vehicle_over_its_start(), GeoFrame(ws), lambda: 1000.0)
         agent._on_plan(KEYS.plan("d2"), encode("d2", 1000.0, PlanAnnounce(trajectory=WireTrajectory.of(cut),
                                                                            braked=True)))
         agent._carry_out([Braked(Trajectory(0, ((0, 0, 0), (1, 0, 0), (1, 0, 0))), (2, 0, 0))])
@@ -572,40 +538,33 @@ def test_a_release_command_frees_a_departed_drones_cells_and_is_refused_for_a_me
     fleet (as this agent sees it) it answers no, with the reason."""
     ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0,
                          drones={"d1": (0, 0, 0), "d2": (7, 0, 0), "d3": (7, 7, 0)})
-    replies: list[CommandAck] = []
-
-    class Query:
-        payload = None
-
-        def reply(self, key: str, payload: bytes) -> None:
-            body = decode(payload).body
-            assert isinstance(body, CommandAck)
-            replies.append(body)
+    query = FakeQuery()
 
     async def scenario() -> tuple[set[Cell], DroneStack]:
         stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
-        agent = DroneAgent(stack, RecordingNode(), KEYS, ScriptedVehicle(), GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
+        agent = DroneAgent(stack, FakeNode(), KEYS, vehicle_over_its_start(), GeoFrame(ws), lambda: 1000.0)
         stack.peer_left("d2")
         held = stack.taken_cells()
         for about in ("d2", "d3"):
             order = FleetCommand(action=CommandAction.RELEASE, by="operator ops", about=about)
-            agent._on_command(KEYS.command("d1"), encode("service", 1000.0, order), Query())
+            agent._on_command(KEYS.command("d1"), encode("service", 1000.0, order), query)
         return held, stack
 
     held, stack = asyncio.run(scenario())
     assert (7, 0, 0) in held and "d2" not in stack.protocol.ghosts and (7, 0, 0) not in stack.taken_cells()
-    assert [(a.accepted, a.reason) for a in replies] == [
+    replies = [decode(payload).body for _, payload in query.replies]
+    assert [(a.accepted, a.reason) for a in replies if isinstance(a, CommandAck)] == [
         (True, ""), (False, "d3 is not a drone gone from the fleet: nothing to release")]
 
 
-def _heir_of_d2(*more: MailView) -> tuple[RecordingNode, DroneAgent]:
+def _heir_of_d2(*more: MailView) -> tuple[FakeNode, DroneAgent]:
     """d1's agent (d2's heir: the smallest name), d2 and d3 alive, a lease of 4 steps, d2 holding mail
     ``q`` queued and ``more``."""
     ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0,
                          drones={"d1": (0, 0, 0), "d2": (7, 0, 0), "d3": (7, 7, 0)})
-    node = RecordingNode()
+    node = FakeNode()
     stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
-    agent = DroneAgent(stack, node, KEYS, ScriptedVehicle(), GeoFrame(ws), lambda: 1000.0)  # type: ignore[arg-type]
+    agent = DroneAgent(stack, node, KEYS, vehicle_over_its_start(), GeoFrame(ws), lambda: 1000.0)
     agent.lease_steps, agent.alive = 4, {"d2", "d3"}
     queued = MailView(id="q", pickup=[3, 3, 0], dropoff=[5, 5, 0], priority=5, stage="queued")
     agent.mail._on_peer_mail(KEYS.held("d2"), encode("d2", 1000.0, HeldMail(drone="d2", mail=[queued, *more])))
@@ -618,28 +577,28 @@ def test_the_heir_adopts_a_gone_drones_mail_a_lease_later_and_only_with_a_majori
     lease (by then that drone has handed back what it had not picked up) and adopts only in touch with
     most of the fleet (the other side cannot be). What it carried stays its own, never failed and then
     delivered, until the operator releases it."""
-    async def scenario() -> RecordingNode:
+    async def scenario() -> FakeNode:
         node, agent = _heir_of_d2(MailView(id="c", pickup=[6, 0, 0], dropoff=[6, 6, 0], priority=5, stage="carrying"))
         if not in_touch:
             agent._on_liveliness(KEYS.alive("d3"), False)
         agent._on_liveliness(KEYS.alive("d2"), False)
         for step in range(4):
             agent.tick(step)
-            assert node.statuses("q") == []  # within the lease: d2 may be cut off, handing it back
+            assert statuses(node, "q") == []  # within the lease: d2 may be cut off, handing it back
         agent.tick(4)
         agent.mail.released("d2", agent.alive)
         return node
 
     node = asyncio.run(scenario())
-    assert node.statuses("q") == ([(MailStatus.ACCEPTED, ""), (MailStatus.REASSIGNED, "drone d2 left")]
+    assert statuses(node, "q") == ([(MailStatus.ACCEPTED, ""), (MailStatus.REASSIGNED, "drone d2 left")]
                                   if in_touch else [])
-    assert node.statuses("c") == [(MailStatus.FAILED, "on board drone d2, released by the operator")]
+    assert statuses(node, "c") == [(MailStatus.FAILED, "on board drone d2, released by the operator")]
 
 
 def test_a_gone_drone_back_within_the_lease_keeps_its_mail() -> None:
     """Found in review: back before the heir's lease ran out, a drone still held its mail, and the heir
     adopted it all the same (two owners). Its return ends the orphans it held."""
-    async def scenario() -> RecordingNode:
+    async def scenario() -> FakeNode:
         node, agent = _heir_of_d2()
         agent._on_liveliness(KEYS.alive("d2"), False)
         agent.tick(0)
@@ -648,7 +607,7 @@ def test_a_gone_drone_back_within_the_lease_keeps_its_mail() -> None:
             agent.tick(step)
         return node
 
-    assert asyncio.run(scenario()).statuses("q") == []
+    assert statuses(asyncio.run(scenario()), "q") == []
 
 
 @pytest.mark.parametrize("in_touch, service", [(True, False), (False, False), (True, True)],
@@ -658,7 +617,7 @@ def test_the_heir_takes_over_mail_a_live_drone_handed_back_at_once(in_touch: boo
     reassign it (the suite's fleet, ``drona mail``) it was lost. It lists it handed back; its heir takes it
     over at the next boundary (it gave it up: no lease), in touch with most of the fleet; under a service,
     the service reassigns it."""
-    async def scenario() -> RecordingNode:
+    async def scenario() -> FakeNode:
         handed = MailView(id="h", pickup=[2, 2, 0], dropoff=[4, 4, 0], priority=3, stage="handed_back")
         node, agent = _heir_of_d2(handed)
         agent.mail.adopt = not service
@@ -671,8 +630,8 @@ def test_the_heir_takes_over_mail_a_live_drone_handed_back_at_once(in_touch: boo
 
     node = asyncio.run(scenario())
     adopted = [(MailStatus.ACCEPTED, ""), (MailStatus.REASSIGNED, "drone d2 handed it back")]
-    assert node.statuses("h")[:2] == (adopted if in_touch and not service else [])
-    assert node.statuses("q") == []  # d2 holds it still
+    assert statuses(node, "h")[:2] == (adopted if in_touch and not service else [])
+    assert statuses(node, "q") == []  # d2 holds it still
 
 
 def test_a_drone_lists_what_it_handed_back_until_a_peer_holds_it() -> None:
@@ -686,21 +645,21 @@ def test_a_drone_lists_what_it_handed_back_until_a_peer_holds_it() -> None:
         taken = MailView(id="m", pickup=[3, 0, 0], dropoff=[5, 5, 0], priority=9, stage="queued")
         agent.mail._on_peer_mail(KEYS.held("d3"), encode("d3", 1000.0, HeldMail(drone="d3", mail=[taken])))
         lists.append([f"{m.id}:{m.stage}" for m in agent.mail.listed()])
-        return lists, node.statuses("m")
+        return lists, statuses(node, "m")
 
-    lists, statuses = asyncio.run(scenario())
+    lists, reported = asyncio.run(scenario())
     assert lists == [["m:handed_back"], []]
-    assert statuses[-1] == (MailStatus.HANDED_BACK, "drone d1's vehicle is later than lambda")
+    assert reported[-1] == (MailStatus.HANDED_BACK, "drone d1's vehicle is later than lambda")
 
 
 def test_a_vehicle_later_than_lambda_holds_where_its_plan_ends_and_takes_no_task_until_on_time() -> None:
     """Peers plan with a margin of lambda for a vehicle's lateness: past it, the margin is gone. The
     drone plans nothing more, hands back the mail not on board, and every peer holds the rest of its
     plan; once its vehicle is where that plan ended, it takes tasks again."""
-    async def scenario() -> tuple[RecordingNode, DroneAgent, list[str]]:
-        node, vehicle = RecordingNode(), ScriptedVehicle()
+    async def scenario() -> tuple[FakeNode, DroneAgent, list[str]]:
+        node, vehicle = FakeNode(), vehicle_over_its_start()
         stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
-        agent = DroneAgent(stack, node, KEYS, vehicle, FRAME, lambda: 1000.0)  # type: ignore[arg-type]
+        agent = DroneAgent(stack, node, KEYS, vehicle, FRAME, lambda: 1000.0)
         agent.mail.take(MailOrder(id="first", pickup=[3, 0, 0], dropoff=[5, 5, 0], priority=9))
         seen: list[str] = []
         for step in range(40):
@@ -713,10 +672,10 @@ def test_a_vehicle_later_than_lambda_holds_where_its_plan_ends_and_takes_no_task
                     agent.mail.take(MailOrder(id="refused", pickup=[2, 2, 0], dropoff=[4, 4, 0], priority=5))
             elif seen and stack.executor.trajectory is None and agent.late is not None:
                 # Seen in the cell of the step sampled (lambda ago), not yet where the plan ended: still late.
-                vehicle.cell, vehicle.seen_at = (2, 0, 0), vehicle.seen_at + 1.0
+                vehicle.over((2, 0, 0), at=vehicle.at + 1.0)
                 agent.on_sample(Sample(step, (2, 0, 0), (2, 0, 0), 0.4))
                 assert agent.late is not None and stack.executor.cell != (2, 0, 0)
-                vehicle.cell, vehicle.seen_at = stack.executor.cell, vehicle.seen_at + 1.0
+                vehicle.over(stack.executor.cell, at=vehicle.at + 1.0)
                 agent.vehicle.airborne = False  # landed there (SITL found a drone late for good once landed)
                 agent.on_sample(Sample(step, stack.executor.cell, stack.executor.cell, 0.4))
                 agent.vehicle.airborne = True
@@ -728,6 +687,6 @@ def test_a_vehicle_later_than_lambda_holds_where_its_plan_ends_and_takes_no_task
     node, agent, seen = asyncio.run(scenario())
     assert seen[0].startswith("late: off since ") and seen[0] != "late: off since None"
     assert seen[1:] == ["on time: off since None"]
-    assert node.statuses("first")[-1] == (MailStatus.HANDED_BACK, "drone d1's vehicle is later than lambda")
-    assert node.statuses("again")[0] == (MailStatus.ACCEPTED, "")
+    assert statuses(node, "first")[-1] == (MailStatus.HANDED_BACK, "drone d1's vehicle is later than lambda")
+    assert statuses(node, "again")[0] == (MailStatus.ACCEPTED, "")
     assert "late" not in agent.alarms

@@ -16,7 +16,8 @@ from drona_gcs.geo import Ned
 from fleet.agent.vehicle import VehicleSupervisor
 from fleet.clock import cancel_all
 from fleet.vehicle.link import LandedState, Telemetry, VehicleLink
-from tests.fakes.autopilot import ScriptedArduCopter, connected, fake_vehicle, run
+from tests.fakes.autopilot import connected, fake_vehicle, run
+from tests.fakes.vehicle import FakeVehicle
 
 FLIGHT_ALT_M = 8.0
 
@@ -116,11 +117,29 @@ def test_a_vehicle_just_taken_off_is_not_down_by_itself(personality: str) -> Non
     run(scenario)
 
 
-def launch_once(link: ScriptedArduCopter) -> tuple[list[str | None], bool]:
+def guided_climbs(vehicle: FakeVehicle) -> None:
+    """ArduCopter in GUIDED while the link waits: it climbs to the setpoints, unless it counts itself on the
+    ground."""
+    if vehicle.landed is not LandedState.ON_GROUND:
+        vehicle.landed, vehicle.height_m = LandedState.IN_AIR, 2.0
+
+
+def arducopter(landed: LandedState, height_m: float = 0.3, refuses: bool = True) -> FakeVehicle:
+    """An ArduCopter link in GUIDED, armed, reporting ``landed`` at ``height_m`` above home. Its
+    NAV_TAKEOFF is refused (``refuses``) or climbs; told nothing else it climbs to the setpoints,
+    unless it counts itself on the ground."""
+    vehicle = FakeVehicle(on_wait=guided_climbs)
+    vehicle.landed, vehicle.height_m = landed, height_m
+    if refuses:
+        vehicle.refuse["NAV_TAKEOFF"] = 4  # MAV_RESULT_FAILED
+    return vehicle
+
+
+def launch_once(link: FakeVehicle) -> tuple[list[str | None], bool]:
     """The supervisor asked to fly once: the alarms it raised, and whether it ended airborne."""
     async def scenario() -> tuple[list[str | None], bool]:
         alarms: list[str | None] = []
-        supervisor = VehicleSupervisor("d1", link, FLIGHT_ALT_M, alarms.append,  # type: ignore[arg-type]
+        supervisor = VehicleSupervisor("d1", link, FLIGHT_ALT_M, alarms.append,
                                        lambda: Ned(0.0, 0.0, -FLIGHT_ALT_M), arrival_m=0.5)
         supervisor.want_airborne(True)
         runner = asyncio.create_task(supervisor.run())
@@ -139,9 +158,9 @@ def test_a_takeoff_refused_in_the_air_is_no_failure_and_on_the_ground_it_is(land
     """A landing called back just above the ground: telemetry still says LANDING at 0.3 m, so the
     supervisor asks for a take-off, which ArduCopter refuses in the air. The vehicle climbs anyway
     (GUIDED): no alarm, no retry a second later. On the ground, the refusal is an alarm."""
-    link = ScriptedArduCopter(landed)
+    link = arducopter(landed)
     alarms, airborne = launch_once(link)
-    assert link.takeoffs == 1
+    assert link.commands.count("NAV_TAKEOFF") == 1
     if refused:
         assert not airborne and alarms == ["vehicle: cannot take off: NAV_TAKEOFF rejected with result 4"]
     else:
@@ -152,7 +171,7 @@ def test_a_vehicle_on_the_ground_above_home_still_gets_its_takeoff() -> None:
     """On the ground but 0.8 m above home (ground higher than home, a drifted barometer): ArduCopter
     lifts off in GUIDED only once told to take off. Taken for flying by its height, it was never
     told, and the climb waited out its timeout."""
-    link = ScriptedArduCopter(LandedState.ON_GROUND, height_m=0.8, refuses=False)
+    link = arducopter(LandedState.ON_GROUND, height_m=0.8, refuses=False)
     alarms, airborne = launch_once(link)
-    assert link.takeoffs == 1
+    assert link.commands.count("NAV_TAKEOFF") == 1
     assert airborne and [a for a in alarms if a is not None] == []

@@ -38,7 +38,8 @@ from fleet.transport.settings import ZenohSettings
 from fleet.transport.wire import MailStatus, answers, encode
 from fleet.transport.wire import MailStatusReport as WireReport
 from tests.conftest import fleet_tls_dir
-from tests.fleet.agent.test_drone import RecordingNode, ScriptedVehicle
+from tests.fakes.node import FakeNode
+from tests.fakes.vehicle import FakeVehicle
 
 KEYS = FleetKeys("sec")
 DRONES = ["d1", "d2", "d3"]
@@ -196,8 +197,7 @@ WS = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0, drones={"d1": (
 
 def _agent() -> tuple[DroneAgent, DroneStack]:
     stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
-    agent = DroneAgent(stack, RecordingNode(), KEYS, ScriptedVehicle(), GeoFrame(WS),  # type: ignore[arg-type]
-                       lambda: 1000.0)
+    agent = DroneAgent(stack, FakeNode(), KEYS, FakeVehicle(GeoFrame(WS), (0, 0, 0)), GeoFrame(WS), lambda: 1000.0)
     agent.tick(0)
     return agent, stack
 
@@ -322,7 +322,7 @@ def test_a_drone_takes_a_hosts_message_only_from_a_drone_it_flies() -> None:
 
     def believed(sender: str, key: str = KEYS.proto("d1", "pair")) -> bool:
         stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
-        agent = DroneAgent(stack, RecordingNode(), KEYS, ScriptedVehicle(), GeoFrame(ws),  # type: ignore[arg-type]
+        agent = DroneAgent(stack, FakeNode(), KEYS, FakeVehicle(GeoFrame(ws), (0, 0, 0)), GeoFrame(ws),
                            lambda: 1000.0, speakers=Speakers({"pair": frozenset({"d2"})}))
         agent.tick(0)
         x, y, z = ws.drones[sender]

@@ -1,0 +1,136 @@
+"""The vehicle seam: :class:`FakeVehicle`, a :class:`~fleet.vehicle.link.VehicleLink` whose vehicle the
+test plays (and so a :class:`~fleet.vehicle.link.SetpointSink` too).
+
+In the style of httpx's ``MockTransport``: a real implementation of the port, small, that the test
+programs. What the vehicle reports is plain state the test sets (where it is, armed, landed, its
+battery, its position estimate, why its link is lost); what it is sent is recorded: setpoints with
+the time they went out, commands by name. A command named in ``refuse`` is rejected as an autopilot
+rejects it (:class:`~drona_gcs.errors.VehicleCommandRejected` with that MAV_RESULT). It flies only as
+the test says: with ``follow`` it is at each setpoint as soon as sent, and ``on_wait`` is what it does
+while the link waits on it (by default nothing: the wait ends at once, met or not).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from drona_gcs.errors import VehicleCommandRejected, VehicleError
+from drona_gcs.geo import GeoFrame, GeoPoint, Ned
+from drona_gcs.workspace import Cell
+from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry
+
+GPS_FIX_WITH_ESTIMATE = 6  #: GPS_FIX_TYPE_RTK_FIXED: what a vehicle with its position estimate reports
+GPS_FIX_WITHOUT = 1  #: GPS_FIX_TYPE_NO_FIX
+
+
+class FakeVehicle:
+    """ArduCopter in GUIDED, armed and in the air, 90 % charged; over ``cell`` of ``frame`` if given,
+    reported at ``at`` on the link's ``clock``."""
+
+    def __init__(self, frame: GeoFrame | None = None, cell: Cell | None = None, *, at: float = 1.0,
+                 clock: Callable[[], float] = lambda: 0.0, follow: bool = False,
+                 on_wait: Callable[[FakeVehicle], None] | None = None) -> None:
+        self.frame, self.clock, self.follow, self.on_wait = frame, clock, follow, on_wait
+        # What the vehicle reports (the test sets it; telemetry() reads it as it is).
+        self.autopilot: Autopilot | None = Autopilot.ARDUPILOT
+        self.armed = True
+        self.mode: str | None = "GUIDED"
+        self.landed = LandedState.IN_AIR
+        self.height_m: float | None = 2.0  #: above home
+        self.battery_pct: int | None = 90
+        self.battery_v: float | None = 16.0
+        self.satellites = 10
+        self.estimate = True  #: its position estimate: without it, no position and no fix
+        self.where: Ned | None = None if cell is None else self._ned(cell)  #: its position (None: none reported)
+        self.at = at  #: the link clock time of its last report (HEARTBEAT and position)
+        self.lost: str | None = None  #: why its link cannot carry commands (None: it can)
+        # What it was sent.
+        self.sent: list[tuple[float, Ned]] = []  #: (clock time, target) of every setpoint
+        self.commands: list[str] = []  #: every command asked for, by name, refused ones too
+        self.refuse: dict[str, int] = {}  #: command name -> the MAV_RESULT it is rejected with
+
+    def _ned(self, cell: Cell) -> Ned:
+        assert self.frame is not None, "a vehicle placed by cell needs a frame"
+        return self.frame.cell_to_ned(cell)
+
+    # ------------------------------------------------------- the test's side
+    def over(self, cell: Cell, at: float | None = None) -> None:
+        """Over ``cell`` now, reported at ``at`` (None: at its last report's time)."""
+        self.where = self._ned(cell)
+        if at is not None:
+            self.at = at
+
+    def come_down(self) -> None:
+        """On the ground and disarmed (a failsafe, a pilot)."""
+        self.armed, self.landed, self.height_m = False, LandedState.ON_GROUND, None
+
+    # ------------------------------------------------------------ the port
+    async def send_position_target(self, target: Ned) -> None:
+        self.sent.append((self.clock(), target))
+        if self.follow:
+            self.where, self.at = target, self.clock()
+
+    def last_position(self) -> Position | None:
+        return Position(self.where, self.at) if self.estimate and self.where is not None else None
+
+    def last_global(self) -> GeoPoint | None:
+        if not self.estimate or self.where is None or self.frame is None:
+            return None
+        return self.frame.ned_to_global(self.where)
+
+    def telemetry(self) -> Telemetry:
+        fix = GPS_FIX_WITH_ESTIMATE if self.estimate else GPS_FIX_WITHOUT
+        return Telemetry(self.autopilot, self.armed, self.mode, self.last_position(), None, self.last_global(),
+                         self.height_m, self.battery_pct, self.battery_v, fix, self.satellites, self.landed, self.at,
+                         position_ok=self.estimate)
+
+    def problem(self) -> str | None:
+        return self.lost
+
+    async def wait_until(self, predicate: Callable[[Telemetry], bool], timeout: float, what: str) -> Telemetry:
+        if self.on_wait is not None:
+            self.on_wait(self)
+        telemetry = self.telemetry()
+        if not predicate(telemetry):
+            raise VehicleError(f"no {what} within {timeout:g} s")
+        return telemetry
+
+    async def connect(self, timeout: float = 10.0) -> None:
+        self._command("CONNECT")
+
+    async def wait_ready(self, timeout: float) -> None:
+        await self.wait_until(lambda t: t.position is not None, timeout, "position estimate")
+
+    async def arm(self) -> None:
+        self._command("ARM")
+        self.armed = True
+
+    async def disarm(self) -> None:
+        self._command("DISARM")
+        self.armed = False
+
+    async def set_mode(self, mode: str) -> None:
+        self._command("DO_SET_MODE")
+        self.mode = mode
+
+    async def follow_setpoints(self) -> None:
+        self._command("FOLLOW_SETPOINTS")
+        self.mode = "GUIDED" if self.autopilot is Autopilot.ARDUPILOT else "OFFBOARD"
+
+    async def takeoff(self, altitude_m: float) -> None:
+        self._command("NAV_TAKEOFF")
+        self.landed = LandedState.TAKEOFF
+
+    async def land(self) -> None:
+        self._command("LAND")
+        self.landed = LandedState.LANDING
+
+    async def close(self) -> None:
+        self.lost = "closed"
+
+    def _command(self, name: str) -> None:
+        self.commands.append(name)
+        if self.lost is not None:
+            raise VehicleError(f"{name}: {self.lost}")
+        if name in self.refuse:
+            raise VehicleCommandRejected(name, self.refuse[name])
