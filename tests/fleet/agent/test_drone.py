@@ -45,7 +45,7 @@ from fleet.transport.wire import (
     from_core,
     to_core,
 )
-from tests.fakes.node import FakeNode, FakeQuery
+from tests.fakes.node import FakeNetwork, FakeNode, FakeQuery
 from tests.fakes.vehicle import FakeVehicle
 
 #: With a parking cell: an idle drone that may plan flies there (a drone that is down must not).
@@ -62,6 +62,32 @@ def statuses(node: FakeNode, mail_id: str) -> list[tuple[MailStatus, str]]:
 def vehicle_over_its_start() -> FakeVehicle:
     """d1's vehicle, ready, armed and in the air over (0, 0, 0) of the 8 x 8 workspace."""
     return FakeVehicle(FRAME, (0, 0, 0))
+
+
+def test_an_agent_started_among_its_peers_waits_only_for_those_alive_and_hears_them_leave() -> None:
+    """Started on a network where d2 is alive and d3 never came: d3 is held where it stands and waited for
+    no more, d2 is a member; the agent is alive itself once started, and its first state is out. When
+    d2's token goes, d2 has left too."""
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0,
+                         drones={"d1": (0, 0, 0), "d2": (7, 0, 0), "d3": (7, 7, 0)})
+    network = FakeNetwork()
+    FakeNode(network).token(KEYS.alive("d2"))
+
+    async def scenario() -> tuple[FakeNode, DroneAgent, set[str], set[str]]:
+        node = FakeNode(network)
+        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+        agent = DroneAgent(stack, node, KEYS, vehicle_over_its_start(), GeoFrame(ws), lambda: 1000.0)
+        await agent.start()
+        await asyncio.sleep(0)  # the liveliness watched, as Zenoh hands it round
+        gone_at_start = set(stack.protocol.ghosts)
+        network.drop(KEYS.alive("d2"))
+        await asyncio.sleep(0)
+        return node, agent, gone_at_start, set(stack.protocol.ghosts)
+
+    node, agent, gone_at_start, gone = asyncio.run(scenario())
+    assert gone_at_start == {"d3"} and gone == {"d2", "d3"}
+    assert KEYS.alive("d1") in network.tokens and agent.alive == set()
+    assert [type(b) for b in node.bodies(KEYS.state("d1"))][:1] == [DroneState]
 
 
 def test_a_vehicle_down_by_itself_hands_its_mail_back_and_the_drone_starts_no_task() -> None:
