@@ -24,7 +24,7 @@ from api.store import Store
 log = logging.getLogger(__name__)
 
 #: Everything that names an alarm lives here: text prefix -> (kind, what it means to an operator).
-#: The first prefix a text starts with wins; see fleet/agent/drone.py for the texts.
+#: The first prefix a text starts with wins; see fleet/agent/drone.py, tracking.py and peers.py for the texts.
 KINDS: tuple[tuple[str, str, str], ...] = (
     ("lag:", "lag", "the vehicle trails the cell its plan puts it in; separation assumes it is there"),
     ("vehicle: came down", "down", "the vehicle came down by itself (a failsafe or a pilot); its mail was "
