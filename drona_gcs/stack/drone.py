@@ -242,11 +242,11 @@ class DroneStack:
     def pause(self) -> None:
         """No mail starts: legs under way are flown to their end, mail on board is delivered, then the
         drone parks (at its parking cell, or a charger) as an idle one does."""
-        self.mail.paused = True
+        self.mail.pause()
 
     def resume(self) -> None:
         """Undo :meth:`pause`, :meth:`recall` and :meth:`land_here`: the drone takes mail again."""
-        self.mail.paused = self.mail.held = False
+        self.mail.resume()
 
     def recall(self, reason: str) -> list[DroneAction]:
         """Finish the leg under way, hand back every mail not on board (mail on board is delivered
@@ -261,7 +261,7 @@ class DroneStack:
         handed back; then no leg at all until :meth:`resume`. Should the round find no plan, the drone
         flies its plan to the end and stays there, as its peers planned."""
         actions = self.recall(reason)
-        self.mail.held = True
+        self.mail.hold()
         return [*actions, *self._stop_here()]
 
     def _stop_here(self) -> list[DroneAction]:

@@ -67,6 +67,13 @@ def goto(actions: list[MailAction]) -> GoTo:
     return found[0]
 
 
+def take_on_board(mp: MailPlanner, request: MailRequest) -> None:
+    """Take ``request`` on board as a drone does: its leg to the pickup, flown (the only way mail gets on board)."""
+    mp.assign(request)
+    assert goto(mp.decide(0, 100.0, ())).goal == request.pickup
+    assert mp.leg_done() == [MailPickedUp(request)] and mp.carrying
+
+
 def request_of(action: MailAction) -> MailRequest:
     """The mail a progress report is about (a GoTo is about none)."""
     assert not isinstance(action, GoTo), action
@@ -785,11 +792,15 @@ def test_a_parking_cell_walled_off_does_not_keep_a_charged_drone_charging() -> N
 def test_mail_on_board_whose_drop_off_is_walled_off_hands_the_queue_back() -> None:
     """Found by sweep seed 8007 once no way led into a vehicle down's cell: one came down on the
     drop-off of the mail on board, and the drone charged at 100% for good, the queue behind it held."""
-    carried = mail("on board", c(1, 5), c(3, 3))
-    mp = MailPlanner(c(1, 5), (Q1, Q2), (P1, P2), walled_off(c(3, 3)), MODEL)
-    mp.assign(carried)
+    carried, walls = mail("on board", c(1, 5), c(3, 3)), set[Cell]()
+
+    def distance(a: Cell, b: Cell) -> int:  # the drop-off is walled off once the mail is on board
+        return walled_off(*walls)(a, b)
+
+    mp = MailPlanner(c(1, 5), (Q1, Q2), (P1, P2), distance, MODEL)
+    take_on_board(mp, carried)
+    walls.add(c(3, 3))
     mp.assign(mail("next", c(2, 5), c(4, 5)))
-    mp.current, mp.queue, mp.carrying = carried, [r for r in mp.queue if r.id == "next"], True
     actions = mp.decide(0, 100.0, set())
     assert [(a.request.id, "cut off" in a.reason) for a in actions if isinstance(a, MailRejected)] == [("next", True)]
     assert mp.current == carried and mp.queue == [] and mp.decide(1, 100.0, set()) == []
@@ -841,10 +852,8 @@ def test_a_drone_low_where_no_charger_is_hands_its_mail_back_parks_and_takes_no_
     over and handed it back in turn. It says why, delivers what is on board, parks, and flies no more."""
     carried, queued = mail("on board", c(2, 2), c(4, 4)), mail("queued", c(6, 6), c(7, 7))
     mp = MailPlanner(c(3, 3), (), (P1, P2), manhattan, MODEL)
-    mp.assign(carried)
+    take_on_board(mp, carried)
     mp.assign(queued)
-    mp.current, mp.carrying = carried, True
-    mp.queue.remove(carried)
     mp.battery_low()
     assert mp.spent
     [to_dropoff] = mp.decide(0, 100, ())

@@ -1,12 +1,28 @@
-"""The mail planner's phases change only as its one table says (``drona_gcs.stack.mail.TRANSITIONS``)."""
+"""The mail planner's state (phase, mail on board, charging first, the operator's command) changes only as its
+one table says (``drona_gcs.stack.mail.TRANSITIONS``)."""
 
 from __future__ import annotations
+
+import dataclasses
+import itertools
 
 import pytest
 
 from drona_gcs.errors import ProtocolViolation
 from drona_gcs.stack.battery import BatteryModel
-from drona_gcs.stack.mail import TRANSITIONS, GoTo, MailEvent, MailPlanner, MailRequest, Phase
+from drona_gcs.stack.mail import (
+    TRANSITIONS,
+    Command,
+    Energy,
+    GoTo,
+    Load,
+    MailEvent,
+    MailPickedUp,
+    MailPlanner,
+    MailRequest,
+    MailState,
+    Phase,
+)
 from drona_gcs.workspace import Cell
 
 CHARGER, PARKING, PICKUP, DROPOFF = (0, 0, 0), (0, 9, 0), (4, 4, 0), (8, 2, 0)
@@ -53,12 +69,77 @@ def test_the_phase_is_changed_only_through_the_table() -> None:
         planner().phase = Phase.CHARGING  # type: ignore[misc]
 
 
-def test_every_phase_is_in_the_table_and_can_get_back_to_idle() -> None:
-    assert set(TRANSITIONS) == set(Phase)
-    back = {Phase.IDLE}
-    for _ in Phase:
-        back |= {phase for phase, moves in TRANSITIONS.items() if set(moves.values()) & back}
-    assert back == set(Phase)
+def test_every_state_is_in_the_table_and_can_get_back_to_idle() -> None:
+    every = {MailState(*parts) for parts in itertools.product(Phase, Load, Energy, Command)}
+    assert set(TRANSITIONS) == every
+    back = {MailState(Phase.IDLE)}
+    for _ in every:
+        back |= {state for state, moves in TRANSITIONS.items() if set(moves.values()) & back}
+    assert back == every
+
+
+START_MAIL = (MailEvent.LEG, Phase.TO_PICKUP)
+
+
+def test_the_table_starts_mail_only_with_none_on_board_charged_enough_and_no_command() -> None:
+    starting = {state for state, moves in TRANSITIONS.items() if START_MAIL in moves}
+    assert starting == {MailState(Phase.IDLE)}
+
+
+def test_a_held_drone_may_start_no_leg_nor_charge_where_it_is() -> None:
+    for state, moves in TRANSITIONS.items():
+        legs = {e for e in moves if isinstance(e, tuple) or e is MailEvent.CHARGE_HERE}
+        assert not (state.command is Command.HELD and legs), state
+
+
+def test_mail_goes_on_board_only_at_the_end_of_a_leg_to_its_pickup_and_off_only_at_a_drop_off_or_lost() -> None:
+    for state, moves in TRANSITIONS.items():
+        for event, target in moves.items():
+            if target.load is not state.load:
+                on = target.load is Load.ON_BOARD
+                assert (state.phase, event) == (Phase.TO_PICKUP, MailEvent.PICKED_UP) if on else \
+                    event is MailEvent.LOST or (state.phase, event) == (Phase.TO_DROPOFF, MailEvent.DELIVERED)
+
+
+def test_an_event_the_state_cannot_take_names_the_whole_state() -> None:
+    mp = planner()
+    mp.assign(MailRequest("m1", PICKUP, DROPOFF, 5))
+    mp.decide(0, 100.0, ())
+    assert mp.leg_done() == [MailPickedUp(MailRequest("m1", PICKUP, DROPOFF, 5))]
+    mp.battery_low()
+    mp.pause()
+    assert mp.state == MailState(Phase.IDLE, Load.ON_BOARD, Energy.LOW, Command.PAUSED)
+    with pytest.raises(ProtocolViolation, match=r"no 'leg to_pickup' while idle \(on_board, low, paused\)"):
+        mp._enter(START_MAIL)
+    mp.hold()
+    with pytest.raises(ProtocolViolation, match=r"no 'leg to_dropoff' while idle \(on_board, low, held\)"):
+        mp._enter((MailEvent.LEG, Phase.TO_DROPOFF))
+    assert mp.state == MailState(Phase.IDLE, Load.ON_BOARD, Energy.LOW, Command.HELD)  # refused: nothing changed
+
+
+def test_a_held_drone_decides_nothing_and_a_resumed_one_delivers() -> None:
+    mp = planner()
+    mp.assign(MailRequest("m1", PICKUP, DROPOFF, 5))
+    mp.pause()
+    mp.hold()
+    assert mp.decide(0, 100.0, ()) == [] and mp.held and mp.paused
+    mp.resume()
+    assert mp.state == MailState(Phase.IDLE)
+    assert phases_of_a_delivery(mp)[-1] is Phase.IDLE and mp.queue == []
+
+
+#: The planner's booleans that are data, not state (each says why where it is declared): whatever decides
+#: the next leg is in the table, so a new boolean field must be one of these, or a part of MailState.
+DATA_FLAGS = {"landed_here", "goal_taken", "stranded"}
+
+
+def test_no_boolean_beside_the_state_but_plain_data() -> None:
+    flags = {f.name for f in dataclasses.fields(MailPlanner) if f.type in ("bool", bool)}
+    assert flags == DATA_FLAGS
+    mp = planner()
+    for folded in ("carrying", "low", "paused", "held"):
+        with pytest.raises(AttributeError):
+            setattr(mp, folded, True)
 
 
 def test_a_failure_reported_after_its_leg_ended_is_taken_in_idle() -> None:
