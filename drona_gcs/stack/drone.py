@@ -22,30 +22,41 @@ found no plan, names a shortest way to its goal in its request (``clear``). A dr
 resting on that way, with nothing under way, leaves for the nearest free cell off it
 (:func:`yield_spot`). A vehicle down cannot: cells asked once that stay taken are
 gone around at the next try, and when no way is left every way is asked again.
+
+The stack's other modules: :mod:`~drona_gcs.stack.drone_config` (the fleet's configuration, lead times,
+the end of a leg), :mod:`~drona_gcs.stack.drone_ways` (distances, making way, parking) and
+:mod:`~drona_gcs.stack.drone_core` (the machines wired, the legs' motion tasks).
 """
 
 from __future__ import annotations
 
-import copy
-import math
-from collections.abc import Callable, Collection, Mapping, Sequence
-from dataclasses import dataclass, field
-from functools import lru_cache
-
 from drona_gcs.errors import ProblemError
 from drona_gcs.motion import Trajectory
-from drona_gcs.planner import SafePlanner
-from drona_gcs.planner.heuristic import UNREACHABLE, GoalDistance
-from drona_gcs.stack.battery import BatteryLow, BatteryModel, BatteryMonitor, BatteryRecharged
-from drona_gcs.stack.executor import Completed, PlanExecutor, Setpoint
-from drona_gcs.stack.mail import DRAINED, NO_WAY, GoTo, MailAction, MailPlanner, MailRequest, Phase
-from drona_gcs.stack.messages import HybridClock, Message, ReqForCurrentTraj, Task, task_of
-from drona_gcs.stack.protocol import Action as ProtocolAction
+from drona_gcs.stack.battery import BatteryLow
+from drona_gcs.stack.drone_config import (
+    ARM_AND_MODE_S,
+    ASKING,
+    CLIMB_RATE_M_S,
+    CUT_OFF,
+    ROUND_S,
+    SERVICE_LOST,
+    SPOOL_UP_S,
+    Arrival,
+    DroneAction,
+    LegNotFlown,
+    StackConfig,
+    confirm_steps,
+    default_hover_lead_steps,
+    default_lead_steps,
+    leg_overhead,
+)
+from drona_gcs.stack.drone_core import DroneCore
+from drona_gcs.stack.drone_ways import Ways, _distance_function, own_parking, yield_spot
+from drona_gcs.stack.executor import Completed
+from drona_gcs.stack.mail import DRAINED, GoTo, MailRequest
+from drona_gcs.stack.messages import Message, ReqForCurrentTraj, task_of
 from drona_gcs.stack.protocol import (
-    Braked,
     ClockBound,
-    CoordinationProtocol,
-    Event,
     NewTask,
     NextStep,
     PeerAnnounced,
@@ -57,145 +68,20 @@ from drona_gcs.stack.protocol import (
     PlanCompleted,
     Released,
     Relocated,
-    Reroute,
-    RerouteFailed,
-    StartExecuting,
     State,
-    TaskFailed,
-    Threatened,
     VehicleDown,
     VehicleLost,
 )
-from drona_gcs.workspace import Cell, Workspace
+from drona_gcs.workspace import Cell
+
+__all__ = ["ARM_AND_MODE_S", "ASKING", "CLIMB_RATE_M_S", "CUT_OFF", "ROUND_S", "SERVICE_LOST", "SPOOL_UP_S",
+           "Arrival", "DroneAction", "DroneCore", "DroneStack", "LegNotFlown", "StackConfig", "Ways",
+           "_distance_function", "confirm_steps", "default_hover_lead_steps", "default_lead_steps",
+           "leg_overhead", "own_parking", "yield_spot"]
 
 
-def confirm_steps(workspace: Workspace) -> int:
-    """Boundaries after a plan's end by which the vehicle must have been seen in its goal: it may
-    enter it up to lambda late, and one more for a vehicle that trails by a cell (the lag alarm's)."""
-    return math.ceil(workspace.lateness_s / workspace.tau_s) + 1
-
-
-@dataclass(frozen=True)
-class Arrival:
-    """A plan ended at ``goal``; the leg counts once telemetry puts the vehicle there, by ``deadline``."""
-
-    goal: Cell
-    deadline: int
-
-
-@dataclass(frozen=True)
-class LegNotFlown:
-    """A plan ended, yet telemetry never put the vehicle in its goal: the leg did not happen."""
-
-    goal: Cell
-    seen: Cell | None  #: where telemetry put the vehicle last (None: in no cell)
-
-
-DroneAction = (ProtocolAction | Setpoint | Completed | MailAction | BatteryLow | BatteryRecharged
-               | LegNotFlown)
-
-
-CLIMB_RATE_M_S = 1.5  #: a cautious take-off climb rate, for the default lead time
-ARM_AND_MODE_S = 2.0  #: mode change, arming and take-off command acknowledged
-SPOOL_UP_S = 4.0  #: an accepted take-off to leaving the ground (ArduCopter SITL: about 3.5 s)
-
-
-def default_lead_steps(workspace: Workspace, speedup: float = 1.0) -> int:
-    """Delta + 1, plus the steps a landed drone needs to take off and climb into the grid (``speedup``: a
-    fake vehicle's simulated seconds per second)."""
-    climb_s = ARM_AND_MODE_S + SPOOL_UP_S + workspace.geo.layer0_alt_m / CLIMB_RATE_M_S
-    return workspace.delta + 1 + math.ceil(climb_s / speedup / workspace.tau_s)
-
-
-ROUND_S = 1.0  #: a coordination round, from the request to the last ack, with room (LAN p99: tenths of a second)
-
-
-def default_hover_lead_steps(workspace: Workspace) -> int:
-    """Delta + 1, plus the steps a round takes: a drone in the air climbs no more before its plan."""
-    return workspace.delta + 1 + math.ceil(ROUND_S / workspace.tau_s)
-
-
-def leg_overhead(lead_steps: int) -> int:
-    """Steps of flight a leg takes besides its moves: the lead steps before its plan starts
-    (climbing, or hovering) and the plan's first step, held in the start cell."""
-    return lead_steps + 1
-
-
-@dataclass(frozen=True)
-class StackConfig:
-    """What every drone of a fleet shares (immutable: copies of a simulated fleet share it)."""
-
-    workspace: Workspace
-    planner: SafePlanner
-    battery: BatteryModel = field(default_factory=BatteryModel)
-    low_mark: float = 40.0
-    recharged_mark: float = 95.0
-    lead_steps: int | None = None  #: steps between planning and a plan's start; default Delta + 1
-    hover_lead_steps: int | None = None  #: the same for a drone in the air (at most ``lead_steps``); default that
-
-    def __deepcopy__(self, memo: dict[int, object]) -> StackConfig:
-        return self
-
-
-class DroneStack:
-    def __init__(self, me: str, config: StackConfig, peers: Mapping[str, Cell], epoch: int = 0) -> None:
-        """``epoch``: this agent's incarnation, larger at each restart (the runtime's boot time)."""
-        ws = config.workspace
-        self.me = me
-        self.config = config
-        start = peers[me]
-        self.clock = HybridClock(me, epoch)
-        planner = config.planner
-        lead = config.lead_steps if config.lead_steps is not None else config.planner.delta + 1
-        self.protocol = CoordinationProtocol(me, start, dict(peers), planner.plan, lead, planner.delta,
-                                             hover_lead_steps=config.hover_lead_steps)
-        self.executor = PlanExecutor(start)
-        self.monitor = BatteryMonitor(config.low_mark, config.recharged_mark)
-        parking = own_parking(ws.parking, list(peers), me)
-        mine = set(parking) if len(ws.parking) >= len(peers) else set()
-        resting = {*ws.charging_stations, *(c for c in ws.parking if c not in mine)}  # others may rest there
-        self.resting_now: frozenset[Cell] = frozenset()  #: cells other drones rest on, at the last decision
-        self.level = 100.0  #: the battery level at the last step boundary
-        self.ways = _distance_function(planner, resting)
-        self.mail = MailPlanner(start, ws.charging_stations, parking, self.distance,
-                                config.battery, recharged_level=config.recharged_mark, leg_overhead=leg_overhead(lead),
-                                spare_parking=[c for c in ws.parking if c not in parking])
-        self.mail_cells = frozenset(ws.pickups) | frozenset(ws.dropoffs)  #: the workspace's mail stops
-        self.arrival: Arrival | None = None  #: a plan ended; waiting to see the vehicle at its goal
-        #: goals whose last try found no plan, until a plan reaches one (legs elsewhere come between:
-        #: a charger walled in, tried between legs to parking, never asked its way clear)
-        self.unreached: frozenset[Cell] = frozenset()
-        self.asked_clear: frozenset[Cell] = frozenset()  #: resting cells the last leg asked to leave
-        self.stuck: frozenset[Cell] = frozenset()  #: of those, cells still taken at the next failure
-        self.stop_short: Cell | None = None  #: where a rerouted leg ends instead of its goal, held for good
-        self.braked: Cell | None = None  #: where the plan flown was cut short of a cell held for good
-        self.threat: Threatened | None = None  #: what the reroute under way goes around
-        self.commanded: str | None = None  #: the operator's command in force (see :meth:`command`)
-        #: in touch with most of the fleet at the last boundary (CoordinationProtocol.in_quorum); not before the
-        #: first: a drone starting up meets its peers one by one, and hands back no mail meanwhile
-        self.in_touch = False
-        self.clock_off = False  #: my clock is beyond the fleet's bound (see :meth:`clock_bound`)
-        self.late = False  #: my vehicle came to a cell later than lambda (see :meth:`tracking_bound`)
-
-    def distance(self, a: Cell, b: Cell) -> int:
-        """Steps from ``a`` to ``b``, around the drones resting now and never through a vehicle down, nor
-        where a peer whose clock is off rests, for as long as it is off (the task planner's distance; see
-        :func:`_distance_function`). The rest of its plan is only passed through."""
-        protocol = self.protocol
-        off = (protocol.known[p].last for p in protocol.outliers if p in protocol.known)
-        return self.ways(a, b, self.resting_now, frozenset((*protocol.peers_down.values(), *off)))
-
-    def copy(self) -> DroneStack:
-        """A copy whose task planner measures ways with the copy's state (the tester's clones)."""
-        new = copy.copy(self)
-        new.mail = copy.copy(self.mail)
-        new.mail.distance = new.distance
-        return new
-
-    # ------------------------------------------------------------ inputs
-    @property
-    def now(self) -> int:
-        return max(self.executor.step, 0)
+class DroneStack(DroneCore):
+    """One drone's stack: its machines (:class:`DroneCore`) and the inputs the runtime feeds it."""
 
     def receive(self, message: Message) -> list[DroneAction]:
         self.clock.observe(task_of(message).stamp)
@@ -264,18 +150,6 @@ class DroneStack:
         self.mail.hold()
         return [*actions, *self._stop_here()]
 
-    def _stop_here(self) -> list[DroneAction]:
-        """A held drone flying a plan: plan its rest anew, to stay where the plan is once a new plan can
-        start (see :meth:`land_here`). A round under way ends in a plan, which this stops in turn."""
-        trajectory = self.protocol.trajectory
-        if self.protocol.state is not State.EXECUTING or trajectory is None:
-            return []
-        stop = trajectory.at(self.now + self.protocol.airborne_lead)
-        if stop == trajectory.last:
-            return []
-        self.stop_short, self.threat = stop, None
-        task = self._hovering_task(stop)
-        return self._protocol(Reroute(task))
 
     def vehicle_down(self, reason: str, cell: Cell) -> list[DroneAction]:
         """The vehicle came down by itself in ``cell``: hand every mail back (see MailPlanner.abandon),
@@ -418,74 +292,6 @@ class DroneStack:
         was, self.in_touch = self.in_touch, self.protocol.in_quorum()
         return list(self.mail.release(CUT_OFF)) if was and not self.in_touch else []
 
-    def _task(self, leg: GoTo, step: int, physical_time: int) -> Task:
-        """The motion task of a leg. The leg's flight budget pays for more than the plan's moves:
-        the plan's first step, held in the start cell, and the lead steps before it, which a drone
-        on the ground flies climbing once its plan is made, and a drone in the air hovers, from
-        ``step`` on while it coordinates (the protocol counts those steps when it plans)."""
-        hovering = None if self.landed else step
-        flight = leg.flight_steps
-        if flight is not None:
-            flight -= 1 if hovering is not None else 1 + self.protocol.lead_steps
-        return Task(self.clock.next_id(max(physical_time, step)), leg.goal, flight, hovering, self._way_to_clear(leg))
-
-    def _reroute_task(self, threat: Threatened) -> Task:
-        """A new plan for the rest of the leg flown: same goal, with what the battery affords now
-        less what must remain there; it is flown from now on (hovering, as far as budgets go). When
-        the goal itself may be held for good, the leg stops short, at the nearest cell off the held
-        ones, and is decided anew from there (see :meth:`_arrive`)."""
-        trajectory = self.protocol.trajectory
-        assert trajectory is not None
-        goal, self.stop_short, self.threat = trajectory.last, None, threat
-        if goal in threat.cells:
-            goal = self._short_of(threat) or goal
-        return self._hovering_task(goal)
-
-    def _hovering_task(self, goal: Cell) -> Task:
-        """A new rest of the plan flown, to ``goal``: flown from now on, as far as budgets go, with what
-        the battery affords now less what must remain there, and less the plan's first step (see
-        :meth:`_task`)."""
-        flight = self.mail.flight_to(goal, self.level)
-        return Task(self.clock.next_id(self.now), goal, None if flight is None else flight - 1,
-                    hovering_since=self.now)
-
-    def _short_of(self, threat: Threatened) -> Cell | None:
-        """Where the leg flown stops short of the cells ``threat`` holds: the nearest cell off them from
-        where a new plan would start (that cell itself, if it can be held); None if there is none."""
-        trajectory = self.protocol.trajectory
-        assert trajectory is not None
-        start = trajectory.at(self.now + self.protocol.airborne_lead)
-        self.stop_short = yield_spot(self.config.workspace, start, frozenset(threat.cells), self.taken_cells())
-        return self.stop_short
-
-    def _stop_short_instead(self) -> list[DroneAction]:
-        """The rerouted leg found no plan to its goal: stop short of the held cells instead (once)."""
-        threat, self.threat = self.threat, None
-        if (threat is None or self.stop_short is not None or self.braked is not None
-                or self.protocol.state is not State.EXECUTING):
-            self.stop_short = None
-            return []
-        stop = self._short_of(threat)
-        if stop is None:
-            return []
-        task = self._hovering_task(stop)
-        return self._protocol(Reroute(task))
-
-    def _way_to_clear(self, leg: GoTo) -> tuple[Cell, ...]:
-        """The way a mail or charging leg asks resting drones to leave: when its goal is taken, or
-        its last try found no plan (the paper leaves MRMP incomplete: resting drones wall goals in).
-        A shortest way, around cells it asked before that stayed taken (a vehicle down cannot move)."""
-        taken = self.taken_cells()
-        if leg.purpose not in ASKING or (leg.goal not in taken and leg.goal not in self.unreached):
-            return ()
-        self.stuck = self.stuck | (self.asked_clear & taken)
-        here, ws = self.protocol.location, self.config.workspace
-        way = ws.shortest_way(here, leg.goal, self.stuck - {leg.goal})
-        if not way:  # every way was asked once: ask them all again, in turn
-            self.stuck = self.asked_clear & taken
-            way = ws.shortest_way(here, leg.goal, self.stuck - {leg.goal}) or ws.shortest_way(here, leg.goal)
-        self.asked_clear = frozenset(way) & taken
-        return way
 
     def _arrive(self, step: int, flown: Cell | None) -> list[DroneAction]:
         """A leg is over when the vehicle is seen at its goal; past the deadline it did not happen."""
@@ -516,117 +322,3 @@ class DroneStack:
         if left is not None and left < self.mail.distance(self.protocol.location, task.goal):
             self.mail.land()
 
-    @property
-    def landed(self) -> bool:
-        return self.mail.landed(holding=not self.executor.flying)
-
-    def passing_cells(self) -> set[Cell]:
-        """Cells live peers hold only until they move on: where their plans under way end (they rest there
-        until their next leg), and every cell of the plan under way of a peer whose clock is off (held for
-        good only until it rests)."""
-        now, outliers = self.now, self.protocol.outliers
-        return {cell for drone, traj in self.protocol.known.items()
-                if drone != self.me and drone not in self.protocol.ghosts and traj.end_step > now
-                for cell in (traj.cells if drone in outliers else (traj.last,))}
-
-    def taken_cells(self) -> set[Cell]:
-        """Cells where other drones rest, as far as this drone knows."""
-        resting = {traj.last for drone, traj in self.protocol.known.items()
-                   if drone != self.me and drone not in self.protocol.ghosts}
-        return resting | {traj.last for traj in self.protocol.ghost_obstacles().values()}
-
-    # ---------------------------------------------------------- wiring
-    def _protocol(self, event: Event) -> list[DroneAction]:
-        actions: list[DroneAction] = []
-        for action in self.protocol.handle(event, self.now):
-            actions.append(action)
-            if isinstance(action, StartExecuting):
-                self.executor.start(action.trajectory)
-                if action.trajectory.last != self.braked:
-                    self.braked = None  # a rerouted rest replaced the cut plan
-                self.mail.took_off()
-                self.unreached -= {action.trajectory.last}
-                self.asked_clear, self.stuck = frozenset(), frozenset()
-                if self.mail.held and self.stop_short is None:
-                    actions += self._stop_here()  # landed by the operator while this round went on
-            elif isinstance(action, TaskFailed):
-                self.unreached |= {action.task.goal}
-                actions += self.mail.leg_failed(self.now, cut_off=action.cut_off)
-            elif isinstance(action, Threatened):
-                actions += self._protocol(Reroute(self._reroute_task(action)))
-            elif isinstance(action, RerouteFailed):
-                actions += self._stop_short_instead()
-            elif isinstance(action, Braked):
-                self.executor.start(action.trajectory)
-                self.braked = action.trajectory.last
-        return actions
-
-
-CUT_OFF = "cut off from most of the fleet"  #: why a drone out of touch with a majority hands its mail back
-SERVICE_LOST = "out of touch with the service"  #: why a drone the service dispatches to hands its mail back
-
-#: Legs that ask drones resting on their way to leave it; a drone going to park waits instead.
-ASKING = frozenset({Phase.TO_PICKUP, Phase.TO_DROPOFF, Phase.TO_CHARGER})
-
-
-def yield_spot(workspace: Workspace, here: Cell, way: frozenset[Cell], taken: Collection[Cell]) -> Cell | None:
-    """The nearest cell off ``way`` a drone resting in ``here`` can make way to: free, reachable
-    around other resting drones, and no charger or parking cell (where drones come to rest) unless
-    only those are left (boxed in, a drone would otherwise stay on the way)."""
-    rest_spots = {*workspace.charging_stations, *workspace.parking}
-    reach = workspace.distances_from(here, frozenset(taken) - {here})
-    spots = [(cell in rest_spots, steps, cell) for cell, steps in reach.items()
-             if cell not in way and cell not in taken]
-    return min(spots)[2] if spots else None
-
-
-def own_parking(parking: Sequence[Cell], drones: Sequence[str], me: str) -> Sequence[Cell]:
-    """With a parking cell for every drone, each has its own (the i-th drone the i-th cell): idle
-    drones never race for one, which would cost whole coordination rounds that end in no plan."""
-    if len(parking) >= len(drones):
-        return (parking[drones.index(me)],)
-    return parking
-
-
-#: ways(a, b, resting_now, walls): steps from a to b (see _distance_function)
-Ways = Callable[[Cell, Cell, frozenset[Cell], frozenset[Cell]], int]
-
-
-def _distance_function(planner: SafePlanner, resting: Collection[Cell] = ()) -> Ways:
-    """Steps of the shortest static path between cells, one cached BFS per target cell.
-
-    ``resting``: cells other drones may rest on for good (chargers, their parking cells), and
-    ``resting_now`` those they rest on now. The way goes around them, where it can: a budget
-    that counted the way through a parked drone left a drone without the battery for the way
-    around, stranded for good (found by the systematic tester). Either end may be such a cell.
-    Where they wall the goal in, the way is through them: a drone at rest makes way. It never is
-    through ``walls``, cells held for good (vehicles down), which nothing moves out of, nor to one.
-    """
-    ws, graph, grid = planner.workspace, planner.graph, planner.grid
-    always = frozenset(ws.cell_id(c) for c in resting)
-
-    @lru_cache(maxsize=256)
-    def to(goal: Cell, avoid: frozenset[int]) -> GoalDistance:
-        return graph.distances(ws.cell_id(goal), avoid)
-
-    @lru_cache(maxsize=8)
-    def ids(cells: frozenset[Cell]) -> frozenset[int]:
-        return frozenset(ws.cell_id(c) for c in cells)
-
-    def steps(a: Cell, b: Cell, around: bool, resting_now: frozenset[Cell], walls_now: frozenset[Cell]) -> float:
-        walls = ids(walls_now)
-        avoid = always | ids(resting_now) | walls if around else walls
-        tree, start = to(b, avoid), ws.cell_id(a)
-        if around and start in avoid and a != b:  # out of a resting cell: by its first move
-            return min((cost + tree.get(cell) for cell, cost in grid.moves_only[start]), default=UNREACHABLE)
-        return tree.get(start)
-
-    def distance(a: Cell, b: Cell, resting_now: frozenset[Cell], walls: frozenset[Cell]) -> int:
-        if a in walls or b in walls:
-            return NO_WAY  # nothing gets into a vehicle down's cell (a pickup it sits on, a charger)
-        d = steps(a, b, True, resting_now, walls)
-        if d >= UNREACHABLE:
-            d = steps(a, b, False, resting_now, walls)
-        return int(d) if d < UNREACHABLE else NO_WAY
-
-    return distance
