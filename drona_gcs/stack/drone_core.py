@@ -62,12 +62,12 @@ class DroneCore:
         self.stop_short: Cell | None = None  #: where a rerouted leg ends instead of its goal, held for good
         self.braked: Cell | None = None  #: where the plan flown was cut short of a cell held for good
         self.threat: Threatened | None = None  #: what the reroute under way goes around
-        self.commanded: str | None = None  #: the operator's command in force (see :meth:`command`)
+        self.commanded: str | None = None  #: the operator's command in force (see :meth:`DroneStack.command`)
         #: in touch with most of the fleet at the last boundary (CoordinationProtocol.in_quorum); not before the
         #: first: a drone starting up meets its peers one by one, and hands back no mail meanwhile
         self.in_touch = False
-        self.clock_off = False  #: my clock is beyond the fleet's bound (see :meth:`clock_bound`)
-        self.late = False  #: my vehicle came to a cell later than lambda (see :meth:`tracking_bound`)
+        self.clock_off = False  #: my clock is beyond the fleet's bound (see :meth:`DroneStack.clock_bound`)
+        self.late = False  #: my vehicle came to a cell later than lambda (see :meth:`DroneStack.tracking_bound`)
 
     def distance(self, a: Cell, b: Cell) -> int:
         """Steps from ``a`` to ``b``, around the drones resting now and never through a vehicle down, nor
@@ -90,7 +90,7 @@ class DroneCore:
 
     def _stop_here(self) -> list[DroneAction]:
         """A held drone flying a plan: plan its rest anew, to stay where the plan is once a new plan can
-        start (see :meth:`land_here`). A round under way ends in a plan, which this stops in turn."""
+        start (see :meth:`DroneStack.land_here`). A round under way ends in a plan, which this stops in turn."""
         trajectory = self.protocol.trajectory
         if self.protocol.state is not State.EXECUTING or trajectory is None:
             return []
@@ -116,7 +116,7 @@ class DroneCore:
         """A new plan for the rest of the leg flown: same goal, with what the battery affords now
         less what must remain there; it is flown from now on (hovering, as far as budgets go). When
         the goal itself may be held for good, the leg stops short, at the nearest cell off the held
-        ones, and is decided anew from there (see :meth:`_arrive`)."""
+        ones, and is decided anew from there (see :meth:`DroneStack._arrive`)."""
         trajectory = self.protocol.trajectory
         assert trajectory is not None
         goal, self.stop_short, self.threat = trajectory.last, None, threat
