@@ -34,25 +34,29 @@ shares nothing with the code it judges: no production ranking, no protocol query
 (h) one owner per mail: no drone takes a mail on board while another has it on board, and no
     mail is delivered twice.
 
-A violation raises :class:`Violation`, which ends the schedule.
+A violation raises :class:`Violation`, which ends the schedule. (a), (c), (f) and (h) are judged here;
+(b) and (g) in :mod:`.separation`, (d) and (e) in :mod:`.liveness`; what they share, in :mod:`.verdicts`.
 """
 
 from __future__ import annotations
 
-import itertools
-import math
-from collections.abc import Callable, Hashable, Mapping
+from collections.abc import Hashable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from drona_gcs.errors import DronaError
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.mail import MailDelivered, MailLost, MailPickedUp, MailRejected, MailRequest, MailStarted
 from drona_gcs.stack.protocol import Braked, Grounded, Present, StartExecuting
-from drona_gcs.workspace import Cell, Workspace
+from drona_gcs.verify.liveness import DeliveryMonitor, Flier, Reach
+from drona_gcs.verify.separation import Meeting, SeparationMonitor
+from drona_gcs.verify.verdicts import Violation, added, cell_at, cell_text, cells_text, same_future
+from drona_gcs.workspace import Cell
 
 if TYPE_CHECKING:
-    from drona_gcs.verify.world import WorldConfig
+    from drona_gcs.verify.config import WorldConfig
+
+__all__ = ["RECENT_PLANS", "SKEW_STEPS", "Flier", "Meeting", "Monitors", "Reach", "Violation", "cell_text",
+           "cells_text", "same_future"]
 
 #: How many steps beyond Delta the tester puts a clock found off (its scheduler keeps to that offset).
 SKEW_STEPS = 1
@@ -60,45 +64,8 @@ SKEW_STEPS = 1
 RECENT_PLANS = 3
 
 
-@dataclass(frozen=True)
-class Flier:
-    """A drone in service, for (d): where it is, its battery, the level it charges to, and the steps
-    each leg flies besides its moves (its lead steps and a plan's first step, as the README says)."""
-
-    cell: Cell
-    level: float
-    charged: float
-    overhead: int = 0
-
-
-class Violation(DronaError):
-    """A monitor saw a property fail; ``monitor`` names which: a .. f."""
-
-    def __init__(self, monitor: str, message: str) -> None:
-        self.monitor = monitor
-        super().__init__(f"({monitor}) {message}")
-
-
-class Reach:
-    """Breadth-first distances in one workspace, cached: the liveness monitor asks the same at
-    every step."""
-
-    def __init__(self, workspace: Workspace, most: int = 4096) -> None:
-        self.workspace, self.most = workspace, most
-        self.cache: dict[tuple[Cell, frozenset[Cell]], dict[Cell, int]] = {}
-
-    def distances(self, goal: Cell, walls: frozenset[Cell]) -> dict[Cell, int]:
-        key = (goal, walls)
-        found = self.cache.get(key)
-        if found is None:
-            if len(self.cache) >= self.most:
-                self.cache.clear()
-            found = self.cache[key] = self.workspace.distances_from(goal, walls)
-        return found
-
-
 @dataclass
-class Monitors:
+class Monitors(SeparationMonitor, DeliveryMonitor):
     """Every container holds immutable values only, so that a one-level copy is a clone."""
 
     config: WorldConfig
@@ -254,8 +221,8 @@ class Monitors:
         """A peer seen to leave may have stopped anywhere on what it was committed to: a plan made
         since stays out of every such cell (but the one it starts in)."""
         committed = self.committed[peer]
-        held = {_at(committed, t) for t in range(since, max(since, committed.end_step) + 1)}
-        crossed = held & _added(self.committed[drone], action.trajectory)
+        held = {cell_at(committed, t) for t in range(since, max(since, committed.end_step) + 1)}
+        crossed = held & added(self.committed[drone], action.trajectory)
         if crossed:
             raise Violation("a", f"{drone} planned task {action.task.id} through {sorted(crossed)}, where {peer}, "
                                  f"gone, may have stopped: it was committed to {cells_text(committed)}")
@@ -268,69 +235,12 @@ class Monitors:
         """``observer`` heard from ``peer`` (it joined, or a message of it came): alive."""
         self.departed[observer] = self.departed.get(observer, frozenset()) - {peer}
 
-    # (b)
-    def position(self, drone: str, step: int, cell: Cell, steps: dict[str, int], flies: bool = True) -> None:
-        """Record where ``drone`` is at ``step``; judge every step whose whole window has been flown.
-        ``flies``: its agent and vehicle are in service, so it must be where its plan says (g)."""
-        self.history.setdefault(drone, []).append(cell)
-        planned = _at(self.committed[drone], step)
-        if flies and cell != planned:
-            raise Violation("g", f"{drone} is in {cell_text(cell)} at step {step}, but its plan "
-                                 f"({cells_text(self.committed[drone])}) puts it in {cell_text(planned)}")
-        widest = max((self._window(skewed, skewed)[0] for skewed, _, _ in self.drifts), default=self.config.delta)
-        while self.judged < min(steps.values()) - widest - 1:
-            self.judged += 1
-            self._judge(self.judged)
-
-    def _judge(self, t: int) -> None:
-        drones = sorted(self.history)
-        for i, a in enumerate(drones):
-            for b in drones[i + 1:]:
-                window, since = self._window(a, b)
-                for meeting in _meetings(self.history[a], self.history[b], t, window):
-                    apart = abs(meeting.step - meeting.other_step) > self.config.delta
-                    if apart and (since is None or t < since[a] or meeting.other_step < since[b]):
-                        continue  # the two clocks were within Delta then
-                    if not self._unforeseeable(meeting, a, b):
-                        raise Violation("b", f"{a} and {b}: {meeting.kind} at step {t} in cell "
-                                             f"{list(meeting.cell)} with drone {b!r} at its step {meeting.other_step}")
-
-    def _window(self, a: str, b: str) -> tuple[int, dict[str, int] | None]:
-        """The window (b) judges ``a`` and ``b`` in, and the steps they were at when it widened (None: Delta)."""
-        for skewed, offset, steps in self.drifts:
-            if skewed in (a, b):
-                return max(self.config.delta, 1) + abs(offset), dict(steps)
-        return self.config.delta, None
 
     def clock_verdict(self, drone: str, off: frozenset[str]) -> None:
         """``drone``'s clock check found the clocks of ``off`` beyond the fleet's bound (its own among them,
         or not)."""
         self.found_off = {**self.found_off, drone: off}
 
-    def unbound(self, offsets: Mapping[str, int], steps: Mapping[str, int]) -> None:
-        """Every drone knows these clocks are off, each by its offset in steps: from ``steps`` on, they
-        keep to it."""
-        now = tuple(sorted(steps.items()))
-        self.drifts = (*self.drifts, *((d, k, now) for d, k in sorted(offsets.items())))
-
-    def _unforeseeable(self, v: Meeting, a: str, b: str) -> bool:
-        """A collision with a vehicle down, after it came down, by a drone that entered its cell before
-        the news reached it (told at its step ``s``, it must not be there at ``s + 1``). Not so for a
-        crashed agent's vehicle, which holds where its plan said it would leave: that is the product's
-        to prevent (issue 25), not the network's news."""
-        if v.kind != "collision":
-            return False
-        for down, at, other, when in ((b, v.other_step, a, v.step), (a, v.step, b, v.other_step)):
-            since = self.stopped.get(down)
-            if since is None or at <= since or self.history[down][since] != v.cell:
-                continue
-            entered = when
-            while entered > 0 and self.history[other][entered - 1] == v.cell:
-                entered -= 1
-            told = self.told.get((other, down))
-            if told is None or told >= entered:
-                return True
-        return False
 
     # (c)
     def _in_order(self, drone: str, started: MailRequest) -> None:
@@ -373,80 +283,6 @@ class Monitors:
         if drone in self.carrying and self.carrying[drone].id == request.id:
             del self.carrying[drone]
 
-    # (d)
-    def liveness(self, steps_since_last_request: int, wait_for: Callable[[], str] = lambda: "",
-                 blocked: frozenset[Cell] = frozenset(), fleet: Mapping[str, Flier] | None = None) -> None:
-        """``wait_for`` describes who waits for whom, for the counterexample; ``blocked``: the cells
-        vehicles that came down rest on for good; ``fleet``: the drones still in service."""
-        if steps_since_last_request <= self.config.liveness_steps:
-            return
-        if fleet is not None:  # a drone that can never fly again is in the way for good
-            grounded = {d for d, flier in fleet.items() if self._grounded(flier)}
-            blocked = blocked | {fleet[d].cell for d in grounded}
-            fleet = {d: flier for d, flier in fleet.items() if d not in grounded}
-        missing = sorted(r.id for r in self.config.requests
-                         if r.id not in self.settled and self._deliverable(r, blocked, fleet))
-        if missing:
-            raise Violation("d", f"mail {missing} not delivered {self.config.liveness_steps} steps after the "
-                                 f"last request arrived. Wait-for: {wait_for()}")
-
-    def _grounded(self, flier: Flier) -> bool:
-        """Off every charger, a battery that affords no move (a leg's overhead and one step above the
-        safe threshold) never flies again."""
-        chargers, battery = self.config.workspace.charging_stations, self.config.battery
-        affordable = (flier.level - battery.safe_threshold) / battery.drain_per_step
-        return bool(chargers) and flier.cell not in chargers and affordable < flier.overhead + 1
-
-    def _deliverable(self, request: MailRequest, blocked: frozenset[Cell], fleet: Mapping[str, Flier] | None) -> bool:
-        """Whether a drone in service can still bring the mail to its drop-off and then reach a charger
-        no vehicle down rests on, by the shortest ways around obstacles and the vehicles down, on
-        what its battery holds now or once charged at such a charger, by the README's energy rule:
-        each leg's overhead, and the battery's margin, kept."""
-        if fleet is None:
-            return request.dropoff not in blocked and request.pickup not in blocked
-        carrier = next((d for d, r in self.carrying.items() if r.id == request.id), None)
-        if carrier is not None:
-            flier = fleet.get(carrier)
-            return flier is not None and request.dropoff not in blocked and self._affords(flier, None, request.dropoff,
-                                                                                          blocked)
-        if request.pickup in blocked or request.dropoff in blocked:
-            return False
-        return any(self._affords(flier, request.pickup, request.dropoff, blocked) for flier in fleet.values())
-
-    def _affords(self, flier: Flier, pickup: Cell | None, dropoff: Cell, blocked: frozenset[Cell]) -> bool:
-        ws, battery, steps = self.config.workspace, self.config.battery, self._steps(blocked)
-        stops = [cell for cell in (pickup, dropoff) if cell is not None]
-
-        def way(start: Cell) -> float:
-            return sum(steps(a, b) + flier.overhead for a, b in itertools.pairwise([start, *stops]))
-
-        if not ws.charging_stations:  # no chargers: no energy model
-            return way(flier.cell) < math.inf
-        chargers = [c for c in ws.charging_stations if c not in blocked]
-        home = min((steps(dropoff, c) for c in chargers), default=math.inf) + flier.overhead + battery.margin_steps
-
-        def affordable(level: float) -> float:
-            return (level - battery.safe_threshold) / battery.drain_per_step
-
-        if way(flier.cell) + home <= affordable(flier.level):
-            return True
-        return any(steps(flier.cell, c) + flier.overhead <= affordable(flier.level)
-                   and way(c) + home <= affordable(flier.charged) for c in chargers)
-
-    def _steps(self, blocked: frozenset[Cell]) -> Callable[[Cell, Cell], float]:
-        def steps(a: Cell, b: Cell) -> float:
-            return self._distances(b, blocked).get(a, math.inf)
-        return steps
-
-    def _distances(self, goal: Cell, walls: frozenset[Cell]) -> dict[Cell, int]:
-        """Moves from every cell to ``goal``, around obstacles and ``walls``."""
-        return self.reach.distances(goal, walls)
-
-    # (e)
-    def battery(self, drone: str, step: int, level: float) -> None:
-        if level < self.config.battery.safe_threshold:
-            raise Violation("e", f"{drone}'s battery fell to {level:.1f}% at step {step}, below the safe "
-                                 f"threshold {self.config.battery.safe_threshold}%")
 
     # (f)
     def _carried_to_its_dropoff(self, drone: str, action: StartExecuting) -> None:
@@ -472,10 +308,10 @@ class Monitors:
         before a brake this drone has not heard of."""
         old = self.committed[drone]
         horizon = max(new.end_step, old.end_step)  # a stop where it stands is one cell: it parts after it
-        parting = next((t for t in range(new.start_step, horizon + 1) if _at(new, t) != _at(old, t)), None)
+        parting = next((t for t in range(new.start_step, horizon + 1) if cell_at(new, t) != cell_at(old, t)), None)
         if new.start_step >= old.end_step or parting is None or parting <= new.start_step:
             return False  # not the rest of the plan flown made new
-        rest = {_at(old, t) for t in range(parting, old.end_step + 1)}
+        rest = {cell_at(old, t) for t in range(parting, old.end_step + 1)}
         held = {c for _, c in self.down}
         held |= {cut.last for peer, cut in self.cuts.items() if (drone, peer) in self.told}
         for peer in self.found_off.get(drone, frozenset()) - {drone}:  # its steps are not ours: all of it
@@ -495,61 +331,3 @@ class Monitors:
         if asked not in self.asked_to_clear:
             self.asked_to_clear = (*self.asked_to_clear, asked)
 
-
-def same_future(a: Trajectory, b: Trajectory, since: int) -> bool:
-    """Whether two trajectories put the drone in the same cell at every step from ``since`` on (each
-    at its first cell before it starts, at its last after it ends)."""
-    horizon = max(a.end_step, b.end_step, since)
-    return all(_at(a, t) == _at(b, t) for t in range(since, horizon + 1))
-
-
-@dataclass(frozen=True)
-class Meeting:
-    """Drone a at ``step`` in ``cell``, and drone b too close: in that cell at ``other_step``, or swapping."""
-
-    kind: str  #: "collision" or "swap"
-    step: int
-    cell: Cell
-    other_step: int
-
-
-def _meetings(a: list[Cell], b: list[Cell], t: int, delta: int) -> list[Meeting]:
-    """Where ``a`` (cells flown, one a step from step 0) at step ``t`` meets ``b`` within ``delta`` steps:
-    ``a`` in a cell ``b`` is in at such a step, or the two trading cells across one boundary."""
-
-    def at(cells: list[Cell], step: int) -> Cell:
-        return cells[min(max(step, 0), len(cells) - 1)]
-
-    here, there = at(a, t), at(a, t + 1)
-    found = []
-    for p in range(t - delta, t + delta + 1):
-        if at(b, p) == here:
-            found.append(Meeting("collision", t, here, p))
-        if here != there and at(b, p) == there and at(b, p + 1) == here:
-            found.append(Meeting("swap", t, here, p))
-    return found
-
-
-def _at(traj: Trajectory, step: int) -> Cell:
-    k = min(max(step - traj.start_step, 0), len(traj.cells) - 1)
-    return traj.cells[k]
-
-
-def cell_text(cell: Cell) -> str:
-    """A cell as traces and violations print it."""
-    return f"[{cell[0]},{cell[1]},{cell[2]}]"
-
-
-def cells_text(traj: Trajectory, most: int = 10) -> str:
-    """A trajectory as traces and violations print it: its start step and its first cells."""
-    cells = " ".join(cell_text(c) for c in traj.cells[:most])
-    return f"step {traj.start_step}: {cells}{' ...' if len(traj.cells) > most else ''}"
-
-
-def _added(before: Trajectory, after: Trajectory) -> set[Cell]:
-    """The cells a new plan adds to what its drone was committed to: from the step the two part on
-    (a plan made at rest parts with its first move; a new rest of a plan flown, where it turns off)."""
-    step = after.start_step
-    while step <= after.end_step and _at(after, step) == _at(before, step):
-        step += 1
-    return {_at(after, t) for t in range(step, after.end_step + 1)}

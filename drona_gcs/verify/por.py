@@ -99,7 +99,7 @@ def effect_of(before: World, after: World, move: Transition) -> Effect:
 
 
 #: What of the world the effects track; a change to anything else makes a move shared.
-_WORLD_TRACKED = frozenset({"stacks", "steps", "battery", "inflight", "sent", "monitors", "trace", "injected",
+_WORLD_TRACKED = frozenset({"stacks", "steps", "battery", "net", "monitors", "trace", "injected",
                             "last_injection_step", "config"})
 #: Monitors' fields that only grow by commutative adds (sets of mail ids) or that (b) advances alike in
 #: either order of two steps (see the module's docstring).

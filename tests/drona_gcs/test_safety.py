@@ -21,7 +21,7 @@ from drona_gcs.safety import (
     check_path,
     check_trajectory,
 )
-from drona_gcs.verify.monitors import _meetings
+from drona_gcs.verify.separation import meetings
 from drona_gcs.workspace import Cell, Workspace
 
 COLLISION, SWAP = ViolationKind.COLLISION, ViolationKind.SWAP
@@ -227,5 +227,5 @@ def test_the_checker_and_the_testers_own_monitor_find_the_same_meetings(
     mine, other = traj(0, *a), traj(0, *b)
     found = {(v.kind.value, v.step, v.cell, v.other_step)
              for v in check_pair(mine, other, delta, "b", from_step=t, until=t)}
-    judged = {(m.kind, m.step, m.cell, m.other_step) for m in _meetings(list(mine.cells), list(other.cells), t, delta)}
+    judged = {(m.kind, m.step, m.cell, m.other_step) for m in meetings(list(mine.cells), list(other.cells), t, delta)}
     assert found == judged
