@@ -13,7 +13,9 @@ exchange and decides the network's behaviour::
 
 Every drone shares one global step ``now`` (perfect synchrony); a test may
 move it. A broadcast goes to every drone, the sender included (as in the
-paper's P model); ``network`` holds what is in flight as ``(sender, to, message)``.
+paper's P model). The messages travel over the systematic tester's in-memory
+network (:class:`drona_gcs.verify.network.Network`: a bag, no delay bound);
+``network`` lists what is in flight, oldest first, as ``(sender, to, message)``.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from drona_gcs.stack.protocol import (
     Send,
     StartExecuting,
 )
+from drona_gcs.verify.network import Network
 from drona_gcs.workspace import Cell, Workspace
 
 
@@ -60,7 +63,7 @@ class ProtocolCluster:
         self.protocols = {d: CoordinationProtocol(d, cell, dict(starts), self.planner.plan, self.lead_steps, self.delta)
                           for d, cell in starts.items()}
         self.clocks = {d: HybridClock(d) for d in starts}
-        self.network: list[tuple[str, str, Message]] = []
+        self.net: Network[Message] = Network()
         self.started: list[Started] = []
         self.failed: list[tuple[str, Action]] = []  #: every other action (TaskFailed, Threatened, Braked, ...)
         self.now = 0
@@ -74,28 +77,33 @@ class ProtocolCluster:
 
     def deliver(self, index: int = 0) -> tuple[str, str, Message]:
         """Deliver the in-flight message at ``index`` (0: the oldest) and queue what it causes."""
-        _sender, to, message = entry = self.network.pop(index)
-        self.clocks[to].observe(task_of(message).stamp)
-        self._handle(to, message)
-        return entry
+        sent = self.net.take(self.net.inflight[index].seq)
+        self.clocks[sent.to].observe(task_of(sent.message).stamp)
+        self._handle(sent.to, sent.message)
+        return (sent.sender, sent.to, sent.message)
 
     def deliver_all(self, order: str | random.Random = "fifo", limit: int = 1000) -> None:
         """Deliver until nothing is in flight: oldest first ("fifo"), newest first ("lifo"),
         or in an order drawn from a seeded ``random.Random``. More than ``limit`` deliveries fail."""
         for _ in range(limit):
-            if not self.network:
+            if not self.net:
                 return
             if isinstance(order, random.Random):
-                self.deliver(order.randrange(len(self.network)))
+                self.deliver(order.randrange(len(self.net)))
             else:
                 self.deliver({"fifo": 0, "lifo": -1}[order])
-        raise AssertionError(f"still {len(self.network)} message(s) in flight after {limit} deliveries")
+        raise AssertionError(f"still {len(self.net)} message(s) in flight after {limit} deliveries")
 
     def complete(self, drone: str) -> None:
         """The executor of ``drone`` finished its trajectory."""
         self._handle(drone, PlanCompleted())
 
     # ---------------------------------------------------------- outputs
+    @property
+    def network(self) -> list[tuple[str, str, Message]]:
+        """What is in flight, oldest first, as ``(sender, to, message)``."""
+        return [(m.sender, m.to, m.message) for m in self.net]
+
     def trajectory(self, drone: str) -> Trajectory:
         """What ``drone`` would answer now: its committed plan, or its location."""
         return self.protocols[drone].current_trajectory(self.now)
@@ -108,9 +116,10 @@ class ProtocolCluster:
     def _handle(self, drone: str, event: Event) -> None:
         for action in self.protocols[drone].handle(event, self.now):
             if isinstance(action, Broadcast):
-                self.network += [(drone, to, action.message) for to in self.protocols]
+                for to in self.protocols:
+                    self.net.post(drone, to, action.message)
             elif isinstance(action, Send):
-                self.network.append((drone, action.to, action.message))
+                self.net.post(drone, action.to, action.message)
             elif isinstance(action, StartExecuting):
                 peers = {p: self.trajectory(p) for p in self.protocols if p != drone}
                 self.started.append(Started(drone, self.now, action, peers))
