@@ -8,11 +8,12 @@ from dataclasses import replace
 from drona_gcs.stack.drone import DroneStack
 from drona_gcs.verify.config import PARTITION_STEPS, VERDICT_STEPS
 from drona_gcs.verify.fleet import Transition
-from drona_gcs.verify.monitors import SKEW_STEPS, cell_text
+from drona_gcs.verify.monitors import SKEW_STEPS
 from drona_gcs.verify.mutants import plant
 from drona_gcs.verify.network import Joined, Left
 from drona_gcs.verify.notices import describe
 from drona_gcs.verify.service import Service
+from drona_gcs.verify.verdicts import cell_text
 from drona_gcs.workspace import Cell
 
 

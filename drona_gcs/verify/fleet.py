@@ -12,10 +12,11 @@ from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.drone import DroneStack, StackConfig
 from drona_gcs.stack.mail import MailProgress, MailRequest, Phase
 from drona_gcs.verify.config import UPGRADE, Faults, WorldConfig, model_hover_lead, model_lead
-from drona_gcs.verify.monitors import Monitors, cell_text
+from drona_gcs.verify.monitors import Monitors
 from drona_gcs.verify.mutants import planner_delta, plant
 from drona_gcs.verify.network import InFlight, Network
 from drona_gcs.verify.notices import SERVICE, Notice, describe
+from drona_gcs.verify.verdicts import cell_text
 from drona_gcs.workspace import Cell
 
 Transition = tuple[str, int]
@@ -103,14 +104,6 @@ class Fleet:
         executor steps no more: its vehicle holds there)."""
         return self.down.get(drone, self.stacks[drone].executor.cell)
 
-    def _request(self, mail_id: str) -> MailRequest:
-        return next(r for r in self.config.requests if r.id == mail_id)
-
-    def _serving(self) -> list[str]:
-        """The drones the service may give mail: vehicle flying, agent alive, in touch."""
-        return [d for d in self.config.drones
-                if d not in self.down and d not in self.crashed and d not in self.apart and not self._off(d)]
-
     def _off(self, drone: str) -> bool:
         """Its clock check found its own clock off: it takes no task (its health says so to the service)."""
         return drone in self.told.get(drone, frozenset())
@@ -139,8 +132,3 @@ class Fleet:
         if stack.landed:
             return level
         return max(0.0, level - model.drain_per_step)
-
-
-def held(stack: DroneStack) -> int:
-    """The mail a drone holds: queued, current or on board."""
-    return len(stack.mail.queue) + (stack.mail.current is not None)

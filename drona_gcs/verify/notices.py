@@ -10,8 +10,8 @@ from drona_gcs.stack.battery import BatteryLow, BatteryRecharged
 from drona_gcs.stack.mail import GoTo, MailDelivered, MailLost, MailPickedUp, MailRejected, MailStarted
 from drona_gcs.stack.messages import CurrentTraj, Message, PlanDecision
 from drona_gcs.stack.protocol import Braked, RerouteFailed, StartExecuting, TaskFailed, Threatened
-from drona_gcs.verify.monitors import cell_text, cells_text
 from drona_gcs.verify.network import Joined, Left
+from drona_gcs.verify.verdicts import cell_text, cells_text
 
 
 @dataclass(frozen=True)

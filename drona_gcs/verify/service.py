@@ -7,11 +7,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from drona_gcs.dispatch import Candidate, choose_drone
+from drona_gcs.stack.drone import DroneStack
 from drona_gcs.stack.mail import MailDelivered, MailLost, MailProgress, MailRejected, MailRequest, MailStarted
 from drona_gcs.stack.protocol import Braked, Broadcast, Grounded, Present, Send, State
-from drona_gcs.verify.fleet import Fleet, held
-from drona_gcs.verify.monitors import cell_text
+from drona_gcs.verify.fleet import Fleet
 from drona_gcs.verify.notices import SERVICE, Announce, Clear, note
+from drona_gcs.verify.verdicts import cell_text
 
 
 class Service(Fleet):
@@ -97,12 +98,20 @@ class Service(Fleet):
                 self.cleared.discard(mail)
                 self.monitors.given_up(drone, self._request(mail))
 
+    def _request(self, mail_id: str) -> MailRequest:
+        return next(r for r in self.config.requests if r.id == mail_id)
+
+    def _serving(self) -> list[str]:
+        """The drones the service may give mail: vehicle flying, agent alive, in touch."""
+        return [d for d in self.config.drones
+                if d not in self.down and d not in self.crashed and d not in self.apart and not self._off(d)]
+
     def _reassign(self, request: MailRequest, handed_back_by: str, serving: list[str]) -> str:
         """The drone the service gives ``request`` to, by the fleet's one rule (as ``drona serve``'s):
         of the drones ``serving`` but the one that handed it back (if there are others), the fewest
         mails held, idle first, the nearest to the pickup."""
         others = [d for d in serving if d != handed_back_by] or serving
-        candidates = [Candidate(d, self._where(d), held(self.stacks[d]),
+        candidates = [Candidate(d, self._where(d), mail_held(self.stacks[d]),
                                 self.stacks[d].protocol.state is not State.WAIT_FOR_TASK) for d in others]
         chosen = choose_drone(candidates, request.pickup)
         assert chosen is not None  # serving is not empty
@@ -128,3 +137,8 @@ class Service(Fleet):
         self.monitors.given_mail(drone, request)
         self.holder[request.id] = drone
         self._carry_out(drone, self.stacks[drone].assign(request))
+
+
+def mail_held(stack: DroneStack) -> int:
+    """The mail a drone holds: queued, current or on board."""
+    return len(stack.mail.queue) + (stack.mail.current is not None)

@@ -43,7 +43,7 @@ from drona_gcs.verify.config import (
 )
 from drona_gcs.verify.faults import FieldFaults
 from drona_gcs.verify.fleet import Transition
-from drona_gcs.verify.monitors import Flier
+from drona_gcs.verify.liveness import Flier
 from drona_gcs.verify.network import InFlight, Joined, Left
 from drona_gcs.verify.notices import SERVICE, Announce, Clear, Notice, describe
 from drona_gcs.verify.snapshot import clone_stack, key_of_stack, shallow
