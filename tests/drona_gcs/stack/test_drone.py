@@ -487,7 +487,8 @@ def test_news_while_confirming_a_reroute_that_threatens_again_reroutes_once() ->
     stack = DroneStack("a", StackConfig(ws, SafePlanner(ws, 0)), dict(ws.drones))
     flown = Trajectory(0, ((0, 0, 0), (1, 0, 0), (2, 0, 0), (3, 0, 0), (4, 0, 0), (4, 1, 0), (4, 2, 0), (4, 3, 0)))
     protocol = stack.protocol
-    protocol.task, protocol.trajectory, protocol.state = Task(TaskId(1, "a", 1), (4, 3, 0)), flown, State.EXECUTING
+    protocol.task, protocol.trajectory = Task(TaskId(1, "a", 1), (4, 3, 0)), flown
+    protocol._state = State.EXECUTING  # placed flying ``flown``, which no round of this fleet would plan
     stack.executor.start(flown)
     stack._protocol(Reroute(stack._reroute_task(Threatened("x", ((4, 1, 0),)))))
     assert protocol.task is not None

@@ -1,0 +1,199 @@
+"""Protocol 1 for one drone (:class:`CoordinationProtocol`), and the one table of its states
+(:data:`TRANSITIONS`): the handlers live in :mod:`.rounds`, :mod:`.confirming` and :mod:`.flight`."""
+
+from __future__ import annotations
+
+from drona_gcs.errors import ProtocolViolation
+from drona_gcs.stack.messages import CurrentTraj, PlanAck, PlanDecision, PlanProposal, PlanRefusal, ReqForCurrentTraj
+from drona_gcs.stack.protocol.actions import Action
+from drona_gcs.stack.protocol.confirming import failure_last
+from drona_gcs.stack.protocol.events import (
+    ClockBound,
+    Event,
+    NewTask,
+    NextStep,
+    PeerAnnounced,
+    PeerBraked,
+    PeerDown,
+    PeerJoined,
+    PeerLeft,
+    PeerLost,
+    PlanCompleted,
+    Released,
+    Relocated,
+    Reroute,
+    VehicleDown,
+    VehicleLost,
+)
+from drona_gcs.stack.protocol.rounds import Rounds
+from drona_gcs.stack.protocol.state import Move, State, Taking
+
+
+class CoordinationProtocol(Rounds):
+    """Protocol 1 for drone ``me``. ``peers`` maps each peer to where it starts."""
+
+    def handle(self, event: Event, now: int) -> list[Action]:
+        """Take one event at local step ``now``; return what to do. The table's entry for the event in this
+        state names its handler, and the states it may lead to (:meth:`_enter` checks each change)."""
+        admitted = self._alive(event, now)
+        move = TRANSITIONS[self.state].get(type(event))
+        if move is None:
+            raise ProtocolViolation(f"drone {self.me!r}: state {self.state.value} does not take "
+                                    f"{type(event).__name__}")
+        outer, self._taking = self._taking, Taking(self.state, type(event), move.targets)
+        try:
+            return [*admitted, *move.handler(self, event, now)]
+        finally:
+            self._taking = outer
+
+    def _alive(self, event: Event, now: int) -> list[Action]:
+        """A message that says what a drone I hold as gone flies proves it alive (its lease outlasts what
+        it sent before): a member again, there. (A request does so in :meth:`_admit`.) So does an
+        announcement of its, which may come before its return does."""
+        if isinstance(event, (PeerAnnounced, PeerBraked)):
+            sender = event.drone
+        elif isinstance(event, (CurrentTraj, PlanAck, PlanDecision)):
+            sender = event.sender
+        else:
+            return []
+        if sender in self.members or sender == self.me or sender not in self.peers:
+            return []
+        return self.handle(PeerJoined(sender, event.trajectory.last, event.trajectory), now)
+
+    def _on_request_while_confirming(self, event: ReqForCurrentTraj, now: int) -> list[Action]:
+        """My plan is made: every requester gets it once decided (within the lead). One from a drone I hold
+        as gone is news of the fleet (see :meth:`_on_news_while_confirming`)."""
+        if event.sender not in self.members and event.sender != self.me:
+            return self._on_news_while_confirming(event, now)
+        if event.sender == self.me or not self._current(event):
+            return []
+        self.pending[event.sender] = event.task_id
+        return []
+
+    def _on_news_while_confirming(self, event: Event, now: int) -> list[Action]:
+        """The fleet changed under my plan (a peer left, came back, came down, braked; my vehicle is lost or
+        down): it avoided what no longer holds. I drop it, then take the news as I would flying."""
+        if not self._changes_fleet(event):  # a peer I hold as gone already, or old news: nothing my plan did not avoid
+            if isinstance(event, ClockBound):
+                return self._on_clock_bound(event, now)
+            return self._on_peer_lost(event, now) if isinstance(event, PeerLost) else []
+        actions = self._abandon(f"{type(event).__name__} came before every peer held my plan", now)
+        return failure_last(actions, self.handle(event, now))
+
+
+#: a round ends planned (flown at once if every member holds the plan already), or with no plan
+_ENDS_ROUND = frozenset({State.CONFIRMING, State.EXECUTING, State.WAIT_FOR_TASK})
+#: a round for a new rest ends planned (as a round does), or flying on the plan I have
+_ENDS_REROUTE = frozenset({State.CONFIRMING, State.EXECUTING})
+#: my proposal is flown, or dropped (a new rest dropped: I fly on the plan I have)
+_DECIDES = frozenset({State.EXECUTING, State.WAIT_FOR_TASK})
+_RESTS = frozenset({State.WAIT_FOR_TASK})
+_BRAKES = frozenset({State.EXECUTING})  #: a brake ends a round for a new rest
+
+#: Everything that moves the protocol between states: TRANSITIONS[state][event type] -> Move(handler, the
+#: states it may lead to; none: it stays). An event missing from its state's row is a protocol violation.
+TRANSITIONS: dict[State, dict[type, Move]] = {
+    State.WAIT_FOR_TASK: {
+        NewTask: Move(CoordinationProtocol._on_new_task, frozenset({State.COORDINATING}) | _ENDS_ROUND),
+        ReqForCurrentTraj: Move(CoordinationProtocol._on_request),  # answered with my location
+        CurrentTraj: Move(CoordinationProtocol._ignore),
+        PeerLeft: Move(CoordinationProtocol._on_peer_left),
+        PeerJoined: Move(CoordinationProtocol._on_peer_joined),
+        VehicleLost: Move(CoordinationProtocol._on_vehicle_lost),
+        Relocated: Move(CoordinationProtocol._on_relocated, _RESTS),
+        VehicleDown: Move(CoordinationProtocol._on_vehicle_down, _RESTS),
+        PeerDown: Move(CoordinationProtocol._on_peer_down),
+        PeerBraked: Move(CoordinationProtocol._on_peer_braked),
+        PeerAnnounced: Move(CoordinationProtocol._on_announced),
+        Released: Move(CoordinationProtocol._on_released),
+        PlanProposal: Move(CoordinationProtocol._on_proposal),  # held, and acknowledged
+        PlanAck: Move(CoordinationProtocol._ignore),  # a late one
+        PlanRefusal: Move(CoordinationProtocol._ignore),  # a late one
+        PlanDecision: Move(CoordinationProtocol._on_decision),
+        ClockBound: Move(CoordinationProtocol._on_clock_bound),
+        PeerLost: Move(CoordinationProtocol._on_peer_lost),
+        NextStep: Move(CoordinationProtocol._ignore),
+    },
+    State.COORDINATING: {
+        ReqForCurrentTraj: Move(CoordinationProtocol._on_request_while_coordinating, _ENDS_ROUND),
+        CurrentTraj: Move(CoordinationProtocol._on_reply, _ENDS_ROUND),
+        PeerLeft: Move(CoordinationProtocol._on_peer_left, _ENDS_ROUND),  # waited for no more
+        PeerJoined: Move(CoordinationProtocol._on_peer_joined),  # asked too
+        VehicleLost: Move(CoordinationProtocol._on_vehicle_lost),  # the round ends in no plan
+        VehicleDown: Move(CoordinationProtocol._on_vehicle_down, _RESTS),
+        PeerDown: Move(CoordinationProtocol._on_peer_down),
+        PeerBraked: Move(CoordinationProtocol._on_peer_braked),
+        PeerAnnounced: Move(CoordinationProtocol._on_announced),
+        Released: Move(CoordinationProtocol._on_released),
+        PlanProposal: Move(CoordinationProtocol._on_proposal),  # held, and acknowledged
+        PlanAck: Move(CoordinationProtocol._ignore),  # a late one
+        PlanRefusal: Move(CoordinationProtocol._ignore),  # a late one
+        PlanDecision: Move(CoordinationProtocol._on_decision),
+        ClockBound: Move(CoordinationProtocol._on_clock_bound),
+        PeerLost: Move(CoordinationProtocol._on_peer_lost),
+        NextStep: Move(CoordinationProtocol._on_next_step_while_coordinating),  # nothing is flown yet: ask again
+    },
+    State.EXECUTING: {
+        ReqForCurrentTraj: Move(CoordinationProtocol._on_request),  # answered with my trajectory
+        CurrentTraj: Move(CoordinationProtocol._ignore),
+        PlanCompleted: Move(CoordinationProtocol._on_completed, _RESTS),
+        Reroute: Move(CoordinationProtocol._on_reroute, frozenset({State.REROUTING}) | _ENDS_REROUTE),
+        PeerLeft: Move(CoordinationProtocol._on_peer_left),  # may brake, or report Threatened
+        PeerJoined: Move(CoordinationProtocol._on_peer_joined),
+        VehicleLost: Move(CoordinationProtocol._on_vehicle_lost),
+        Relocated: Move(CoordinationProtocol._on_relocated, _RESTS),
+        VehicleDown: Move(CoordinationProtocol._on_vehicle_down, _RESTS),
+        PeerDown: Move(CoordinationProtocol._on_peer_down),  # may brake, or report Threatened
+        PeerBraked: Move(CoordinationProtocol._on_peer_braked),  # may brake, or report Threatened
+        PeerAnnounced: Move(CoordinationProtocol._on_announced),
+        Released: Move(CoordinationProtocol._on_released),
+        PlanProposal: Move(CoordinationProtocol._on_proposal),  # held, and acknowledged
+        PlanAck: Move(CoordinationProtocol._ignore),  # a late one
+        PlanRefusal: Move(CoordinationProtocol._ignore),  # a late one
+        PlanDecision: Move(CoordinationProtocol._on_decision),
+        ClockBound: Move(CoordinationProtocol._on_clock_bound),  # may brake
+        PeerLost: Move(CoordinationProtocol._on_peer_lost),  # may brake, or report Threatened
+        NextStep: Move(CoordinationProtocol._on_next_step),  # may brake
+    },
+    State.REROUTING: {  # a round as COORDINATING's, while the plan is flown on
+        ReqForCurrentTraj: Move(CoordinationProtocol._on_request_while_coordinating, _ENDS_REROUTE),
+        CurrentTraj: Move(CoordinationProtocol._on_reply, _ENDS_REROUTE),
+        PlanCompleted: Move(CoordinationProtocol._on_completed_while_rerouting, _RESTS),
+        PeerLeft: Move(CoordinationProtocol._on_peer_left, _ENDS_REROUTE),
+        PeerJoined: Move(CoordinationProtocol._on_peer_joined),
+        VehicleLost: Move(CoordinationProtocol._on_vehicle_lost),  # the round ends with the plan flown
+        VehicleDown: Move(CoordinationProtocol._on_vehicle_down, _RESTS),
+        PeerDown: Move(CoordinationProtocol._on_peer_down, _BRAKES),
+        PeerBraked: Move(CoordinationProtocol._on_peer_braked, _BRAKES),  # or reports Threatened
+        PeerAnnounced: Move(CoordinationProtocol._on_announced),
+        Released: Move(CoordinationProtocol._on_released),
+        PlanProposal: Move(CoordinationProtocol._on_proposal),  # held, and acknowledged
+        PlanAck: Move(CoordinationProtocol._ignore),  # a late one
+        PlanRefusal: Move(CoordinationProtocol._ignore),  # a late one
+        PlanDecision: Move(CoordinationProtocol._on_decision),
+        ClockBound: Move(CoordinationProtocol._on_clock_bound, _BRAKES),
+        PeerLost: Move(CoordinationProtocol._on_peer_lost, _BRAKES),
+        NextStep: Move(CoordinationProtocol._on_next_step, _BRAKES),
+    },
+    State.CONFIRMING: {  # planned: the plan is flown once every member holds it, or dropped
+        PlanAck: Move(CoordinationProtocol._on_ack, _DECIDES),  # flown once every member's came
+        PlanRefusal: Move(CoordinationProtocol._on_refusal, _DECIDES),  # dropped
+        NextStep: Move(CoordinationProtocol._on_next_step_while_confirming, _DECIDES),  # too late: dropped
+        ReqForCurrentTraj: Move(CoordinationProtocol._on_request_while_confirming, _DECIDES),  # answered once decided
+        CurrentTraj: Move(CoordinationProtocol._ignore),
+        PlanCompleted: Move(CoordinationProtocol._on_completed_while_confirming, _DECIDES),  # the rest dropped, I rest
+        # The plan avoided what these change: it is dropped, and the news taken as flying.
+        PeerJoined: Move(CoordinationProtocol._on_news_while_confirming, _DECIDES),
+        PeerLeft: Move(CoordinationProtocol._on_news_while_confirming, _DECIDES),
+        PeerDown: Move(CoordinationProtocol._on_news_while_confirming, _DECIDES),
+        PeerBraked: Move(CoordinationProtocol._on_news_while_confirming, _DECIDES),
+        PeerAnnounced: Move(CoordinationProtocol._on_announced),
+        VehicleLost: Move(CoordinationProtocol._on_news_while_confirming, _DECIDES),
+        VehicleDown: Move(CoordinationProtocol._on_news_while_confirming, _DECIDES),
+        Released: Move(CoordinationProtocol._on_released),
+        PlanProposal: Move(CoordinationProtocol._on_proposal),
+        PlanDecision: Move(CoordinationProtocol._on_decision),
+        ClockBound: Move(CoordinationProtocol._on_news_while_confirming, _DECIDES),
+        PeerLost: Move(CoordinationProtocol._on_news_while_confirming, _DECIDES),
+    },
+}

@@ -1,0 +1,202 @@
+"""The protocol's rounds: a task's (or a new rest's) requests and answers, membership meanwhile, and
+the plan made once every member answered."""
+
+from __future__ import annotations
+
+from drona_gcs.errors import GoalCutOff, NoPlanFound
+from drona_gcs.motion import Trajectory
+from drona_gcs.stack.messages import CurrentTraj, PlanProposal, ReqForCurrentTraj, Task, TaskId
+from drona_gcs.stack.protocol.actions import Action, Broadcast, RerouteFailed, Send, TaskFailed
+from drona_gcs.stack.protocol.confirming import Confirming
+from drona_gcs.stack.protocol.events import NewTask, NextStep, PeerJoined, PeerLeft, Reroute
+from drona_gcs.stack.protocol.knowledge import Proposed
+from drona_gcs.stack.protocol.state import State
+
+#: steps a round waits for answers before it asks the members that have not answered again
+ASK_AGAIN_STEPS = 4
+
+
+class Rounds(Confirming):
+    """Protocol 1's handlers of rounds: collecting every member's trajectory, then planning against them."""
+
+    def _on_new_task(self, event: NewTask, now: int) -> list[Action]:
+        return self._begin_round(event.task, State.COORDINATING, now)
+
+    def _on_reroute(self, event: Reroute, now: int) -> list[Action]:
+        return self._begin_round(event.task, State.REROUTING, now)
+
+    def _begin_round(self, task: Task, state: State, now: int) -> list[Action]:
+        self._enter(state)
+        self.task, self.asked_at = task, now
+        self._forget_answers()
+        self.pending = {}
+        if not self.in_quorum():  # nothing to ask: no plan could be flown
+            return self._no_plan(NoPlanFound(self._no_majority()), now)
+        actions: list[Action] = [Broadcast(self._request(now))]
+        return actions + self._plan_if_ready(now)
+
+    def _forget_answers(self) -> None:
+        """A new round starts from no answers: last round's trajectories may have changed since."""
+        self.received, self.peer_holds = {}, {}
+
+    def _on_request(self, event: ReqForCurrentTraj, now: int) -> list[Action]:
+        if event.sender == self.me or not self._current(event):
+            return []
+        return [*self._admit(event, now), *self._answer(event, now)]
+
+    def _admit(self, event: ReqForCurrentTraj, now: int) -> list[Action]:
+        """A request from a drone that is no member: it is alive (it restarted, or its leave was
+        noticed while it lived on), so it is a member again, where its request puts it."""
+        if event.sender in self.members:
+            return []
+        actions = self._on_peer_joined(PeerJoined(event.sender, event.trajectory.last, event.trajectory), now)
+        self.newest[event.sender] = event.task_id  # joining forgot it: this request is its newest
+        return actions
+
+    def _answer(self, event: ReqForCurrentTraj, now: int) -> list[Action]:
+        if event.sender == self.me:
+            return []
+        return [Send(event.sender, CurrentTraj(self.me, self.current_trajectory(now), event.task_id, self.holds()))]
+
+    def _on_request_while_coordinating(self, event: ReqForCurrentTraj, now: int) -> list[Action]:
+        assert self.task is not None
+        if event.sender == self.me or not self._current(event):
+            return []
+        admitted = self._admit(event, now)  # my request goes to it now
+        if self._outranks(event.task_id, self.task.id):
+            if admitted:
+                return admitted  # it may not have had my request: it gets it now, and answers once planned
+            # It plans before me, and takes my request (which went to every member) as my answer.
+            self.peer_holds.pop(event.sender, None)
+            if self.received.pop(event.sender, None) is not None:
+                # What it told me is about to change. Ask again.
+                return [Send(event.sender, self._request(now))]
+            return []
+        if self.me not in event.asked:
+            # It plans without me (it saw me leave, or never saw me join): what its request carries
+            # may change before I plan. It gets my request, admits me, and answers it.
+            return admitted or [Send(event.sender, self._request(now))]
+        self.pending[event.sender] = event.task_id
+        # It waits for my plan, so the trajectory its request carries is its answer.
+        self.received[event.sender] = self.known[event.sender] = self._news(event.sender, event.trajectory)
+        self.peer_holds[event.sender] = event.holds
+        return [*admitted, *self._plan_if_ready(now)]
+
+    def _outranks(self, theirs: TaskId, mine: TaskId) -> bool:
+        return theirs < mine
+
+    def _on_reply(self, event: CurrentTraj, now: int) -> list[Action]:
+        assert self.task is not None
+        if event.in_reply_to != self.task.id or event.sender not in self.members:
+            return []  # an answer to an older request, or from a drone that left
+        self.received[event.sender] = self.known[event.sender] = self._news(event.sender, event.trajectory)
+        self.peer_holds[event.sender] = event.holds
+        return self._plan_if_ready(now)
+
+    def _on_next_step_while_coordinating(self, event: NextStep, now: int) -> list[Action]:
+        return self._ask_again(now)
+
+    def _ask_again(self, now: int) -> list[Action]:
+        """A round still waiting :data:`ASK_AGAIN_STEPS` after it asked asks again the members that have not
+        answered: one request lost (a link just back drops what it carries before its routes are up) would
+        hold a round for good. A copy is harmless: it is answered, or held for an answer, again."""
+        if now - self.asked_at < ASK_AGAIN_STEPS:
+            return []
+        self.asked_at = now
+        request = self._request(now)
+        return [Send(p, request) for p in sorted(self.members - set(self.received))]
+
+    def _on_peer_left(self, event: PeerLeft, now: int) -> list[Action]:
+        if event.drone not in self.members:
+            return []
+        self.members.discard(event.drone)
+        # The newest of what it answered and what it announced (an answer of a round over is old).
+        answered, known = self.received.pop(event.drone, None), self.known[event.drone]
+        last = answered if answered is not None and answered.start_step > known.start_step else known
+        # What it had flown before it went silent is behind it, less the window (its clock may be
+        # behind, its vehicle late): only the rest of its plan is where it may have stopped. (The
+        # lead, as before, held cells a drone flew through seconds earlier: mail there was stuck.)
+        silent = now if event.silent_since is None else min(now, event.silent_since)
+        since = silent - self.delta - 1
+        if event.drone in self.unreported:  # gone again before it said where it is: held as it was, and here
+            self.unreported.discard(event.drone)
+            self.hearsay[event.drone] = self.hearsay.get(event.drone, frozenset()) | set(last.suffix_from(since).cells)
+        else:
+            self.ghosts[event.drone] = last.suffix_from(since)
+        proposal = self.proposals.pop(event.drone, None)
+        if proposal is not None:
+            self.maybe_flown[event.drone] = proposal.trajectory.suffix_from(since)
+        self.pending.pop(event.drone, None)
+        self.peer_holds.pop(event.drone, None)
+        return self._plan_if_ready(now) if self.coordinating else self._steer_clear(event.drone, now)
+
+    def _on_peer_joined(self, event: PeerJoined, now: int) -> list[Action]:
+        """A drone back (a partition healed, its agent restarted). Where it may be stays held until it says
+        what it flies now: a brake of its, announced while we were apart, never reached us. It is told
+        what I fly now, for the same reason."""
+        if event.drone == self.me:
+            return []
+        if event.drone in self.members:  # met as I start (my agent restarted), or back already (a message)
+            return [self._present(event.drone, now)]
+        self.members.add(event.drone)
+        self.released.discard(event.drone)
+        self.proposals.pop(event.drone, None)
+        self.newest.pop(event.drone, None)  # it may have restarted, and its clock with it
+        self.known[event.drone] = event.announced(now)
+        self.unreported.add(event.drone)
+        told = self._present(event.drone, now)
+        if self.coordinating and self.task is not None:
+            return [told, Send(event.drone, self._request(now))]
+        return [told]
+
+    def _plan_if_ready(self, now: int) -> list[Action]:
+        if not self.members.issubset(self.received):
+            return []
+        assert self.task is not None
+        task = self.task
+        flying = self.trajectory if self.state is State.REROUTING else None
+        start_step = now + self.lead_for(task)
+        if flying is not None:  # later than the plan it replaces: peers order plans so, and a landed drone climbs
+            start_step = max(start_step, flying.start_step + 1)
+        here = flying.at(now) if flying is not None else self.location
+        start = flying.at(start_step) if flying is not None else self.location
+        psi = {**self.ghost_obstacles(sparing=here), **self._held_by_peers(now),
+               **{p: self.received[p] for p in sorted(self.members)},
+               **self._undecided(), **self._held_for_outliers(sparing=here),
+               **{f"{p}!": Trajectory.stationary(c, now) for p, c in sorted(self.peers_down.items())},
+               **{f"{p}~lost{i}": Trajectory.stationary(c, now) for p, cells in sorted(self.peers_lost.items())
+                  for i, c in enumerate(cells) if c != here}}
+        max_length = task.max_length(start_step)
+        try:
+            if not self.in_quorum():
+                raise NoPlanFound(self._no_majority())
+            if self.lost is not None:
+                raise NoPlanFound("my vehicle is lost")
+            if self.off_since is not None:
+                raise NoPlanFound("my clock is beyond the fleet's bound")
+            if self.down is not None:
+                raise NoPlanFound("my vehicle is down")
+            if max_length is not None and max_length < 0:
+                raise NoPlanFound("the battery no longer affords the task")
+            plan = self.plan(start, task.goal, start_step, psi, max_length)
+        except NoPlanFound as exc:
+            return self._no_plan(exc, now)
+        trajectory = flying.spliced(plan.trajectory) if flying is not None else plan.trajectory
+        proposal = PlanProposal(self.me, task.id, trajectory, tuple(sorted(self.members)))
+        self._enter(State.CONFIRMING)
+        self.proposed = Proposed(proposal, tuple(psi.items()), plan.trajectory.start_step, flying is not None)
+        self.acked = set()
+        return [Broadcast(proposal), *self._go_if_held(now)]
+
+    def _no_plan(self, exc: NoPlanFound, now: int) -> list[Action]:
+        """I stay: my last plan (or my location) is still the truth, including the recent steps a peer up
+        to Delta behind me still needs."""
+        task = self.task
+        assert task is not None
+        if self.state is State.REROUTING and self.trajectory is not None:
+            self._enter(State.EXECUTING)
+            return [*self._release_pending(self.trajectory), RerouteFailed(task, str(exc))]
+        self._enter(State.WAIT_FOR_TASK)
+        self.task = None
+        failed = TaskFailed(task, str(exc), isinstance(exc, GoalCutOff))
+        return [*self._release_pending(self.current_trajectory(now)), failed]
