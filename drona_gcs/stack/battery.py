@@ -9,9 +9,9 @@ at ``recharged`` or more.
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
-from drona_gcs.errors import ProblemError
+from drona_gcs.errors import ProblemError, ProtocolViolation
 
 #: the planning drain of a second of flight, in percent: about four times a 5 Ah pack hovering at
 #: 15 A (the fake vehicle's), so a plan budgets for a worn pack and headwind
@@ -63,24 +63,41 @@ class BatteryRecharged:
 
 BatteryEvent = BatteryLow | BatteryRecharged
 
+#: Every change of a monitor's state: TRANSITIONS[state][event it reports] -> the state it leads to.
+TRANSITIONS: dict[BatteryState, dict[type[BatteryEvent], BatteryState]] = {
+    BatteryState.OK: {BatteryLow: BatteryState.LOW},
+    BatteryState.LOW: {BatteryRecharged: BatteryState.OK},
+}
+
 
 @dataclass
 class BatteryMonitor:
     low: float = 40.0
     recharged: float = 95.0
-    state: BatteryState = BatteryState.OK
+    _state: BatteryState = field(default=BatteryState.OK, init=False)  #: read as :attr:`state`
 
     def __post_init__(self) -> None:
         if not self.low < self.recharged:
             raise ProblemError(f"low mark {self.low} must be below recharged mark {self.recharged}")
 
+    @property
+    def state(self) -> BatteryState:
+        """Changed only by :meth:`_report`, as :data:`TRANSITIONS` allows."""
+        return self._state
+
     def reading(self, level: float) -> list[BatteryEvent]:
         if not 0 <= level <= 100:
             raise ProblemError(f"battery reading must be a percentage, got {level}")
         if self.state is BatteryState.OK and level < self.low:
-            self.state = BatteryState.LOW
-            return [BatteryLow(level)]
+            return self._report(BatteryLow(level))
         if self.state is BatteryState.LOW and level >= self.recharged:
-            self.state = BatteryState.OK
-            return [BatteryRecharged(level)]
+            return self._report(BatteryRecharged(level))
         return []
+
+    def _report(self, event: BatteryEvent) -> list[BatteryEvent]:
+        """The one place the state changes: to where :data:`TRANSITIONS` says ``event`` leads."""
+        target = TRANSITIONS[self._state].get(type(event))
+        if target is None:
+            raise ProtocolViolation(f"battery monitor: no {type(event).__name__} while {self._state.value}")
+        self._state = target
+        return [event]

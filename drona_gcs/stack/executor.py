@@ -11,7 +11,7 @@ so a trajectory whose start the executor has already passed is refused.
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from drona_gcs.errors import ProtocolViolation
 from drona_gcs.motion import Trajectory
@@ -21,6 +21,24 @@ from drona_gcs.workspace import Cell
 class ExecutorState(enum.Enum):
     HOLDING = "holding"  #: no trajectory: hold the current cell
     EXECUTING = "executing"  #: following a trajectory
+
+
+class ExecutorEvent(enum.Enum):
+    """What moves an executor from one :class:`ExecutorState` to another (see :data:`TRANSITIONS`)."""
+
+    START = "start"  #: a trajectory to follow (a new one, or another while following one)
+    RELOCATE = "relocate"  #: the vehicle found in a cell after it was lost
+    COMPLETE = "complete"  #: the trajectory's last step taken
+
+
+#: Every change of an executor's state: TRANSITIONS[state][event] -> the state it leads to.
+TRANSITIONS: dict[ExecutorState, dict[ExecutorEvent, ExecutorState]] = {
+    ExecutorState.HOLDING: {ExecutorEvent.START: ExecutorState.EXECUTING,
+                            ExecutorEvent.RELOCATE: ExecutorState.HOLDING},
+    ExecutorState.EXECUTING: {ExecutorEvent.START: ExecutorState.EXECUTING,
+                              ExecutorEvent.RELOCATE: ExecutorState.HOLDING,
+                              ExecutorEvent.COMPLETE: ExecutorState.HOLDING},
+}
 
 
 @dataclass(frozen=True)
@@ -44,8 +62,20 @@ ExecutorAction = Setpoint | Completed
 class PlanExecutor:
     cell: Cell
     step: int = -1  #: the last step boundary taken
-    state: ExecutorState = ExecutorState.HOLDING
+    _state: ExecutorState = field(default=ExecutorState.HOLDING, init=False)  #: read as :attr:`state`
     trajectory: Trajectory | None = None
+
+    @property
+    def state(self) -> ExecutorState:
+        """Changed only by :meth:`_enter`, as :data:`TRANSITIONS` allows."""
+        return self._state
+
+    def _enter(self, event: ExecutorEvent) -> None:
+        """The one place the state changes: to where :data:`TRANSITIONS` says ``event`` leads."""
+        target = TRANSITIONS[self._state].get(event)
+        if target is None:
+            raise ProtocolViolation(f"executor: no {event.value!r} while {self._state.value}")
+        self._state = target
 
     @property
     def flying(self) -> bool:
@@ -65,7 +95,8 @@ class PlanExecutor:
         if trajectory.first != self.cell:
             raise ProtocolViolation(f"trajectory starts at {list(trajectory.first)} but the drone holds "
                                     f"{list(self.cell)}")
-        self.trajectory, self.state = trajectory, ExecutorState.EXECUTING
+        self._enter(ExecutorEvent.START)
+        self.trajectory = trajectory
 
     def _continues(self, trajectory: Trajectory) -> bool:
         flown = self.trajectory
@@ -74,7 +105,8 @@ class PlanExecutor:
 
     def relocate(self, cell: Cell) -> None:
         """The vehicle is in ``cell`` (found there after it was lost): hold it, with no trajectory."""
-        self.cell, self.state, self.trajectory = cell, ExecutorState.HOLDING, None
+        self._enter(ExecutorEvent.RELOCATE)
+        self.cell, self.trajectory = cell, None
 
     def tick(self, step: int) -> list[ExecutorAction]:
         """Take step boundary ``step`` (each exactly once, in order)."""
@@ -87,5 +119,6 @@ class PlanExecutor:
         actions: list[ExecutorAction] = [Setpoint(step, self.cell, moving=previous != self.cell)]
         if step >= self.trajectory.end_step:
             actions.append(Completed(self.trajectory))
-            self.state, self.trajectory = ExecutorState.HOLDING, None
+            self._enter(ExecutorEvent.COMPLETE)
+            self.trajectory = None
         return actions
