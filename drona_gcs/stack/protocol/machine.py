@@ -30,7 +30,9 @@ from drona_gcs.stack.protocol.state import Move, State, Taking
 
 
 class CoordinationProtocol(Rounds):
-    """Protocol 1 for drone ``me``. ``peers`` maps each peer to where it starts."""
+    """Protocol 1 for drone ``me``. ``peers`` maps each peer to where it starts. Its handlers come from
+    :class:`.rounds.Rounds`, :class:`.confirming.Confirming` and :class:`.flight.Flight`, each built on the
+    one after it (a round's plan is confirmed, a dropped one flown on), over :class:`.knowledge.Knowledge`."""
 
     def handle(self, event: Event, now: int) -> list[Action]:
         """Take one event at local step ``now``; return what to do. The table's entry for the event in this
