@@ -1,0 +1,186 @@
+"""The coordination protocol's clocks: task ids on hybrid clocks, and a clock beyond the
+fleet's bound.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import pytest
+
+from drona_gcs.motion import Trajectory
+from drona_gcs.stack.messages import (
+    CurrentTraj,
+    HybridClock,
+    PlanAck,
+    PlanProposal,
+    Task,
+    TaskId,
+)
+from drona_gcs.stack.protocol import (
+    Braked,
+    ClockBound,
+    NewTask,
+    PeerAnnounced,
+    PlanCompleted,
+    Present,
+    Send,
+    TaskFailed,
+    Threatened,
+)
+from tests.drona_gcs.stack.protocol_helpers import (
+    B_AWAY,
+    GOAL,
+    ID_A,
+    ID_B_LOW,
+    A,
+    confirmed,
+    flying_past_b,
+    location_of,
+    machine,
+    request,
+    started,
+    traj,
+)
+
+
+# =========================================================== hybrid clocks
+def test_task_ids_are_unique_and_totally_ordered_across_drones() -> None:
+    clocks = [HybridClock(d) for d in ("a", "b", "c")]
+    ids = [clock.next_id(physical) for physical in (0, 0, 5, 3, 3, 10) for clock in clocks]
+    assert len(set(ids)) == len(ids)
+    for x, y in itertools.combinations(ids, 2):
+        assert (x < y) != (y < x)  # exactly one way round: a strict total order
+    for clock in clocks:  # each drone's own ids only grow, even when physical time steps back
+        own = [i for i in ids if i.drone == clock.drone]
+        assert own == sorted(own) and [i.seq for i in own] == list(range(1, 7))
+
+
+def test_ids_follow_physical_time_and_never_go_back() -> None:
+    clock = HybridClock("a")
+    assert clock.next_id(100).stamp == 100
+    assert clock.next_id(50).stamp == 101
+    assert clock.next_id(200).stamp == 200
+
+
+def test_an_observed_stamp_makes_later_ids_rank_below_it() -> None:
+    a, b = HybridClock("a"), HybridClock("b")
+    seen = a.next_id(40)
+    b.observe(seen.stamp)
+    later = b.next_id(0)
+    assert later.stamp > seen.stamp
+    assert later > seen and later > TaskId(seen.stamp, "zzz", 10**6)
+    b.observe(3)  # an older stamp does not pull the clock back
+    assert b.next_id(0) > later
+
+
+# ====================================================== a clock beyond the fleet's bound
+def test_a_drone_whose_clock_is_off_holds_where_its_plan_ends_and_plans_nothing() -> None:
+    """Its steps are not the fleet's: every cell of the rest of its plan is held for good in its answers,
+    and it plans nothing; the others plan around that and go on (they do not wait for it)."""
+    proto = machine()
+    plan = started(confirmed(proto, proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+                             + proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0)
+                             + proto.handle(CurrentTraj("c", location_of("c"), ID_A), 0))).trajectory
+    assert proto.handle(ClockBound(mine_off=True), 3) == []
+    assert set(plan.suffix_from(3).cells) <= set(proto.holds())
+    [answer] = proto.handle(request(ID_B_LOW, "b", 4), 4)
+    assert isinstance(answer, Send) and isinstance(answer.message, CurrentTraj)
+    assert set(answer.message.holds) == set(proto.holds())
+    proto.handle(PlanCompleted(), plan.end_step)
+    failed = proto.handle(NewTask(Task(TaskId(9, "a", 2), A)), plan.end_step)
+    failed += proto.handle(CurrentTraj("b", location_of("b"), TaskId(9, "a", 2)), plan.end_step)
+    failed += proto.handle(CurrentTraj("c", location_of("c"), TaskId(9, "a", 2)), plan.end_step)
+    assert [a.reason for a in failed if isinstance(a, TaskFailed)] == ["my clock is beyond the fleet's bound"]
+    # At rest, it answers with the cell it rests in alone: peers hold every cell it answers with for good.
+    assert proto.holds() == (GOAL,)
+    [answer] = proto.handle(request(TaskId(30, "b", 3), "b", plan.end_step + 1), plan.end_step + 1)
+    assert isinstance(answer, Send) and isinstance(answer.message, CurrentTraj)
+    assert set(answer.message.trajectory.cells) == {GOAL}
+    proto.handle(ClockBound(mine_off=False), plan.end_step + 1)
+    assert proto.holds() == ()
+
+
+def test_a_peer_whose_clock_is_off_gets_no_ack_and_is_held_where_it_flies_for_good() -> None:
+    proto = machine()
+    proto.handle(ClockBound(mine_off=False, outliers=frozenset({"b"})), 0)
+    assert proto.handle(PlanProposal("b", ID_B_LOW, traj(3, (4, 4), (3, 4)), ("a", "c")), 0) == []
+    b_way = traj(0, (2, 1), (2, 0), (2, 1))  # across a's way, long before a gets there: in b's steps, not ours
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    proto.handle(CurrentTraj("b", b_way, ID_A), 0)
+    action = started(confirmed(proto, proto.handle(CurrentTraj("c", location_of("c"), ID_A), 0)))
+    held = {t.last for name, t in action.psi.items() if name.startswith("b@")}
+    assert held == set(b_way.cells) and (2, 0, 0) not in action.trajectory.cells
+
+
+@pytest.mark.parametrize(("verdict_at", "steered"), [(2, Threatened), (3, Braked)])
+def test_the_plan_i_fly_steers_clear_of_the_plan_of_a_peer_found_with_its_clock_off(verdict_at: int,
+                                                                                   steered: type) -> None:
+    """Found in review: the cells of a peer whose clock is off were held for good only in plans made after
+    the verdict. The plan I fly went on through a cell b left a few steps before, in steps b's clock no
+    longer keeps with mine: it is planned anew there, or (too close for a round) cut short of it."""
+    proto, _ = flying_past_b()
+    actions = proto.handle(ClockBound(mine_off=False, outliers=frozenset({"b"})), verdict_at)
+    assert [type(a) for a in actions] == [steered]
+    if steered is Threatened:
+        assert actions == [Threatened("b", ((3, 0, 0),))]
+    else:
+        assert proto.trajectory is not None and (3, 0, 0) not in proto.trajectory.suffix_from(verdict_at).cells
+    assert proto.handle(ClockBound(mine_off=False, outliers=frozenset({"b"})), verdict_at) == []  # news once
+
+
+def test_two_peers_found_off_at_once_have_the_plan_i_fly_planned_anew_once() -> None:
+    """Found by the tester (sweep 20182 with --skews 2): one clock check found b and c off, each on the
+    rest of my plan. Each was reported Threatened; the first had the rest planned anew, and the second
+    asked for a new rest while that round was under way, which no state takes."""
+    proto, _ = flying_past_b()
+    proto.handle(PeerAnnounced("c", traj(1, (0, 4), (1, 4), (1, 3), (4, 3), (4, 1), (4, 0))), 1)
+    actions = proto.handle(ClockBound(mine_off=False, outliers=frozenset({"b", "c"})), 2)
+    assert [type(a) for a in actions] == [Threatened]
+    assert actions == [Threatened("b, c", ((3, 0, 0), (4, 0, 0)))]
+
+
+def test_a_drone_whose_clock_is_off_stops_short_of_every_cell_of_its_peers_plans() -> None:
+    """Its steps are not the fleet's: b left (3, 0) steps before I fly there by my clock, but by b's I may
+    come while it is there (or after it rests there). Flying on to the plan's end, as before, is no longer
+    safe: the plan is cut short of the first cell a peer's plan holds, and that is what I answer with."""
+    proto, plan = flying_past_b()
+    actions = proto.handle(ClockBound(mine_off=True), 2)
+    assert [type(a) for a in actions] == [Braked]
+    assert proto.trajectory is not None and proto.trajectory.last == plan.at(4) == (2, 0, 0)
+    assert not set(proto.holds()) & set(B_AWAY.cells)
+
+
+def test_a_drone_whose_clock_is_off_tells_every_peer_at_once_that_it_rests() -> None:
+    """Found by the systematic tester (sweep 20132 with --skews 1): peers hold every cell of the plan they
+    last heard a drone off fly, and one braked short of a charger that drone had left long before, walling
+    it in. At its plan's end the drone off says it rests in one cell, without waiting to be asked."""
+    proto, _ = flying_past_b()
+    proto.handle(ClockBound(mine_off=True), 2)
+    assert proto.trajectory is not None
+    rest = Trajectory.stationary(proto.trajectory.last, proto.trajectory.end_step)
+    told = proto.handle(PlanCompleted(), proto.trajectory.end_step)
+    assert told == [Present(peer, rest, braked=False) for peer in ("b", "c")]
+
+
+def test_a_drone_found_off_at_rest_after_a_plan_tells_every_peer_at_once_that_it_rests() -> None:
+    """Found by the systematic tester (sweep 20132, seed 74613): the clock check found a drone off after
+    its plan had ended; it still answered with that plan, so peers held the charger it had left for good."""
+    proto, _ = flying_past_b()
+    assert proto.trajectory is not None
+    end = proto.trajectory.end_step
+    proto.handle(PlanCompleted(), end)
+    rest = Trajectory.stationary(proto.trajectory.last, end + 3)
+    told = proto.handle(ClockBound(mine_off=True), end + 3)
+    assert told == [Present(peer, rest, braked=False) for peer in ("b", "c")]
+    assert proto.current_trajectory(end + 4) == rest
+
+
+def test_a_drone_whose_clock_is_off_acks_with_the_cells_it_holds_for_good() -> None:
+    """Its own check runs on steps that are not the fleet's: the proposer judges its plan against the cells
+    the ack holds. Acking nothing stalled every plan of the fleet (found over real processes)."""
+    proto = machine()
+    proto.handle(ClockBound(mine_off=True), 0)
+    proposal = PlanProposal("b", ID_B_LOW, traj(3, (4, 4), (4, 3)), ("a", "c"))
+    assert proto.handle(proposal, 0) == [Send("b", PlanAck("a", ID_B_LOW, location_of("a"), proto.holds()))]
+    assert A in proto.holds()
