@@ -1,0 +1,258 @@
+"""One drone's agent and its vehicle: down, waiting for its position, lost and back, late, and the
+flight record of its sightings.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import json
+
+import pytest
+
+from drona_gcs.errors import ProblemError
+from drona_gcs.geo import GeoFrame
+from drona_gcs.motion import Trajectory
+from drona_gcs.planner import SafePlanner
+from drona_gcs.stack.drone import DroneStack, StackConfig
+from drona_gcs.stack.messages import CurrentTraj, Message, PlanAck, ReqForCurrentTraj, TaskId
+from drona_gcs.stack.protocol import State
+from drona_gcs.workspace import Workspace
+from fleet.agent.drone import DroneAgent
+from fleet.setpoint_loop import Sample, StepReport
+from fleet.transport.wire import (
+    MailOrder,
+    MailStatus,
+    PlanAnnounce,
+    Propose,
+    ReqTraj,
+    decode,
+    encode,
+    from_core,
+    to_core,
+)
+from tests.fakes.node import FakeNode
+from tests.fleet.agent.drone_helpers import FRAME, KEYS, WS, statuses, vehicle_over_its_start
+
+
+def test_a_vehicle_down_by_itself_hands_its_mail_back_and_the_drone_starts_no_task() -> None:
+    """A failsafe or a pilot lands the vehicle under a flying plan: the stack must not go on to
+    report a pickup (or a delivery) the vehicle never made, nor start the next mail."""
+    async def scenario() -> tuple[FakeNode, DroneAgent, list[object]]:
+        node, vehicle = FakeNode(), vehicle_over_its_start()
+        stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
+        agent = DroneAgent(stack, node, KEYS, vehicle, FRAME, lambda: 1000.0)
+        agent.mail.take(MailOrder(id="first", pickup=[3, 0, 0], dropoff=[5, 5, 0], priority=9))
+        agent.mail.take(MailOrder(id="next", pickup=[2, 4, 0], dropoff=[6, 1, 0], priority=1))
+        later: list[object] = []
+        for step in range(16):
+            actions = agent.tick(step)
+            if step == 3:  # taken up for its plan, then down by itself
+                agent.vehicle.airborne = True
+                vehicle.come_down()
+            report = StepReport(step, agent.stack.executor.cell, (0, 0, 0), 0.0, False, 0.0)
+            agent.on_step(report, actions)
+            if step > 3:
+                later += actions
+            await asyncio.sleep(0)  # the mail desk reports on the loop
+        try:
+            agent.mail.take(MailOrder(id="refused", pickup=[2, 2, 0], dropoff=[4, 4, 0], priority=5))
+        except ProblemError as exc:
+            later.append(exc)
+        return node, agent, later
+
+    node, agent, later = asyncio.run(scenario())
+    why = "drone d1's vehicle came down by itself in [0, 0, 0]"
+    assert statuses(node, "first") == [(MailStatus.ACCEPTED, ""), (MailStatus.STARTED, ""),
+                                      (MailStatus.HANDED_BACK, why)]
+    assert statuses(node, "next") == [(MailStatus.ACCEPTED, ""), (MailStatus.HANDED_BACK, why)]
+    assert agent.mail.held() == []
+    assert "came down" in agent.alarms["down"]
+    kinds = {type(a).__name__ for a in later if not isinstance(a, Exception)}
+    assert not kinds & {"GoTo", "MailStarted", "MailPickedUp", "MailDelivered"}, kinds
+    assert "Completed" not in kinds  # the plan under way is not flown on: the vehicle is on the ground
+    assert agent.stack.executor.cell == (0, 0, 0) and agent.stack.executor.trajectory is None
+    told = [decode(p).body for k, p in node.puts if k == KEYS.plan("d1")]
+    assert any(isinstance(b, PlanAnnounce) and b.grounded and b.trajectory.cells == ((0, 0, 0),) for b in told)
+    refusal = [str(a) for a in later if isinstance(a, Exception)]
+    assert refusal == ["drone d1 takes no mail: its vehicle came down by itself"]
+
+
+def test_a_drone_whose_vehicle_waits_for_its_position_says_so_and_takes_no_mail() -> None:
+    """ArduCopter SITL needs about 45 s from boot to its position estimate: the drone is a member
+    meanwhile, says ``waiting_for_position``, refuses mail with the reason, and takes it once ready."""
+    async def scenario() -> None:
+        vehicle = vehicle_over_its_start()
+        vehicle.estimate = False
+        stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
+        agent = DroneAgent(stack, FakeNode(), KEYS, vehicle, FRAME, lambda: 1000.0)
+        agent.tick(0)
+        view = agent.state().vehicle
+        assert view is not None and view.status == "waiting_for_position"
+        assert "position estimate" in view.reason
+        order = MailOrder(id="m", pickup=[3, 0, 0], dropoff=[5, 5, 0], priority=5)
+        try:
+            agent.mail.take(order)
+        except ProblemError as exc:
+            assert "its vehicle is not ready: no position estimate" in str(exc)
+        else:
+            raise AssertionError("a drone whose vehicle has no position took mail")
+        vehicle.estimate = True
+        agent.tick(1)
+        view = agent.state().vehicle
+        assert view is not None and view.status == "ready"
+        assert agent.mail.take(order)
+        agent.tick(2)
+        assert stack.protocol.state is not State.WAIT_FOR_TASK  # a task under way
+
+    asyncio.run(scenario())
+
+
+def test_a_lost_vehicle_is_its_drones_problem_and_back_in_a_held_cell_the_drone_carries_on() -> None:
+    """The link goes silent mid-plan: the drone stays a member, raises vehicle_lost, hands back the mail
+    it has not picked up, holds every cell its vehicle may be in (its answers say so) and takes no mail.
+    The vehicle answers again, seen in one of those cells: the drone rests there and takes mail again."""
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0, drones={"d1": (0, 0, 0), "d2": (7, 7, 0)})
+
+    async def scenario() -> None:
+        node, vehicle = FakeNode(), vehicle_over_its_start()
+        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+        agent = DroneAgent(stack, node, KEYS, vehicle, GeoFrame(ws), lambda: 1000.0)
+        agent.mail.take(MailOrder(id="m", pickup=[4, 0, 0], dropoff=[6, 3, 0], priority=5))
+        d2 = Trajectory.stationary((7, 7, 0), 0)
+        for step in range(30):  # coordinate (d2 answers, then holds the plan), then fly the first steps
+            if stack.executor.flying:
+                break
+            agent.tick(step)
+            for _ in range(2):  # d2 answers the request, then holds the plan it brings
+                for k, p in list(node.puts):
+                    body = decode(p).body
+                    if isinstance(body, ReqTraj) and k == KEYS.proto("all", "d1"):
+                        reply: Message = CurrentTraj("d2", d2, body.task_id.core())
+                    elif isinstance(body, Propose):
+                        reply = PlanAck("d2", body.task_id.core(), d2)
+                    else:
+                        continue
+                    agent._on_protocol(KEYS.proto("d1", "d2"), encode("d2", 1000.0, from_core(reply)))
+                    node.puts.remove((k, p))
+            vehicle.over(stack.executor.cell)
+        assert stack.executor.flying
+        agent.tick(step)
+        plan = stack.protocol.trajectory
+        assert plan is not None
+        vehicle.over(stack.executor.cell)
+        seen = stack.executor.cell
+        agent.tick(step + 1)
+        vehicle.lost = "vehicle 1 on udpin://127.0.0.1:14540: no HEARTBEAT for 3.1 s (timeout 3.0 s)"
+        await asyncio.sleep(0)
+        agent.tick(step + 2)
+        await asyncio.sleep(0)
+        assert agent.alarms["vehicle_lost"].startswith("vehicle_lost: vehicle 1 on udpin")
+        assert statuses(node, "m")[-1] == (MailStatus.HANDED_BACK, "drone d1's vehicle is lost")
+        assert set(stack.protocol.holds()) >= set(plan.suffix_from(step + 2).cells) | {seen}
+        asked = ReqForCurrentTraj(TaskId(step + 50, "d2", 9), "d2", Trajectory.stationary((7, 7, 0), step), ("d1",))
+        node.puts.clear()
+        agent._on_protocol(KEYS.proto("all", "d2"), encode("d2", 1000.0, from_core(asked)))
+        answer = to_core(decode(node.puts[-1][1]), "d2")
+        assert isinstance(answer, CurrentTraj) and set(answer.holds) == set(stack.protocol.holds())
+        with_mail = MailOrder(id="m2", pickup=[2, 2, 0], dropoff=[3, 5, 0], priority=5)
+        try:
+            agent.mail.take(with_mail)
+        except ProblemError as exc:
+            assert "its vehicle is lost" in str(exc)
+        else:
+            raise AssertionError("a drone whose vehicle is lost took mail")
+
+        back = plan.cells[-2]  # it held on along its plan, and is seen there
+        vehicle.lost = None
+        vehicle.over(back, at=2.0)
+        agent.tick(step + 3)
+        assert "vehicle_lost" not in agent.alarms
+        assert (stack.executor.cell, stack.protocol.location, stack.protocol.holds()) == (back, back, ())
+        assert agent.mail.take(with_mail)
+
+    asyncio.run(scenario())
+
+
+def test_a_vehicle_back_outside_its_held_cells_leaves_its_drone_out_of_service() -> None:
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0, drones={"d1": (0, 0, 0)})
+
+    async def scenario() -> None:
+        vehicle = vehicle_over_its_start()
+        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+        agent = DroneAgent(stack, FakeNode(), KEYS, vehicle, GeoFrame(ws), lambda: 1000.0)
+        agent.tick(0)
+        vehicle.lost = "connection closed by the vehicle"
+        agent.tick(1)
+        vehicle.lost = None
+        vehicle.over((5, 5, 0), at=2.0)  # in the air, far from its cell
+        agent.tick(2)
+        assert "not in a cell held for it" in agent.alarms["vehicle_lost"]
+        assert stack.protocol.holds() != ()  # still held where it may be
+        assert agent.mail.refusal is not None and "land it by hand" in agent.mail.refusal
+
+    asyncio.run(scenario())
+
+
+def test_the_flight_record_has_only_fresh_sightings_never_a_stale_or_lost_vehicle() -> None:
+    """A cell is recorded at a sample only from a position reported since the previous one: a vehicle
+    whose position stopped coming, or whose link is lost, leaves a gap (the audit counts it), never the
+    last cell it was seen in (a killed ArduCopter SITL was recorded for 23 steps where it died)."""
+    record, vehicle = io.StringIO(), vehicle_over_its_start()
+
+    async def scenario() -> None:
+        stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
+        agent = DroneAgent(stack, FakeNode(), KEYS, vehicle, FRAME, lambda: 1000.0,
+                           record)
+        for step in range(8):
+            if step not in (3, 4):  # no new position at steps 3 and 4
+                vehicle.at += 1.0
+            vehicle.lost = "no HEARTBEAT for 3.0 s" if step >= 6 else None
+            actions = agent.tick(step)
+            agent.on_step(StepReport(step, stack.executor.cell, (0, 0, 0), 0.0, False, 0.0), actions)
+            agent.on_sample(Sample(step, stack.executor.cell, (0, 0, 0), 0.0))
+            await asyncio.sleep(0)
+
+    asyncio.run(scenario())
+    steps = [json.loads(line)["step"] for line in record.getvalue().splitlines()]
+    assert steps == [0, 1, 2, 5]
+
+
+def test_a_vehicle_later_than_lambda_holds_where_its_plan_ends_and_takes_no_task_until_on_time() -> None:
+    """Peers plan with a margin of lambda for a vehicle's lateness: past it, the margin is gone. The
+    drone plans nothing more, hands back the mail not on board, and every peer holds the rest of its
+    plan; once its vehicle is where that plan ended, it takes tasks again."""
+    async def scenario() -> tuple[FakeNode, DroneAgent, list[str]]:
+        node, vehicle = FakeNode(), vehicle_over_its_start()
+        stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
+        agent = DroneAgent(stack, node, KEYS, vehicle, FRAME, lambda: 1000.0)
+        agent.mail.take(MailOrder(id="first", pickup=[3, 0, 0], dropoff=[5, 5, 0], priority=9))
+        seen: list[str] = []
+        for step in range(40):
+            agent.on_step(StepReport(step, stack.executor.cell, None, 0.0, False, 0.0), agent.tick(step))
+            agent.vehicle.airborne = not seen[1:]
+            if stack.executor.flying and stack.executor.cell != (0, 0, 0) and agent.late is None and not seen:
+                agent.on_sample(Sample(step, stack.executor.cell, (0, 0, 0), None))  # still at the start
+                seen.append(f"late: off since {stack.protocol.off_since}")
+                with pytest.raises(ProblemError, match="its vehicle was not in"):
+                    agent.mail.take(MailOrder(id="refused", pickup=[2, 2, 0], dropoff=[4, 4, 0], priority=5))
+            elif seen and stack.executor.trajectory is None and agent.late is not None:
+                # Seen in the cell of the step sampled (lambda ago), not yet where the plan ended: still late.
+                vehicle.over((2, 0, 0), at=vehicle.at + 1.0)
+                agent.on_sample(Sample(step, (2, 0, 0), (2, 0, 0), 0.4))
+                assert agent.late is not None and stack.executor.cell != (2, 0, 0)
+                vehicle.over(stack.executor.cell, at=vehicle.at + 1.0)
+                agent.vehicle.airborne = False  # landed there (SITL found a drone late for good once landed)
+                agent.on_sample(Sample(step, stack.executor.cell, stack.executor.cell, 0.4))
+                agent.vehicle.airborne = True
+                seen.append(f"on time: off since {stack.protocol.off_since}")
+                agent.mail.take(MailOrder(id="again", pickup=[2, 2, 0], dropoff=[4, 4, 0], priority=5))
+            await asyncio.sleep(0)
+        return node, agent, seen
+
+    node, agent, seen = asyncio.run(scenario())
+    assert seen[0].startswith("late: off since ") and seen[0] != "late: off since None"
+    assert seen[1:] == ["on time: off since None"]
+    assert statuses(node, "first")[-1] == (MailStatus.HANDED_BACK, "drone d1's vehicle is later than lambda")
+    assert statuses(node, "again")[0] == (MailStatus.ACCEPTED, "")
+    assert "late" not in agent.alarms
