@@ -20,7 +20,7 @@ from fleet.sim.params import ParamStore, Setting
 from fleet.sim.personality import ARDUPILOT, PX4
 from fleet.sim.telemetry import ekf_status_report, global_position_int, gps_raw_int, local_position_ned
 from fleet.vehicle.policy import ekf_has_position
-from tests.fleet.sim.test_vehicle import GCS, POSITION_ONLY, ack_of, deliver, run_for
+from tests.fleet.sim.vehicle_helpers import GCS, POSITION_ONLY, ack_of, deliver, run_for
 
 ML = mavlink2
 GUIDED = 4
