@@ -1,0 +1,202 @@
+"""The fleet's Zenoh node: drones sharing a session, answers that travel as one message, and
+gathered puts sent in order.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import socket
+
+import pytest
+
+from fleet.sim.ports import free_port
+from fleet.transport.gather import Gathered
+from fleet.transport.node import SampleHandler, ZenohNode
+from fleet.transport.settings import ZenohSettings
+
+
+def test_drones_sharing_a_session_each_get_every_message_and_leave_alone() -> None:
+    """Views of one session: a subscription per view (one Zenoh subscriber underneath), local and
+    remote puts reach each view once, a view that closes stops hearing and its token goes, and the
+    others (and the session) carry on."""
+    endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+
+    async def scenario() -> None:
+        host = await ZenohNode.open(ZenohSettings(listen=(endpoint,)), "host")
+        outside = await ZenohNode.open(ZenohSettings(connect=(endpoint,)), "outside")
+        a, b = host.view("a"), host.view("b")
+        heard: dict[str, list[bytes]] = {"a": [], "b": []}
+        got = asyncio.Event()
+
+        def hear(name: str) -> SampleHandler:
+            def on(key: str, payload: bytes) -> None:
+                heard[name].append(payload)
+                got.set()
+            return on
+
+        async def settle(count: int) -> None:
+            while min(len(v) for v in heard.values()) < count:
+                got.clear()
+                await asyncio.wait_for(got.wait(), 5)
+
+        alive: set[str] = set()
+        changed = asyncio.Event()
+
+        def on_alive(key: str, up: bool) -> None:
+            (alive.add if up else alive.discard)(key)
+            changed.set()
+
+        async def until_alive(expected: set[str]) -> None:
+            while alive != expected:
+                changed.clear()
+                await asyncio.wait_for(changed.wait(), 5)
+
+        try:
+            a.subscribe("t/all", hear("a"))
+            b.subscribe("t/all", hear("b"))
+            a.token("t/alive/a")
+            b.token("t/alive/b")
+            outside.watch_liveliness("t/alive/**", on_alive)
+            await until_alive({"t/alive/a", "t/alive/b"})
+            a.put("t/all", b"local")
+            await settle(1)
+            for _ in range(50):  # the outside session learns the subscription with the link
+                outside.put("t/all", b"remote")
+                await asyncio.sleep(0.05)
+                if len(heard["b"]) > 1:
+                    break
+            await settle(2)
+            assert heard["a"][0] == heard["b"][0] == b"local"
+            assert heard["a"].count(b"local") == 1 and heard["b"].count(b"local") == 1
+            assert b"remote" in heard["a"] and b"remote" in heard["b"]
+
+            await a.close()
+            await until_alive({"t/alive/b"})
+            before = len(heard["a"])
+            b.put("t/all", b"after")
+            while b"after" not in heard["b"]:
+                got.clear()
+                await asyncio.wait_for(got.wait(), 5)
+            assert len(heard["a"]) == before  # a left: it hears nothing more
+            assert not host.closed and not b.closed
+        finally:
+            await b.close()
+            await host.close()
+            await outside.close()
+
+    asyncio.run(scenario())
+
+
+@pytest.mark.parametrize(("now", "max_frames"), [(False, None), (True, None), (False, 2)])
+def test_the_answers_of_a_sessions_drones_to_one_request_travel_as_one_message(now: bool,
+                                                                               max_frames: int | None) -> None:
+    """Three drones share a session and each answers a request to everyone: the requester gets the
+    three answers, each handed to its handler alone, in one Zenoh message (gathered). Put ``now`` (a
+    plan proposed while a decision is handed round: the next drone in line waits on it), each goes
+    at once, alone. A session that takes at most ``max_frames`` messages a sample sends no more in one."""
+    endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+
+    async def scenario() -> tuple[list[bytes], list[bytes]]:
+        host = await ZenohNode.open(ZenohSettings(listen=(endpoint,), max_frames=max_frames), "host")
+        asker = await ZenohNode.open(ZenohSettings(connect=(endpoint,)), "asker")
+        answers: list[bytes] = []
+        messages: list[bytes] = []  # what Zenoh carried, before the node splits it
+        got = asyncio.Event()
+
+        def on_answer(key: str, payload: bytes) -> None:
+            answers.append(payload)
+            got.set()
+
+        def answering(view: ZenohNode) -> SampleHandler:
+            return lambda key, payload: view.put("t/answer", view.name.encode(), now=now)
+
+        try:
+            for name in ("a", "b", "c"):
+                view = host.view(name)
+                view.subscribe("t/all", answering(view), gather=True)
+            asker.subscribe("t/answer", on_answer)
+            asker._declared.append(asker.session.declare_subscriber(
+                "t/answer", lambda sample: messages.append(sample.payload.to_bytes())))
+            for _ in range(100):  # until the host's subscription has reached the asker
+                asker.put("t/all", b"request")
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(got.wait(), 0.05)
+                if answers:
+                    break
+            while len(answers) < 3:
+                got.clear()
+                await asyncio.wait_for(got.wait(), 5)
+            return answers, messages
+        finally:
+            await asker.close()
+            await host.close()
+
+    answers, messages = asyncio.run(scenario())
+    assert sorted(answers[:3]) == [b"a", b"b", b"c"]
+    if now:
+        assert messages[:3] == answers[:3]
+    elif max_frames is None:
+        assert messages[0].split(b"\n") == answers[:3]
+    else:
+        assert [m.split(b"\n") for m in messages[:2]] == [answers[:2], answers[2:3]]
+
+
+def test_gathered_puts_join_by_key_and_never_send_a_nodes_put_before_its_earlier_one() -> None:
+    """d2 and d3 (one host) ack on one key: one message. d3 then answers on its own key, and acks again on
+    the first: joined to the first message, that ack would go out before d3's answer."""
+    gathered = Gathered()
+    gathered.add("d2", "proto/pair/d1", b"ack d2")
+    gathered.add("d3", "proto/pair/d1", b"ack d3")
+    gathered.add("d3", "answers/d3", b"answer d3")
+    gathered.add("d3", "proto/pair/d1", b"again d3")
+    gathered.add("d2", "proto/pair/d1", b"again d2")
+    assert gathered.runs == [("proto/pair/d1", [b"ack d2", b"ack d3"]), ("answers/d3", [b"answer d3"]),
+                             ("proto/pair/d1", [b"again d3", b"again d2"])]
+
+
+def test_a_put_that_goes_at_once_sends_what_its_node_gathered_before_it() -> None:
+    """d3 acks a proposal (gathered), then proposes its own plan at once: its ack goes first, with what was
+    gathered before it; what comes after starts anew."""
+    gathered = Gathered()
+    gathered.add("d2", "proto/pair/d1", b"ack d2")
+    gathered.add("d3", "proto/pair/d1", b"ack d3")
+    gathered.add("d4", "answers/d4", b"answer d4")
+    assert gathered.due("d3") == [("proto/pair/d1", [b"ack d2", b"ack d3"])]
+    assert gathered.due("d5") == []  # nothing of d5's gathered: nothing to send first
+    gathered.add("d2", "proto/pair/d1", b"again d2")
+    assert gathered.due() == [("answers/d4", [b"answer d4"]), ("proto/pair/d1", [b"again d2"])]
+
+
+def test_a_put_at_once_leaves_after_what_its_node_put_before_in_the_round() -> None:
+    """Over real sessions: a drone handed a request to everyone answers one peer (gathered), then puts a
+    plan at once; the peer gets the answer first."""
+    endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+
+    async def scenario() -> list[bytes]:
+        host = await ZenohNode.open(ZenohSettings(listen=(endpoint,)), "host")
+        peer = await ZenohNode.open(ZenohSettings(connect=(endpoint,)), "peer")
+        got: list[bytes] = []
+        try:
+            view = host.view("a")
+
+            def on_request(key: str, payload: bytes) -> None:
+                view.put("t/answer", b"answer")
+                view.put("t/plan", b"plan", now=True)
+
+            view.subscribe("t/all", on_request, gather=True)
+            peer._declared.append(peer.session.declare_subscriber(
+                "t/*", lambda sample: got.append(sample.payload.to_bytes()) if str(sample.key_expr) != "t/all"
+                else None))
+            for _ in range(100):  # until the host's subscription has reached the peer
+                peer.put("t/all", b"request")
+                await asyncio.sleep(0.05)
+                if len(got) >= 2:
+                    break
+            return got
+        finally:
+            await peer.close()
+            await host.close()
+
+    got = asyncio.run(scenario())
+    assert got[:2] == [b"answer", b"plan"]
