@@ -29,7 +29,7 @@ from drona_gcs.planner.reservations import ALWAYS_FREE, FOREVER, ReservationTabl
 from drona_gcs.planner.result import SearchResult
 from drona_gcs.safety import check_trajectory
 from drona_gcs.workload import TaskStream, random_workspace
-from tests.drona_gcs.planner.test_properties import (
+from tests.drona_gcs.planner.problems import (
     Problem,
     _settings,
     assert_valid,
