@@ -1,5 +1,5 @@
 """``/v1/fleet/...`` commands over the simulated fleet: what the service does, what it tells the drones,
-and the audit trail. (What the drones do: tests/drona_gcs/stack/test_drone.py; over real agents:
+and the audit trail. (What the drones do: tests/drona_gcs/stack/test_drone_operator.py; over real agents:
 tests/integration/test_fleet_commands.py.)"""
 
 from __future__ import annotations
