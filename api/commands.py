@@ -61,16 +61,22 @@ class FleetCommands:
         self.store, self.dispatcher, self.fleet, self.bus = store, dispatcher, fleet, bus
 
     async def run(self, action: Action, drone: str | None, by: str) -> CommandRecord:
-        """Record the command (durably), stop handing out mail, tell the drones, then store their answers;
-        a resume takes effect once the drones heard it, so that mail handed out then is taken up."""
-        at = time.time()
-        n = await self.store.write(lambda conn: _insert(conn, at, by, action, drone))
+        """Stop handing out mail and record the command (durably), then tell the drones and store their
+        answers; a resume takes effect once the drones heard it, so that mail handed out then is taken up.
+        A command the database refuses is undone before the drones hear of it."""
+        before = (self.dispatcher.paused, frozenset(self.dispatcher.held))
         if action is not Action.RESUME:
             self._apply(action, drone)
+        at = time.time()
+        try:
+            n = await self.store.write(lambda conn: _insert(conn, at, by, action, drone))
+        except StoreError:
+            self._restore(*before)
+            raise
         if action is Action.RELEASE:
             acks = tuple(await self.fleet.command(None, action.value, by, about=drone))
             if drone is not None:
-                await self.dispatcher.released(drone)
+                await self._released(drone)
         else:
             acks = tuple(await self.fleet.command(drone, action.value, by))
         if action is Action.RESUME:
@@ -78,6 +84,19 @@ class FleetCommands:
         record = CommandRecord(n, at, by, action, drone, acks, await self._store_answers(n, acks))
         self.bus.publish("command", lambda: _RECORD_JSON.dump_json(record).decode())  # other operators' pages
         return record
+
+    def _restore(self, paused: bool, held: frozenset[str]) -> None:
+        self.dispatcher.held.clear()
+        self.dispatcher.held.update(held)
+        self.dispatcher.hold(paused=paused)
+
+    async def _released(self, drone: str) -> None:
+        """The released drone's mail given up; the drones already heard the release, so a database
+        failure here is logged, and the mail's deadline gives it up later."""
+        try:
+            await self.dispatcher.released(drone)
+        except StoreError as exc:
+            log.error("release of %s took effect, but its mail was not given up yet: %s", drone, exc)
 
     async def _store_answers(self, n: int, acks: tuple[CommandAck, ...]) -> bool:
         """Whether the answers were stored: the command has taken effect either way, so a failure here

@@ -43,8 +43,9 @@ function inForce(drone) {
 function answers(c) {
   const yes = c.acks.filter((a) => a.accepted).map((a) => a.drone);
   const no = c.acks.filter((a) => !a.accepted).map((a) => `${a.drone} refused${a.reason ? `: ${a.reason}` : ""}`);
-  if (c.answered === false) return "answers not stored";
-  return [yes.length ? `${yes.join(", ")} acknowledged` : "", ...no].filter(Boolean).join("; ") || "no answer";
+  const said = [yes.length ? `${yes.join(", ")} acknowledged` : "", ...no].filter(Boolean).join("; ");
+  if (c.answered === false) return `${said ? `${said}; ` : ""}answers not stored`;
+  return said || "no answer";
 }
 
 // --------------------------------------------------------------- sending

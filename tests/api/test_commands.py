@@ -133,25 +133,32 @@ def test_a_command_the_database_refuses_does_nothing(settings: ApiSettings, work
             h.service.store._writer.execute("PRAGMA query_only = ON")  # as a disk gone read-only
             res = await h.client.post("/v1/fleet/pause", headers=auth())
             assert res.status_code == 503, res.text
+            assert (await h.client.post("/v1/fleet/drones/d1/land", headers=auth())).status_code == 503
             assert h.gateway.commands == [] and not h.service.dispatcher.paused
+            assert h.service.dispatcher.held == set()
             h.service.store._writer.execute("PRAGMA query_only = OFF")
             assert (await h.client.get("/v1/fleet/commands", headers=auth())).json() == []
 
     run(body())
 
 
+def disk_fails_once_told(h: Any) -> None:
+    """The database goes read-only right after the drones heard a command."""
+    tell = h.gateway.command
+
+    async def told_then_disk_fails(*args: Any, **kwargs: Any) -> list[CommandAck]:
+        acks: list[CommandAck] = await tell(*args, **kwargs)
+        h.service.store._writer.execute("PRAGMA query_only = ON")
+        return acks
+
+    h.gateway.command = told_then_disk_fails
+
+
 def test_a_command_whose_answers_were_not_stored_says_so(settings: ApiSettings, workspace: Workspace) -> None:
     """The database fails after the drones were told: the command stands, recorded, its answers missing."""
     async def body() -> None:
         async with running(settings, workspace) as h:
-            tell = h.gateway.command
-
-            async def told_then_disk_fails(*args: Any, **kwargs: Any) -> list[CommandAck]:
-                acks = await tell(*args, **kwargs)
-                h.service.store._writer.execute("PRAGMA query_only = ON")
-                return acks
-
-            h.gateway.command = told_then_disk_fails  # type: ignore[method-assign]
+            disk_fails_once_told(h)
             res = await h.client.post("/v1/fleet/drones/d1/land", headers=auth())
             assert res.status_code == 200, res.text
             assert res.json()["answered"] is False and res.json()["acks"][0]["drone"] == "d1"
@@ -160,5 +167,29 @@ def test_a_command_whose_answers_were_not_stored_says_so(settings: ApiSettings, 
             history = (await h.client.get("/v1/fleet/commands", headers=auth())).json()
             assert [(c["action"], c["drone"], c["answered"], c["acks"]) for c in history] == [
                 ("land", "d1", False, [])]
+
+    run(body())
+
+
+def test_a_release_the_drones_heard_is_answered_even_if_the_database_then_fails(
+        settings: ApiSettings, workspace: Workspace) -> None:
+    """Every live drone already stopped holding the gone drone's cells: not a 503 (which says nothing
+    was done); the gone drone's mail is given up at its deadline instead."""
+    async def body() -> None:
+        async with running(settings, workspace) as h:
+            h.gateway.refusing.update({"d1": "busy", "d3": "busy"})  # only d2 takes the mail
+            mail = await h.submit([1, 3, 0], [3, 6, 0])
+            for _ in range(40):  # bounded: the pickup is a few cells away
+                if h.status(mail["id"]) == "picked_up":
+                    break
+                await h.steps(1)
+            assert h.status(mail["id"]) == "picked_up"
+            h.gateway.lose("d2")
+            disk_fails_once_told(h)
+            res = await h.client.post("/v1/fleet/drones/d2/release", headers=auth())
+            assert res.status_code == 200, res.text
+            assert res.json()["answered"] is False and {a["drone"] for a in res.json()["acks"]} == {"d1", "d3"}
+            assert h.status(mail["id"]) == "picked_up"  # not failed yet: the database refused
+            h.service.store._writer.execute("PRAGMA query_only = OFF")
 
     run(body())
