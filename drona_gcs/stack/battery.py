@@ -11,7 +11,8 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass, field
 
-from drona_gcs.errors import ProblemError, ProtocolViolation
+from drona_gcs.errors import ProblemError
+from drona_gcs.stack.transitions import lookup
 
 #: the planning drain of a second of flight, in percent: about four times a 5 Ah pack hovering at
 #: 15 A (the fake vehicle's), so a plan budgets for a worn pack and headwind
@@ -96,8 +97,5 @@ class BatteryMonitor:
 
     def _report(self, event: BatteryEvent) -> list[BatteryEvent]:
         """The one place the state changes: to where :data:`TRANSITIONS` says ``event`` leads."""
-        target = TRANSITIONS[self._state].get(type(event))
-        if target is None:
-            raise ProtocolViolation(f"battery monitor: no {type(event).__name__} while {self._state.value}")
-        self._state = target
+        self._state = lookup(TRANSITIONS, "battery monitor", self._state, type(event))
         return [event]

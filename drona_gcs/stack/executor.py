@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 from drona_gcs.errors import ProtocolViolation
 from drona_gcs.motion import Trajectory
+from drona_gcs.stack.transitions import lookup
 from drona_gcs.workspace import Cell
 
 
@@ -72,10 +73,7 @@ class PlanExecutor:
 
     def _enter(self, event: ExecutorEvent) -> None:
         """The one place the state changes: to where :data:`TRANSITIONS` says ``event`` leads."""
-        target = TRANSITIONS[self._state].get(event)
-        if target is None:
-            raise ProtocolViolation(f"executor: no {event.value!r} while {self._state.value}")
-        self._state = target
+        self._state = lookup(TRANSITIONS, "executor", self._state, event)
 
     @property
     def flying(self) -> bool:

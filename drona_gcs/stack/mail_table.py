@@ -17,7 +17,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from drona_gcs.errors import ProtocolViolation
+from drona_gcs.stack.transitions import lookup
 
 
 class Phase(enum.Enum):
@@ -157,8 +157,4 @@ TRANSITIONS: dict[MailState, dict[_Event, MailState]] = {
 
 def next_state(state: MailState, event: _Event) -> MailState:
     """Where :data:`TRANSITIONS` says ``event`` leads from ``state`` (ProtocolViolation if nowhere)."""
-    target = TRANSITIONS[state].get(event)
-    if target is None:
-        name = event.value if isinstance(event, MailEvent) else f"{event[0].value} {event[1].value}"
-        raise ProtocolViolation(f"mail planner: no {name!r} while {state}")
-    return target
+    return lookup(TRANSITIONS, "mail planner", state, event)

@@ -6,13 +6,13 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
-from drona_gcs.errors import ProtocolViolation
 from drona_gcs.motion import Trajectory
 from drona_gcs.planner import Plan
 from drona_gcs.stack.messages import CurrentTraj, PlanProposal, ReqForCurrentTraj, Task, TaskId
 from drona_gcs.stack.protocol.actions import Action, Grounded, Holding, Present, Send
 from drona_gcs.stack.protocol.events import VehicleLost
 from drona_gcs.stack.protocol.state import State, Taking
+from drona_gcs.stack.transitions import checked
 from drona_gcs.workspace import Cell
 
 #: plan(start, goal, start_step, others, max_length) -> Plan, e.g. SafePlanner.plan
@@ -88,14 +88,11 @@ class Knowledge:
 
     def _enter(self, target: State) -> None:
         """The one place the state changes: to a state the table's entry for the event being taken allows."""
-        taking = self._taking
-        if taking is None:
-            raise ProtocolViolation(f"drone {self.me!r}: state {self._state.value} takes no event: it cannot "
-                                    f"lead to {target.value}")
-        if target not in taking.targets:
-            raise ProtocolViolation(f"drone {self.me!r}: {taking.event.__name__} in state {taking.state.value} "
-                                    f"cannot lead to {target.value}")
-        self._state = target
+        taking, machine = self._taking, f"drone {self.me!r}"
+        if taking is None:  # a change outside any event: no table allows it
+            self._state = checked(machine, self._state, None, target, frozenset())
+        else:
+            self._state = checked(machine, taking.state, taking.event, target, taking.targets)
 
     def heard(self, drone: str, trajectory: Trajectory) -> None:
         """A peer announced the plan it now flies (outside any round of mine): known for where
