@@ -64,7 +64,13 @@ class PlanExecutor:
     cell: Cell
     step: int = -1  #: the last step boundary taken
     _state: ExecutorState = field(default=ExecutorState.HOLDING, init=False)  #: read as :attr:`state`
-    trajectory: Trajectory | None = None
+    trajectory: Trajectory | None = None  #: one given to the constructor is started, as :meth:`start` does
+
+    def __post_init__(self) -> None:
+        """An executor starts holding: a trajectory to follow from the outset goes through the table too."""
+        given, self.trajectory = self.trajectory, None
+        if given is not None:
+            self.start(given)
 
     @property
     def state(self) -> ExecutorState:

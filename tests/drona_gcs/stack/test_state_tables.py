@@ -5,11 +5,12 @@ from __future__ import annotations
 import pytest
 
 from drona_gcs.errors import ProtocolViolation
+from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.battery import TRANSITIONS as BATTERY
 from drona_gcs.stack.battery import BatteryLow, BatteryMonitor, BatteryRecharged, BatteryState
 from drona_gcs.stack.executor import TRANSITIONS as EXECUTOR
-from drona_gcs.stack.executor import ExecutorEvent, ExecutorState, PlanExecutor
+from drona_gcs.stack.executor import Completed, ExecutorEvent, ExecutorState, PlanExecutor, Setpoint
 from drona_gcs.stack.messages import Task, TaskId
 from drona_gcs.stack.protocol import TRANSITIONS, CoordinationProtocol, Move, NewTask, Relocated, State
 from drona_gcs.workspace import Cell, Workspace
@@ -112,3 +113,20 @@ def test_an_executor_event_its_state_does_not_take_names_both() -> None:
 def test_the_executor_state_is_read_only() -> None:
     with pytest.raises(AttributeError):
         PlanExecutor(A).state = ExecutorState.EXECUTING  # type: ignore[misc]
+
+
+def test_an_executor_given_a_trajectory_starts_it_through_the_table() -> None:
+    flight = Trajectory(0, (A, (1, 0, 0)))
+    executor = PlanExecutor(A, trajectory=flight)
+    started = (executor.state, executor.trajectory)
+    assert executor.tick(0) == [Setpoint(0, A, moving=False)]
+    assert executor.tick(1) == [Setpoint(1, (1, 0, 0), moving=True), Completed(flight)]
+    assert [started, (executor.state, executor.trajectory)] == [(ExecutorState.EXECUTING, flight),
+                                                                (ExecutorState.HOLDING, None)]
+
+
+def test_an_executor_refuses_a_trajectory_it_cannot_start() -> None:
+    with pytest.raises(ProtocolViolation, match="the drone holds"):
+        PlanExecutor(B, trajectory=Trajectory(0, (A, (1, 0, 0))))
+    with pytest.raises(ProtocolViolation, match="already at step 3"):
+        PlanExecutor(A, step=3, trajectory=Trajectory(2, (A, (1, 0, 0))))
