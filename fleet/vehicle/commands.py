@@ -4,12 +4,14 @@ Each is sent as :mod:`fleet.vehicle.policy` says for the autopilot, awaited unti
 refusal raises :class:`~drona_gcs.errors.VehicleCommandRejected`), then confirmed from the
 HEARTBEATs after its ACK by the session's :meth:`~fleet.vehicle.session.MavlinkSession.verdict`:
 an autopilot may ACK what it does not do. A backend says only how a command travels
-(:meth:`ConfirmedCommands._order`) and how it waits for the verdict (:meth:`_await_verdict`).
+(:meth:`ConfirmedCommands._order`) and how it waits for the verdict (:meth:`_await_verdict`): the
+abstract methods of :class:`ConfirmedCommands`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import abc
+from collections.abc import Awaitable, Callable
 
 from fleet.vehicle.link import Autopilot, Telemetry
 from fleet.vehicle.modes import mode_command
@@ -28,7 +30,7 @@ from fleet.vehicle.policy import (
 from fleet.vehicle.session import MavlinkSession, Verdict
 
 
-class ConfirmedCommands:
+class ConfirmedCommands(abc.ABC):
     """The command half of a :class:`~fleet.vehicle.link.VehicleLink`, over a backend's hooks."""
 
     session: MavlinkSession
@@ -63,24 +65,26 @@ class ConfirmedCommands:
         self.session.check_alive()
 
     # ------------------------------------------------------------ the backend's part
+    @abc.abstractmethod
     async def _order(self, label: str, command: Command, params: tuple[float, ...]) -> int:
         """Send ``command`` and await its ACK (VehicleCommandRejected unless ACCEPTED); returns the
         HEARTBEATs heard by then."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     async def _await_verdict(self, expect: Expectation, seen: int) -> Verdict:
         """Wait (bounded) until the session's verdict on ``expect`` after ``seen`` HEARTBEATs is in."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def _stop_setpoints(self) -> None:
         """Send no more setpoints (a landing)."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def telemetry(self) -> Telemetry:
-        raise NotImplementedError
+        """The vehicle's latest telemetry."""
 
+    @abc.abstractmethod
     async def wait_until(self, predicate: Callable[[Telemetry], bool], timeout: float, what: str) -> Telemetry:
-        raise NotImplementedError
+        """The telemetry once ``predicate`` holds; VehicleError after ``timeout`` (waiting for ``what``)."""
 
     # ------------------------------------------------------------ the commands
     async def arm(self) -> None:
@@ -111,7 +115,12 @@ class ConfirmedCommands:
 
     async def _confirmed(self, command: Command, params: tuple[float, ...], expect: Expectation) -> None:
         """Send, await the ACK, then want ``expect`` from the HEARTBEATs after it."""
+        await self._carried_out(lambda: self._order(expect.label, command, params), expect)
+
+    async def _carried_out(self, order: Callable[[], Awaitable[int]], expect: Expectation) -> None:
+        """Give the ``order`` (it returns the HEARTBEATs heard by its answer), then want ``expect`` from
+        the HEARTBEATs after it: a refusal raises VehicleCommandRejected."""
         since = self.clock()
-        seen = await self._order(expect.label, command, params)
+        seen = await order()
         if await self._await_verdict(expect, seen) is not Verdict.CONFIRMED:
             raise self.session.refusal(expect, since)

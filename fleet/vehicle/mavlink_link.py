@@ -384,7 +384,7 @@ class PymavlinkLink(ConfirmedCommands):
                                               mavlink2.MAV_STATE_ACTIVE))
 
     def _send(self, msg: Message) -> None:
-        if self._transport is not None and self.session.dead is None:
+        if self._transport is not None and not self.session.dead:
             if self.signing_key is not None:
                 stamp_now(self._enc)
             self._transport.send(msg.pack(self._enc))

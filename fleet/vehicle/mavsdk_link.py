@@ -28,9 +28,8 @@ pymavlink backend does both.
 Positions are local NED, or with a :class:`~drona_gcs.geo.GeoFrame` that workspace's frame (targets
 go out as global setpoints, positions come from the global position), as with the pymavlink backend.
 
-What the vehicle's HEARTBEATs, ACKs and texts say is kept by a sans-I/O
-:class:`~fleet.vehicle.session.MavlinkSession`; arming, mode changes, take-off and landing are
-:class:`~fleet.vehicle.commands.ConfirmedCommands`, as for the pymavlink backend.
+As for the pymavlink backend, a sans-I/O :class:`~fleet.vehicle.session.MavlinkSession` keeps what the
+vehicle says; the commands (and offboard's start) are :class:`~fleet.vehicle.commands.ConfirmedCommands`.
 
 MAVSDK cannot sign MAVLink 2 (it has no signing API: mavlink/MAVSDK#1060), so a signing key is
 refused with a :class:`~fleet.vehicle.signing.SigningKeyError` rather than flown unsigned.
@@ -68,6 +67,7 @@ from fleet.vehicle.mavsdk_messages import (
     SYS_STATUS,
     UNANSWERED,
     command_long,
+    inbound,
     mavsdk_url,
     setpoint,
     settle,
@@ -82,7 +82,7 @@ from fleet.vehicle.policy import (
     may_stream_setpoints,
     policy_of,
 )
-from fleet.vehicle.session import CommandAck, Heartbeat, MavlinkSession, StatusText, Verdict
+from fleet.vehicle.session import LinkState, MavlinkSession, Verdict
 from fleet.vehicle.signing import SigningKeyError
 from fleet.vehicle.urls import LinkUrl, Scheme, parse_link_url
 from fleet.vehicle.waiters import Updates
@@ -149,8 +149,8 @@ class MavsdkLink(ConfirmedCommands):
             self.session.autopilot = {MavsdkAutopilot.PX4: Autopilot.PX4,
                                       MavsdkAutopilot.ARDUPILOT: Autopilot.ARDUPILOT}.get(system.autopilot_type(),
                                                                                           Autopilot.OTHER)
-            for kind, handler in (("HEARTBEAT", self._on_heartbeat), ("COMMAND_ACK", self._on_command_ack),
-                                  ("STATUSTEXT", self._on_statustext), ("SYS_STATUS", self._keep_direct),
+            for kind, handler in (("HEARTBEAT", self._on_heartbeat), ("COMMAND_ACK", self._on_message),
+                                  ("STATUSTEXT", self._on_message), ("SYS_STATUS", self._keep_direct),
                                   ("EKF_STATUS_REPORT", self._keep_direct)):
                 handle = self._direct.subscribe_message(kind, self._handler(handler))
                 self._subscriptions.append((self._direct.unsubscribe_message, handle))
@@ -233,13 +233,12 @@ class MavsdkLink(ConfirmedCommands):
             await self.send_position_target(here.ned)
             await asyncio.sleep(1 / 20)
         expect = Expectation("OFFBOARD start", mode=mode)
-        since = self.clock()
-        await self.session.mode_doubt.around(self._offboard_started(expect, since))
+        await self.session.mode_doubt.around(self._carried_out(lambda: self._offboard_start(expect.label), expect))
 
-    async def _offboard_started(self, expect: Expectation, since: float) -> None:
-        await self._call(expect.label, self._offboard.start_async, OffboardError, Command.DO_SET_MODE)
-        if await self._await_verdict(expect, self.heartbeats) is not Verdict.CONFIRMED:
-            raise self.session.refusal(expect, since)
+    async def _offboard_start(self, label: str) -> int:
+        """MAVSDK's offboard start (its answer is the DO_SET_MODE's ACK); the HEARTBEATs heard by then."""
+        await self._call(label, self._offboard.start_async, OffboardError, Command.DO_SET_MODE)
+        return self.heartbeats
 
     async def command(self, label: str, command: int, *params: float) -> None:
         """COMMAND_LONG through MavlinkDirect; VehicleCommandRejected unless the ACK says ACCEPTED."""
@@ -347,7 +346,7 @@ class MavsdkLink(ConfirmedCommands):
         return on_item
 
     def _on_item(self, handle: Callable[[Any], None], item: Any) -> None:
-        if self.session.dead is None:
+        if not self.session.dead:
             handle(item)
             self._updates.notify()
 
@@ -357,23 +356,17 @@ class MavsdkLink(ConfirmedCommands):
     def _on_heartbeat(self, msg: MavlinkMessage) -> None:
         if msg.component_id != 1:
             return
-        fields = json.loads(msg.fields_json)
-        heartbeat = Heartbeat.decode(None, int(fields["custom_mode"]), int(fields["base_mode"]))
-        after_silence = self.session.receive(heartbeat, self.clock())
-        if self.session.dead is None:  # back from a silence: maybe rebooted, its streams forgotten
+        after_silence = self.session.receive(inbound(msg), self.clock())
+        if not self.session.dead:  # back from a silence: maybe rebooted, its streams forgotten
             self._streams.on_heartbeat(after_silence, self._tasks)
 
     def _keep_direct(self, msg: MavlinkMessage) -> None:
         if msg.component_id == 1:
             self._keep(msg.message_name, json.loads(msg.fields_json))
 
-    def _on_command_ack(self, msg: MavlinkMessage) -> None:
-        fields = json.loads(msg.fields_json)
-        self.session.receive(CommandAck(int(fields["command"]), int(fields["result"])), self.clock())
-
-    def _on_statustext(self, msg: MavlinkMessage) -> None:
-        fields = json.loads(msg.fields_json)
-        self.session.receive(StatusText(int(fields["severity"]), str(fields["text"])), self.clock())
+    def _on_message(self, msg: MavlinkMessage) -> None:
+        """A COMMAND_ACK or a STATUSTEXT."""
+        self.session.receive(inbound(msg), self.clock())
 
     async def _watchdog(self) -> None:
         """Fails every wait when the vehicle has been silent for ``heartbeat_timeout`` seconds."""
@@ -381,7 +374,7 @@ class MavsdkLink(ConfirmedCommands):
             now = self.clock()
             if (silence := self.session.watch(now)) is not None:
                 self._fail(silence)
-            if self.url.scheme is Scheme.SERIAL and self.session.silent is not None and self.session.dead is None \
+            if self.url.scheme is Scheme.SERIAL and self.session.state is LinkState.SILENT \
                     and now - self._reopened_at >= REOPEN_S:
                 self._reopen()
 

@@ -1,5 +1,6 @@
 """What the MAVSDK backend builds for MAVSDK: its connection strings, and the MAVLink messages it
-sends through MavlinkDirect (COMMAND_LONG, and ArduPilot's position setpoints) as JSON fields."""
+sends through MavlinkDirect (COMMAND_LONG, and ArduPilot's position setpoints) as JSON fields; and
+the session's messages it reads from MavlinkDirect's JSON (:func:`inbound`)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from mavsdk.plugins.mavlink_direct import MavlinkMessage
 
 from drona_gcs.geo import GeoFrame, Ned
 from fleet.vehicle.policy import Result
+from fleet.vehicle.session import CommandAck, Heartbeat, Inbound, StatusText
 from fleet.vehicle.urls import LinkUrl, Scheme
 
 SYS_STATUS, EXTENDED_SYS_STATE, EKF_STATUS_REPORT = 1, 245, 193  #: message ids MAVSDK has no set_rate_* for
@@ -23,6 +25,16 @@ RESULTS = {"COMMAND_DENIED": Result.DENIED, "COMMAND_DENIED_LANDED_STATE_UNKNOWN
            "UNSUPPORTED": Result.UNSUPPORTED}
 #: Results that mean no answer came: a link problem, not a refusal.
 UNANSWERED = {"NO_SYSTEM", "CONNECTION_ERROR", "TIMEOUT", "UNKNOWN"}
+
+
+def inbound(msg: MavlinkMessage) -> Inbound:
+    """A HEARTBEAT, COMMAND_ACK or STATUSTEXT from MavlinkDirect, as the session takes it."""
+    fields = json.loads(msg.fields_json)
+    if msg.message_name == "HEARTBEAT":
+        return Heartbeat.decode(None, int(fields["custom_mode"]), int(fields["base_mode"]))
+    if msg.message_name == "COMMAND_ACK":
+        return CommandAck(int(fields["command"]), int(fields["result"]))
+    return StatusText(int(fields["severity"]), str(fields["text"]))
 
 
 def mavsdk_url(url: LinkUrl) -> str:

@@ -6,6 +6,9 @@ the time they came (``now``); the session keeps the vehicle's system id, its HEA
 message is the vehicle's, whether the vehicle fell silent, whether an acknowledged command is
 confirmed (:meth:`MavlinkSession.verdict`), and why it was refused. No socket, thread, clock or
 task lives here: the links await, the session only decides (skybrush-server's split).
+
+Whether the link can carry commands is a :class:`LinkState`, changed only as
+:data:`LINK_TRANSITIONS` says.
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ import collections
 import enum
 from dataclasses import dataclass
 
-from drona_gcs.errors import VehicleCommandRejected, VehicleError
+from drona_gcs.errors import ProtocolViolation, VehicleCommandRejected, VehicleError
 from fleet.vehicle.link import Autopilot
 from fleet.vehicle.modes import ModeDoubt, mode_name
 from fleet.vehicle.policy import CONFIRM_HEARTBEATS, Expectation, Result, explains_refusal
@@ -69,6 +72,30 @@ class Verdict(enum.Enum):
     REFUSED = "refused"  #: acknowledged, yet CONFIRM_HEARTBEATS HEARTBEATs later still not done
 
 
+class LinkState(enum.Enum):
+    ALIVE = "alive"  #: the vehicle speaks (or has not yet had a whole timeout to)
+    SILENT = "silent"  #: no HEARTBEAT for heartbeat_timeout: the next one ends the silence
+    DEAD = "dead"  #: closed, or the stream is gone: until it is opened again
+
+
+class LinkEvent(enum.Enum):
+    HEARTBEAT = "heartbeat"  #: the vehicle's HEARTBEAT came
+    SILENCE = "silence"  #: no HEARTBEAT for heartbeat_timeout (:meth:`MavlinkSession.watch`)
+    LOST = "lost"  #: the link was closed, or its stream is gone
+    REOPENED = "reopened"  #: the lost stream is open again
+
+
+#: Every change of a link's state: LINK_TRANSITIONS[state][event] -> the state it leads to. A HEARTBEAT
+#: does not reopen a dead link, and a silent or dead one is not told of a silence again.
+LINK_TRANSITIONS: dict[LinkState, dict[LinkEvent, LinkState]] = {
+    LinkState.ALIVE: {LinkEvent.HEARTBEAT: LinkState.ALIVE, LinkEvent.SILENCE: LinkState.SILENT,
+                      LinkEvent.LOST: LinkState.DEAD},
+    LinkState.SILENT: {LinkEvent.HEARTBEAT: LinkState.ALIVE, LinkEvent.LOST: LinkState.DEAD},
+    LinkState.DEAD: {LinkEvent.HEARTBEAT: LinkState.DEAD, LinkEvent.LOST: LinkState.DEAD,
+                     LinkEvent.REOPENED: LinkState.ALIVE},
+}
+
+
 def autopilot_heartbeat(autopilot: int, vehicle_type: int) -> bool:
     """A HEARTBEAT an autopilot sends (a ground station's says MAV_TYPE_GCS; a camera's, no autopilot)."""
     return autopilot != MAV_AUTOPILOT_INVALID and vehicle_type != MAV_TYPE_GCS
@@ -89,8 +116,8 @@ class MavlinkSession:
         self.mode_doubt = ModeDoubt()
         self.acks: dict[int, Ack] = {}  #: command -> its last ACK
         self.texts: collections.deque[tuple[float, int, str]] = collections.deque(maxlen=32)
-        self.dead: VehicleError | None = None  #: closed, or the stream is gone (until it is opened again)
-        self.silent: VehicleError | None = None  #: no HEARTBEAT lately: cleared by the next one
+        self._state = LinkState.ALIVE
+        self._error: VehicleError | None = None  #: why the link is silent or dead
 
     # ------------------------------------------------------------ inbound
     def accepts(self, system: int, component: int, heartbeat: bool) -> bool:
@@ -111,41 +138,60 @@ class MavlinkSession:
         return False
 
     def _on_heartbeat(self, heartbeat: Heartbeat, now: float) -> bool:
-        after_silence = self.silent is not None
+        after_silence = self._state is LinkState.SILENT
         self.autopilot = heartbeat.autopilot or self.autopilot
         self.custom_mode, self.armed = heartbeat.custom_mode, heartbeat.armed
         self.heartbeats += 1
-        self.heartbeat_at, self.silent = now, None
+        self.heartbeat_at = now
+        self._enter(LinkEvent.HEARTBEAT)
         return after_silence
 
     # ------------------------------------------------------------ liveness
+    @property
+    def state(self) -> LinkState:
+        """Changed only by :meth:`_enter`, as :data:`LINK_TRANSITIONS` allows."""
+        return self._state
+
+    @property
+    def dead(self) -> bool:
+        """Closed, or the stream is gone (until it is opened again)."""
+        return self._state is LinkState.DEAD
+
+    def _enter(self, event: LinkEvent, error: VehicleError | None = None) -> None:
+        """The one place the link's state changes: to where :data:`LINK_TRANSITIONS` says ``event`` leads;
+        ``error`` says why, if it leads to a silent or dead link that was not already dead."""
+        target = LINK_TRANSITIONS[self._state].get(event)
+        if target is None:
+            raise ProtocolViolation(f"vehicle link {self.where}: no {event.value} while {self._state.value}")
+        if target is LinkState.ALIVE:
+            self._error = None
+        elif self._state is not LinkState.DEAD:
+            self._error = error
+        self._state = target
+
     def watch(self, now: float) -> VehicleError | None:
         """The error to fail every wait with, if the vehicle has just been silent for too long."""
-        if self.heartbeat_at is None or self.silent is not None or self.dead is not None \
+        if self.heartbeat_at is None or self._state is not LinkState.ALIVE \
                 or now - self.heartbeat_at <= self.heartbeat_timeout:
             return None
         return VehicleError(f"vehicle {self.sysid} on {self.where}: no HEARTBEAT for "
                             f"{now - self.heartbeat_at:.1f} s (timeout {self.heartbeat_timeout} s)")
 
     def fail(self, error: VehicleError, final: bool = False) -> None:
-        """``final``: the link is closed or its stream gone; otherwise the vehicle is silent."""
-        if final:
-            self.dead = self.dead or error
-        else:
-            self.silent = error
+        """``final``: the link is closed or its stream gone; otherwise the vehicle is silent (from :meth:`watch`)."""
+        self._enter(LinkEvent.LOST if final else LinkEvent.SILENCE, error)
 
     def reopened(self, now: float) -> None:
         """The stream is open again: alive, and the vehicle has a whole timeout to speak."""
-        self.dead = self.silent = None
+        self._enter(LinkEvent.REOPENED)
         self.heartbeat_at = now
 
     def problem(self) -> str | None:
-        error = self.dead or self.silent
-        return None if error is None else str(error)
+        return None if self._error is None else str(self._error)
 
     def check_alive(self) -> None:
-        if error := self.dead or self.silent:
-            raise error
+        if self._error is not None:
+            raise self._error
 
     # ------------------------------------------------------------ state
     @property

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import pytest
 
-from drona_gcs.errors import VehicleCommandRejected, VehicleError
+from drona_gcs.errors import ProtocolViolation, VehicleCommandRejected, VehicleError
 from fleet.vehicle.link import Autopilot
 from fleet.vehicle.policy import CONFIRM_HEARTBEATS, Command, arming, landing, switching
 from fleet.vehicle.session import (
     CommandAck,
     Heartbeat,
+    LinkState,
     MavlinkSession,
     StatusText,
     Verdict,
@@ -148,6 +149,30 @@ def test_a_closed_or_lost_link_stays_dead_until_opened_again() -> None:
     session.reopened(50.0)
     assert session.problem() is None and session.heartbeat_at == 50.0
     assert session.watch(53.0) is None, "a whole timeout to speak"
+
+
+def test_the_link_state_changes_only_as_its_table_says() -> None:
+    session = session_at(10.0)
+    states = [(session.state, session.dead)]
+    with pytest.raises(ProtocolViolation, match=r"vehicle link tcp://127\.0\.0\.1:5760: no reopened while alive"):
+        session.reopened(11.0)
+    assert session.state is LinkState.ALIVE and session.heartbeat_at == 10.0, "an illegal event changes nothing"
+    silence = session.watch(13.5)
+    assert silence is not None
+    session.fail(silence)
+    states.append((session.state, session.dead))
+    with pytest.raises(ProtocolViolation, match="no silence while silent"):
+        session.fail(VehicleError("silent again"))
+    assert session.problem() == str(silence)
+    session.fail(VehicleError("link closed"), final=True)
+    states.append((session.state, session.dead))
+    assert session.problem() == "link closed"
+    with pytest.raises(ProtocolViolation, match="no silence while dead"):
+        session.fail(VehicleError("silent while dead"))
+    session.reopened(50.0)
+    states.append((session.state, session.dead))
+    assert states == [(LinkState.ALIVE, False), (LinkState.SILENT, False), (LinkState.DEAD, True),
+                      (LinkState.ALIVE, False)]
 
 
 def test_a_mode_in_doubt_is_not_trusted() -> None:
