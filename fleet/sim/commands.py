@@ -8,8 +8,9 @@ personality's ``rejected`` result and, where the autopilot says why, a STATUSTEX
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import TYPE_CHECKING
 
 from fleet.sim import telemetry
@@ -65,7 +66,7 @@ def set_mode(m: VehicleModel, cmd: Command, now: float) -> tuple[int, list[Messa
     base, main, sub = (_int(p) for p in cmd.params[:3])
     if base is None or main is None:
         return m.personality.rejected, []
-    return m._set_mode(base, m.personality.mode_from_command(main, sub or 0), now), []
+    return m.change_mode(base, m.personality.mode_from_command(main, sub or 0), now), []
 
 
 def takeoff(m: VehicleModel, cmd: Command, now: float) -> tuple[int, list[Message]]:
@@ -138,7 +139,8 @@ def _int(value: float) -> int | None:
 #: A command's answer: model, command, now -> (MAV_RESULT, messages after the ACK).
 Run = Callable[["VehicleModel", Command, float], tuple[int, list[Message]]]
 
-COMMANDS: dict[int, Run] = {
+#: Read-only: each model takes its own copy.
+COMMANDS: Mapping[int, Run] = MappingProxyType({
     mavlink2.MAV_CMD_COMPONENT_ARM_DISARM: arm_disarm,
     mavlink2.MAV_CMD_DO_SET_MODE: set_mode,
     mavlink2.MAV_CMD_NAV_TAKEOFF: takeoff,
@@ -148,4 +150,4 @@ COMMANDS: dict[int, Run] = {
     mavlink2.MAV_CMD_REQUEST_MESSAGE: request_message,
     mavlink2.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: request_version,
     mavlink2.MAV_CMD_GET_HOME_POSITION: get_home,
-}
+})

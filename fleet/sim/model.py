@@ -118,7 +118,7 @@ class VehicleModel:
             "COMMAND_ACK": _ignore,
             "MISSION_ACK": _ignore,  # the ground station's word on a transfer; nothing follows it
         }
-        self._commands: dict[int, commands.Run] = commands.COMMANDS
+        self._commands: dict[int, commands.Run] = dict(commands.COMMANDS)
 
     # ------------------------------------------------------------------ state
     def ready(self, now: float) -> bool:
@@ -206,7 +206,7 @@ class VehicleModel:
     def _on_set_mode(self, msg: Message, now: float) -> None:
         if not self._for_me(msg.target_system):
             return
-        result = self._set_mode(msg.base_mode, msg.custom_mode, now)
+        result = self.change_mode(msg.base_mode, msg.custom_mode, now)
         # ArduPilot ACKs SET_MODE with the message id as the command; PX4 with DO_SET_MODE.
         command = (mavlink2.MAVLINK_MSG_ID_SET_MODE if self.personality is ARDUPILOT
                    else mavlink2.MAV_CMD_DO_SET_MODE)
@@ -279,7 +279,8 @@ class VehicleModel:
         self.setpoint = None
         self.landed_since = now
 
-    def _set_mode(self, base_mode: int, custom_mode: int, now: float) -> int:
+    def change_mode(self, base_mode: int, custom_mode: int, now: float) -> int:
+        """SET_MODE's or DO_SET_MODE's answer (MAV_RESULT), switching if the autopilot would."""
         if not base_mode & mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
             return UNSUPPORTED  # only custom modes are modelled
         name = self.personality.mode_name(custom_mode)

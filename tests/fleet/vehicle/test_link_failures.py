@@ -81,7 +81,7 @@ def test_before_its_position_estimate_arducopter_takes_guided_but_the_vehicle_wa
 def test_a_mode_change_acked_but_not_taken_is_a_rejection(backend: str, monkeypatch: pytest.MonkeyPatch) -> None:
     """An autopilot that ACKs a mode change and stays where it was (older ArduCopter did so before its
     position estimate): the next HEARTBEATs decide, not the ACK."""
-    monkeypatch.setattr(VehicleModel, "_set_mode", lambda self, base, custom, now: mavlink2.MAV_RESULT_ACCEPTED)
+    monkeypatch.setattr(VehicleModel, "change_mode", lambda self, base, custom, now: mavlink2.MAV_RESULT_ACCEPTED)
 
     async def scenario() -> None:
         async with fake_vehicle("ardupilot", "tcp") as fake, connected(backend, fake) as link:
