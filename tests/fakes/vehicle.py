@@ -4,10 +4,13 @@ test plays (and so a :class:`~fleet.vehicle.link.SetpointSink` too).
 In the style of httpx's ``MockTransport``: a real implementation of the port, small, that the test
 programs. What the vehicle reports is plain state the test sets (where it is, armed, landed, its
 battery, its position estimate, why its link is lost); what it is sent is recorded: setpoints with
-the time they went out, commands by name. A command named in ``refuse`` is rejected as an autopilot
-rejects it (:class:`~drona_gcs.errors.VehicleCommandRejected` with that MAV_RESULT). It flies only as
-the test says: with ``follow`` it is at each setpoint as soon as sent, and ``on_wait`` is what it does
-while the link waits on it (by default nothing: the wait ends at once, met or not).
+the time they went out, commands by name. An ArduCopter refuses what ArduCopter refuses, with
+MAV_RESULT_FAILED as it answers (Copter's ``do_user_takeoff`` and its arming checks): NAV_TAKEOFF
+unless armed, in GUIDED and on the ground, and ARM without a position estimate in a mode that needs
+one. A command named in ``refuse`` is rejected with that MAV_RESULT whatever the state, as the test
+programs it (both as :class:`~drona_gcs.errors.VehicleCommandRejected`). It flies only as the test
+says: with ``follow`` it is at each setpoint as soon as sent, and ``on_wait`` is what it does while
+the link waits on it (by default nothing: the wait ends at once, met or not).
 """
 
 from __future__ import annotations
@@ -21,6 +24,9 @@ from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry
 
 GPS_FIX_WITH_ESTIMATE = 6  #: GPS_FIX_TYPE_RTK_FIXED: what a vehicle with its position estimate reports
 GPS_FIX_WITHOUT = 1  #: GPS_FIX_TYPE_NO_FIX
+MAV_RESULT_FAILED = 4  #: ArduCopter's answer to a command it cannot carry out now
+#: ArduCopter's modes that need a position estimate to arm in (``requires_GPS``).
+POSITION_MODES = frozenset({"GUIDED", "LOITER", "AUTO", "RTL", "POSHOLD", "SMART_RTL", "BRAKE", "CIRCLE"})
 
 
 class FakeVehicle:
@@ -102,7 +108,7 @@ class FakeVehicle:
         await self.wait_until(lambda t: t.position is not None, timeout, "position estimate")
 
     async def arm(self) -> None:
-        self._command("ARM")
+        self._command("ARM", self._arm_refusal())
         self.armed = True
 
     async def disarm(self) -> None:
@@ -118,7 +124,7 @@ class FakeVehicle:
         self.mode = "GUIDED" if self.autopilot is Autopilot.ARDUPILOT else "OFFBOARD"
 
     async def takeoff(self, altitude_m: float) -> None:
-        self._command("NAV_TAKEOFF")
+        self._command("NAV_TAKEOFF", self._takeoff_refusal())
         self.landed = LandedState.TAKEOFF
 
     async def land(self) -> None:
@@ -128,9 +134,23 @@ class FakeVehicle:
     async def close(self) -> None:
         self.lost = "closed"
 
-    def _command(self, name: str) -> None:
+    def _arm_refusal(self) -> str | None:
+        """ArduCopter's text when it would not arm now (None: it would)."""
+        if self.autopilot is Autopilot.ARDUPILOT and self.mode in POSITION_MODES and not self.estimate:
+            return "Arm: Need Position Estimate"
+        return None
+
+    def _takeoff_refusal(self) -> str | None:
+        """"" when ArduCopter would not take off now (it says nothing, answers FAILED); None when it would."""
+        may = self.armed and self.mode == "GUIDED" and self.landed is LandedState.ON_GROUND
+        return None if may or self.autopilot is not Autopilot.ARDUPILOT else ""
+
+    def _command(self, name: str, refusal: str | None = None) -> None:
+        """Record ``name``; refuse it as programmed in ``refuse``, else as ArduCopter would (``refusal``)."""
         self.commands.append(name)
         if self.lost is not None:
             raise VehicleError(f"{name}: {self.lost}")
         if name in self.refuse:
             raise VehicleCommandRejected(name, self.refuse[name])
+        if refusal is not None:
+            raise VehicleCommandRejected(name, MAV_RESULT_FAILED, refusal)

@@ -58,5 +58,7 @@ def test_a_release_command_frees_a_departed_drones_cells_and_is_refused_for_a_me
     held, stack = asyncio.run(scenario())
     assert (7, 0, 0) in held and "d2" not in stack.protocol.ghosts and (7, 0, 0) not in stack.taken_cells()
     replies = [decode(payload).body for _, payload in query.replies]
-    assert [(a.accepted, a.reason) for a in replies if isinstance(a, CommandAck)] == [
+    acks = [a for a in replies if isinstance(a, CommandAck)]
+    assert acks == replies, f"every reply is a CommandAck: {replies}"
+    assert [(a.accepted, a.reason) for a in acks] == [
         (True, ""), (False, "d3 is not a drone gone from the fleet: nothing to release")]

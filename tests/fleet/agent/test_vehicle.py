@@ -126,8 +126,8 @@ def guided_climbs(vehicle: FakeVehicle) -> None:
 
 def arducopter(landed: LandedState, height_m: float = 0.3, refuses: bool = True) -> FakeVehicle:
     """An ArduCopter link in GUIDED, armed, reporting ``landed`` at ``height_m`` above home. Its
-    NAV_TAKEOFF is refused (``refuses``) or climbs; told nothing else it climbs to the setpoints,
-    unless it counts itself on the ground."""
+    NAV_TAKEOFF is refused in the air (as ArduCopter refuses it), on the ground too if ``refuses``,
+    or climbs; told nothing else it climbs to the setpoints, unless it counts itself on the ground."""
     vehicle = FakeVehicle(on_wait=guided_climbs)
     vehicle.landed, vehicle.height_m = landed, height_m
     if refuses:
@@ -158,9 +158,9 @@ def test_a_takeoff_refused_in_the_air_is_no_failure_and_on_the_ground_it_is(land
     """A landing called back just above the ground: telemetry still says LANDING at 0.3 m, so the
     supervisor asks for a take-off, which ArduCopter refuses in the air. The vehicle climbs anyway
     (GUIDED): no alarm, no retry a second later. On the ground, the refusal is an alarm."""
-    link = arducopter(landed)
+    link = arducopter(landed, refuses=refused)
     alarms, airborne = launch_once(link)
-    assert link.commands.count("NAV_TAKEOFF") == 1
+    assert link.commands == ["FOLLOW_SETPOINTS", "NAV_TAKEOFF"]
     if refused:
         assert not airborne and alarms == ["vehicle: cannot take off: NAV_TAKEOFF rejected with result 4"]
     else:
@@ -173,5 +173,5 @@ def test_a_vehicle_on_the_ground_above_home_still_gets_its_takeoff() -> None:
     told, and the climb waited out its timeout."""
     link = arducopter(LandedState.ON_GROUND, height_m=0.8, refuses=False)
     alarms, airborne = launch_once(link)
-    assert link.commands.count("NAV_TAKEOFF") == 1
+    assert link.commands == ["FOLLOW_SETPOINTS", "NAV_TAKEOFF"]
     assert airborne and [a for a in alarms if a is not None] == []
