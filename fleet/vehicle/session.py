@@ -17,7 +17,8 @@ import collections
 import enum
 from dataclasses import dataclass
 
-from drona_gcs.errors import ProtocolViolation, VehicleCommandRejected, VehicleError
+from drona_gcs.errors import VehicleCommandRejected, VehicleError
+from drona_gcs.stack.transitions import lookup
 from fleet.vehicle.link import Autopilot
 from fleet.vehicle.modes import ModeDoubt, mode_name
 from fleet.vehicle.policy import CONFIRM_HEARTBEATS, Expectation, Result, explains_refusal
@@ -160,9 +161,7 @@ class MavlinkSession:
     def _enter(self, event: LinkEvent, error: VehicleError | None = None) -> None:
         """The one place the link's state changes: to where :data:`LINK_TRANSITIONS` says ``event`` leads;
         ``error`` says why, if it leads to a silent or dead link that was not already dead."""
-        target = LINK_TRANSITIONS[self._state].get(event)
-        if target is None:
-            raise ProtocolViolation(f"vehicle link {self.where}: no {event.value} while {self._state.value}")
+        target = lookup(LINK_TRANSITIONS, f"vehicle link {self.where}", self._state, event)
         if target is LinkState.ALIVE:
             self._error = None
         elif self._state is not LinkState.DEAD:

@@ -154,20 +154,21 @@ def test_a_closed_or_lost_link_stays_dead_until_opened_again() -> None:
 def test_the_link_state_changes_only_as_its_table_says() -> None:
     session = session_at(10.0)
     states = [(session.state, session.dead)]
-    with pytest.raises(ProtocolViolation, match=r"vehicle link tcp://127\.0\.0\.1:5760: no reopened while alive"):
+    refusal = r"vehicle link tcp://127\.0\.0\.1:5760: 'reopened' in state alive cannot lead anywhere"
+    with pytest.raises(ProtocolViolation, match=refusal):
         session.reopened(11.0)
     assert session.state is LinkState.ALIVE and session.heartbeat_at == 10.0, "an illegal event changes nothing"
     silence = session.watch(13.5)
     assert silence is not None
     session.fail(silence)
     states.append((session.state, session.dead))
-    with pytest.raises(ProtocolViolation, match="no silence while silent"):
+    with pytest.raises(ProtocolViolation, match="'silence' in state silent cannot"):
         session.fail(VehicleError("silent again"))
     assert session.problem() == str(silence)
     session.fail(VehicleError("link closed"), final=True)
     states.append((session.state, session.dead))
     assert session.problem() == "link closed"
-    with pytest.raises(ProtocolViolation, match="no silence while dead"):
+    with pytest.raises(ProtocolViolation, match="'silence' in state dead cannot"):
         session.fail(VehicleError("silent while dead"))
     session.reopened(50.0)
     states.append((session.state, session.dead))
