@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-from drona_gcs.errors import ProtocolViolation
 from drona_gcs.stack.messages import CurrentTraj, PlanAck, PlanDecision, PlanProposal, PlanRefusal, ReqForCurrentTraj
 from drona_gcs.stack.protocol.actions import Action
 from drona_gcs.stack.protocol.confirming import failure_last
@@ -27,6 +26,7 @@ from drona_gcs.stack.protocol.events import (
 )
 from drona_gcs.stack.protocol.rounds import Rounds
 from drona_gcs.stack.protocol.state import Move, State, Taking
+from drona_gcs.stack.transitions import checked
 
 
 class CoordinationProtocol(Rounds):
@@ -38,10 +38,7 @@ class CoordinationProtocol(Rounds):
         """Take one event at local step ``now``; return what to do. The table's entry for the event in this
         state names its handler, and the states it may lead to (:meth:`_enter` checks each change)."""
         admitted = self._alive(event, now)
-        move = TRANSITIONS[self.state].get(type(event))
-        if move is None:
-            raise ProtocolViolation(f"drone {self.me!r}: state {self.state.value} does not take "
-                                    f"{type(event).__name__}")
+        move = checked(f"drone {self.me!r}", self.state, type(event), TRANSITIONS[self.state].get(type(event)))
         outer, self._taking = self._taking, Taking(self.state, type(event), move.targets)
         try:
             return [*admitted, *move.handler(self, event, now)]

@@ -12,7 +12,7 @@ from drona_gcs.stack.battery import BatteryLow, BatteryMonitor, BatteryRecharged
 from drona_gcs.stack.executor import TRANSITIONS as EXECUTOR
 from drona_gcs.stack.executor import Completed, ExecutorEvent, ExecutorState, PlanExecutor, Setpoint
 from drona_gcs.stack.messages import Task, TaskId
-from drona_gcs.stack.protocol import TRANSITIONS, CoordinationProtocol, Move, NewTask, Relocated, State
+from drona_gcs.stack.protocol import TRANSITIONS, CoordinationProtocol, Move, NewTask, PlanCompleted, Relocated, State
 from drona_gcs.workspace import Cell, Workspace
 
 OPEN = Workspace.build(size=(5, 5, 1))
@@ -32,6 +32,14 @@ def test_every_state_has_a_row_and_every_target_is_a_state() -> None:
         for move in row.values():
             assert callable(move.handler)
             assert all(isinstance(target, State) for target in move.targets)
+
+
+def test_an_event_a_state_does_not_take_is_refused_by_name() -> None:
+    proto = protocol()
+    with pytest.raises(ProtocolViolation, match="drone 'a': 'PlanCompleted' in state WaitForTaskRequest cannot lead "
+                                                "anywhere"):
+        proto.handle(PlanCompleted(), 0)
+    assert proto.state is State.WAIT_FOR_TASK
 
 
 def test_a_handler_cannot_lead_where_the_table_does_not_allow(monkeypatch: pytest.MonkeyPatch) -> None:
