@@ -82,7 +82,6 @@ class StackConfig:
         return self
 
 
-
 CUT_OFF = "cut off from most of the fleet"  #: why a drone out of touch with a majority hands its mail back
 SERVICE_LOST = "out of touch with the service"  #: why a drone the service dispatches to hands its mail back
 

@@ -66,6 +66,8 @@ def model_hover_lead(delta: int, max_delay: int) -> int:
 def model_lead(delta: int, max_delay: int) -> int:
     """Lead steps of the model's landed drones, which climb first."""
     return model_hover_lead(delta, max_delay) + MODEL_CLIMB_STEPS
+
+
 PARTITION_STEPS = 20  #: a partition heals within this many steps of the slowest clock
 VERDICT_STEPS = 2  #: every clock check finds a clock off within this many steps of the slowest clock
 MAX_DRAWS = 1000  #: random draws of a mail the service accepts, before giving up
@@ -86,7 +88,6 @@ class WorldConfig:
     liveness_steps: int = 120  #: every mail delivered within this many steps after the last one arrives
     faults: Faults = field(default_factory=Faults)
     mixed: bool = True  #: the last drone runs another configuration, as during a rolling upgrade
-
 
     def __deepcopy__(self, memo: dict[int, object]) -> WorldConfig:
         return self

@@ -175,7 +175,6 @@ class FieldFaults(Service):
         for a, b in pairs:
             self._post(a, b, Joined(), liveliness=True)
 
-
     def _pairs_across(self) -> list[tuple[str, str]]:
         """Ordered pairs of drones on either side of the cut, agents alive."""
         return [(a, b) for a in self.config.drones for b in self.config.drones

@@ -235,12 +235,10 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
         """``observer`` heard from ``peer`` (it joined, or a message of it came): alive."""
         self.departed[observer] = self.departed.get(observer, frozenset()) - {peer}
 
-
     def clock_verdict(self, drone: str, off: frozenset[str]) -> None:
         """``drone``'s clock check found the clocks of ``off`` beyond the fleet's bound (its own among them,
         or not)."""
         self.found_off = {**self.found_off, drone: off}
-
 
     # (c)
     def _in_order(self, drone: str, started: MailRequest) -> None:
@@ -282,7 +280,6 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
         self.waiting[drone] = tuple((o, r) for o, r in self.waiting.get(drone, ()) if r.id != request.id)
         if drone in self.carrying and self.carrying[drone].id == request.id:
             del self.carrying[drone]
-
 
     # (f)
     def _carried_to_its_dropoff(self, drone: str, action: StartExecuting) -> None:

@@ -85,7 +85,6 @@ class SeparationMonitor:
                 return max(self.config.delta, 1) + abs(offset), dict(steps)
         return self.config.delta, None
 
-
     def unbound(self, offsets: Mapping[str, int], steps: Mapping[str, int]) -> None:
         """Every drone knows these clocks are off, each by its offset in steps: from ``steps`` on, they
         keep to it."""

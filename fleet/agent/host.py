@@ -273,6 +273,7 @@ async def _fly(host: Host, frame: GeoFrame, record: TextIO | None) -> None:
              for agent in host.agents]
     for agent, loop in zip(host.agents, loops, strict=True):
         agent.setpoints = loop
+
     def on_step(i: int, report: StepReport, actions: Sequence[object]) -> None:
         host.agents[i].on_step(report, actions)
         if i == len(host.agents) - 1 and host.draining.is_set() and not any(agent.busy for agent in host.agents):

@@ -289,6 +289,7 @@ class MailDesk:
                 lost = MailStatus.REJECTED if mail.stage == "handed_back" else MailStatus.FAILED
                 self.report(mail.id, lost, f"{why}; cannot take it over: {exc}")
 
+
 def _view(request: MailRequest, stage: str) -> MailView:
     return MailView(id=request.id, pickup=list(request.pickup), dropoff=list(request.dropoff),
                     priority=request.priority, stage=stage)  # type: ignore[arg-type]

@@ -62,7 +62,6 @@ class AgentSettings(BaseSettings):
     tls_dir: Path | None = None  #: the fleet's certificates (drona certs): mutual TLS and access control
     insecure: bool = False  #: plain TCP, anyone on the network may speak for any drone
 
-
     @field_validator("listen", "connect", mode="before")
     @classmethod
     def _split(cls, value: object) -> object:

@@ -146,7 +146,6 @@ class Tracking:
         log.warning("%s: %s: it holds where its plan ends, and takes no task until it is on time", self.me, self.late)
         self._carry_out(self.stack.tracking_bound(True, f"drone {self.me}'s vehicle is later than lambda"))
 
-
     def _lag(self, report: StepReport) -> str | None:
         """Trailing its timed trajectory, or on the ground while its plan flies: the separation argument
         assumes every drone is where its plan says."""

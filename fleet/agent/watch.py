@@ -129,6 +129,7 @@ class VehicleWatch:
                            landed=t.landed.name.lower(), height_m=t.height_m, gps_fix=t.gps_fix,
                            satellites=t.satellites, battery_v=t.battery_v)
 
+
 def _on_the_ground(t: Telemetry) -> bool:
     return t.landed is LandedState.ON_GROUND or (not t.armed and (t.height_m or 0.0) < 0.5)
 

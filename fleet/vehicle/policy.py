@@ -141,6 +141,7 @@ def landing(autopilot: Autopilot | None) -> Expectation:
     """A landing is confirmed by the land mode, where the autopilot has one."""
     return Expectation("LAND", mode=policy_of(autopilot).land_mode)
 
+
 #: EKF_STATUS_REPORT flags (EKF_STATUS_FLAGS) that give an absolute horizontal position.
 EKF_POS_HORIZ_ABS, EKF_PRED_POS_HORIZ_ABS, EKF_CONST_POS_MODE = 16, 512, 128
 LIFTOFF_M = 0.3  #: a vehicle that says no landed state is off the ground above this height

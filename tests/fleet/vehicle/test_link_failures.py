@@ -123,6 +123,7 @@ async def telemetry_again(link: VehicleLink, fresh: Callable[[Telemetry], bool],
                 raise
             await asyncio.sleep(0.1)
 
+
 @backends
 @transports
 def test_a_vehicle_lost_or_silent_comes_back_with_its_telemetry_asked_for_again(backend: str, transport: str,
