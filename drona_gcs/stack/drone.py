@@ -51,7 +51,7 @@ from drona_gcs.stack.drone_config import (
     leg_overhead,
 )
 from drona_gcs.stack.drone_core import DroneCore
-from drona_gcs.stack.drone_ways import Ways, _distance_function, own_parking, yield_spot
+from drona_gcs.stack.drone_ways import Ways, _distance_function, own_parking, walled_behind, yield_spot
 from drona_gcs.stack.executor import Completed
 from drona_gcs.stack.mail import DRAINED, GoTo, MailRequest
 from drona_gcs.stack.messages import Message, ReqForCurrentTraj, task_of
@@ -77,7 +77,7 @@ from drona_gcs.workspace import Cell
 __all__ = ["ARM_AND_MODE_S", "ASKING", "CLIMB_RATE_M_S", "CUT_OFF", "ROUND_S", "SERVICE_LOST", "SPOOL_UP_S",
            "Arrival", "DroneAction", "DroneCore", "DroneStack", "LegNotFlown", "StackConfig", "Ways",
            "_distance_function", "confirm_steps", "default_hover_lead_steps", "default_lead_steps",
-           "leg_overhead", "own_parking", "yield_spot"]
+           "leg_overhead", "own_parking", "walled_behind", "yield_spot"]
 
 
 class DroneStack(DroneCore):
@@ -86,18 +86,21 @@ class DroneStack(DroneCore):
     def receive(self, message: Message) -> list[DroneAction]:
         self.clock.observe(task_of(message).stamp)
         if isinstance(message, ReqForCurrentTraj) and message.clear:
-            self._make_way(message.clear)
+            self._make_way(message.clear, message.trajectory.last)
         return self._protocol(message)
 
-    def _make_way(self, way: tuple[Cell, ...]) -> None:
+    def _make_way(self, way: tuple[Cell, ...], asker: Cell) -> None:
         """A peer's leg found no plan and asks drones resting on ``way`` to leave it: if we rest
-        there, leave for the nearest cell off it (see MailPlanner.make_way)."""
+        there, leave for the nearest cell off it (see MailPlanner.make_way). The peer rests in
+        ``asker``; a charger only it leads to is out of our reach until we have left."""
         here = self.protocol.location
         if self.protocol.state is not State.WAIT_FOR_TASK or here not in way:
             return
-        spot = yield_spot(self.config.workspace, here, frozenset(way), self.taken_cells())
+        taken = self.taken_cells()
+        spot = yield_spot(self.config.workspace, here, frozenset(way), taken)
         if spot is not None:  # out while the peer flies there, a detour to park on the way included
-            self.mail.make_way(spot, 2 * len(way))
+            behind = walled_behind(self.config.workspace, here, asker, taken, self.walls())
+            self.mail.make_way(spot, 2 * len(way), behind)
 
     def assign(self, request: MailRequest) -> list[DroneAction]:
         self.mail.assign(request)

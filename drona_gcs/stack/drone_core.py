@@ -73,9 +73,13 @@ class DroneCore:
         """Steps from ``a`` to ``b``, around the drones resting now and never through a vehicle down, nor
         where a peer whose clock is off rests, for as long as it is off (the task planner's distance; see
         :func:`_distance_function`). The rest of its plan is only passed through."""
+        return self.ways(a, b, self.resting_now, self.walls())
+
+    def walls(self) -> frozenset[Cell]:
+        """Cells held for good, which no way crosses: vehicles down, and where peers whose clock is off rest."""
         protocol = self.protocol
         off = (protocol.known[p].last for p in protocol.outliers if p in protocol.known)
-        return self.ways(a, b, self.resting_now, frozenset((*protocol.peers_down.values(), *off)))
+        return frozenset((*protocol.peers_down.values(), *off))
 
     def copy(self) -> Self:
         """A copy whose task planner measures ways with the copy's state (the tester's clones)."""

@@ -23,6 +23,22 @@ def yield_spot(workspace: Workspace, here: Cell, way: frozenset[Cell], taken: Co
     return min(spots)[2] if spots else None
 
 
+def walled_behind(workspace: Workspace, here: Cell, asker: Cell, taken: Collection[Cell],
+                  walls: Collection[Cell]) -> frozenset[Cell]:
+    """The chargers a drone resting in ``here``, asked to make way by the drone resting in ``asker``,
+    reaches only through the asker's cell, from which the asker has nowhere off the way to them to make
+    way to in turn but through ``here``: until this drone leaves, neither can. ``taken``: cells drones
+    rest on; ``walls``: cells nothing moves out of (vehicles down), which no way crosses."""
+    around = workspace.distances_from(here, frozenset({asker, *walls}))
+    others = (set(taken) - {asker}) | {here}
+    behind = set()
+    for charger in workspace.charging_stations:
+        way = workspace.shortest_way(here, charger, walls)
+        if charger not in around and way and yield_spot(workspace, asker, frozenset(way), others) is None:
+            behind.add(charger)
+    return frozenset(behind)
+
+
 def own_parking(parking: Sequence[Cell], drones: Sequence[str], me: str) -> Sequence[Cell]:
     """With a parking cell for every drone, each has its own (the i-th drone the i-th cell): idle
     drones never race for one, which would cost whole coordination rounds that end in no plan."""

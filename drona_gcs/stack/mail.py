@@ -51,7 +51,10 @@ a goal off. A drone whose leg found no plan asks the drones resting on a way to
 its goal to leave it (see :mod:`drona_gcs.stack.drone`); one asked, not charging,
 flies to the spot it is given (with its mail on board, if any: the one flight
 such mail makes besides its drop-off and a charger), lands there, and goes on
-only after ``hold_steps``. Mail whose pickup found no plan in
+only after ``hold_steps``. One that cannot afford the way off and a charger after it
+goes to charge instead, unless each charger it affords is behind the peer that asked
+(see :func:`~drona_gcs.stack.drone_ways.walled_behind`): then it leaves all the same,
+keeping nothing for a charger, as a stranded drone does. Mail whose pickup found no plan in
 :data:`MAX_STRIKES` legs, other legs between them or not, is handed back.
 
 A leg to a cell another drone is known to rest on would cost a whole
@@ -195,15 +198,23 @@ class MailPlanner(MailPlannerInputs):
         """Leave for the spot a peer's way asked for, and stay there a while: going home at once
         would close the way again before the peer's next try."""
         spot, self.make_way_to = self.make_way_to, None
+        behind, self.make_way_behind = self.make_way_behind, frozenset()
         if spot is None:
             return []
-        if not budget.allows(self._leg(self.cell, spot) + self._after(spot)):
+        reserve = self._after(spot)
+        if not budget.allows(self._leg(self.cell, spot) + reserve):
             if not self.chargers or self.cell in self.chargers or self.carrying:
                 return []
             self._enter(MailEvent.LOW)  # the way off would leave too little: off to charge instead
-            return self._to_charger(budget, taken)
+            if any(budget.allows(self._leg(self.cell, c)) for c in self._reachable(self.chargers) if c not in behind):
+                return self._to_charger(budget, taken)
+            # Each charger it affords is reached only once it has left (staying, it and the peer wait for
+            # each other for good): it leaves keeping nothing for one, as a drone stranded does.
+            if not budget.allows(self._leg(self.cell, spot)):
+                return []
+            reserve = 0
         self.retry_at = budget.now + self._leg(self.cell, spot) + max(self.hold_steps, self.make_way_stay)
-        return self._go(spot, budget, self._after(spot), Phase.MAKING_WAY, taken)
+        return self._go(spot, budget, reserve, Phase.MAKING_WAY, taken)
 
     def _start_next_mail(self, budget: Budget, taken: Collection[Cell]) -> list[MailAction]:
         self.queue.sort(key=lambda r: (r.id in self.cut_off_mail, r.rank))

@@ -88,14 +88,15 @@ class MailPlannerInputs(MailPlannerBase):
             self.current = None
         return handed
 
-    def make_way(self, spot: Cell, stay: int = 0) -> None:
+    def make_way(self, spot: Cell, stay: int = 0, behind: frozenset[Cell] = frozenset()) -> None:
         """A peer found no plan, for a way that crosses the cell we rest on: leave for ``spot`` at
         the next decision, unless a leg is under way or the drone charges, and stay out at least
         ``stay`` steps (back home sooner, a drone walled the peer's goal in again before the peer got
         there). Mail on board goes along: a drone waiting with it for a drop-off walled off for good
-        would wall others off in turn."""
+        would wall others off in turn. ``behind``: chargers out of reach until we have left (the
+        peer rests on their only way, and has nowhere to make way to but through our cell)."""
         if not self.busy and self.phase is not Phase.CHARGING:
-            self.make_way_to, self.make_way_stay = spot, stay
+            self.make_way_to, self.make_way_stay, self.make_way_behind = spot, stay, behind
 
     @property
     def homeless(self) -> bool:

@@ -55,6 +55,8 @@ class MailPlannerBase:
     make_way_to: Cell | None = None  #: a peer's way crosses our cell: leave for this one
     hold_steps: int = 16  #: how long a drone that made way stays out of it before going home
     make_way_stay: int = 0  #: at least how long to stay out of the way asked for
+    #: chargers reached only through the drone that asked us to make way, which cannot leave before we do
+    make_way_behind: frozenset[Cell] = frozenset()
     #: mail the dispatcher cleared for pickup; None: no clearance needed (no service dispatches the mail)
     cleared: set[str] | None = None
 
