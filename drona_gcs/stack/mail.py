@@ -161,6 +161,8 @@ class MailPlanner(MailPlannerInputs):
             return []
         if self.busy or self.phase is Phase.CHARGING:
             return []
+        if frozenset(taken) != self.cut_off_among:  # a drone that walled a pickup off may have left since
+            self.cut_off_mail = frozenset()
         budget = self._budget(now, level)
         self.stranded = bool(self.chargers) and not any(
             budget.allows(self._leg(self.cell, c)) for c in self._reachable(self.chargers))
@@ -328,7 +330,7 @@ class MailPlanner(MailPlannerInputs):
         """The leg to ``goal``; none (a failure, without a round) while it is known taken and no
         real round is due."""
         self._enter((MailEvent.LEG, purpose))
-        self.goal, self.goal_taken = goal, goal in taken
+        self.goal, self.goal_taken, self.leg_among = goal, goal in taken, frozenset(taken)
         if self.goal_taken and self.backoff < self.max_retry_steps:
             return self.leg_failed(budget.now, asked=False)
         return [GoTo(goal, budget.flight(reserve), purpose)]

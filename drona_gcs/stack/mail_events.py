@@ -200,6 +200,7 @@ class MailPlannerInputs(MailPlannerBase):
         reason = f"no plan in {MAX_FAILURES} rounds in a row"
         if cut_off and to_pickup:  # that mail only: the others may have a way
             self.cut_off_mail |= {self.queue[-1].id}
+            self.cut_off_among = self.leg_among
             if self.cut_offs >= MAX_FAILURES:
                 self.cut_offs = self.failures = 0
                 request = self.queue.pop()

@@ -49,8 +49,11 @@ class MailPlannerBase:
     #: at the last decision, the battery reached no charger a way joins to ours: none will fill it again
     #: (data, not state: measured anew at each decision)
     stranded: bool = False
-    #: mail whose leg no path joined from here: tried after the rest, until the drone has moved
+    #: mail whose leg no path joined from here: tried after the rest, until the drone has moved, or the
+    #: drones resting then (``cut_off_among``) have (one of them may have walled it off)
     cut_off_mail: frozenset[str] = frozenset()
+    leg_among: frozenset[Cell] = frozenset()  #: where other drones rested when the last leg started
+    cut_off_among: frozenset[Cell] = frozenset()  #: where they rested when the last leg cut off started
     strikes: dict[str, int] = field(default_factory=dict)  #: legs to each mail's pickup that found no plan
     make_way_to: Cell | None = None  #: a peer's way crosses our cell: leave for this one
     hold_steps: int = 16  #: how long a drone that made way stays out of it before going home

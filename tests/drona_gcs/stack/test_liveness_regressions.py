@@ -1,6 +1,6 @@
-"""Liveness regressions found by the systematic tester's sweeps, replayed as small scenarios over the
-production machines (whole :class:`~drona_gcs.stack.drone.DroneStack` fleets: the task planner, the
-protocol, the executor and the battery monitor), with the tester's battery model.
+"""Regressions found by the systematic tester's sweeps, replayed as small scenarios over the production
+machines: whole :class:`~drona_gcs.stack.drone.DroneStack` fleets (the task planner, the protocol, the
+executor and the battery monitor) with the tester's battery model, or the task planner alone.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from collections.abc import Mapping
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.battery import BatteryModel
 from drona_gcs.stack.drone import DroneAction, DroneStack, StackConfig, walled_behind, yield_spot
-from drona_gcs.stack.mail import MailDelivered, MailRequest, Phase
+from drona_gcs.stack.mail import GoTo, MailAction, MailDelivered, MailPlanner, MailRequest, Phase
 from drona_gcs.stack.messages import Message
 from drona_gcs.stack.protocol import Broadcast, Grounded, Send
 from drona_gcs.workspace import Cell, Workspace
@@ -95,3 +95,33 @@ def test_only_a_charger_whose_every_way_the_asker_walls_in_for_good_counts_as_be
     assert walled_behind(around, here, asker, taken, frozenset()) == frozenset()  # a way around it
     lost: frozenset[Cell] = frozenset({(3, 1, 0)})  # the pocket taken by a vehicle down: nowhere to go again
     assert walled_behind(pocket, here, asker, taken | lost, lost) == frozenset({(4, 0, 0)})
+
+
+def cut_off_urgent_mail(taken: frozenset[Cell]) -> MailPlanner:
+    """A planner whose leg to its most urgent mail's pickup was cut off while drones rested on ``taken``."""
+    mp = MailPlanner((0, 0, 0), (), (), lambda a, b: abs(a[0] - b[0]) + abs(a[1] - b[1]))
+    mp.assign(URGENT)
+    mp.assign(LATER)
+    assert goto(mp.decide(0, 100.0, taken)).goal == URGENT.pickup
+    mp.leg_failed(1, cut_off=True)
+    return mp
+
+
+URGENT = MailRequest("urgent", pickup=(2, 0, 0), dropoff=(3, 0, 0), priority=4)
+LATER = MailRequest("later", pickup=(0, 2, 0), dropoff=(0, 3, 0), priority=3, seq=1)
+
+
+def goto(actions: list[MailAction]) -> GoTo:
+    return next(a for a in actions if isinstance(a, GoTo))
+
+
+def test_mail_cut_off_comes_first_again_once_a_drone_resting_then_has_moved() -> None:
+    """Found by the systematic tester (sweep 30353 with --skews 1: 5 drones, seed 318124): a drone on a
+    dead-end charger was walled in by a peer resting on the only way out; its leg to the most urgent
+    pickup was cut off, and that mail was put after the rest. The peer flew on; with the way open, the
+    drone, which had not moved, still started less urgent mail first (monitor (c)). Cut off is measured
+    against the drones resting then: once they rest elsewhere, the mail ranks as any other again."""
+    walling: frozenset[Cell] = frozenset({(1, 0, 0)})
+    assert goto(cut_off_urgent_mail(walling).decide(5, 100.0, walling)).goal == LATER.pickup
+    moved: frozenset[Cell] = frozenset({(5, 5, 0)})
+    assert goto(cut_off_urgent_mail(walling).decide(5, 100.0, moved)).goal == URGENT.pickup
