@@ -99,7 +99,10 @@ settled here, and one message it sends is saved (the second point):
   clear of them. Without it, a drone that knew less of where a gone drone had stopped proposed the
   same plan until its mail was given up (a member frozen while a drone died).
   Confirming, I ack no proposal: mine was made without it. A message that says what a drone I held
-  as gone flies (an answer, an ack, a decision, a request) proves it alive: a member again, there.
+  as gone flies (an answer, an ack, a decision, a request, its vehicle down or lost) proves it alive:
+  a member again, there. Its news of its vehicle is its word on where it is: taken as the word of a
+  drone back, an older plan of its, overtaken by that news, made a peer forget its vehicle was down
+  and plan around it leaving (found by the tester's partition).
 * **Membership can change.** ``PeerLeft`` means the drone's liveliness was
   lost: it is no longer waited for, and it stays in Psi as an obstacle:
   safety first. Since it may have stopped anywhere along the rest of its

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from drona_gcs.motion import Trajectory
 from drona_gcs.stack.messages import CurrentTraj, PlanAck, PlanDecision, PlanProposal, PlanRefusal, ReqForCurrentTraj
 from drona_gcs.stack.protocol.actions import Action
 from drona_gcs.stack.protocol.confirming import failure_last
@@ -48,16 +49,21 @@ class CoordinationProtocol(Rounds):
     def _alive(self, event: Event, now: int) -> list[Action]:
         """A message that says what a drone I hold as gone flies proves it alive (its lease outlasts what
         it sent before): a member again, there. (A request does so in :meth:`_admit`.) So does an
-        announcement of its, which may come before its return does."""
+        announcement of its, which may come before its return does, and its news of its vehicle down
+        or lost: its word, which what it sent before (an older plan, late) must not undo."""
         if isinstance(event, (PeerAnnounced, PeerBraked)):
-            sender = event.drone
+            sender, flies = event.drone, event.trajectory
         elif isinstance(event, (CurrentTraj, PlanAck, PlanDecision)):
-            sender = event.sender
+            sender, flies = event.sender, event.trajectory
+        elif isinstance(event, PeerDown):
+            sender, flies = event.drone, Trajectory.stationary(event.cell, now)
+        elif isinstance(event, PeerLost) and event.drone in self.known:
+            sender, flies = event.drone, self.known[event.drone]
         else:
             return []
         if sender in self.members or sender == self.me or sender not in self.peers:
             return []
-        return self.handle(PeerJoined(sender, event.trajectory.last, event.trajectory), now)
+        return self.handle(PeerJoined(sender, flies.last, flies), now)
 
     def _on_request_while_confirming(self, event: ReqForCurrentTraj, now: int) -> list[Action]:
         """My plan is made: every requester gets it once decided (within the lead). One from a drone I hold
