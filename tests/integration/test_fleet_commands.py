@@ -13,7 +13,7 @@ import httpx
 import pytest
 
 from tests.integration.harness import LEAD_STEPS, FleetProcesses
-from tests.integration.test_agents import check_run_record
+from tests.integration.runs import check_run_record
 from tests.integration.test_service_fleet import HEADERS, Events, start_service
 
 pytestmark = pytest.mark.slow

@@ -23,7 +23,7 @@ import pytest
 from fleet.transport.wire import MailOrder, MailStatus
 from tests.integration.harness import FleetProcesses, Observer
 from tests.integration.hosts import Hosts, network_hosts
-from tests.integration.test_agents import check_run_record
+from tests.integration.runs import check_run_record
 from tests.integration.test_service_fleet import HEADERS, TOKEN, Events
 
 

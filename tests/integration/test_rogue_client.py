@@ -21,7 +21,7 @@ from fleet.transport.settings import ZenohSettings
 from fleet.transport.wire import MailOrder, MailStatus, MailStatusReport, PlanAnnounce, WireTrajectory, answers, encode
 from tests.conftest import fleet_tls_dir
 from tests.integration.harness import FleetProcesses
-from tests.integration.test_agents import check_run, deliver_all, random_orders
+from tests.integration.runs import check_run, deliver_all, random_orders
 
 pytestmark = pytest.mark.slow
 
