@@ -181,11 +181,12 @@ class DroneCore:
     def passing_cells(self) -> set[Cell]:
         """Cells live peers hold only until they move on: where their plans under way end (they rest there
         until their next leg), and every cell of the plan under way of a peer whose clock is off (held for
-        good only until it rests)."""
+        good only until it rests, and a few steps more)."""
         now, outliers = self.now, self.protocol.outliers
         return {cell for drone, traj in self.protocol.known.items()
                 if drone != self.me and drone not in self.protocol.ghosts and traj.end_step > now
-                for cell in (traj.cells if drone in outliers else (traj.last,))}
+                for cell in (traj.cells if drone in outliers else (traj.last,))} | {
+            cell for cell, until in self.protocol.left_behind.items() if until >= now}
 
     def taken_cells(self) -> set[Cell]:
         """Cells where other drones rest, as far as this drone knows."""

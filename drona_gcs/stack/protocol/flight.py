@@ -40,7 +40,7 @@ class Flight(Knowledge):
         return []  # a late reply to a round that is over
 
     def _on_announced(self, event: PeerAnnounced, now: int) -> list[Action]:
-        self.heard(event.drone, event.trajectory)
+        self.heard(event.drone, event.trajectory, now)
         return []
 
     def _on_completed(self, event: PlanCompleted, now: int) -> list[Action]:
@@ -97,6 +97,7 @@ class Flight(Knowledge):
         if event.drone == self.me or event.drone not in self.peers:
             return []
         self._reported(event.drone)
+        self._leave_behind(event.drone, now)
         self.peers_down[event.drone] = event.cell
         self.proposals.pop(event.drone, None)
         self.braked.pop(event.drone, None)  # it stays where it came down: where it braked is free
@@ -128,7 +129,7 @@ class Flight(Knowledge):
         if not resting:
             self.known[drone] = cut
         if drone in self.received:
-            self.received[drone] = self._news(drone, self.received[drone])
+            self.received[drone] = self._news(drone, self.received[drone], now)
         return self._steer_clear(drone, now)
 
     def _on_peer_lost(self, event: PeerLost, now: int) -> list[Action]:
@@ -201,7 +202,8 @@ class Flight(Knowledge):
         """The steps from ``now`` on at which the plan I fly is in a cell held for good: a vehicle down's,
         one a departed drone may hold, one of the plan of a peer whose clock is off (or of any peer's, with
         mine off: our steps are not the same), or one a braked peer holds from when it gets there (less my
-        lead, a margin for its clock) until the plan it made since starts (and Delta more)."""
+        lead, a margin for its clock) until the plan it made since starts (and Delta more), or one left
+        behind by a peer whose steps are not mine, to the step it is held to."""
         assert self.trajectory is not None
         trajectory = self.trajectory
         here = trajectory.at(now)
@@ -213,7 +215,8 @@ class Flight(Knowledge):
             cell = trajectory.at(step)
             return cell in held or any(cut.last == cell and step >= cut.end_step - self.lead_steps
                                        for cut in self.braked.values()) or any(
-                c == cell and step <= until + self.delta for c, until in self.held_until.values())
+                c == cell and step <= until + self.delta for c, until in self.held_until.values()) or (
+                cell != here and self.left_behind.get(cell, -1) >= step)
 
         return [t for t in range(now, max(now, trajectory.end_step) + 1) if taken(t)]
 

@@ -71,6 +71,9 @@ class Knowledge:
     released: set[str] = field(default_factory=set)  #: departed drones the operator took out of the fleet
     off_since: int | None = None  #: my clock is beyond the fleet's bound, since this step
     outliers: frozenset[str] = frozenset()  #: peers whose clock is beyond the fleet's bound
+    #: cells a peer whose steps are not mine (an outlier; any, with my clock off) was to fly before its
+    #: latest news, each held to a step of mine: by its clock, it may have left one only just
+    left_behind: dict[Cell, int] = field(default_factory=dict)
     peers_lost: dict[str, tuple[Cell, ...]] = field(default_factory=dict)  #: peers' lost vehicles, where they may be
     #: members back since they left, not heard from since: held where they may be until they say (Present)
     unreported: set[str] = field(default_factory=set)
@@ -94,13 +97,13 @@ class Knowledge:
         else:
             self._state = checked(machine, taking.state, taking.event, target, taking.targets)
 
-    def heard(self, drone: str, trajectory: Trajectory) -> None:
+    def heard(self, drone: str, trajectory: Trajectory, now: int) -> None:
         """A peer announced the plan it now flies (outside any round of mine): known for where
         it rests and, should it leave, where it may have stopped. Never planned with: Psi is
         only what the peers answer."""
         reporting = self._reported(drone)
         if drone in self.members and (reporting or trajectory.start_step >= self.known[drone].start_step):
-            self.known[drone] = self._news(drone, trajectory)
+            self.known[drone] = self._news(drone, trajectory, now)
 
     def current_trajectory(self, now: int) -> Trajectory:
         """What I answer with: my plan while executing; idle, my location.
@@ -190,10 +193,11 @@ class Knowledge:
         self.newest[event.sender] = event.task_id
         return True
 
-    def _news(self, drone: str, trajectory: Trajectory) -> Trajectory:
+    def _news(self, drone: str, trajectory: Trajectory, now: int) -> Trajectory:
         """What ``drone`` sent, unless its vehicle came down since (then it stays where it came down), or
         it braked on that plan or an older one (then it holds where it braked): its answer may have been
         overtaken by that news. A plan made after the brake starts later, and ends it."""
+        self._leave_behind(drone, now)
         down = self.peers_down.get(drone)
         if down is not None:
             return Trajectory.stationary(down, trajectory.start_step)
@@ -224,6 +228,22 @@ class Knowledge:
         if self.lost is not None:
             return Holding(self.holds())
         return Present(drone, self.current_trajectory(now), self.trajectory is not None and self.trajectory == self.cut)
+
+    def _leave_behind(self, drone: str, now: int) -> None:
+        """News of ``drone``, whose steps are not mine: what it was to fly stays held ``2 max(Delta, 1)`` steps.
+        It sent the news at most Delta steps of mine after it left a cell; Delta more keep us apart."""
+        if drone == self.me or (self.off_since is None and drone not in self.outliers):
+            return
+        until = now + 2 * max(self.delta, 1)
+        flights = [t for t in (self.known.get(drone), self.received.get(drone)) if t is not None]
+        self.left_behind = {c: u for c, u in self.left_behind.items() if u >= now}
+        for cell in {c for t in flights for c in t.cells}:
+            self.left_behind[cell] = max(until, self.left_behind.get(cell, until))
+
+    def _left_behind_obstacles(self, now: int, sparing: Cell) -> dict[str, Trajectory]:
+        """The cells left behind still held, for a plan: held for good (the plan starts later anyway)."""
+        return {f"left~{i}": Trajectory.stationary(cell, now) for i, (cell, until) in
+                enumerate(sorted(self.left_behind.items())) if until >= now and cell != sparing}
 
     def _held_for_outliers(self, sparing: Cell) -> dict[str, Trajectory]:
         """Every cell of what a peer whose clock is off answered, for good (its steps are not ours), but the

@@ -78,7 +78,7 @@ class Rounds(Confirming):
             return admitted or [Send(event.sender, self._request(now))]
         self.pending[event.sender] = event.task_id
         # It waits for my plan, so the trajectory its request carries is its answer.
-        self.received[event.sender] = self.known[event.sender] = self._news(event.sender, event.trajectory)
+        self.received[event.sender] = self.known[event.sender] = self._news(event.sender, event.trajectory, now)
         self.peer_holds[event.sender] = event.holds
         return [*admitted, *self._plan_if_ready(now)]
 
@@ -89,7 +89,7 @@ class Rounds(Confirming):
         assert self.task is not None
         if event.in_reply_to != self.task.id or event.sender not in self.members:
             return []  # an answer to an older request, or from a drone that left
-        self.received[event.sender] = self.known[event.sender] = self._news(event.sender, event.trajectory)
+        self.received[event.sender] = self.known[event.sender] = self._news(event.sender, event.trajectory, now)
         self.peer_holds[event.sender] = event.holds
         return self._plan_if_ready(now)
 
@@ -163,6 +163,7 @@ class Rounds(Confirming):
         psi = {**self.ghost_obstacles(sparing=here), **self._held_by_peers(now),
                **{p: self.received[p] for p in sorted(self.members)},
                **self._undecided(), **self._held_for_outliers(sparing=here),
+               **self._left_behind_obstacles(now, sparing=here),
                **{f"{p}!": Trajectory.stationary(c, now) for p, c in sorted(self.peers_down.items())},
                **{f"{p}~lost{i}": Trajectory.stationary(c, now) for p, cells in sorted(self.peers_lost.items())
                   for i, c in enumerate(cells) if c != here}}

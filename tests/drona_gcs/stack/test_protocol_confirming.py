@@ -188,5 +188,5 @@ def test_a_refusal_naming_where_a_gone_drone_may_be_is_held_and_the_next_plan_ke
     assert not {(2, 0, 0), (2, 1, 0)} & set(retry.trajectory.cells) and retry.trajectory.last == GOAL
     proto.handle(PeerJoined("c", C), 3)
     assert {"c!0", "c!1"} <= set(proto.ghost_obstacles())  # until c says where it is
-    proto.heard("c", Trajectory.stationary(C, 3))
+    proto.heard("c", Trajectory.stationary(C, 3), 0)
     assert not any(name.startswith("c!") for name in proto.ghost_obstacles())

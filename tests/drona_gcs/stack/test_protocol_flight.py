@@ -149,7 +149,7 @@ def test_a_peer_that_leaves_is_held_along_its_newest_plan_not_an_old_answer() ->
     proto.handle(NewTask(Task(ID_A, GOAL)), 0)
     started(confirmed(proto, proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0)))
     b_plan = traj(3, (4, 4), (3, 4), (3, 3), (3, 2))
-    proto.heard("b", b_plan)
+    proto.heard("b", b_plan, 0)
     proto.handle(PeerLeft("b"), 4)
     assert {(3, 3, 0), (3, 2, 0)} <= set(proto.ghosts["b"].cells) and proto.ghosts["b"].last == (3, 2, 0)
 
@@ -218,7 +218,7 @@ def test_a_peer_back_is_held_where_it_may_be_until_it_says_what_it_flies() -> No
     while they were apart. A peer back stays held where it may be until its own word comes."""
     proto = machine({"a": A, "b": B})
     way = traj(0, (4, 4), (3, 4), (2, 4), (2, 3))
-    proto.heard("b", way)
+    proto.heard("b", way, 0)
     proto.handle(PeerLeft("b", silent_since=0), 1)
     held = {t.last for t in proto.ghost_obstacles().values()}
     assert set(way.cells) <= held
@@ -254,7 +254,7 @@ def test_a_peer_that_braked_overrides_its_older_answer_until_its_next_plan() -> 
     plan = started(confirmed(proto, proto.handle(CurrentTraj("c", location_of("c"), ID_A), 0))).trajectory
     assert (3, 0, 0) not in plan.cells
     later = traj(4, (3, 0), (3, 1))
-    proto.heard("b", later)
+    proto.heard("b", later, 0)
     assert proto.known["b"] == later and "b" not in proto.braked
 
 
@@ -316,7 +316,7 @@ def test_a_peer_that_braked_holds_there_until_the_plan_it_made_since_starts() ->
     held and starting later, came first and ended the brake. I flew into b, still waiting there."""
     proto, plan = flying_past_b()
     proto.handle(PeerBraked("b", traj(0, (3, 1), (3, 0), (3, 0))), 1)  # holds (3, 0) from step 2
-    proto.heard("b", traj(9, (3, 0), (3, 1)))  # its next plan, from there, starts at step 9
+    proto.heard("b", traj(9, (3, 0), (3, 1)), 0)  # its next plan, from there, starts at step 9
     actions = proto.handle(NextStep(), 4)
     assert [type(a) for a in actions] == [Braked]
     assert proto.trajectory is not None and (3, 0, 0) not in proto.trajectory.suffix_from(4).cells

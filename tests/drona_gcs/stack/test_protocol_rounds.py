@@ -287,8 +287,8 @@ def test_a_plan_heard_outside_a_round_is_where_a_departed_peer_may_have_stopped(
     proto = machine()
     b_plan = traj(10, (4, 4), (4, 3), (4, 2), (4, 1))
     proto.handle(PeerLeft("c"), 0)
-    proto.heard("b", b_plan)  # b announced it while this drone was idle
-    proto.heard("b", traj(2, (0, 0)))  # an older announcement, late: ignored
+    proto.heard("b", b_plan, 0)  # b announced it while this drone was idle
+    proto.heard("b", traj(2, (0, 0)), 0)  # an older announcement, late: ignored
     proto.handle(PeerLeft("b", silent_since=11), 20)  # noticed at step 20, a lease after it went quiet
     proto.handle(NewTask(Task(ID_A, GOAL)), 20)
     held = {t.cells[0] for name, t in proto.ghost_obstacles().items() if name.startswith("b")}
@@ -302,7 +302,7 @@ def test_a_drone_resting_where_a_departed_peer_flew_through_can_still_leave() ->
     peers = {"a": (2, 0, 0), "b": (3, 1, 0), "c": C}
     proto = machine(peers)
     b_plan = traj(1, (3, 1), (2, 1), (2, 0), (1, 0), (1, 1))  # through a's cell at step 3, done by step 5
-    proto.heard("b", b_plan)
+    proto.heard("b", b_plan, 0)
     proto.handle(PeerLeft("b", silent_since=0), 6)  # b's rest of plan: all of it
     proto.handle(NewTask(Task(ID_A, GOAL)), 6)
     action = started(confirmed(proto, proto.handle(CurrentTraj("c", location_of("c", 6), ID_A), 6)))

@@ -4,8 +4,27 @@ from __future__ import annotations
 
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.messages import CurrentTraj, Task
-from drona_gcs.stack.protocol import NewTask, PeerAnnounced, PeerDown, PeerLeft, PeerLost
-from tests.drona_gcs.stack.protocol_helpers import ID_C_LOW, B, confirmed, location_of, machine, started, traj
+from drona_gcs.stack.protocol import (
+    Braked,
+    ClockBound,
+    NewTask,
+    NextStep,
+    PeerAnnounced,
+    PeerDown,
+    PeerLeft,
+    PeerLost,
+    Threatened,
+)
+from tests.drona_gcs.stack.protocol_helpers import (
+    ID_C_LOW,
+    B,
+    confirmed,
+    flying_past_b,
+    location_of,
+    machine,
+    started,
+    traj,
+)
 
 B_OLD_PLAN = traj(8, (4, 4), (4, 3), (4, 2), (4, 1))  # b's plan, decided before its vehicle came down in B
 
@@ -38,3 +57,17 @@ def test_news_of_a_vehicle_lost_across_a_heal_is_not_undone_by_an_older_announce
     proto.handle(PeerLost("b", (B, (4, 3, 0))), 1)
     proto.handle(PeerAnnounced("b", B_OLD_PLAN), 1)  # sent before its vehicle was lost
     assert proto.peers_lost == {"b": (B, (4, 3, 0))} and "b" in proto.members
+
+
+def test_a_peer_off_that_says_it_rests_keeps_the_cells_of_the_plan_it_flew_held() -> None:
+    """Found by sweep seed 30391 (--skews 1, seed 758944): d5 flew through a cell of the plan of d0, whose
+    clock was found off; its rest could not be planned anew, so it flew on. d0 then said it rested at
+    its plan's end; d5 took that for all d0 held, and entered the cell d0 had left one step before by
+    d5's clock, in steps d0's clock does not keep with d5's. What a drone off flew stays held."""
+    proto, plan = flying_past_b()
+    assert plan.at(5) == (3, 0, 0)
+    assert proto.handle(ClockBound(mine_off=False, outliers=frozenset({"b"})), 2) == [Threatened("b", ((3, 0, 0),))]
+    proto.handle(PeerAnnounced("b", Trajectory.stationary((3, 1, 0), 3)), 3)  # b rests, by its clock
+    actions = proto.handle(NextStep(), 4)  # the step before (3, 0)
+    assert [type(a) for a in actions] == [Braked]
+    assert proto.trajectory is not None and (3, 0, 0) not in proto.trajectory.cells
