@@ -85,5 +85,6 @@ class StackConfig:
 CUT_OFF = "cut off from most of the fleet"  #: why a drone out of touch with a majority hands its mail back
 SERVICE_LOST = "out of touch with the service"  #: why a drone the service dispatches to hands its mail back
 
-#: Legs that ask drones resting on their way to leave it; a drone going to park waits instead.
+#: Legs that ask drones resting on their way to leave it; a drone going to park waits instead, unless it
+#: leaves a charger (one waiting for that charger may be all that walls it in).
 ASKING = frozenset({Phase.TO_PICKUP, Phase.TO_DROPOFF, Phase.TO_CHARGER})

@@ -11,7 +11,7 @@ from drona_gcs.stack.battery import BatteryMonitor
 from drona_gcs.stack.drone_config import ASKING, Arrival, DroneAction, StackConfig, leg_overhead
 from drona_gcs.stack.drone_ways import _distance_function, own_parking, yield_spot
 from drona_gcs.stack.executor import PlanExecutor
-from drona_gcs.stack.mail import GoTo, MailPlanner
+from drona_gcs.stack.mail import GoTo, MailPlanner, Phase
 from drona_gcs.stack.messages import HybridClock, Task
 from drona_gcs.stack.protocol import (
     Braked,
@@ -162,11 +162,11 @@ class DroneCore:
         """The way a mail or charging leg asks resting drones to leave: when its goal is taken, or
         its last try found no plan (the paper leaves MRMP incomplete: resting drones wall goals in).
         A shortest way, around cells it asked before that stayed taken (a vehicle down cannot move)."""
-        taken = self.taken_cells()
-        if leg.purpose not in ASKING or (leg.goal not in taken and leg.goal not in self.unreached):
+        taken, here, ws = self.taken_cells(), self.protocol.location, self.config.workspace
+        asking = leg.purpose in ASKING or (leg.purpose is Phase.TO_PARKING and here in ws.charging_stations)
+        if not asking or (leg.goal not in taken and leg.goal not in self.unreached):
             return ()
         self.stuck = self.stuck | (self.asked_clear & taken)
-        here, ws = self.protocol.location, self.config.workspace
         way = ws.shortest_way(here, leg.goal, self.stuck - {leg.goal})
         if not way:  # every way was asked once: ask them all again, in turn
             self.stuck = self.asked_clear & taken

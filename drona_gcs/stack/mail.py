@@ -205,11 +205,12 @@ class MailPlanner(MailPlannerInputs):
             return []
         reserve = self._after(spot)
         if not budget.allows(self._leg(self.cell, spot) + reserve):
-            if not self.chargers or self.cell in self.chargers or self.carrying:
+            if not self.chargers or self.cell in self.chargers:
                 return []
             self._enter(MailEvent.LOW)  # the way off would leave too little: off to charge instead
-            if any(budget.allows(self._leg(self.cell, c)) for c in self._reachable(self.chargers) if c not in behind):
-                return self._to_charger(budget, taken)
+            ahead = [c for c in self._staging_chargers() if c not in behind]
+            if any(budget.allows(self._leg(self.cell, c)) for c in self._reachable(ahead)):
+                return self._to_charger(budget, taken, ahead)
             # Each charger it affords is reached only once it has left (staying, it and the peer wait for
             # each other for good): it leaves keeping nothing for one, as a drone stranded does.
             if not budget.allows(self._leg(self.cell, spot)):
@@ -277,11 +278,12 @@ class MailPlanner(MailPlannerInputs):
         self.landed_here = True
         return handed
 
-    def _to_charger(self, budget: Budget, taken: Collection[Cell]) -> list[MailAction]:
+    def _to_charger(self, budget: Budget, taken: Collection[Cell],
+                    staging: Sequence[Cell] | None = None) -> list[MailAction]:
         # Low on energy: land before coordinating, so the wait for the peers' answers is free
         # and the whole budget is left for the way to the charger (or land to charge here).
         self.landed_here = True
-        staging = self._staging_chargers()
+        staging = self._staging_chargers() if staging is None else staging
         if self.cell in staging or (self.cell in self.chargers
                                     and not any(budget.allows(self._leg(self.cell, c)) for c in staging)):
             self._enter(MailEvent.CHARGE_HERE)  # (at another charger: enough to get to one of those first)

@@ -23,12 +23,14 @@ MAIL = MailRequest("m0", pickup=(3, 0, 0), dropoff=(0, 0, 0), priority=8)
 MODEL = BatteryModel()
 
 
-def fly_fleet(levels: Mapping[str, float], steps: int) -> tuple[dict[str, list[DroneAction]], dict[str, float]]:
-    """The corridor's fleet, ``carrier`` with MAIL, every message delivered at once; batteries drain and
-    charge as the systematic tester's world does. What each drone did, and its lowest battery level."""
-    config = StackConfig(CORRIDOR, SafePlanner(CORRIDOR), MODEL)
-    stacks = {d: DroneStack(d, config, dict(CORRIDOR.drones)) for d in CORRIDOR.drones}
-    stacks["carrier"].assign(MAIL)
+def fly_fleet(levels: Mapping[str, float], steps: int, ws: Workspace = CORRIDOR,
+              mail: MailRequest = MAIL) -> tuple[dict[str, list[DroneAction]], dict[str, float]]:
+    """The fleet of ``ws`` (the corridor's), ``carrier`` with ``mail``, every message delivered at once;
+    batteries drain and charge as the systematic tester's world does. What each drone did, and its
+    lowest battery level."""
+    config = StackConfig(ws, SafePlanner(ws), MODEL)
+    stacks = {d: DroneStack(d, config, dict(ws.drones)) for d in ws.drones}
+    stacks["carrier"].assign(mail)
     level, lowest = dict(levels), dict(levels)
     done: dict[str, list[DroneAction]] = {d: [] for d in stacks}
     inbox: list[tuple[str, Message]] = []
@@ -49,7 +51,7 @@ def fly_fleet(levels: Mapping[str, float], steps: int) -> tuple[dict[str, list[D
     for step in range(steps):
         for drone, stack in stacks.items():
             if drone not in down:
-                level[drone] = _after_step(stack, level[drone])
+                level[drone] = _after_step(stack, level[drone], ws)
                 lowest[drone] = min(lowest[drone], level[drone])
             post(drone, stack.step(step, level[drone], stack.executor.cell, may_plan=drone not in down))
         while inbox:
@@ -58,9 +60,9 @@ def fly_fleet(levels: Mapping[str, float], steps: int) -> tuple[dict[str, list[D
     return done, lowest
 
 
-def _after_step(stack: DroneStack, level: float) -> float:
+def _after_step(stack: DroneStack, level: float, ws: Workspace) -> float:
     """A step's battery, as the tester's world has it: charging on a charger, nothing landed, else drained."""
-    if stack.mail.phase is Phase.CHARGING and stack.executor.cell in CORRIDOR.charging_stations:
+    if stack.mail.phase is Phase.CHARGING and stack.executor.cell in ws.charging_stations:
         return min(100.0, level + MODEL.charge_per_step)
     return level if stack.landed else max(0.0, level - MODEL.drain_per_step)
 
@@ -78,6 +80,26 @@ def test_a_low_drone_asked_to_make_way_by_the_drone_walling_its_charger_in_makes
     done, lowest = fly_fleet({"carrier": 100.0, "low": level}, 80)
     assert MailDelivered(MAIL) in done["carrier"]
     assert lowest["low"] >= MODEL.safe_threshold
+
+
+#: A dead-end charger (4, 0) with a charged drone on it; the drone with mail on board rests in (3, 0), its
+#: only way out, beside a pocket (3, 1); the drop-off (1, 0) and a parking cell (0, 0) down the corridor.
+DEAD_END = Workspace.build(size=(5, 2, 1), obstacles=frozenset({(0, 1, 0), (1, 1, 0), (2, 1, 0), (4, 1, 0)}),
+                           charging_stations=((4, 0, 0),), parking=((0, 0, 0),),
+                           drones={"carrier": (3, 0, 0), "charged": (4, 0, 0)})
+DEAD_END_MAIL = MailRequest("m2", pickup=(3, 0, 0), dropoff=(1, 0, 0), priority=6)
+
+
+def test_a_drone_walling_in_the_charger_it_waits_for_makes_way_for_the_drone_on_it() -> None:
+    """Found by the systematic tester (sweep 30362 with --partitions 1 --crashes 1: 5 drones, seed
+    561331): a drone too low to fly its mail before charging rested on the only way out of a dead-end
+    charger a charged drone rested on. That one's legs to parking found no plan and asked nothing (legs
+    to park waited): each waited for the other for good. A drone leaving a charger asks its way clear.
+    The mail is delivered, and the floor holds."""
+    level = MODEL.safe_threshold + 12 * MODEL.drain_per_step
+    done, lowest = fly_fleet({"carrier": level, "charged": 100.0}, 120, DEAD_END, DEAD_END_MAIL)
+    assert MailDelivered(DEAD_END_MAIL) in done["carrier"]
+    assert lowest["carrier"] >= MODEL.safe_threshold
 
 
 def test_only_a_charger_whose_every_way_the_asker_walls_in_for_good_counts_as_behind_it() -> None:

@@ -12,7 +12,7 @@ from drona_gcs.stack.mail import (
     Phase,
 )
 from drona_gcs.workspace import Cell, Workspace
-from tests.drona_gcs.stack.mail_helpers import P1, P2, Q1, Q2, c, goto, mail, manhattan, planner
+from tests.drona_gcs.stack.mail_helpers import MODEL, P1, P2, Q1, Q2, c, goto, mail, manhattan, planner
 
 
 # ------------------------------------------------------------ making way
@@ -106,3 +106,21 @@ def test_a_drone_asked_to_make_way_that_cannot_afford_the_spot_goes_to_charge() 
     mp.make_way(c(8, 8))  # 4 steps off, 16 more to the charger second nearest it: 15 are left
     leg = goto(mp.decide(0, 35.0, set()))
     assert leg.purpose is Phase.TO_CHARGER and leg.goal in (Q1, Q2)
+
+
+def test_a_drone_with_mail_on_board_asked_to_make_way_by_the_drone_on_its_charger_makes_way() -> None:
+    """Found by the systematic tester (sweep 30362, seed 561331): a drone with mail on board waited to
+    charge at a dead-end charger (9, 0) and walled in the drone on it, which asked it to make way; too
+    low for the way off and a charger after it, it stayed, for good. With mail on board it does as any
+    drone: goes to a charger it affords that the asker does not wall in, else leaves keeping nothing for
+    one (the charger behind is reached once the asker has left)."""
+    for level, goal, purpose in ((26.0, c(9, 2), Phase.MAKING_WAY), (30.0, Q1, Phase.TO_CHARGER)):
+        mp = planner(at=c(9, 1))
+        mp.assign(mail("m", c(9, 1), c(9, 9)))
+        goto(mp.decide(0, 100, set()))
+        mp.leg_done()
+        assert mp.carrying
+        mp.make_way(c(9, 2), 2, frozenset({Q2}))  # 1 step off, 11 from there to (0, 0)
+        leg = goto(mp.decide(1, level, {Q2}))
+        assert (leg.goal, leg.purpose) == (goal, purpose)
+        assert leg.flight_steps == level - MODEL.safe_threshold
