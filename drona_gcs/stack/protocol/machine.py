@@ -95,92 +95,78 @@ _DECIDES = frozenset({State.EXECUTING, State.WAIT_FOR_TASK})
 _RESTS = frozenset({State.WAIT_FOR_TASK})
 _BRAKES = frozenset({State.EXECUTING})  #: a brake ends a round for a new rest
 
+#: News every state takes alike: a peer's plan, announced, proposed or decided; a departed drone released.
+_NEWS: dict[type, Move] = {
+    PeerAnnounced: Move(CoordinationProtocol._on_announced),
+    Released: Move(CoordinationProtocol._on_released),
+    PlanProposal: Move(CoordinationProtocol._on_proposal),  # held, and acknowledged
+    PlanDecision: Move(CoordinationProtocol._on_decision),
+}
+#: What every state but CONFIRMING (no plan of mine waits on the fleet) takes alike.
+_UNCONFIRMED: dict[type, Move] = {
+    **_NEWS,
+    PlanAck: Move(CoordinationProtocol._ignore),  # a late one
+    PlanRefusal: Move(CoordinationProtocol._ignore),  # a late one
+    PeerJoined: Move(CoordinationProtocol._on_peer_joined),  # coordinating, asked too
+    VehicleLost: Move(CoordinationProtocol._on_vehicle_lost),  # a round under way ends in no plan, or flown on
+    VehicleDown: Move(CoordinationProtocol._on_vehicle_down, _RESTS),
+}
+
 #: Everything that moves the protocol between states: TRANSITIONS[state][event type] -> Move(handler, the
 #: states it may lead to; none: it stays). An event missing from its state's row is a protocol violation.
 TRANSITIONS: dict[State, dict[type, Move]] = {
     State.WAIT_FOR_TASK: {
+        **_UNCONFIRMED,
         NewTask: Move(CoordinationProtocol._on_new_task, frozenset({State.COORDINATING}) | _ENDS_ROUND),
         ReqForCurrentTraj: Move(CoordinationProtocol._on_request),  # answered with my location
         CurrentTraj: Move(CoordinationProtocol._ignore),
         PeerLeft: Move(CoordinationProtocol._on_peer_left),
-        PeerJoined: Move(CoordinationProtocol._on_peer_joined),
-        VehicleLost: Move(CoordinationProtocol._on_vehicle_lost),
         Relocated: Move(CoordinationProtocol._on_relocated, _RESTS),
-        VehicleDown: Move(CoordinationProtocol._on_vehicle_down, _RESTS),
         PeerDown: Move(CoordinationProtocol._on_peer_down),
         PeerBraked: Move(CoordinationProtocol._on_peer_braked),
-        PeerAnnounced: Move(CoordinationProtocol._on_announced),
-        Released: Move(CoordinationProtocol._on_released),
-        PlanProposal: Move(CoordinationProtocol._on_proposal),  # held, and acknowledged
-        PlanAck: Move(CoordinationProtocol._ignore),  # a late one
-        PlanRefusal: Move(CoordinationProtocol._ignore),  # a late one
-        PlanDecision: Move(CoordinationProtocol._on_decision),
         ClockBound: Move(CoordinationProtocol._on_clock_bound),
         PeerLost: Move(CoordinationProtocol._on_peer_lost),
         NextStep: Move(CoordinationProtocol._ignore),
     },
     State.COORDINATING: {
+        **_UNCONFIRMED,
         ReqForCurrentTraj: Move(CoordinationProtocol._on_request_while_coordinating, _ENDS_ROUND),
         CurrentTraj: Move(CoordinationProtocol._on_reply, _ENDS_ROUND),
         PeerLeft: Move(CoordinationProtocol._on_peer_left, _ENDS_ROUND),  # waited for no more
-        PeerJoined: Move(CoordinationProtocol._on_peer_joined),  # asked too
-        VehicleLost: Move(CoordinationProtocol._on_vehicle_lost),  # the round ends in no plan
-        VehicleDown: Move(CoordinationProtocol._on_vehicle_down, _RESTS),
         PeerDown: Move(CoordinationProtocol._on_peer_down),
         PeerBraked: Move(CoordinationProtocol._on_peer_braked),
-        PeerAnnounced: Move(CoordinationProtocol._on_announced),
-        Released: Move(CoordinationProtocol._on_released),
-        PlanProposal: Move(CoordinationProtocol._on_proposal),  # held, and acknowledged
-        PlanAck: Move(CoordinationProtocol._ignore),  # a late one
-        PlanRefusal: Move(CoordinationProtocol._ignore),  # a late one
-        PlanDecision: Move(CoordinationProtocol._on_decision),
         ClockBound: Move(CoordinationProtocol._on_clock_bound),
         PeerLost: Move(CoordinationProtocol._on_peer_lost),
         NextStep: Move(CoordinationProtocol._on_next_step_while_coordinating),  # nothing is flown yet: ask again
     },
     State.EXECUTING: {
+        **_UNCONFIRMED,
         ReqForCurrentTraj: Move(CoordinationProtocol._on_request),  # answered with my trajectory
         CurrentTraj: Move(CoordinationProtocol._ignore),
         PlanCompleted: Move(CoordinationProtocol._on_completed, _RESTS),
         Reroute: Move(CoordinationProtocol._on_reroute, frozenset({State.REROUTING}) | _ENDS_REROUTE),
         PeerLeft: Move(CoordinationProtocol._on_peer_left),  # may brake, or report Threatened
-        PeerJoined: Move(CoordinationProtocol._on_peer_joined),
-        VehicleLost: Move(CoordinationProtocol._on_vehicle_lost),
         Relocated: Move(CoordinationProtocol._on_relocated, _RESTS),
-        VehicleDown: Move(CoordinationProtocol._on_vehicle_down, _RESTS),
         PeerDown: Move(CoordinationProtocol._on_peer_down),  # may brake, or report Threatened
         PeerBraked: Move(CoordinationProtocol._on_peer_braked),  # may brake, or report Threatened
-        PeerAnnounced: Move(CoordinationProtocol._on_announced),
-        Released: Move(CoordinationProtocol._on_released),
-        PlanProposal: Move(CoordinationProtocol._on_proposal),  # held, and acknowledged
-        PlanAck: Move(CoordinationProtocol._ignore),  # a late one
-        PlanRefusal: Move(CoordinationProtocol._ignore),  # a late one
-        PlanDecision: Move(CoordinationProtocol._on_decision),
         ClockBound: Move(CoordinationProtocol._on_clock_bound),  # may brake
         PeerLost: Move(CoordinationProtocol._on_peer_lost),  # may brake, or report Threatened
         NextStep: Move(CoordinationProtocol._on_next_step),  # may brake
     },
     State.REROUTING: {  # a round as COORDINATING's, while the plan is flown on
+        **_UNCONFIRMED,
         ReqForCurrentTraj: Move(CoordinationProtocol._on_request_while_coordinating, _ENDS_REROUTE),
         CurrentTraj: Move(CoordinationProtocol._on_reply, _ENDS_REROUTE),
         PlanCompleted: Move(CoordinationProtocol._on_completed_while_rerouting, _RESTS),
         PeerLeft: Move(CoordinationProtocol._on_peer_left, _ENDS_REROUTE),
-        PeerJoined: Move(CoordinationProtocol._on_peer_joined),
-        VehicleLost: Move(CoordinationProtocol._on_vehicle_lost),  # the round ends with the plan flown
-        VehicleDown: Move(CoordinationProtocol._on_vehicle_down, _RESTS),
         PeerDown: Move(CoordinationProtocol._on_peer_down, _BRAKES),
         PeerBraked: Move(CoordinationProtocol._on_peer_braked, _BRAKES),  # or reports Threatened
-        PeerAnnounced: Move(CoordinationProtocol._on_announced),
-        Released: Move(CoordinationProtocol._on_released),
-        PlanProposal: Move(CoordinationProtocol._on_proposal),  # held, and acknowledged
-        PlanAck: Move(CoordinationProtocol._ignore),  # a late one
-        PlanRefusal: Move(CoordinationProtocol._ignore),  # a late one
-        PlanDecision: Move(CoordinationProtocol._on_decision),
         ClockBound: Move(CoordinationProtocol._on_clock_bound, _BRAKES),
         PeerLost: Move(CoordinationProtocol._on_peer_lost, _BRAKES),
         NextStep: Move(CoordinationProtocol._on_next_step, _BRAKES),
     },
     State.CONFIRMING: {  # planned: the plan is flown once every member holds it, or dropped
+        **_NEWS,
         PlanAck: Move(CoordinationProtocol._on_ack, _DECIDES),  # flown once every member's came
         PlanRefusal: Move(CoordinationProtocol._on_refusal, _DECIDES),  # dropped
         NextStep: Move(CoordinationProtocol._on_next_step_while_confirming, _DECIDES),  # too late: dropped
@@ -192,12 +178,8 @@ TRANSITIONS: dict[State, dict[type, Move]] = {
         PeerLeft: Move(CoordinationProtocol._on_news_while_confirming, _DECIDES),
         PeerDown: Move(CoordinationProtocol._on_news_while_confirming, _DECIDES),
         PeerBraked: Move(CoordinationProtocol._on_news_while_confirming, _DECIDES),
-        PeerAnnounced: Move(CoordinationProtocol._on_announced),
         VehicleLost: Move(CoordinationProtocol._on_news_while_confirming, _DECIDES),
         VehicleDown: Move(CoordinationProtocol._on_news_while_confirming, _DECIDES),
-        Released: Move(CoordinationProtocol._on_released),
-        PlanProposal: Move(CoordinationProtocol._on_proposal),
-        PlanDecision: Move(CoordinationProtocol._on_decision),
         ClockBound: Move(CoordinationProtocol._on_news_while_confirming, _DECIDES),
         PeerLost: Move(CoordinationProtocol._on_news_while_confirming, _DECIDES),
     },
