@@ -143,9 +143,9 @@ settled here, and one message it sends is saved (the second point):
   nothing, and name every cell of that in my answers (``holds``), which peers hold for good. A peer's
   off: its proposals get no ack of mine, and every cell of what it answers is held for good; the plan
   I fly steers clear of every cell of its plan, as of a vehicle down (its steps are not ours). Nobody
-  waits for it: it answers as ever. Its news (its rest, a new answer) frees no cell at once: by its clock
-  it may have left one only just, and sent the news at most Delta steps of mine later, so what it was to
-  fly stays held ``2 max(Delta, 1)`` steps more (``left_behind``; found by the tester, sweep 30391).
+  waits for it: it answers as ever. Its news (its rest, a new answer) frees no cell at once: it left
+  one before it sent the news, which may find my clock up to Delta behind the fleet's, so what it was
+  to fly stays held ``2 max(Delta, 1)`` steps more (``left_behind``; found by the tester, sweep 30391).
 * **The operator may release a departed drone** (``Released``): having seen its vehicle
   out of the air for good, it tells every drone to hold none of its cells.
 * **My vehicle can be lost** (its link closed or silent). It may then be anywhere on

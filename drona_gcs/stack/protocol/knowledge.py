@@ -231,7 +231,8 @@ class Knowledge:
 
     def _leave_behind(self, drone: str, now: int) -> None:
         """News of ``drone``, whose steps are not mine: what it was to fly stays held ``2 max(Delta, 1)`` steps.
-        It sent the news at most Delta steps of mine after it left a cell; Delta more keep us apart."""
+        It left a cell before it sent the news, which may find my clock up to Delta behind the fleet's: Delta
+        more keep us apart."""
         if drone == self.me or (self.off_since is None and drone not in self.outliers):
             return
         until = now + 2 * max(self.delta, 1)
