@@ -159,9 +159,10 @@ class DroneCore:
         return self._protocol(Reroute(task))
 
     def _way_to_clear(self, leg: GoTo) -> tuple[Cell, ...]:
-        """The way a mail or charging leg asks resting drones to leave: when its goal is taken, or
-        its last try found no plan (the paper leaves MRMP incomplete: resting drones wall goals in).
-        A shortest way, around cells it asked before that stayed taken (a vehicle down cannot move)."""
+        """The way a mail or charging leg (or one to park, from a charger) asks resting drones to leave: when
+        its goal is taken, or its last try found no plan (the paper leaves MRMP incomplete: resting drones
+        wall goals in). A shortest way, around cells it asked before that stayed taken (a vehicle down
+        cannot move)."""
         taken, here, ws = self.taken_cells(), self.protocol.location, self.config.workspace
         asking = leg.purpose in ASKING or (leg.purpose is Phase.TO_PARKING and here in ws.charging_stations)
         if not asking or (leg.goal not in taken and leg.goal not in self.unreached):

@@ -212,10 +212,11 @@ class MailPlanner(MailPlannerInputs):
             if any(budget.allows(self._leg(self.cell, c)) for c in self._reachable(ahead)):
                 return self._to_charger(budget, taken, ahead)
             # Each charger it affords is reached only once it has left (staying, it and the peer wait for
-            # each other for good): it leaves keeping nothing for one, as a drone stranded does.
-            if not budget.allows(self._leg(self.cell, spot)):
+            # each other for good): it leaves keeping nothing for one, as a drone stranded does; with mail
+            # on board, keeping the way to one of those (stranded off every charger, the mail would wait).
+            reserve = min((self._leg(spot, c) for c in behind), default=NO_WAY) if self.carrying else 0
+            if not budget.allows(self._leg(self.cell, spot) + reserve):
                 return []
-            reserve = 0
         self.retry_at = budget.now + self._leg(self.cell, spot) + max(self.hold_steps, self.make_way_stay)
         return self._go(spot, budget, reserve, Phase.MAKING_WAY, taken)
 

@@ -230,20 +230,23 @@ class Knowledge:
         return Present(drone, self.current_trajectory(now), self.trajectory is not None and self.trajectory == self.cut)
 
     def _leave_behind(self, drone: str, now: int) -> None:
-        """News of ``drone``, whose steps are not mine: what it was to fly stays held ``2 max(Delta, 1)`` steps.
-        It left a cell before it sent the news, which may find my clock up to Delta behind the fleet's: Delta
-        more keep us apart."""
+        """News of ``drone``, whose steps are not mine: what it was to fly, or may have flown while gone, stays
+        held ``2 max(Delta, 1)`` steps. It left a cell before it sent the news; a clock found off keeps within
+        ``max(Delta, 1)`` steps of the fleet's by the bound that found it, so the news comes at most that many
+        of my steps after it left, and as many more keep us apart."""
         if drone == self.me or (self.off_since is None and drone not in self.outliers):
             return
         until = now + 2 * max(self.delta, 1)
-        flights = [t for t in (self.known.get(drone), self.received.get(drone)) if t is not None]
+        flights = [t for t in (self.known.get(drone), self.received.get(drone), self.maybe_flown.get(drone),
+                               self.ghosts.get(drone)) if t is not None]
+        cells = {c for t in flights for c in t.cells} | self.hearsay.get(drone, frozenset())
         self.left_behind = {c: u for c, u in self.left_behind.items() if u >= now}
-        for cell in {c for t in flights for c in t.cells}:
+        for cell in cells:
             self.left_behind[cell] = max(until, self.left_behind.get(cell, until))
 
     def _left_behind_obstacles(self, now: int, sparing: Cell) -> dict[str, Trajectory]:
         """The cells left behind still held, for a plan: held for good (the plan starts later anyway)."""
-        return {f"left~{i}": Trajectory.stationary(cell, now) for i, (cell, until) in
+        return {f"~{i}": Trajectory.stationary(cell, now) for i, (cell, until) in
                 enumerate(sorted(self.left_behind.items())) if until >= now and cell != sparing}
 
     def _held_for_outliers(self, sparing: Cell) -> dict[str, Trajectory]:

@@ -138,6 +138,7 @@ class Rounds(Confirming):
             return []
         if event.drone in self.members:  # met as I start (my agent restarted), or back already (a message)
             return [self._present(event.drone, now)]
+        self._leave_behind(event.drone, now)  # an outlier back: where it may have been stays held a while
         self.members.add(event.drone)
         self.released.discard(event.drone)
         self.proposals.pop(event.drone, None)

@@ -64,10 +64,14 @@ def test_a_peer_off_that_says_it_rests_keeps_the_cells_of_the_plan_it_flew_held(
     clock was found off; its rest could not be planned anew, so it flew on. d0 then said it rested at
     its plan's end; d5 took that for all d0 held, and entered the cell d0 had left one step before by
     d5's clock, in steps d0's clock does not keep with d5's. What a drone off flew stays held."""
-    proto, plan = flying_past_b()
-    assert plan.at(5) == (3, 0, 0)
-    assert proto.handle(ClockBound(mine_off=False, outliers=frozenset({"b"})), 2) == [Threatened("b", ((3, 0, 0),))]
-    proto.handle(PeerAnnounced("b", Trajectory.stationary((3, 1, 0), 3)), 3)  # b rests, by its clock
-    actions = proto.handle(NextStep(), 4)  # the step before (3, 0)
-    assert [type(a) for a in actions] == [Braked]
-    assert proto.trajectory is not None and (3, 0, 0) not in proto.trajectory.cells
+    for gone_meanwhile in (False, True):  # found in review: b's word as it came back undid the hold too
+        proto, plan = flying_past_b()
+        assert plan.at(5) == (3, 0, 0)
+        assert proto.handle(ClockBound(mine_off=False, outliers=frozenset({"b"})), 2) == [
+            Threatened("b", ((3, 0, 0),))]
+        if gone_meanwhile:
+            proto.handle(PeerLeft("b", silent_since=2), 2)
+        proto.handle(PeerAnnounced("b", Trajectory.stationary((3, 1, 0), 3)), 3)  # b rests, by its clock
+        actions = proto.handle(NextStep(), 4)  # the step before (3, 0)
+        assert [type(a) for a in actions] == [Braked], gone_meanwhile
+        assert proto.trajectory is not None and (3, 0, 0) not in proto.trajectory.cells
