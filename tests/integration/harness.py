@@ -297,6 +297,18 @@ class Observer:
             except TimeoutError:
                 continue
 
+    async def joined(self) -> None:
+        """Until every agent of the fleet is alive."""
+        await self.until(lambda: self.alive >= set(self.fleet.drones), 60, "every agent to join")
+
+    async def parked(self) -> None:
+        """Until every agent is alive and every drone, its first plan flown (idle drones park first),
+        rests landed and waiting for a task (at start-up every drone is landed and waiting, unplanned)."""
+        await self.joined()
+        await self.until(lambda: len(self.states) == len(self.fleet.drones) and all(
+            s.plans >= 1 and s.landed and s.mode == "WaitForTaskRequest" for s in self.states.values()),
+            60, "all parked")
+
     async def give(self, order: MailOrder, drone: str) -> None:
         ack = await self.client.assign(drone, order)
         assert ack.accepted, f"{drone} refused {order.id}: {ack.reason}"

@@ -25,7 +25,7 @@ def random_orders(count: int, seed: int, fleet: FleetProcesses) -> list[MailOrde
 
 async def deliver_all(fleet: FleetProcesses, orders: list[MailOrder], timeout: float) -> Observer:
     async with Observer(fleet) as obs:
-        await obs.until(lambda: obs.alive >= set(fleet.drones), 60, "every agent to join")
+        await obs.joined()
         # Each drone gets its share in one burst, so its queue has mail of several priorities.
         for i, order in enumerate(orders):
             await obs.give(order, fleet.drones[i % len(fleet.drones)])

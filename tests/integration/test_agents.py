@@ -50,12 +50,7 @@ def test_an_agent_killed_mid_coordination_neither_blocks_the_others_nor_loses_it
     try:
         async def scenario() -> Observer:
             async with Observer(fleet) as obs:
-                await obs.until(lambda: obs.alive >= set(fleet.drones), 60, "every agent to join")
-                # Idle drones fly to their parking cells first; d3 must be parked before it freezes.
-                # (At start-up every drone is landed and waiting too, before its first plan.)
-                await obs.until(lambda: len(obs.states) == 4 and all(
-                    s.plans >= 1 and s.landed and s.mode == "WaitForTaskRequest" for s in obs.states.values()),
-                    60, "all parked")
+                await obs.parked()  # d3 must be parked before it freezes
                 fleet.signal("d3", signal.SIGSTOP)  # d3 will not answer: d2's coordination stalls on it
                 await obs.give(doomed, "d2")
                 await obs.until(lambda: obs.states["d2"].mode == "CoordinateAndGeneratePlan", 5, "d2 coordinating")

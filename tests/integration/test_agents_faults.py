@@ -47,7 +47,7 @@ def test_a_clock_offset_beyond_beta_excludes_that_drone_and_the_others_deliver(
     try:
         async def scenario() -> MailAck:
             async with Observer(fleet) as obs:
-                await obs.until(lambda: obs.alive >= set(fleet.drones), 60, "every agent to join")
+                await obs.joined()
                 # The clock alarm itself, not any alarm: a vehicle lagging on its first flight
                 # also makes a drone unhealthy, before the first clock check has run.
                 # A verdict needs most of the fleet measured: a check that heard one peer waits for the next.
@@ -85,10 +85,7 @@ def test_a_vehicle_killed_in_flight_is_one_drones_problem(hosted_apart: Callable
     try:
         async def scenario() -> Observer:
             async with Observer(fleet) as obs:
-                await obs.until(lambda: obs.alive >= set(fleet.drones), 60, "every agent to join")
-                await obs.until(lambda: len(obs.states) == 4 and all(
-                    s.plans >= 1 and s.landed and s.mode == "WaitForTaskRequest" for s in obs.states.values()),
-                    60, "all parked")
+                await obs.parked()
                 await obs.give(doomed, "d2")
                 await obs.until(lambda: _in_flight_to_pickup(obs.states.get("d2")), 60, "d2 in flight")
                 fleet.sims["d2"].kill()

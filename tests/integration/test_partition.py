@@ -60,10 +60,7 @@ def test_a_partition_puts_no_two_drones_in_one_cell_and_the_majority_delivers(tm
     try:
         async def scenario() -> tuple[Observer, float, float]:
             async with Observer(fleet, lease_s=LEASE_S) as obs:
-                await obs.until(lambda: obs.alive >= set(fleet.drones), 60, "every agent to join")
-                await obs.until(lambda: len(obs.states) == 3 and all(
-                    s.plans >= 1 and s.landed and s.mode == "WaitForTaskRequest" for s in obs.states.values()),
-                    60, "all parked")
+                await obs.parked()
                 # Given before the cut: a query to a live drone may wait on the cut link until the
                 # session's own lease runs out, and time out.
                 await obs.give(before, "d3")
