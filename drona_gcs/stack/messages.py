@@ -102,14 +102,16 @@ class CurrentTraj:
     """Protocol 1: ``sender``'s current trajectory, answering request ``in_reply_to``.
 
     ``in_reply_to`` is our addition: a reply to an older request (delayed or
-    duplicated on the network) is recognised and dropped, never planned with. So is
-    ``holds``: cells the sender's vehicle may be in for good, besides its trajectory (lost).
+    duplicated on the network) is recognised and dropped, never planned with. So are
+    ``holds``: cells the sender's vehicle may be in for good, besides its trajectory (lost);
+    and ``proposal``: the sender's plan, not decided as it answers, which it may fly instead.
     """
 
     sender: str
     trajectory: Trajectory
     in_reply_to: TaskId
     holds: tuple[Cell, ...] = ()
+    proposal: PlanProposal | None = None
 
     def __post_init__(self) -> None:
         if not self.trajectory.cells:

@@ -6,7 +6,9 @@ shares nothing with the code it judges: no production ranking, no protocol query
 
 (a) every plan avoided every other drone, and each with what that drone was
     committed to when the plan starts: the trajectory it last started executing
-    (beyond its end, its last cell), or its start cell before any;
+    (beyond its end, its last cell), or its start cell before any; as what the drone
+    answered, or as its proposal, not decided yet (the plan's Psi names it ``<drone>?``);
+    or else the plan that drone is committed to was made against this one, proposed then;
 (b) no two drones meet in what the executors actually occupy: at no step t is a drone in a cell
     another occupies at a step within Delta of t, nor do two swap cells in that window; a vehicle
     down stays in its cell, and a drone that enters that cell after the vehicle came down
@@ -85,6 +87,8 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
     before_news: dict[str, Trajectory] = field(default_factory=dict)
     #: (a) where a drone said it rests, at the end of the plan it is committed to: that plan, told so
     rests: dict[str, Trajectory] = field(default_factory=dict)
+    #: (a) the proposals each drone's committed plan was made against: (drone, proposer) -> proposal
+    made_against: dict[tuple[str, str], Trajectory] = field(default_factory=dict)
     #: (f) the plans drones cut short (braked) and hold at the end of, until their next plan
     cuts: dict[str, Trajectory] = field(default_factory=dict)
     #: (f) each drone's last plans: a peer that heard none since may still hold any as what it flies
@@ -110,6 +114,7 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
                 tuple(sorted((d, tuple(sorted(p))) for d, p in self.departed.items())),
                 tuple(sorted((d, t.start_step, t.cells) for d, t in self.before_news.items())),
                 tuple(sorted((d, t.start_step, t.cells) for d, t in self.rests.items())),
+                tuple(sorted((d, t.start_step, t.cells) for d, t in self.made_against.items())),
                 tuple(sorted((d, t.start_step, t.cells) for d, t in self.cuts.items())),
                 tuple(sorted((d, tuple((t.start_step, t.cells) for t in ts)) for d, ts in self.flown.items())),
                 tuple(sorted(self.told.items())), tuple(sorted(self.stopped.items())),
@@ -126,6 +131,8 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
             self._consistent(drone, action)
             self._carried_to_its_dropoff(drone, action)
             self.committed[drone] = action.trajectory
+            self.made_against = {**{k: t for k, t in self.made_against.items() if k[0] != drone},
+                                 **{(drone, key[:-1]): t for key, t in action.psi.items() if key.endswith("?")}}
             self.rests.pop(drone, None)
             self.cuts.pop(drone, None)
             self.flown[drone] = (*self.flown.get(drone, ())[-(RECENT_PLANS - 1):], action.trajectory)
@@ -182,6 +189,11 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
             used = action.psi.get(peer)
             if used is None:
                 raise Violation("a", f"{drone} planned task {action.task.id} without {peer}")
+            proposed = action.psi.get(f"{peer}?")
+            if proposed is not None and same_future(proposed, self.committed[peer], since):
+                continue
+            if self.made_against.get((peer, drone)) == action.trajectory:
+                continue
             if (not same_future(used, self.committed[peer], since) and used != self.rests.get(peer)
                     and not self._not_told_yet(drone, peer, used, since)):
                 raise Violation("a", f"{drone} planned task {action.task.id} with a stale trajectory of "

@@ -56,7 +56,7 @@ from drona_gcs.stack.protocol import (
 from drona_gcs.workspace import Cell, Workspace
 from fleet.agent.clocksync import ClockCheck
 from fleet.agent.maildesk import MailDesk
-from fleet.agent.outbox import Answers, Decided, coalesced, urgency
+from fleet.agent.outbox import Answers, Decided, Proposed, coalesced, urgency
 from fleet.agent.peers import PeerSide
 from fleet.agent.tracking import Tracking
 from fleet.agent.vehicle import VehicleSupervisor
@@ -84,6 +84,7 @@ from fleet.transport.wire import (
     decode_as,
     encode,
     from_core,
+    proposing,
 )
 from fleet.vehicle.link import Readiness, VehicleLink, not_ready
 from fleet.vehicle.policy import DEFAULT_TIMEOUTS, Timeouts
@@ -251,6 +252,10 @@ class DroneAgent(Tracking, PeerSide):
             elif isinstance(action, Decided):
                 decided = answering(action.decision, action.replies, action.holds)
                 self._send(self.keys.proto(BROADCAST, self.me), decided, copies=len(self.stack.protocol.members),
+                           now=True)
+            elif isinstance(action, Proposed):
+                proposed = proposing(action.proposal, action.replies, action.current, action.holds)
+                self._send(self.keys.proto(BROADCAST, self.me), proposed, copies=len(self.stack.protocol.members),
                            now=True)
             elif isinstance(action, GoTo):
                 self.task_since = self.clock()

@@ -28,6 +28,7 @@ from fleet.transport.wire import (
     Decide,
     PeerBounds,
     PlanAnnounce,
+    Propose,
     WireError,
     answer_in,
     decode,
@@ -72,7 +73,7 @@ class PeerSide:
             self._check_sender(key, envelope.sender)
             self.bounds.check(envelope.body, self._step_now())
             message = to_core(envelope, self.me)
-            answer = answer_in(envelope, self.me) if isinstance(envelope.body, Decide) else None
+            answer = answer_in(envelope, self.me) if isinstance(envelope.body, (Decide, Propose)) else None
         except WireError as exc:
             self.dropped.warning(key, "%s: dropped a message on %s: %s", self.me, key, exc)
             return

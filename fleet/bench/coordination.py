@@ -209,7 +209,7 @@ def run(args: argparse.Namespace) -> int:
           f"max {result.steady_max_ms:.2f} ms\n"
           f"protocol messages per round {result.messages_per_round:.1f} (5(N-1) = {5 * (agents - 1)} for a drone "
           f"coordinating alone: asked, answered, planned, held, flown; 4(N-1) = {4 * (agents - 1)} for a fleet "
-          f"coordinating at once, whose requests and decisions are the answers)\n"
+          f"coordinating at once, whose requests and proposals are the answers)\n"
           f"CPU per agent {result.cpu_ms_per_s_per_agent:.1f} ms/s (the agent processes / agents; the vehicles' "
           f"process {result.vehicles_cpu_s_per_s:.2f} s/s)")
     bench_plot.write(args, "coordination", result)

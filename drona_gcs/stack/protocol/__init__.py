@@ -77,13 +77,17 @@ settled here, and one message it sends is saved (the second point):
 * **A plan is flown only once every member holds it** (``CONFIRMING``). Planned, I send it to
   everyone (``PlanProposal``); each member holds it besides what it knew of me and says so
   (``PlanAck``, with what it flies now); once every member has, I fly it and tell everyone
-  (``PlanDecision``), then answer the peers that waited. If the boundary before its start comes
+  (``PlanDecision``). If the boundary before its start comes
   first, or the fleet changes meanwhile (a peer leaves, comes back, comes down, brakes), I drop it,
   say so, and the task fails (it is tried again). Why: a peer that left before it heard of my plan
   holds me, for good, on the cells of what it last knew I fly; had I flown a plan it never heard of,
   it planned into my cells (found by the tester's partitions, and in the field). A peer that held my
-  proposal when I left holds its cells too (``maybe_flown``). The same holds for requests: until
-  decided, I answer nobody.
+  proposal when I left holds its cells too (``maybe_flown``). A request that comes while I
+  confirm is answered once decided.
+* **The line moves on as I propose.** The peers that waited for my plan are answered as I propose
+  it, with what I fly now: they hold my proposal too (undecided), so their plans keep clear of
+  both, whichever I fly. Where my proposal came late (it may: messages reorder), the check below
+  stops theirs. A round in line so waits for one plan and one message, not for every ack.
 * **Only a majority plans.** A partition's two sides each see the other leave; each planning around
   where it last knew the other, both could plan into one cell. I plan only in touch with a strict
   majority of the fleet, or half of it with its first drone by name (``in_quorum``): at most one side
@@ -98,7 +102,8 @@ settled here, and one message it sends is saved (the second point):
   holds those cells too (``hearsay``, until that drone is back or released), so its next plan keeps
   clear of them. Without it, a drone that knew less of where a gone drone had stopped proposed the
   same plan until its mail was given up (a member frozen while a drone died).
-  Confirming, I ack no proposal: mine was made without it. A message that says what a drone I held
+  Confirming, I ack a proposal only if it keeps clear of my own as well: I may fly either, and
+  whichever I fly, my plan and theirs keep apart (the window is symmetric). A message that says what a drone I held
   as gone flies (an answer, an ack, a decision, a request, its vehicle down or lost) proves it alive:
   a member again, there. Its news of its vehicle is its word on where it is: taken as the word of a
   drone back, an older plan of its, overtaken by that news, made a peer forget its vehicle was down

@@ -129,29 +129,37 @@ class Confirming(Flight):
     def _on_proposal(self, event: PlanProposal, now: int) -> list[Action]:
         """A member's plan, not flown yet: I hold it besides what I knew, until decided, and say so."""
         sender = event.sender
-        decided = self.decided.get(sender)
-        if sender == self.me or sender not in self.members or (
-                decided is not None and not event.task_id.newer_than(decided)):
+        if sender == self.me or sender not in self.members or self._decided_already(event):
             return []  # decided already, or from a drone I hold as departed (it will not fly it)
-        held = self.proposals.get(sender)
-        if held is None or not held.task_id.newer_than(event.task_id):
-            self.proposals[sender] = event
-        if self.state is State.CONFIRMING or sender in self.outliers:
+        self._hold_proposal(event)
+        if sender in self.outliers:
             return []  # not flown: it runs out of time (an outlier's steps are not ours)
         if self.off_since is None and self._clashes(event, now):
             # (my clock off, my steps say nothing: the cells my ack holds for good do)
             return [Send(sender, PlanRefusal(self.me, event.task_id, self._gone_there(event, now)))]
         return [Send(sender, PlanAck(self.me, event.task_id, self.current_trajectory(now), self.holds()))]
 
+    def _decided_already(self, proposal: PlanProposal) -> bool:
+        decided = self.decided.get(proposal.sender)
+        return decided is not None and not proposal.task_id.newer_than(decided)
+
+    def _hold_proposal(self, proposal: PlanProposal) -> None:
+        """Held until decided (the newest a drone proposed: it may fly it)."""
+        held = self.proposals.get(proposal.sender)
+        if held is None or not held.task_id.newer_than(proposal.task_id):
+            self.proposals[proposal.sender] = proposal
+
     def _clashes(self, proposal: PlanProposal, now: int) -> bool:
         """Whether ``proposal`` comes within the window of what I fly, or enters a cell where a drone its
         sender held as gone may be for good, as I know it: a member of mine may stop anywhere on the rest
         of what it flies or proposed (were it gone), a departed drone anywhere on its rest. A partition
         leaves views apart, and two plans made by majorities that overlap meet at a drone that holds
-        both, here. (Confirming, I hold none: mine was made without it.)"""
+        both, here. Confirming, I may fly my proposal or what I fly now: it keeps clear of both."""
         theirs = proposal.trajectory
         cells = {c for _, rest in self._gone_there(proposal, now) for c in rest}
-        flown = [self.current_trajectory(now), *(Trajectory.stationary(c, 0) for c in {*self.holds(), *cells})]
+        mine = [] if self.proposed is None else [self.proposed.proposal.trajectory]  # I may fly either
+        flown = [self.current_trajectory(now), *mine,
+                 *(Trajectory.stationary(c, 0) for c in {*self.holds(), *cells})]
         since = max(now, theirs.start_step)  # what it flew already was held before
         return any(check_pair(theirs, other, self.delta, from_step=since) for other in flown)
 

@@ -54,6 +54,8 @@ class Knowledge:
     newest: dict[str, TaskId] = field(default_factory=dict)  #: the newest request id seen from each drone
     lost: VehicleLost | None = None  #: my vehicle is lost: what I hold besides my trajectory
     peer_holds: dict[str, tuple[Cell, ...]] = field(default_factory=dict)  #: what this round's answers hold
+    #: this round's answers that came with their sender's proposal, undecided then: sender -> its task
+    pledged: dict[str, TaskId] = field(default_factory=dict)
     down: Cell | None = None  #: my vehicle came down here by itself: I plan nothing more
     peers_down: dict[str, Cell] = field(default_factory=dict)  #: peers whose vehicle came down, and where
     #: peers that braked, with the plan cut short they hold at the end of, until their next plan
@@ -265,10 +267,11 @@ class Knowledge:
         return {f"{peer}~{i}": Trajectory.stationary(cell, now) for peer, cells in self.peer_holds.items()
                 if peer in self.members for i, cell in enumerate(cells)}
 
-    def _release_pending(self, trajectory: Trajectory) -> Iterable[Action]:
+    def _release_pending(self, trajectory: Trajectory, proposal: PlanProposal | None = None) -> Iterable[Action]:
         pending, self.pending = self.pending, {}
         holds = self.holds()
-        return [Send(peer, CurrentTraj(self.me, trajectory, task_id, holds)) for peer, task_id in pending.items()]
+        return [Send(peer, CurrentTraj(self.me, trajectory, task_id, holds, proposal))
+                for peer, task_id in pending.items()]
 
 
 def rests_after(trajectory: Trajectory, cut: Trajectory) -> bool:

@@ -138,6 +138,7 @@ TRANSITIONS: dict[State, dict[type, Move]] = {
         ClockBound: Move(CoordinationProtocol._on_clock_bound),
         PeerLost: Move(CoordinationProtocol._on_peer_lost),
         NextStep: Move(CoordinationProtocol._on_next_step_while_coordinating),  # nothing is flown yet: ask again
+        PlanDecision: Move(CoordinationProtocol._on_decision_while_coordinating, _ENDS_ROUND),  # may answer
     },
     State.EXECUTING: {
         **_UNCONFIRMED,
@@ -164,6 +165,7 @@ TRANSITIONS: dict[State, dict[type, Move]] = {
         ClockBound: Move(CoordinationProtocol._on_clock_bound, _BRAKES),
         PeerLost: Move(CoordinationProtocol._on_peer_lost, _BRAKES),
         NextStep: Move(CoordinationProtocol._on_next_step, _BRAKES),
+        PlanDecision: Move(CoordinationProtocol._on_decision_while_coordinating, _ENDS_REROUTE),  # may answer
     },
     State.CONFIRMING: {  # planned: the plan is flown once every member holds it, or dropped
         **_NEWS,

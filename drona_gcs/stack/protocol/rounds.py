@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from drona_gcs.errors import GoalCutOff, NoPlanFound
 from drona_gcs.motion import Trajectory
-from drona_gcs.stack.messages import CurrentTraj, PlanProposal, ReqForCurrentTraj, Task, TaskId
+from drona_gcs.stack.messages import CurrentTraj, PlanDecision, PlanProposal, ReqForCurrentTraj, Task, TaskId
 from drona_gcs.stack.protocol.actions import Action, Broadcast, RerouteFailed, Send, TaskFailed
 from drona_gcs.stack.protocol.confirming import Confirming
 from drona_gcs.stack.protocol.events import NewTask, NextStep, PeerJoined, PeerLeft, Reroute
@@ -37,7 +37,7 @@ class Rounds(Confirming):
 
     def _forget_answers(self) -> None:
         """A new round starts from no answers: last round's trajectories may have changed since."""
-        self.received, self.peer_holds = {}, {}
+        self.received, self.peer_holds, self.pledged = {}, {}, {}
 
     def _on_request(self, event: ReqForCurrentTraj, now: int) -> list[Action]:
         if event.sender == self.me or not self._current(event):
@@ -89,9 +89,35 @@ class Rounds(Confirming):
         assert self.task is not None
         if event.in_reply_to != self.task.id or event.sender not in self.members:
             return []  # an answer to an older request, or from a drone that left
-        self.received[event.sender] = self.known[event.sender] = self._news(event.sender, event.trajectory, now)
-        self.peer_holds[event.sender] = event.holds
+        sender, proposal = event.sender, event.proposal
+        if proposal is not None and self._decided_already(proposal):
+            self.received[sender] = self.known[sender]  # its decision came first: it said what it flies
+        else:
+            self.received[sender] = self.known[sender] = self._news(sender, event.trajectory, now)
+            if proposal is not None:
+                self._hold_proposal(proposal)
+                self.pledged[sender] = proposal.task_id
+        self.peer_holds[sender] = event.holds
         return self._plan_if_ready(now)
+
+    def _on_decision_while_coordinating(self, event: PlanDecision, now: int) -> list[Action]:
+        """A decision I wait for (see :meth:`_wait_for_decisions`) is the answer it stood for."""
+        self._on_decision(event, now)
+        sender = event.sender
+        if self.pledged.get(sender) != event.task_id or sender in self.received or sender not in self.members:
+            return []
+        del self.pledged[sender]
+        self.received[sender] = self.known[sender] = self._news(sender, event.trajectory, now)
+        return self._plan_if_ready(now)
+
+    def _wait_for_decisions(self) -> bool:
+        """No plan keeps clear of both what a peer flies and what it proposed: its decision will say which
+        holds, and answer me (whether I wait for any)."""
+        undecided = [p for p, task_id in self.pledged.items()
+                     if p in self.proposals and self.proposals[p].task_id == task_id and p in self.received]
+        for p in undecided:
+            del self.received[p]
+        return bool(undecided)
 
     def _on_next_step_while_coordinating(self, event: NextStep, now: int) -> list[Action]:
         return self._ask_again(now)
@@ -182,13 +208,16 @@ class Rounds(Confirming):
                 raise NoPlanFound("the battery no longer affords the task")
             plan = self.plan(start, task.goal, start_step, psi, max_length)
         except NoPlanFound as exc:
-            return self._no_plan(exc, now)
+            return [] if self._wait_for_decisions() else self._no_plan(exc, now)
         trajectory = flying.spliced(plan.trajectory) if flying is not None else plan.trajectory
         proposal = PlanProposal(self.me, task.id, trajectory, tuple(sorted(self.members)))
         self._enter(State.CONFIRMING)
         self.proposed = Proposed(proposal, tuple(psi.items()), plan.trajectory.start_step, flying is not None)
         self.acked = set()
-        return [Broadcast(proposal), *self._go_if_held(now)]
+        # The peers that waited for me plan now, against what I fly and what I propose alike (held as
+        # undecided): whichever I end up flying, their plans keep clear of it.
+        return [Broadcast(proposal), *self._release_pending(self.current_trajectory(now), proposal),
+                *self._go_if_held(now)]
 
     def _no_plan(self, exc: NoPlanFound, now: int) -> list[Action]:
         """I stay: my last plan (or my location) is still the truth, including the recent steps a peer up

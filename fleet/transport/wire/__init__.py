@@ -13,8 +13,9 @@ The bodies, by key (see :mod:`fleet.transport.keys`):
 * ``proto/<sender>/<drone>``: ``req_traj`` and ``cur_traj``, Protocol 1's two messages (``<sender>``
   may be a host: then each frame is from one of its drones)
   (``req_traj`` carries the requester's trajectory: see :mod:`drona_gcs.stack.protocol`).
-* ``proto/<sender>/all``: a ``req_traj`` to everyone; ``propose``, a plan made, and ``decide``, whether
-  it is flown (``proto/<sender>/<drone>``: ``ack``, the drone holds the proposal).
+* ``proto/<sender>/all``: a ``req_traj`` to everyone; ``propose``, a plan made (and the answer, in
+  ``replies``, to the drones that waited for it), and ``decide``, whether it is flown
+  (``proto/<sender>/<drone>``: ``ack``, the drone holds the proposal).
 * ``answers/<sender>``: ``cur_traj_to``, one trajectory answering the requests of
   several drones at once (a new plan, to every drone that waited for it),
   which each drone named in ``replies`` takes as its ``cur_traj`` and the
@@ -57,7 +58,7 @@ from fleet.transport.wire.base import (
     WireTaskId,
     WireTrajectory,
 )
-from fleet.transport.wire.core import ProtocolBody, answer_in, answering, answers, from_core, to_core
+from fleet.transport.wire.core import ProtocolBody, answer_in, answering, answers, from_core, proposing, to_core
 from fleet.transport.wire.envelope import (
     STAMP_AHEAD_STEPS,
     Body,
@@ -91,5 +92,5 @@ __all__ = [
     "Holds", "MailAck", "MailCancel", "MailClear", "MailId", "MailOrder", "MailStatus", "MailStatusReport",
     "MailView", "PeerBounds", "PlanAnnounce", "Priority", "Propose", "ProtocolBody", "Refuse", "ReqTraj",
     "TaskView", "VehicleView", "WireBody", "WireError", "WireStruct", "WireTaskId", "WireTrajectory", "answer_in",
-    "answering", "answers", "checked", "decode", "decode_as", "encode", "from_core", "to_core", "to_json",
+    "answering", "answers", "checked", "decode", "decode_as", "encode", "from_core", "proposing", "to_core", "to_json",
 ]

@@ -28,8 +28,7 @@ def from_core(message: Message) -> ProtocolBody:
         return ReqTraj(task_id=WireTaskId.of(message.task_id), trajectory=WireTrajectory.of(message.trajectory),
                        asked=message.asked, holds=message.holds, clear=message.clear)
     if isinstance(message, PlanProposal):
-        return Propose(task_id=WireTaskId.of(message.task_id), trajectory=WireTrajectory.of(message.trajectory),
-                       members=message.members)
+        return proposing(message, {})
     if isinstance(message, PlanAck):
         return Ack(task_id=WireTaskId.of(message.task_id), trajectory=WireTrajectory.of(message.trajectory),
                    holds=message.holds)
@@ -38,6 +37,9 @@ def from_core(message: Message) -> ProtocolBody:
     if isinstance(message, PlanDecision):
         return Decide(task_id=WireTaskId.of(message.task_id), trajectory=WireTrajectory.of(message.trajectory),
                       flown=message.flown)
+    if message.proposal is not None:  # it rides in the proposal (see proposing)
+        return proposing(message.proposal, {message.in_reply_to.drone: message.in_reply_to}, message.trajectory,
+                         message.holds)
     return CurTraj(in_reply_to=WireTaskId.of(message.in_reply_to), trajectory=WireTrajectory.of(message.trajectory),
                    holds=message.holds)
 
@@ -56,13 +58,35 @@ def answering(decision: PlanDecision, replies: Mapping[str, TaskId], holds: Hold
                   holds=holds)
 
 
+def proposing(proposal: PlanProposal, replies: Mapping[str, TaskId], current: Trajectory | None = None,
+              holds: Holds = ()) -> Propose:
+    """A ``propose`` that also answers the drones in ``replies`` with ``current`` and the proposal."""
+    return Propose(task_id=WireTaskId.of(proposal.task_id), trajectory=WireTrajectory.of(proposal.trajectory),
+                   members=proposal.members, replies={drone: WireTaskId.of(task) for drone, task in replies.items()},
+                   current=None if current is None else WireTrajectory.of(current), holds=holds)
+
+
 def answer_in(envelope: Envelope, me: str) -> CurrentTraj | None:
-    """The answer to drone ``me``'s request that a ``cur_traj_to`` or ``decide`` carries, if any."""
+    """The answer to drone ``me``'s request that a ``cur_traj_to``, ``decide`` or ``propose`` carries, if any."""
     body = envelope.body
-    if not isinstance(body, (CurTrajTo, Decide)):
+    if not isinstance(body, (CurTrajTo, Decide, Propose)):
         return None
     found = body.replies.get(me)
-    return None if found is None else _answer(envelope.sender, body, found)
+    if found is None:
+        return None
+    if isinstance(body, Propose):
+        return _proposed_answer(envelope.sender, body, found)
+    return _answer(envelope.sender, body, found)
+
+
+def _proposed_answer(sender: str, body: Propose, request: WireTaskId) -> CurrentTraj:
+    if body.current is None:
+        raise WireError(f"propose from {sender!r} answers requests but says nothing of what it flies now")
+    try:
+        proposal = PlanProposal(sender, body.task_id.core(), body.trajectory.core(), body.members)
+        return CurrentTraj(sender, body.current.core(), request.core(), body.holds, proposal)
+    except DronaError as exc:
+        raise WireError(f"propose from {sender!r}: {exc}") from exc
 
 
 def _answer(sender: str, body: CurTraj | CurTrajTo | Decide, request: WireTaskId) -> CurrentTraj:

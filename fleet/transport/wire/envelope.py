@@ -31,7 +31,7 @@ Body = (ReqTraj | CurTraj | CurTrajTo | Propose | Ack | Refuse | Decide | PlanAn
 
 
 class Envelope(WireStruct, frozen=True, kw_only=True):
-    v: Literal[13] = VERSION
+    v: Literal[14] = VERSION
     sender: Annotated[str, msgspec.Meta(min_length=1)]
     sent_at: float
     body: Body
@@ -61,12 +61,12 @@ class PeerBounds:
 
     def check(self, body: Body, now: int) -> None:
         """:class:`WireError` naming what is out of bounds."""
-        trajectory = getattr(body, "trajectory", None)
-        if isinstance(trajectory, WireTrajectory):
-            if len(trajectory.cells) > self.max_cells:
-                raise WireError(f"a trajectory of {len(trajectory.cells)} cells: no plan here has more than "
-                                f"{self.max_cells}")
-            self._inside(trajectory.cells)
+        for trajectory in (getattr(body, "trajectory", None), getattr(body, "current", None)):
+            if isinstance(trajectory, WireTrajectory):
+                if len(trajectory.cells) > self.max_cells:
+                    raise WireError(f"a trajectory of {len(trajectory.cells)} cells: no plan here has more than "
+                                    f"{self.max_cells}")
+                self._inside(trajectory.cells)
         self._inside((*getattr(body, "holds", ()), *getattr(body, "clear", ())))
         if isinstance(body, Refuse):
             for drone, cells in body.gone.items():
@@ -88,9 +88,9 @@ class PeerBounds:
 
 
 def _task_ids(body: Body) -> list[WireTaskId]:
-    if isinstance(body, Decide):
+    if isinstance(body, (Decide, Propose)):
         return [body.task_id, *body.replies.values()]
-    if isinstance(body, (ReqTraj, Propose, Ack, Refuse)):
+    if isinstance(body, (ReqTraj, Ack, Refuse)):
         return [body.task_id]
     if isinstance(body, CurTraj):
         return [body.in_reply_to]

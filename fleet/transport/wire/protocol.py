@@ -33,11 +33,16 @@ class CurTrajTo(WireBody, frozen=True, kw_only=True, tag="cur_traj_to"):
 
 
 class Propose(WireBody, frozen=True, kw_only=True, tag="propose"):
-    """A plan made, flown once every member holds it (acknowledged with ``ack``)."""
+    """A plan made, flown once every member holds it (acknowledged with ``ack``). It answers too the
+    drones in ``replies`` (each to its request), whose rounds waited for it: with ``current``, what the
+    sender flies unless this plan is flown, and the plan itself, which they hold besides."""
 
     task_id: WireTaskId
     trajectory: WireTrajectory
     members: tuple[str, ...]  #: the drones that must hold it
+    replies: dict[str, WireTaskId] = msgspec.field(default_factory=dict)
+    current: WireTrajectory | None = None  #: of the answers (there are replies: required)
+    holds: Holds = ()  #: of the answers: cells the sender's lost vehicle may be in
 
 
 class Ack(WireBody, frozen=True, kw_only=True, tag="ack"):

@@ -28,7 +28,7 @@ from drona_gcs.stack.protocol import (
     State,
 )
 from drona_gcs.workspace import Cell, Workspace
-from tests.drona_gcs.stack.cluster import ProtocolCluster
+from tests.drona_gcs.stack.cluster import ProtocolCluster, Started
 from tests.drona_gcs.stack.protocol_helpers import GOAL, ID_A, OPEN, A, B, confirmed, machine, started
 
 # ============================================================ whole clusters
@@ -52,15 +52,39 @@ def run_round(cluster: ProtocolCluster, goals: Mapping[str, Cell], order: str | 
         plan = s.action.trajectory
         assert (plan.first, plan.last, plan.start_step) == (
             cluster.protocols[s.drone].location, goals[s.drone], cluster.now + cluster.lead_steps)
-        # Psi is exactly what every peer had committed when I planned ...
-        assert dict(s.action.psi) == dict(s.peers_then)
-    # ... and whoever planned after me had my final trajectory: the paper's safety argument
-    for i, earlier in enumerate(round_):
-        for later in round_[i + 1:]:
-            assert later.action.psi[earlier.drone] == earlier.action.trajectory
-            assert later.action.psi[earlier.drone] == cluster.trajectory(earlier.drone)
+        # Psi holds what every peer had committed when I planned ...
+        assert_holds_committed(cluster, s, range(cluster.now + 30))
+    # ... and of every two plans, one was made against the other: the paper's safety argument (as
+    # what was flown, or as a proposal, held besides what its drone flew before)
+    for i, one in enumerate(round_):
+        for other in round_[i + 1:]:
+            assert made_against(one, other) or made_against(other, one)
+            assert cluster.trajectory(one.drone) == one.action.trajectory
     flown = {s.drone: s.action.trajectory for s in round_}
     assert check_fleet(cluster.workspace, flown, cluster.delta) == []
+
+
+def held_as(psi: Mapping[str, Trajectory], peer: str) -> list[Trajectory]:
+    """What a plan's Psi held for ``peer``: what it answered, and its proposal not yet decided."""
+    return [psi[key] for key in (peer, f"{peer}?") if key in psi]
+
+
+def made_against(plan: Started, later: Started) -> bool:
+    """Whether ``later`` was planned holding ``plan`` (flown, or proposed)."""
+    return plan.action.trajectory in held_as(later.action.psi, plan.drone)
+
+
+def assert_holds_committed(cluster: ProtocolCluster, s: Started, horizon: range) -> None:
+    """Psi held, for every peer, what it had committed when ``s`` started (the same positions: a
+    location's stamp may differ), or that peer's plan was made against ``s``'s, proposed then; and
+    nothing but the peers' answers and proposals."""
+    assert {key.rstrip("?") for key in s.action.psi} == set(s.peers_then)
+    for peer, committed in s.peers_then.items():
+        cells = [committed.at(t) for t in horizon]
+        if any([held.at(t) for t in horizon] == cells for held in held_as(s.action.psi, peer)):
+            continue
+        theirs = [other for other in cluster.started if other.drone == peer and other.action.trajectory == committed]
+        assert theirs and made_against(s, theirs[-1]), peer
 
 
 @pytest.mark.parametrize("order", ORDERS)
@@ -69,8 +93,11 @@ def test_simultaneous_tasks_all_start_safely(drones: tuple[str, ...], order: str
     cluster = ProtocolCluster(CROSSING, {d: CLUSTER_STARTS[d] for d in drones})
     assert cluster.delta == 1 and cluster.lead_steps == 2
     run_round(cluster, {d: CLUSTER_GOALS[d] for d in drones}, order)
-    # the highest priority (lowest id) plans first; with equal stamps that is the smallest name
-    assert cluster.started[0].drone == min(drones)
+    # the highest priority (lowest id) plans first (with equal stamps, the smallest name): against
+    # nobody's proposal, and every other plan against it
+    first = next(s for s in cluster.started if s.drone == min(drones))
+    assert not any(key.endswith("?") for key in first.action.psi)
+    assert all(made_against(first, other) for other in cluster.started if other is not first)
 
 
 @pytest.mark.parametrize("order", ORDERS)
@@ -94,9 +121,9 @@ def test_a_drone_that_answered_a_request_ranks_below_it() -> None:
     task_a = cluster.start_task("a", CLUSTER_GOALS["a"])
     assert task_a.id > task_b.id  # a saw b's stamp
     cluster.deliver_all("lifo")
-    b, a = cluster.started
-    assert (b.drone, a.drone) == ("b", "a")
-    assert a.action.psi["b"] == b.action.trajectory
+    [a] = [s for s in cluster.started if s.drone == "a"]
+    [b] = [s for s in cluster.started if s.drone == "b"]
+    assert made_against(b, a) and not made_against(a, b)  # b planned first
     assert check_fleet(CROSSING, cluster.executed(), cluster.delta) == []
 
 
@@ -147,10 +174,9 @@ def test_a_request_overtaken_by_its_senders_next_one_holds_up_no_one() -> None:
         "a": State.EXECUTING, "b": State.EXECUTING, "c": State.WAIT_FOR_TASK}
     assert [(s.drone, s.action.task.id) for s in cluster.started] == [("b", old), ("a", mine), ("b", new)]
     horizon = range(max(t.end_step for t in cluster.executed().values()) + cluster.delta + 2)
-    for s in cluster.started:  # Psi is what each peer had committed (a location's stamp may differ)
-        assert {p: [t.at(i) for i in horizon] for p, t in s.action.psi.items()} == {
-            p: [t.at(i) for i in horizon] for p, t in s.peers_then.items()}
-    assert cluster.started[2].action.psi["a"] == cluster.started[1].action.trajectory
+    for s in cluster.started:  # Psi held what each peer had committed
+        assert_holds_committed(cluster, s, horizon)
+    assert made_against(cluster.started[1], cluster.started[2])
     assert check_fleet(CROSSING, cluster.executed(), cluster.delta) == []
 
 
@@ -205,7 +231,5 @@ def test_random_schedules_of_tasks_messages_and_time(n: int, seed: int) -> None:
     assert len(cluster.started) >= n  # the schedule did something
     horizon = max(s.action.trajectory.end_step for s in cluster.started) + cluster.delta + 2
     for s in cluster.started:
-        assert s.action.psi.keys() == s.peers_then.keys()
-        for peer, answer in s.action.psi.items():  # the same positions (a location's stamp may differ)
-            assert [answer.at(t) for t in range(horizon)] == [s.peers_then[peer].at(t) for t in range(horizon)]
+        assert_holds_committed(cluster, s, range(horizon))
     assert check_fleet(CROSSING, flown_paths(cluster, horizon), cluster.delta) == []

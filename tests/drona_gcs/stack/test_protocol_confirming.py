@@ -51,12 +51,14 @@ from tests.drona_gcs.stack.protocol_helpers import (
 
 # ============================================== a plan is flown once every member holds it
 def confirming(lead_steps: int = 2) -> tuple[CoordinationProtocol, PlanProposal]:
-    """a planned (b and c answered, c waits for a's plan), and waits for b's and c's acks."""
+    """a planned (b and c answered, c waits for a's plan, and is answered as a proposes it: with where a
+    is, and the proposal), and waits for b's and c's acks."""
     proto = machine(lead_steps=lead_steps)
     proto.handle(NewTask(Task(ID_A, GOAL)), 0)
     proto.handle(request(ID_C_LOW, "c"), 0)
-    [broadcast] = proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0)
+    [broadcast, answer] = proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0)
     assert isinstance(broadcast, Broadcast) and isinstance(broadcast.message, PlanProposal)
+    assert answer == Send("c", CurrentTraj("a", location_of("a"), ID_C_LOW, (), broadcast.message))
     assert proto.state is State.CONFIRMING and proto.current_trajectory(0) == Trajectory.stationary(A, 0)
     return proto, broadcast.message
 
@@ -70,7 +72,6 @@ def test_a_plan_no_member_held_by_the_boundary_before_its_start_is_dropped() -> 
     actions = proto.handle(NextStep(), 1)
     stay = Trajectory.stationary(A, 1)
     assert actions == [Broadcast(PlanDecision("a", ID_A, stay, flown=False)),
-                       Send("c", CurrentTraj("a", stay, ID_C_LOW)),
                        TaskFailed(Task(ID_A, GOAL), "not every peer held my plan in time")]
     assert proto.state is State.WAIT_FOR_TASK and proto.trajectory is None
     assert proto.handle(PlanAck("c", ID_A, location_of("c")), 1) == []  # too late
@@ -81,7 +82,7 @@ def test_a_request_while_confirming_is_answered_once_decided() -> None:
     assert proto.handle(request(ID_B_HIGH, "b"), 0) == []  # even a higher priority waits (a lead at most)
     proto.handle(PlanAck("b", ID_A, location_of("b")), 0)
     actions = proto.handle(PlanAck("c", ID_A, location_of("c")), 0)
-    assert {a.to for a in actions if isinstance(a, Send)} == {"b", "c"}
+    assert {a.to for a in actions if isinstance(a, Send)} == {"b"}  # c was answered as a proposed
     assert all(not isinstance(a.message, PlanRefusal) and a.message.trajectory == proposal.trajectory
                for a in actions if isinstance(a, Send))
 
@@ -166,7 +167,7 @@ def test_an_ack_that_says_the_member_holds_my_way_drops_my_plan() -> None:
     proto, proposal = confirming()
     held = tuple(proposal.trajectory.cells[1:3])
     actions = proto.handle(PlanAck("b", ID_A, location_of("b"), held), 0)
-    assert [type(a) for a in actions] == [Broadcast, Send, TaskFailed] and proto.state is State.WAIT_FOR_TASK
+    assert [type(a) for a in actions] == [Broadcast, TaskFailed] and proto.state is State.WAIT_FOR_TASK
     assert isinstance(actions[-1], TaskFailed) and actions[-1].reason == "b flies or holds across it"
 
 

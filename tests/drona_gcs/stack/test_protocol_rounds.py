@@ -110,18 +110,19 @@ def test_a_lower_priority_request_is_its_answer_and_waits_for_my_new_trajectory(
     c_way = traj(0, (0, 4), (1, 4))  # c's last plan, which it flew and rests at the end of
     assert proto.handle(request(ID_B_LOW, "b"), 0) == []
     assert proto.pending == {"b": ID_B_LOW} and proto.received == {"b": location_of("b")}
-    proposal = proto.handle(ReqForCurrentTraj(ID_C_LOW, "c", c_way, others("c")), 1)
-    [broadcast] = proposal
+    [broadcast, *answers] = proto.handle(ReqForCurrentTraj(ID_C_LOW, "c", c_way, others("c")), 1)
     assert isinstance(broadcast, Broadcast) and isinstance(broadcast.message, PlanProposal)
     plan = broadcast.message.trajectory  # flown once b and c hold it
+    # the waiting peers are answered as I propose: with where I am, and the proposal, held by them too
+    here = Trajectory.stationary(A, 1)
+    assert set(answers) == {Send("b", CurrentTraj("a", here, ID_B_LOW, (), broadcast.message)),
+                            Send("c", CurrentTraj("a", here, ID_C_LOW, (), broadcast.message))}
+    assert proto.pending == {}
     assert proto.state is State.CONFIRMING and proto.handle(PlanAck("b", ID_A, location_of("b")), 1) == []
     actions = proto.handle(PlanAck("c", ID_A, c_way), 1)
     assert started(actions).psi == {"b": location_of("b"), "c": c_way} and started(actions).trajectory == plan
-    # it starts executing, tells every peer, then unblocks the waiting peers
-    assert actions[:2] == [started(actions), Broadcast(PlanDecision("a", ID_A, plan, flown=True))]
-    assert set(actions[2:]) == {Send("b", CurrentTraj("a", plan, ID_B_LOW)),
-                                Send("c", CurrentTraj("a", plan, ID_C_LOW))}
-    assert proto.pending == {}
+    # it starts executing, and tells every peer
+    assert actions == [started(actions), Broadcast(PlanDecision("a", ID_A, plan, flown=True))]
 
 
 def test_a_lower_priority_request_from_a_departed_drone_makes_it_a_member_and_is_its_answer() -> None:
@@ -151,7 +152,8 @@ def test_a_late_request_of_a_round_that_is_over_is_not_taken_for_a_higher_priori
     actions = confirmed(proto, proto.handle(CurrentTraj("c", location_of("c", 2), ID_A), 2))
     action = started(actions)
     assert action.psi["b"] == B_PLAN
-    assert Send("b", CurrentTraj("a", action.trajectory, ID_B_NEXT)) in actions
+    assert [a.message.in_reply_to for a in actions if isinstance(a, Send) and isinstance(a.message, CurrentTraj)
+            and a.message.proposal is not None and a.message.proposal.trajectory == action.trajectory] == [ID_B_NEXT]
 
 
 def test_a_late_request_of_a_round_that_is_over_replaces_neither_the_answer_nor_the_id_to_answer() -> None:
@@ -165,8 +167,9 @@ def test_a_late_request_of_a_round_that_is_over_replaces_neither_the_answer_nor_
     actions = confirmed(proto, proto.handle(CurrentTraj("c", location_of("c", 2), ID_A), 2))
     action = started(actions)
     assert action.psi["b"] == B_PLAN
-    assert [a.message for a in actions if isinstance(a, Send) and a.to == "b"] == [
-        CurrentTraj("a", action.trajectory, ID_B_NEXT)]
+    [answer] = [a.message for a in actions if isinstance(a, Send) and a.to == "b"]
+    assert isinstance(answer, CurrentTraj) and answer.in_reply_to == ID_B_NEXT and answer.proposal is not None
+    assert answer.proposal.trajectory == action.trajectory
 
 
 def test_the_newest_request_is_remembered_across_states_and_rounds() -> None:

@@ -24,6 +24,7 @@ from fleet.transport.wire import (
     Envelope,
     MailOrder,
     PlanAnnounce,
+    Propose,
     ReqTraj,
     WireTrajectory,
     answer_in,
@@ -113,12 +114,13 @@ def _protocol_state(stack: DroneStack) -> State:
 
 def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_everyone() -> None:
     """Drones that asked while this one coordinated wait for its new plan; it goes to them in the plan's
-    ``decide``, which every drone gets, not one message each (a fleet given mail at once chains every
-    round through these answers). Each waiting drone reads its own answer out of it."""
+    ``propose``, which every drone gets, not one message each (a fleet given mail at once chains every
+    round through these answers), with where this one is now: they hold both until the ``decide``.
+    Each waiting drone reads its own answer out of it."""
     ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0,
                          drones={"d1": (0, 0, 0), "d2": (7, 0, 0), "d3": (7, 7, 0), "d4": (0, 7, 0)})
 
-    async def scenario(waiting: list[str]) -> list[tuple[str, Envelope]]:
+    async def scenario(waiting: list[str]) -> tuple[list[tuple[str, Envelope]], list[tuple[str, Envelope]]]:
         node = FakeNode()
         agent, stack, mine = _coordinating(ws, node, [3, 3, 0], [5, 5, 0])
         for peer in waiting:  # lower priorities (later stamps): they wait for my plan
@@ -126,31 +128,37 @@ def test_a_new_plan_answers_the_drones_that_waited_for_it_in_one_message_to_ever
             asked = tuple(sorted(set(ws.drones) - {peer}))
             request = ReqForCurrentTraj(TaskId(mine.stamp + 5, peer, 1), peer, where, asked)
             agent._on_protocol(KEYS.proto("all", peer), encode(peer, 1000.0, from_core(request)))
+        node.puts.clear()
         for peer in sorted({"d2", "d3", "d4"} - set(waiting)):
             answer = CurrentTraj(peer, Trajectory.stationary(ws.drones[peer], 0), mine)
             agent._on_protocol(KEYS.proto("d1", peer), encode(peer, 1000.0, from_core(answer)))
         assert stack.protocol.state is State.CONFIRMING  # flown once every peer holds it
+        protocol = (f"{KEYS.root}/proto/", f"{KEYS.root}/answers/", KEYS.plan("d1"))
+        proposed = [(k, decode(p)) for k, p in node.puts if k.startswith(protocol)]
         node.puts.clear()
         for peer in ("d2", "d3", "d4"):
             ack = PlanAck(peer, mine, Trajectory.stationary(ws.drones[peer], 0))
             agent._on_protocol(KEYS.proto("d1", peer), encode(peer, 1000.0, from_core(ack)))
         assert _protocol_state(stack) is State.EXECUTING
         await asyncio.sleep(0)  # the plan's announcement, if any, goes out once the answers have
-        protocol = (f"{KEYS.root}/proto/", f"{KEYS.root}/answers/", KEYS.plan("d1"))
-        return [(k, decode(p)) for k, p in node.puts if k.startswith(protocol)]
+        return proposed, [(k, decode(p)) for k, p in node.puts if k.startswith(protocol)]
 
     for waiting in (["d2", "d3"], ["d2"]):
-        sent = asyncio.run(scenario(waiting))
-        # Every drone is told the plan is flown, in one put to all that answers the waiting ones too.
-        assert [key for key, _ in sent] == [KEYS.proto("all", "d1")]
-        envelope = sent[0][1]
-        assert isinstance(envelope.body, Decide) and envelope.body.flown
-        assert set(envelope.body.replies) == set(waiting)
+        proposed, decided = asyncio.run(scenario(waiting))
+        # The plan goes to every drone, in one put to all that answers the waiting ones too ...
+        assert [key for key, _ in proposed] == [KEYS.proto("all", "d1")]
+        envelope = proposed[0][1]
+        assert isinstance(envelope.body, Propose) and set(envelope.body.replies) == set(waiting)
         for peer in waiting:
             answer = answer_in(envelope, peer)
             assert isinstance(answer, CurrentTraj) and answer.in_reply_to.drone == peer
-            assert answer.trajectory.last == (3, 3, 0)  # the new plan, to the pickup
+            assert answer.trajectory.cells == ((0, 0, 0),)  # where d1 is: flown unless the plan is
+            assert answer.proposal is not None and answer.proposal.trajectory.last == (3, 3, 0)  # to the pickup
         assert answer_in(envelope, "d4") is None  # d4 did not wait: nothing in it for d4
+        # ... and every drone is told it is flown, in one put to all.
+        assert [key for key, _ in decided] == [KEYS.proto("all", "d1")]
+        assert isinstance(decided[0][1].body, Decide) and decided[0][1].body.flown
+        assert decided[0][1].body.replies == {}
 
 
 def test_an_answer_to_other_drones_tells_this_one_the_senders_new_plan() -> None:

@@ -9,17 +9,20 @@ import re
 import pytest
 
 from drona_gcs.motion import Trajectory
-from drona_gcs.stack.messages import CurrentTraj, ReqForCurrentTraj, TaskId
+from drona_gcs.stack.messages import CurrentTraj, PlanProposal, ReqForCurrentTraj, TaskId
 from fleet.transport.keys import FleetKeys, check_name
 from fleet.transport.wire import (
     VERSION,
     MailOrder,
+    PeerBounds,
     WireError,
+    answer_in,
     answers,
     checked,
     decode,
     encode,
     from_core,
+    proposing,
     to_core,
     to_json,
 )
@@ -52,7 +55,7 @@ def envelope(body: dict[str, object], **over: object) -> bytes:
 
 @pytest.mark.parametrize("payload, problem", [
     (b"not json", "JSON is malformed"),
-    (b'{"v": 13, "sender": "d\xff", "sent_at": 1.0, "body": {"kind": "clock_ping"}}', "not UTF-8"),
+    (b'{"v": 14, "sender": "d\xff", "sent_at": 1.0, "body": {"kind": "clock_ping"}}', "not UTF-8"),
     (envelope({"kind": "clock_ping"}, v=3), "Invalid enum value 3 - at `$.v`"),
     (envelope({"kind": "teleport"}), "Invalid value 'teleport' - at `$.body.kind`"),
     (envelope({"kind": "req_traj", "task_id": {"stamp": "12", "drone": "d1", "seq": 1}}),
@@ -113,6 +116,33 @@ def test_the_cells_a_lost_vehicle_holds_travel_with_requests_and_answers() -> No
     assert to_core(decode(encode("d1", 5.5, from_core(answer))), "d2") == answer
     joined = answers(answer.trajectory, {"d2": TASK, "d3": TASK}, held)
     assert to_core(decode(encode("d1", 5.5, joined)), "d3") == answer
+
+
+def test_an_answer_with_a_proposal_rides_in_the_proposal_to_everyone() -> None:
+    """A plan proposed answers the drones that waited for it: each takes its answer (where the sender is
+    now, and the proposal) out of the one ``propose`` everyone gets, and holds the proposal as any."""
+    held = ((5, 5, 0),)
+    proposal = PlanProposal("d1", TaskId(11, "d1", 2), Trajectory(42, ((1, 2, 0), (1, 3, 0))), ("d2", "d3"))
+    by_d3, by_d4 = TaskId(12, "d3", 1), TaskId(13, "d4", 1)
+    answer = CurrentTraj("d1", Trajectory(40, ((1, 2, 0),)), by_d3, held, proposal)
+    alone = decode(encode("d1", 5.5, from_core(answer)))  # sent on its own, it is a proposal too
+    assert to_core(alone, "d3") == proposal and answer_in(alone, "d3") == answer and answer_in(alone, "d2") is None
+    joined = decode(encode("d1", 5.5, proposing(proposal, {"d3": by_d3, "d4": by_d4}, answer.trajectory, held)))
+    assert to_core(joined, "d2") == proposal
+    assert answer_in(joined, "d3") == answer
+    assert answer_in(joined, "d4") == CurrentTraj("d1", answer.trajectory, by_d4, held, proposal)
+    assert answer_in(joined, "d2") is None
+    mute = decode(encode("d1", 5.5, proposing(proposal, {"d3": by_d3})))
+    with pytest.raises(WireError, match="propose from 'd1' answers requests but says nothing of what it flies"):
+        answer_in(mute, "d3")
+
+
+def test_what_a_proposal_says_its_sender_flies_is_bounded_as_any_trajectory() -> None:
+    proposal = PlanProposal("d1", TaskId(11, "d1", 2), Trajectory(42, ((1, 2, 0),)), ("d2",))
+    body = proposing(proposal, {"d2": TASK}, Trajectory(40, ((9, 2, 0),)))
+    with pytest.raises(WireError, match=r"cell \[9, 2, 0\] is outside the 8x8x1 workspace"):
+        PeerBounds.of((8, 8, 1), 20).check(body, 40)
+    PeerBounds.of((8, 8, 1), 20).check(proposing(proposal, {"d2": TASK}, Trajectory(40, ((7, 2, 0),))), 40)
 
 
 def test_a_message_built_by_hand_is_checked_as_one_from_the_wire() -> None:
