@@ -254,12 +254,12 @@ class ZenohNode:
 
     def _put_now(self, key: str, payload: bytes, once: bool) -> None:
         if once:
-            self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+            self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK, express=True)
             return
         publisher = self._publishers.get(key)
         if publisher is None:
             publisher = self.session.declare_publisher(
-                key, congestion_control=zenoh.CongestionControl.BLOCK)
+                key, congestion_control=zenoh.CongestionControl.BLOCK, express=True)
             self._publishers[key] = publisher
             self._declared.append(publisher)
         publisher.put(payload)
