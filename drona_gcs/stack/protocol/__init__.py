@@ -85,9 +85,14 @@ settled here, and one message it sends is saved (the second point):
   proposal when I left holds its cells too (``maybe_flown``). A request that comes while I
   confirm is answered once decided.
 * **The line moves on as I propose.** The peers that waited for my plan are answered as I propose
-  it, with what I fly now: they hold my proposal too (undecided), so their plans keep clear of
-  both, whichever I fly. Where my proposal came late (it may: messages reorder), the check below
-  stops theirs. A round in line so waits for one plan and one message, not for every ack.
+  it, with what I fly now and the proposal itself (``CurrentTraj.proposal``): they hold both, so
+  their plans keep clear of whichever I fly. A round in line so waits for one plan and one
+  message per drone before it, not for every ack. Sound: I ack their plans only if they keep clear
+  of my proposal too (below), and I fly mine only once they acked it; so of any two plans flown,
+  one was made against the other, or checked against it by the drone that could fly either (the
+  window is symmetric). No plan keeps clear of both (my rest walls its goal off): it waits for
+  my decision, which then stands for my answer. My decision came first (messages reorder): it
+  said what I fly, and the answer's "what I fly now" is old.
 * **Only a majority plans.** A partition's two sides each see the other leave; each planning around
   where it last knew the other, both could plan into one cell. I plan only in touch with a strict
   majority of the fleet, or half of it with its first drone by name (``in_quorum``): at most one side

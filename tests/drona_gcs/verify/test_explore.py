@@ -127,6 +127,7 @@ def test_a_counterexample_is_the_same_whatever_the_hash_seed() -> None:
                    "--quiet", "--shrink", "0"]
         done = subprocess.run(command, capture_output=True, text=True, timeout=120, check=False,
                               env={**os.environ, "PYTHONHASHSEED": hash_seed})
+        assert done.returncode == 1, f"exit {done.returncode}: {done.stdout}{done.stderr}"  # 1: a violation
         return done.stdout.splitlines()[1:]  # the first line has timings
 
     first = run("1")

@@ -12,7 +12,7 @@ from drona_gcs.geo import GeoFrame
 from drona_gcs.motion import Trajectory
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.drone import DroneStack, StackConfig
-from drona_gcs.stack.messages import CurrentTraj, PlanAck, PlanDecision, ReqForCurrentTraj, TaskId
+from drona_gcs.stack.messages import CurrentTraj, PlanAck, PlanDecision, PlanProposal, ReqForCurrentTraj, TaskId
 from drona_gcs.stack.protocol import Braked, State
 from drona_gcs.workspace import Workspace
 from fleet.agent.drone import DroneAgent
@@ -33,6 +33,7 @@ from fleet.transport.wire import (
     decode,
     encode,
     from_core,
+    proposing,
 )
 from tests.fakes.node import FakeNetwork, FakeNode
 from tests.fleet.agent.drone_helpers import KEYS, vehicle_over_its_start
@@ -205,6 +206,25 @@ def test_a_decision_that_answers_a_waiting_drone_lets_its_round_go_on() -> None:
 
     assert asyncio.run(scenario(named=True)) is State.CONFIRMING  # planned: its proposal is out
     assert asyncio.run(scenario(named=False)) is State.COORDINATING
+
+
+def test_a_proposal_that_answers_a_waiting_drone_lets_its_round_go_on() -> None:
+    """A ``propose`` carries the answers to the drones that waited for the plan: a drone it names plans
+    against both what the sender flies now and the plan; a drone it does not name still waits."""
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0, drones={"d1": (0, 0, 0), "d2": (7, 0, 0)})
+    plan = Trajectory(1, ((7, 0, 0), (7, 1, 0), (7, 2, 0)))
+
+    async def scenario(named: bool) -> tuple[State, dict[str, Trajectory]]:
+        agent, stack, mine = _coordinating(ws, FakeNode(), [5, 5, 0], [6, 6, 0])
+        replies = {"d1": mine} if named else {"d9": TaskId(mine.stamp, "d9", 1)}
+        proposal = PlanProposal("d2", TaskId(mine.stamp - 1, "d2", 1), plan, ("d1",))
+        proposed = proposing(proposal, replies, Trajectory.stationary((7, 0, 0), 0))
+        agent._on_protocol(KEYS.proto("all", "d2"), encode("d2", 1000.0, proposed))
+        return stack.protocol.state, stack.protocol._undecided()
+
+    state, undecided = asyncio.run(scenario(named=True))
+    assert state is State.CONFIRMING and undecided == {"d2?": plan}  # planned, holding the proposal too
+    assert asyncio.run(scenario(named=False))[0] is State.COORDINATING
 
 
 def test_answers_for_a_round_that_is_over_still_tell_the_senders_new_plan() -> None:

@@ -99,7 +99,7 @@ def test_the_wire_format_is_the_documented_json() -> None:
     """Other tools read these bytes: the envelope's fields in order, the body tagged by its kind."""
     request = ReqForCurrentTraj(TASK, "d1", Trajectory(40, ((1, 2, 0), (2, 2, 0))), ("d2",))
     payload = encode("d1", 5.5, from_core(request))
-    assert payload == (b'{"v":13,"sender":"d1","sent_at":5.5,"body":{"kind":"req_traj",'
+    assert payload == (b'{"v":14,"sender":"d1","sent_at":5.5,"body":{"kind":"req_traj",'
                        b'"task_id":{"stamp":%d,"drone":"%s","seq":%d,"epoch":0},'
                        b'"trajectory":{"start_step":40,"cells":[[1,2,0],[2,2,0]]},"asked":["d2"],"holds":[],"clear":[]}}'
                        % (TASK.stamp, TASK.drone.encode(), TASK.seq))
