@@ -130,9 +130,8 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
         if isinstance(action, StartExecuting):
             self._consistent(drone, action)
             self._carried_to_its_dropoff(drone, action)
-            self.committed[drone] = action.trajectory
-            self.made_against = {**{k: t for k, t in self.made_against.items() if k[0] != drone},
-                                 **{(drone, key[:-1]): t for key, t in action.psi.items() if key.endswith("?")}}
+            self._commit(drone, action.trajectory)
+            self.made_against.update({(drone, key[:-1]): t for key, t in action.psi.items() if key.endswith("?")})
             self.rests.pop(drone, None)
             self.cuts.pop(drone, None)
             self.flown[drone] = (*self.flown.get(drone, ())[-(RECENT_PLANS - 1):], action.trajectory)
@@ -178,6 +177,11 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
         self._forget(drone, request)
 
     # (a)
+    def _commit(self, drone: str, trajectory: Trajectory) -> None:
+        """``drone`` flies ``trajectory`` from now: what its last plan was made against no longer counts."""
+        self.committed[drone] = trajectory
+        self.made_against = {k: t for k, t in self.made_against.items() if k[0] != drone}
+
     def _consistent(self, drone: str, action: StartExecuting) -> None:
         since = action.trajectory.start_step - self.config.delta - 1
         for peer in self.config.drones:
@@ -226,7 +230,7 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
         """``drone`` flies ``now`` instead of what it was committed to, and nobody has heard yet."""
         self.rests.pop(drone, None)
         self.before_news[drone] = self.committed[drone]
-        self.committed[drone] = now
+        self._commit(drone, now)
         self.told = {k: v for k, v in self.told.items() if k[1] != drone}
 
     def _clear_of(self, drone: str, action: StartExecuting, peer: str, since: int) -> None:
@@ -279,7 +283,7 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
 
     def restarted(self, drone: str, cell: Cell, step: int) -> None:
         """``drone``'s agent started again, its vehicle holding ``cell``: its plan is to stay (a, g)."""
-        self.committed[drone] = Trajectory.stationary(cell, step)
+        self._commit(drone, Trajectory.stationary(cell, step))
 
     def vehicle_down(self, drone: str, cell: Cell, step: int) -> None:
         """``drone``'s vehicle came down in ``cell`` at ``step``: it stays there, whatever its plan

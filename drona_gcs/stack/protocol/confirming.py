@@ -186,10 +186,9 @@ class Confirming(Flight):
         held = self.proposals.get(sender)
         if held is not None and not held.task_id.newer_than(event.task_id):
             del self.proposals[sender]
-        if event.flown:
-            self.heard(sender, event.trajectory, now)
-            if sender in self.received:  # what it answered this round, or its request carried, is old
-                self.received[sender] = self._news(sender, event.trajectory, now)
+        self.heard(sender, event.trajectory, now)  # its word on what it flies, the plan or not
+        if event.flown and sender in self.received:  # what it answered this round, or its request carried, is old
+            self.received[sender] = self._news(sender, event.trajectory, now)
         return []
 
 

@@ -147,7 +147,7 @@ class Knowledge:
         not hold us in place for good (we may have come in after it flew through).
         """
         held: dict[str, Trajectory] = {}
-        departed = [*self.ghosts.items(), *((f"{d}?", t) for d, t in self.maybe_flown.items())]
+        departed = [*self.ghosts.items(), *((f"{d}?maybe", t) for d, t in self.maybe_flown.items())]
         for drone, trajectory in departed:
             for i, cell in enumerate(dict.fromkeys(trajectory.cells)):
                 if cell == sparing:
@@ -193,6 +193,9 @@ class Knowledge:
         if decided is not None and not event.task_id.newer_than(decided):
             return False
         self.newest[event.sender] = event.task_id
+        pledged = self.pledged.get(event.sender)
+        if pledged is not None and event.task_id.newer_than(pledged):
+            del self.pledged[event.sender]  # a new round of its: the one I waited on is over
         return True
 
     def _news(self, drone: str, trajectory: Trajectory, now: int) -> Trajectory:

@@ -97,14 +97,17 @@ class Rounds(Confirming):
             if proposal is not None:
                 self._hold_proposal(proposal)
                 self.pledged[sender] = proposal.task_id
+            else:  # its round is over: no decision of it to wait for
+                self.pledged.pop(sender, None)
         self.peer_holds[sender] = event.holds
         return self._plan_if_ready(now)
 
     def _on_decision_while_coordinating(self, event: PlanDecision, now: int) -> list[Action]:
         """A decision I wait for (see :meth:`_wait_for_decisions`) is the answer it stood for."""
         self._on_decision(event, now)
-        sender = event.sender
-        if self.pledged.get(sender) != event.task_id or sender in self.received or sender not in self.members:
+        sender, pledged = event.sender, self.pledged.get(event.sender)
+        if (pledged is None or pledged.newer_than(event.task_id)  # (a later decision also says what it flies)
+                or sender in self.received or sender not in self.members):
             return []
         del self.pledged[sender]
         self.received[sender] = self.known[sender] = self._news(sender, event.trajectory, now)
@@ -112,7 +115,8 @@ class Rounds(Confirming):
 
     def _wait_for_decisions(self) -> bool:
         """No plan keeps clear of both what a peer flies and what it proposed: its decision will say which
-        holds, and answer me (whether I wait for any)."""
+        holds, and answer me (whether I wait for any). Once per proposal: a decision lost, I ask again,
+        and its answer (with no proposal) ends the wait."""
         undecided = [p for p, task_id in self.pledged.items()
                      if p in self.proposals and self.proposals[p].task_id == task_id and p in self.received]
         for p in undecided:
@@ -195,17 +199,10 @@ class Rounds(Confirming):
                **{f"{p}~lost{i}": Trajectory.stationary(c, now) for p, cells in sorted(self.peers_lost.items())
                   for i, c in enumerate(cells) if c != here}}
         max_length = task.max_length(start_step)
+        unfit = self._unfit_to_plan(max_length)
+        if unfit is not None:
+            return self._no_plan(NoPlanFound(unfit), now)
         try:
-            if not self.in_quorum():
-                raise NoPlanFound(self._no_majority())
-            if self.lost is not None:
-                raise NoPlanFound("my vehicle is lost")
-            if self.off_since is not None:
-                raise NoPlanFound("my clock is beyond the fleet's bound")
-            if self.down is not None:
-                raise NoPlanFound("my vehicle is down")
-            if max_length is not None and max_length < 0:
-                raise NoPlanFound("the battery no longer affords the task")
             plan = self.plan(start, task.goal, start_step, psi, max_length)
         except NoPlanFound as exc:
             return [] if self._wait_for_decisions() else self._no_plan(exc, now)
@@ -218,6 +215,20 @@ class Rounds(Confirming):
         # undecided): whichever I end up flying, their plans keep clear of it.
         return [Broadcast(proposal), *self._release_pending(self.current_trajectory(now), proposal),
                 *self._go_if_held(now)]
+
+    def _unfit_to_plan(self, max_length: int | None) -> str | None:
+        """Why no plan of mine could be flown whatever the peers fly, if so."""
+        if not self.in_quorum():
+            return self._no_majority()
+        if self.lost is not None:
+            return "my vehicle is lost"
+        if self.off_since is not None:
+            return "my clock is beyond the fleet's bound"
+        if self.down is not None:
+            return "my vehicle is down"
+        if max_length is not None and max_length < 0:
+            return "the battery no longer affords the task"
+        return None
 
     def _no_plan(self, exc: NoPlanFound, now: int) -> list[Action]:
         """I stay: my last plan (or my location) is still the truth, including the recent steps a peer up

@@ -17,7 +17,7 @@ from drona_gcs.stack.messages import (
     Task,
     TaskId,
 )
-from drona_gcs.stack.protocol import Broadcast, CoordinationProtocol, NewTask, Send, State, TaskFailed
+from drona_gcs.stack.protocol import Broadcast, CoordinationProtocol, NewTask, NextStep, Send, State, TaskFailed
 from tests.drona_gcs.stack.protocol_helpers import (
     GOAL,
     ID_A,
@@ -111,3 +111,33 @@ def test_a_decision_not_waited_for_answers_nothing() -> None:
     older = TaskId(ID_B_HIGH.stamp - 1, "b", 0)
     assert proto.handle(PlanDecision("b", older, location_of("b"), flown=True), 0) == []
     assert state_of(proto) is State.COORDINATING and "b" not in proto.received
+
+
+def test_a_wait_for_a_decision_that_was_lost_ends_with_the_next_answer() -> None:
+    """Found in review: b's decision lost, a asked again, and b's answer (no proposal now: its round is
+    over) was dropped again for the same proposal, for good. One wait per proposal: the task fails."""
+    proto = waiting_for_b(B)
+    assert proto.handle(pledge(), 0) == []
+    asked = proto.handle(NextStep(), 4)  # the round asks b again
+    assert [a.to for a in asked if isinstance(a, Send)] == ["b"]
+    actions = proto.handle(CurrentTraj("b", location_of("b"), ID_A), 4)
+    assert [type(a) for a in actions] == [TaskFailed] and state_of(proto) is State.WAIT_FOR_TASK
+
+
+def test_a_new_round_of_the_drone_waited_on_ends_the_wait() -> None:
+    """b's decision lost, b tries again (ranking below a now): its request is its answer, and says what
+    it flies; the proposal a waited on is over."""
+    proto = waiting_for_b(B)
+    assert proto.handle(pledge(), 0) == []
+    actions = proto.handle(ReqForCurrentTraj(ID_B_NEXT, "b", location_of("b", 2), ("a", "c")), 2)
+    assert TaskFailed in [type(a) for a in actions] and state_of(proto) is State.WAIT_FOR_TASK
+
+
+def test_a_decision_not_to_fly_says_what_its_sender_flies() -> None:
+    """Its decision (not flown) came before its answer: what it flies is what the decision says, not
+    what I knew of it before."""
+    proto = waiting_for_b(GOAL)
+    there = Trajectory.stationary((3, 3, 0), 0)  # b is there now (a plan of it I never heard of)
+    proto.handle(PlanDecision("b", ID_B_HIGH, there, flown=False), 0)
+    action = started(confirmed(proto, proto.handle(pledge(), 0)))
+    assert action.psi["b"].cells == ((3, 3, 0),)

@@ -217,3 +217,23 @@ def test_a_stop_short_of_where_a_peer_braked_or_grounded_itself_is_no_detour(new
             monitors._carried_to_its_dropoff("d0", short)
     else:
         monitors._carried_to_its_dropoff("d0", short)
+
+
+@pytest.mark.parametrize("braked", [False, True])
+def test_a_plan_made_against_a_proposal_counts_until_its_drone_flies_something_else(braked: bool) -> None:
+    """(a): d0 planned against d1's proposal, held besides where d1 was; d1's plan, started after,
+    was made with d0 where it was: it keeps clear of d0's plan, which was made against it. Once d0
+    flies something else (it braked), that no longer holds, and d1 planned with a stale d0."""
+    ws = Workspace.build(size=(5, 3, 1))
+    config = WorldConfig(ws, ("d0", "d1"), ((0, 2, 0), (0, 0, 0)), (), (), delta=0)
+    monitors = Monitors(config)
+    d1_plan = Trajectory(3, ((0, 0, 0), (1, 0, 0), (2, 0, 0)))
+    d0_plan = Trajectory(3, ((0, 2, 0), (1, 2, 0), (2, 2, 0)))
+    monitors.action("d0", StartExecuting(Task(TaskId(1, "d0", 1), (2, 2, 0)), d0_plan,
+                                         {"d1": Trajectory(0, ((0, 0, 0),)), "d1?": d1_plan}))
+    if braked:
+        monitors.action("d0", Braked(Trajectory(3, ((0, 2, 0), (1, 2, 0))), (2, 2, 0)))
+    start_d1 = StartExecuting(Task(TaskId(2, "d1", 1), (2, 0, 0)), d1_plan, {"d0": Trajectory(0, ((0, 2, 0),))})
+    with pytest.raises(Violation, match=r"\(a\) d1 planned task .* with a stale trajectory of d0") if braked \
+            else contextlib.nullcontext():
+        monitors.action("d1", start_d1)
