@@ -198,7 +198,9 @@ def test_a_slow_vehicle_turns_in_the_plans_cells(cells_a_step: float) -> None:
 
     sink, reports = cruise(ZIGZAG, cells_a_step, 0.1, done, check_hz=100.0)
     assert legs_off_the_plan(sink, ZIGZAG) == []
-    assert [FRAME.locate(end).cell for _, end in sink.legs] == list(ZIGZAG.cells[1:])
+    # The cells it was sent to, in order (a check late under load may aim it at a second point of a cell).
+    sent = [FRAME.locate(end).cell for _, end in sink.legs]
+    assert [c for i, c in enumerate(sent) if i == 0 or c != sent[i - 1]] == list(ZIGZAG.cells[1:])
     assert max(r.behind for r in reports) >= 1  # the corner was kept on its route
 
 
