@@ -198,7 +198,8 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
                 continue
             if self.made_against.get((peer, drone)) == action.trajectory:
                 continue
-            if (not same_future(used, self.committed[peer], since) and used != self.rests.get(peer)
+            rest = self.rests.get(peer)  # (the same positions: a rest's stamp says nothing)
+            if (not same_future(used, self.committed[peer], since) and not (rest and same_future(used, rest, since))
                     and not self._not_told_yet(drone, peer, used, since)):
                 raise Violation("a", f"{drone} planned task {action.task.id} with a stale trajectory of "
                                      f"{peer}: used {cells_text(used)}, but {peer} is committed to "

@@ -237,3 +237,22 @@ def test_a_plan_made_against_a_proposal_counts_until_its_drone_flies_something_e
     with pytest.raises(Violation, match=r"\(a\) d1 planned task .* with a stale trajectory of d0") if braked \
             else contextlib.nullcontext():
         monitors.action("d1", start_d1)
+
+
+@pytest.mark.parametrize("held_at", [(2, 0, 0), (1, 0, 0)])
+def test_a_rest_held_from_another_step_is_the_same_rest(held_at: Cell) -> None:
+    """(a): found by sweep 30513 (--skews 1): d1, its clock ahead, said it rests from its step 3; d0 heard
+    of it at its own step 1 and held d1 there from then. The same positions: no stale trajectory. A rest
+    held elsewhere is one."""
+    ws = Workspace.build(size=(5, 3, 1))
+    config = WorldConfig(ws, ("d0", "d1"), ((0, 2, 0), (0, 0, 0)), (), (), delta=0)
+    monitors = Monitors(config)
+    monitors.action("d1", StartExecuting(Task(TaskId(1, "d1", 1), (2, 0, 0)),
+                                         Trajectory(1, ((0, 0, 0), (1, 0, 0), (2, 0, 0))),
+                                         {"d0": Trajectory(0, ((0, 2, 0),))}))
+    monitors.action("d1", Present("d0", Trajectory.stationary((2, 0, 0), 3), braked=False))
+    start_d0 = StartExecuting(Task(TaskId(2, "d0", 2), (4, 2, 0)), Trajectory(2, ((0, 2, 0), (1, 2, 0))),
+                              {"d1": Trajectory.stationary(held_at, 1)})
+    with pytest.raises(Violation, match=r"\(a\) d0 planned task .* with a stale trajectory of d1") \
+            if held_at != (2, 0, 0) else contextlib.nullcontext():
+        monitors.action("d0", start_d0)
