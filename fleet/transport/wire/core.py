@@ -83,7 +83,7 @@ def _proposed_answer(sender: str, body: Propose, request: WireTaskId) -> Current
     if body.current is None:
         raise WireError(f"propose from {sender!r} answers requests but says nothing of what it flies now")
     try:
-        proposal = PlanProposal(sender, body.task_id.core(), body.trajectory.core(), body.members)
+        proposal = PlanProposal(sender, made_by(sender, body), body.trajectory.core(), body.members)
         return CurrentTraj(sender, body.current.core(), request.core(), body.holds, proposal)
     except DronaError as exc:
         raise WireError(f"propose from {sender!r}: {exc}") from exc
@@ -96,23 +96,32 @@ def _answer(sender: str, body: CurTraj | CurTrajTo | Decide, request: WireTaskId
         raise WireError(f"{body.kind} from {sender!r}: {exc}") from exc
 
 
+def made_by(sender: str, body: ReqTraj | Propose | Decide) -> TaskId:
+    """The task id of ``sender``'s request, proposal or decision: one of its own tasks. A task id naming
+    another drone would stand in that drone's place in the line, and a forged one could jump it."""
+    if body.task_id.drone != sender:
+        raise WireError(f"{body.kind} from {sender!r} names task {body.task_id.core()} of drone "
+                        f"{body.task_id.drone!r}: a drone coordinates its own tasks only")
+    return body.task_id.core()
+
+
 def to_core(envelope: Envelope, me: str) -> Message | None:
     """The protocol message for drone ``me`` in ``envelope`` (the sender is the envelope's); None
     for a ``cur_traj_to`` that answers others only."""
-    body = envelope.body
+    body, sender = envelope.body, envelope.sender
     if isinstance(body, ReqTraj):
-        return ReqForCurrentTraj(body.task_id.core(), envelope.sender, body.trajectory.core(), body.asked,
-                                 body.holds, body.clear)
+        return ReqForCurrentTraj(made_by(sender, body), sender, body.trajectory.core(), body.asked, body.holds,
+                                 body.clear)
     if isinstance(body, Propose):
-        return PlanProposal(envelope.sender, body.task_id.core(), body.trajectory.core(), body.members)
+        return PlanProposal(sender, made_by(sender, body), body.trajectory.core(), body.members)
     if isinstance(body, Ack):
-        return PlanAck(envelope.sender, body.task_id.core(), body.trajectory.core(), body.holds)
+        return PlanAck(sender, body.task_id.core(), body.trajectory.core(), body.holds)
     if isinstance(body, Refuse):
-        return PlanRefusal(envelope.sender, body.task_id.core(), tuple(sorted(body.gone.items())))
+        return PlanRefusal(sender, body.task_id.core(), tuple(sorted(body.gone.items())))
     if isinstance(body, Decide):
-        return PlanDecision(envelope.sender, body.task_id.core(), body.trajectory.core(), body.flown)
+        return PlanDecision(sender, made_by(sender, body), body.trajectory.core(), body.flown)
     if isinstance(body, CurTraj):
-        return _answer(envelope.sender, body, body.in_reply_to)
+        return _answer(sender, body, body.in_reply_to)
     if isinstance(body, CurTrajTo):
         return answer_in(envelope, me)
     raise WireError(f"{body.kind} is not a protocol message")

@@ -9,7 +9,7 @@ import re
 import pytest
 
 from drona_gcs.motion import Trajectory
-from drona_gcs.stack.messages import CurrentTraj, PlanProposal, ReqForCurrentTraj, TaskId
+from drona_gcs.stack.messages import CurrentTraj, Message, PlanDecision, PlanProposal, ReqForCurrentTraj, TaskId
 from fleet.transport.keys import FleetKeys, check_name
 from fleet.transport.wire import (
     VERSION,
@@ -135,6 +135,25 @@ def test_an_answer_with_a_proposal_rides_in_the_proposal_to_everyone() -> None:
     mute = decode(encode("d1", 5.5, proposing(proposal, {"d3": by_d3})))
     with pytest.raises(WireError, match="propose from 'd1' answers requests but says nothing of what it flies"):
         answer_in(mute, "d3")
+
+
+@pytest.mark.parametrize("message", [
+    ReqForCurrentTraj(TaskId(12, "d3", 1), "d1", Trajectory(40, ((1, 2, 0),)), ("d2",)),
+    PlanProposal("d1", TaskId(12, "d3", 1), Trajectory(42, ((1, 2, 0),)), ("d2",)),
+    PlanDecision("d1", TaskId(12, "d3", 1), Trajectory(42, ((1, 2, 0),)), flown=True),
+])
+def test_a_request_proposal_or_decision_for_another_drones_task_is_refused(message: Message) -> None:
+    """A task id stands for its drone in the line: d1 may not coordinate d3's task."""
+    envelope = decode(encode("d1", 5.5, from_core(message)))
+    with pytest.raises(WireError, match=re.escape("from 'd1' names task 12.d3.1 of drone 'd3'")):
+        to_core(envelope, "d2")
+
+
+def test_an_answer_riding_in_a_proposal_for_another_drones_task_is_refused() -> None:
+    proposal = PlanProposal("d1", TaskId(12, "d3", 1), Trajectory(42, ((1, 2, 0),)), ("d2",))
+    envelope = decode(encode("d1", 5.5, proposing(proposal, {"d2": TASK}, Trajectory(40, ((1, 2, 0),)))))
+    with pytest.raises(WireError, match=re.escape("propose from 'd1' names task 12.d3.1 of drone 'd3'")):
+        answer_in(envelope, "d2")
 
 
 def test_what_a_proposal_says_its_sender_flies_is_bounded_as_any_trajectory() -> None:
