@@ -3,6 +3,7 @@ keep in this workspace."""
 
 from __future__ import annotations
 
+import collections
 import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -45,6 +46,9 @@ _DECODER = msgspec.json.Decoder(Envelope)
 #: clock: a burst of ids in one step runs a few ahead); a stamp far beyond would drag every clock it reaches.
 STAMP_AHEAD_STEPS: Final = 1000
 
+#: Envelopes decoded, and bodies found within bounds, remembered for the drones of a process.
+REMEMBERED: Final = 256
+
 
 @dataclass(frozen=True)
 class PeerBounds:
@@ -60,7 +64,17 @@ class PeerBounds:
         return cls(size, 4 * (plan_length_limit + 1))
 
     def check(self, body: Body, now: int) -> None:
-        """:class:`WireError` naming what is out of bounds."""
+        """:class:`WireError` naming what is out of bounds. A body found within them is remembered: the
+        drones of a process share each envelope decoded (see decode), and a later step cannot put it out."""
+        seen = _WITHIN.get(id(body))
+        if seen is not None and seen[0] is body and seen[1] == self and seen[2] <= now:
+            return
+        self._check(body, now)
+        _WITHIN[id(body)] = (body, self, now)  # the body kept here keeps its id from being reused
+        if len(_WITHIN) > REMEMBERED:
+            _WITHIN.popitem(last=False)
+
+    def _check(self, body: Body, now: int) -> None:
         for trajectory in (getattr(body, "trajectory", None), getattr(body, "current", None)):
             if isinstance(trajectory, WireTrajectory):
                 if len(trajectory.cells) > self.max_cells:
@@ -87,6 +101,9 @@ class PeerBounds:
                 raise WireError(f"cell {list(cell)} is outside the {'x'.join(map(str, self.size))} workspace")
 
 
+_WITHIN: collections.OrderedDict[int, tuple[Body, PeerBounds, int]] = collections.OrderedDict()
+
+
 def _task_ids(body: Body) -> list[WireTaskId]:
     if isinstance(body, (Decide, Propose)):
         return [body.task_id, *body.replies.values()]
@@ -103,7 +120,7 @@ def encode(sender: str, sent_at: float, body: Body) -> bytes:
     return _ENCODER.encode(Envelope(sender=sender, sent_at=sent_at, body=body))
 
 
-@functools.lru_cache(maxsize=256)
+@functools.lru_cache(maxsize=REMEMBERED)
 def decode(payload: bytes) -> Envelope:
     """The envelope in ``payload``; :class:`WireError` naming what is wrong otherwise.
 

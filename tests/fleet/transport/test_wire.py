@@ -164,6 +164,22 @@ def test_what_a_proposal_says_its_sender_flies_is_bounded_as_any_trajectory() ->
     PeerBounds.of((8, 8, 1), 20).check(proposing(proposal, {"d2": TASK}, Trajectory(40, ((7, 2, 0),))), 40)
 
 
+def test_a_body_within_bounds_is_checked_once_for_every_drone_but_not_for_other_bounds_or_steps() -> None:
+    """The drones of a process share a decoded envelope; what one found within bounds holds for the others,
+    at that step or later, in that workspace only."""
+    stamp = 3000
+    body = decode(encode("d1", 5.5, from_core(PlanProposal("d1", TaskId(stamp, "d1", 1),
+                                                           Trajectory(42, ((7, 2, 0),)), ("d2",))))).body
+    wide, narrow = PeerBounds.of((8, 8, 1), 20), PeerBounds.of((4, 4, 1), 20)
+    wide.check(body, stamp)
+    wide.check(body, stamp + 5)
+    with pytest.raises(WireError, match=r"cell \[7, 2, 0\] is outside the 4x4x1 workspace"):
+        narrow.check(body, stamp)
+    with pytest.raises(WireError, match="steps ahead of this clock"):
+        wide.check(body, stamp - 1001)
+    wide.check(body, stamp)
+
+
 def test_a_message_built_by_hand_is_checked_as_one_from_the_wire() -> None:
     order = checked(MailOrder, id="m1", pickup=[1, 2, 0], dropoff=[3, 4, 0], priority=5)
     assert decode(encode("cli", 0.0, order)).body == order
