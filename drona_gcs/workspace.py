@@ -267,11 +267,18 @@ class Workspace:
 
     def neighbours(self, cell: Cell) -> Iterable[Cell]:
         """Free cells one move away (6-connected in 3-D, 4-connected when nz == 1)."""
+        found = self._adjacent.get(cell)
+        return found if found is not None else self._free_around(cell)
+
+    @cached_property
+    def _adjacent(self) -> dict[Cell, tuple[Cell, ...]]:
+        """Each free cell's neighbours, worked out once: every search of the task planner walks them."""
+        return {cell: self._free_around(cell) for cell in self.free_cells}
+
+    def _free_around(self, cell: Cell) -> tuple[Cell, ...]:
         x, y, z = cell
-        for dx, dy, dz in ((1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)):
-            nxt = (x + dx, y + dy, z + dz)
-            if self.is_free(nxt):
-                yield nxt
+        return tuple(nxt for nxt in ((x + 1, y, z), (x - 1, y, z), (x, y + 1, z), (x, y - 1, z), (x, y, z + 1),
+                                     (x, y, z - 1)) if self.is_free(nxt))
 
     @cached_property
     def free_cells(self) -> tuple[Cell, ...]:

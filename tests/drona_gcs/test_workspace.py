@@ -33,6 +33,17 @@ def test_cell_of_id_out_of_range(bad_id: int) -> None:
         Workspace(size=(4, 3, 2)).cell_of_id(bad_id)
 
 
+def test_neighbours_are_the_free_cells_one_move_away_of_any_cell() -> None:
+    """Free cells, obstacles and cells outside alike (a search may ask about either end)."""
+    ws = Workspace(size=(4, 3, 2), obstacles=frozenset({(1, 1, 0), (2, 0, 1)}))
+    moves = [(1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)]
+    for cell in itertools.product(range(-1, 5), range(-1, 4), range(-1, 3)):
+        around = [(cell[0] + dx, cell[1] + dy, cell[2] + dz) for dx, dy, dz in moves]
+        expected = [c for c in around if ws.in_bounds(c) and c not in ws.obstacles]
+        assert list(ws.neighbours(cell)) == expected, cell
+        assert list(ws.neighbours(cell)) == expected, cell  # and again, once worked out
+
+
 @pytest.mark.parametrize(("beta", "tau", "delta"), [
     (0.0, 0.1, 0),
     (0, 1.0, 0),
