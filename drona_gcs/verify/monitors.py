@@ -8,7 +8,9 @@ shares nothing with the code it judges: no production ranking, no protocol query
     committed to when the plan starts: the trajectory it last started executing
     (beyond its end, its last cell), or its start cell before any; as what the drone
     answered, or as its proposal, not decided yet (the plan's Psi names it ``<drone>?``);
-    or else the plan that drone is committed to was made against this one, proposed then;
+    or else the plan that drone is committed to was made against this one, proposed then; or that
+    drone made its plan while it held this drone as gone, then held this plan (acked it) while
+    committed to its own, and the two keep clear of each other: the views met there;
 (b) no two drones meet in what the executors actually occupy: at no step t is a drone in a cell
     another occupies at a step within Delta of t, nor do two swap cells in that window; a vehicle
     down stays in its cell, and a drone that enters that cell after the vehicle came down
@@ -48,9 +50,10 @@ from typing import TYPE_CHECKING
 
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.mail import MailDelivered, MailLost, MailPickedUp, MailRejected, MailRequest, MailStarted
-from drona_gcs.stack.protocol import Braked, Grounded, Present, StartExecuting
+from drona_gcs.stack.messages import PlanAck, TaskId
+from drona_gcs.stack.protocol import Braked, Grounded, Present, Send, StartExecuting
 from drona_gcs.verify.liveness import DeliveryMonitor, Flier, Reach
-from drona_gcs.verify.separation import Meeting, SeparationMonitor
+from drona_gcs.verify.separation import Meeting, SeparationMonitor, meetings
 from drona_gcs.verify.verdicts import Violation, added, cell_at, cell_text, cells_text, same_future
 from drona_gcs.workspace import Cell
 
@@ -89,6 +92,10 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
     rests: dict[str, Trajectory] = field(default_factory=dict)
     #: (a) the proposals each drone's committed plan was made against: (drone, proposer) -> proposal
     made_against: dict[tuple[str, str], Trajectory] = field(default_factory=dict)
+    #: (a) each drone's last plan started, with the peers it held as gone then
+    planned_without: dict[str, tuple[Trajectory, frozenset[str]]] = field(default_factory=dict)
+    #: (a) what each drone was committed to when it last held a peer's proposal: (drone, proposer) -> (task, plan)
+    held_proposal: dict[tuple[str, str], tuple[TaskId, Trajectory]] = field(default_factory=dict)
     #: (f) the plans drones cut short (braked) and hold at the end of, until their next plan
     cuts: dict[str, Trajectory] = field(default_factory=dict)
     #: (f) each drone's last plans: a peer that heard none since may still hold any as what it flies
@@ -115,6 +122,8 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
                 tuple(sorted((d, t.start_step, t.cells) for d, t in self.before_news.items())),
                 tuple(sorted((d, t.start_step, t.cells) for d, t in self.rests.items())),
                 tuple(sorted((d, t.start_step, t.cells) for d, t in self.made_against.items())),
+                tuple(sorted((d, t.start_step, t.cells, gone) for d, (t, gone) in self.planned_without.items())),
+                tuple(sorted((k, task, t.start_step, t.cells) for k, (task, t) in self.held_proposal.items())),
                 tuple(sorted((d, t.start_step, t.cells) for d, t in self.cuts.items())),
                 tuple(sorted((d, tuple((t.start_step, t.cells) for t in ts)) for d, ts in self.flown.items())),
                 tuple(sorted(self.told.items())), tuple(sorted(self.stopped.items())),
@@ -132,6 +141,7 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
             self._carried_to_its_dropoff(drone, action)
             self._commit(drone, action.trajectory)
             self.made_against.update({(drone, key[:-1]): t for key, t in action.psi.items() if key.endswith("?")})
+            self.planned_without[drone] = (action.trajectory, self.departed.get(drone, frozenset()))
             self.rests.pop(drone, None)
             self.cuts.pop(drone, None)
             self.flown[drone] = (*self.flown.get(drone, ())[-(RECENT_PLANS - 1):], action.trajectory)
@@ -143,6 +153,9 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
         elif isinstance(action, Grounded) and drone not in dict(self.down):
             self._rests(drone, action.trajectory)  # its battery affords no move: it rests where its plan ended
             self.down = (*self.down, (drone, action.trajectory.last))  # held for good, as a vehicle down
+        elif isinstance(action, Send) and isinstance(action.message, PlanAck):
+            task = action.message.task_id
+            self.held_proposal[(drone, task.drone)] = (task, self.committed[drone])
         elif isinstance(action, MailStarted):
             self._in_order(drone, action.request)
         elif isinstance(action, MailPickedUp):
@@ -196,7 +209,7 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
             proposed = action.psi.get(f"{peer}?")
             if proposed is not None and same_future(proposed, self.committed[peer], since):
                 continue
-            if self.made_against.get((peer, drone)) == action.trajectory:
+            if self.made_against.get((peer, drone)) == action.trajectory or self._views_met(drone, peer, action):
                 continue
             rest = self.rests.get(peer)  # (the same positions: a rest's stamp says nothing)
             if (not same_future(used, self.committed[peer], since) and not (rest and same_future(used, rest, since))
@@ -204,6 +217,15 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
                 raise Violation("a", f"{drone} planned task {action.task.id} with a stale trajectory of "
                                      f"{peer}: used {cells_text(used)}, but {peer} is committed to "
                                      f"{cells_text(self.committed[peer])}")
+
+    def _views_met(self, drone: str, peer: str, action: StartExecuting) -> bool:
+        """``peer`` made the plan it is committed to while it held ``drone`` as gone, and held this plan
+        (acked it) while committed to that one: where the two views met, the plan keeps clear of it."""
+        committed = self.committed[peer]
+        made = self.planned_without.get(peer)
+        return (made is not None and made[0] == committed and drone in made[1]
+                and self.held_proposal.get((peer, drone)) == (action.task.id, committed)
+                and keeps_clear(action.trajectory, committed, self.config.delta))
 
     def _not_told_yet(self, drone: str, peer: str, used: Trajectory, since: int) -> bool:
         """``peer``'s vehicle came down, or it braked, and ``drone`` used what it was committed to
@@ -345,3 +367,9 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
         if asked not in self.asked_to_clear:
             self.asked_to_clear = (*self.asked_to_clear, asked)
 
+
+def keeps_clear(plan: Trajectory, other: Trajectory, delta: int) -> bool:
+    """Whether ``plan``, from its start on, never meets ``other`` within ``delta`` steps (as (b) judges)."""
+    low, high = plan.start_step - delta, max(plan.end_step, other.end_step) + delta + 2
+    mine, theirs = ([cell_at(t, s) for s in range(low, high + 1)] for t in (plan, other))
+    return not any(meetings(mine, theirs, s - low, delta) for s in range(plan.start_step, high - delta))

@@ -10,8 +10,8 @@ import pytest
 
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.mail import MailPickedUp, MailRequest, MailStarted
-from drona_gcs.stack.messages import Task, TaskId
-from drona_gcs.stack.protocol import Braked, Grounded, Present, StartExecuting
+from drona_gcs.stack.messages import PlanAck, Task, TaskId
+from drona_gcs.stack.protocol import Braked, Grounded, Present, Send, StartExecuting
 from drona_gcs.verify.explore import Explorer, Scenario, Strategy
 from drona_gcs.verify.monitors import Monitors, Violation
 from drona_gcs.verify.world import WorldConfig
@@ -255,4 +255,32 @@ def test_a_rest_held_from_another_step_is_the_same_rest(held_at: Cell) -> None:
                               {"d1": Trajectory.stationary(held_at, 1)})
     with pytest.raises(Violation, match=r"\(a\) d0 planned task .* with a stale trajectory of d1") \
             if held_at != (2, 0, 0) else contextlib.nullcontext():
+        monitors.action("d0", start_d0)
+
+
+@pytest.mark.parametrize("case", ["views met", "not held as gone", "held before", "plans meet"])
+def test_a_plan_held_by_a_peer_that_planned_it_gone_is_checked_where_the_views_met(case: str) -> None:
+    """(a): found by sweep 30522 (--partitions 1 --crashes 1). d1 saw d0 leave and planned without it; d0,
+    which still had d1 in line, planned with where d1 asked from, and flew once d1 held its plan while
+    flying its own: the views met at d1, and the two plans keep clear. Stale, though, if d1 planned with
+    d0 in view, if it held d0's plan before it made its own, or if the plans meet."""
+    ws = Workspace.build(size=(5, 3, 1))
+    config = WorldConfig(ws, ("d0", "d1"), ((0, 2, 0), (0, 0, 0)), (), (), delta=0)
+    monitors = Monitors(config)
+    d0_task = TaskId(1, "d0", 1)
+    d1_plan = Trajectory(3, ((0, 0, 0), (1, 0, 0), (2, 0, 0)))
+    on_to_d1 = ((2, 1, 0), (2, 0, 0)) if case == "plans meet" else ()
+    d0_plan = Trajectory(3, ((0, 2, 0), (1, 2, 0), (2, 2, 0), *on_to_d1))
+    ack = Send("d0", PlanAck("d1", d0_task, d1_plan))
+    if case != "not held as gone":
+        monitors.left("d1", "d0")
+    if case == "held before":
+        monitors.action("d1", ack)
+    monitors.action("d1", StartExecuting(Task(TaskId(1, "d1", 1), (2, 0, 0)), d1_plan,
+                                         {"d0": Trajectory(0, ((0, 2, 0),))}))
+    if case != "held before":
+        monitors.action("d1", ack)
+    start_d0 = StartExecuting(Task(d0_task, (2, 2, 0)), d0_plan, {"d1": Trajectory(0, ((0, 0, 0),))})
+    with pytest.raises(Violation, match=r"\(a\) d0 planned task .* with a stale trajectory of d1") \
+            if case != "views met" else contextlib.nullcontext():
         monitors.action("d0", start_d0)
