@@ -8,9 +8,10 @@ shares nothing with the code it judges: no production ranking, no protocol query
     committed to when the plan starts: the trajectory it last started executing
     (beyond its end, its last cell), or its start cell before any; as what the drone
     answered, or as its proposal, not decided yet (the plan's Psi names it ``<drone>?``);
-    or else the plan that drone is committed to was made against this one, proposed then; or that
-    drone made its plan while it held this drone as gone, then held this plan (acked it) while
-    committed to its own, and the two keep clear of each other: the views met there;
+    or else the plan that drone is committed to (or cut short since, while this drone has not
+    heard of it yet) was made against this one, proposed then; or that drone made its plan while it
+    held this drone as gone, then held this plan (acked it) while committed to its own, and the two
+    keep clear of each other: the views met there;
 (b) no two drones meet in what the executors actually occupy: at no step t is a drone in a cell
     another occupies at a step within Delta of t, nor do two swap cells in that window; a vehicle
     down stays in its cell, and a drone that enters that cell after the vehicle came down
@@ -92,6 +93,8 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
     rests: dict[str, Trajectory] = field(default_factory=dict)
     #: (a) the proposals each drone's committed plan was made against: (drone, proposer) -> proposal
     made_against: dict[tuple[str, str], Trajectory] = field(default_factory=dict)
+    #: (a) the same, for a plan its drone cut short since (braked): what the cut plan was made against
+    cut_made_against: dict[tuple[str, str], Trajectory] = field(default_factory=dict)
     #: (a) each drone's last plan started, with the peers it held as gone then
     planned_without: dict[str, tuple[Trajectory, frozenset[str]]] = field(default_factory=dict)
     #: (a) what each drone was committed to when it last held a peer's proposal: (drone, proposer) -> (task, plan)
@@ -122,6 +125,7 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
                 tuple(sorted((d, t.start_step, t.cells) for d, t in self.before_news.items())),
                 tuple(sorted((d, t.start_step, t.cells) for d, t in self.rests.items())),
                 tuple(sorted((d, t.start_step, t.cells) for d, t in self.made_against.items())),
+                tuple(sorted((d, t.start_step, t.cells) for d, t in self.cut_made_against.items())),
                 tuple(sorted((d, t.start_step, t.cells, gone) for d, (t, gone) in self.planned_without.items())),
                 tuple(sorted((k, task, t.start_step, t.cells) for k, (task, t) in self.held_proposal.items())),
                 tuple(sorted((d, t.start_step, t.cells) for d, t in self.cuts.items())),
@@ -194,6 +198,7 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
         """``drone`` flies ``trajectory`` from now: what its last plan was made against no longer counts."""
         self.committed[drone] = trajectory
         self.made_against = {k: t for k, t in self.made_against.items() if k[0] != drone}
+        self.cut_made_against = {k: t for k, t in self.cut_made_against.items() if k[0] != drone}
 
     def _consistent(self, drone: str, action: StartExecuting) -> None:
         since = action.trajectory.start_step - self.config.delta - 1
@@ -213,7 +218,7 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
                 continue
             rest = self.rests.get(peer)  # (the same positions: a rest's stamp says nothing)
             if (not same_future(used, self.committed[peer], since) and not (rest and same_future(used, rest, since))
-                    and not self._not_told_yet(drone, peer, used, since)):
+                    and not self._not_told_yet(drone, peer, (used, proposed), since, action.trajectory)):
                 raise Violation("a", f"{drone} planned task {action.task.id} with a stale trajectory of "
                                      f"{peer}: used {cells_text(used)}, but {peer} is committed to "
                                      f"{cells_text(self.committed[peer])}")
@@ -227,12 +232,15 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
                 and self.held_proposal.get((peer, drone)) == (action.task.id, committed)
                 and keeps_clear(action.trajectory, committed, self.config.delta))
 
-    def _not_told_yet(self, drone: str, peer: str, used: Trajectory, since: int) -> bool:
-        """``peer``'s vehicle came down, or it braked, and ``drone`` used what it was committed to
-        before: fine until the news reached it (the plan it flies is then planned anew if it must be)."""
+    def _not_told_yet(self, drone: str, peer: str, used: tuple[Trajectory, Trajectory | None], since: int,
+                      plan: Trajectory) -> bool:
+        """``peer``'s vehicle came down, or it braked, and ``drone`` used (as its answer, or its proposal)
+        what it was committed to before, or ``plan`` is what that was made against: fine until the news
+        reached it (the plan it flies is then planned anew if it must be)."""
         earlier = self.before_news.get(peer)
         return (earlier is not None and (drone, peer) not in self.told
-                and same_future(used, earlier, since))
+                and (any(u is not None and same_future(u, earlier, since) for u in used)
+                     or self.cut_made_against.get((peer, drone)) == plan))
 
     def heard_news(self, observer: str, peer: str, step: int) -> None:
         """``observer``, at its step ``step``, heard that ``peer``'s vehicle came down, or that it braked."""
@@ -253,7 +261,9 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
         """``drone`` flies ``now`` instead of what it was committed to, and nobody has heard yet."""
         self.rests.pop(drone, None)
         self.before_news[drone] = self.committed[drone]
+        cut = {k: t for k, t in (*self.made_against.items(), *self.cut_made_against.items()) if k[0] == drone}
         self._commit(drone, now)
+        self.cut_made_against = {**self.cut_made_against, **cut}
         self.told = {k: v for k, v in self.told.items() if k[1] != drone}
 
     def _clear_of(self, drone: str, action: StartExecuting, peer: str, since: int) -> None:

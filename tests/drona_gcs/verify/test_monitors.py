@@ -223,7 +223,8 @@ def test_a_stop_short_of_where_a_peer_braked_or_grounded_itself_is_no_detour(new
 def test_a_plan_made_against_a_proposal_counts_until_its_drone_flies_something_else(braked: bool) -> None:
     """(a): d0 planned against d1's proposal, held besides where d1 was; d1's plan, started after,
     was made with d0 where it was: it keeps clear of d0's plan, which was made against it. Once d0
-    flies something else (it braked), that no longer holds, and d1 planned with a stale d0."""
+    flies something else (it braked) and d1 has heard of it, that no longer holds, and d1 planned with
+    a stale d0."""
     ws = Workspace.build(size=(5, 3, 1))
     config = WorldConfig(ws, ("d0", "d1"), ((0, 2, 0), (0, 0, 0)), (), (), delta=0)
     monitors = Monitors(config)
@@ -233,6 +234,7 @@ def test_a_plan_made_against_a_proposal_counts_until_its_drone_flies_something_e
                                          {"d1": Trajectory(0, ((0, 0, 0),)), "d1?": d1_plan}))
     if braked:
         monitors.action("d0", Braked(Trajectory(3, ((0, 2, 0), (1, 2, 0))), (2, 2, 0)))
+        monitors.heard_news("d1", "d0", 3)
     start_d1 = StartExecuting(Task(TaskId(2, "d1", 1), (2, 0, 0)), d1_plan, {"d0": Trajectory(0, ((0, 2, 0),))})
     with pytest.raises(Violation, match=r"\(a\) d1 planned task .* with a stale trajectory of d0") if braked \
             else contextlib.nullcontext():
@@ -283,4 +285,29 @@ def test_a_plan_held_by_a_peer_that_planned_it_gone_is_checked_where_the_views_m
     start_d0 = StartExecuting(Task(d0_task, (2, 2, 0)), d0_plan, {"d1": Trajectory(0, ((0, 0, 0),))})
     with pytest.raises(Violation, match=r"\(a\) d0 planned task .* with a stale trajectory of d1") \
             if case != "views met" else contextlib.nullcontext():
+        monitors.action("d0", start_d0)
+
+
+@pytest.mark.parametrize("told", [False, True])
+@pytest.mark.parametrize("used", ["its proposal", "made against mine"])
+def test_a_plan_a_peer_cut_short_since_counts_until_the_news_comes(used: str, told: bool) -> None:
+    """(a): found by sweep 30524 (--skews 1). d1 flew a plan and braked (its clock went off) before d0 heard
+    of it. d0's plan held d1's proposal of that plan besides where d1 was, or d1's plan had been made
+    against d0's proposal: either was fine until the news of the brake reached d0, not after."""
+    ws = Workspace.build(size=(5, 3, 1))
+    config = WorldConfig(ws, ("d0", "d1"), ((0, 2, 0), (0, 0, 0)), (), (), delta=0)
+    monitors = Monitors(config)
+    d0_plan = Trajectory(3, ((0, 2, 0), (1, 2, 0), (2, 2, 0)))
+    d1_plan = Trajectory(3, ((0, 0, 0), (1, 0, 0), (2, 0, 0)))
+    held = {"d1?": d1_plan} if used == "its proposal" else {}
+    made_against = {"d0?": d0_plan} if used == "made against mine" else {}
+    monitors.action("d1", StartExecuting(Task(TaskId(1, "d1", 1), (2, 0, 0)), d1_plan,
+                                         {"d0": Trajectory(0, ((0, 2, 0),)), **made_against}))
+    monitors.action("d1", Braked(Trajectory(3, ((0, 0, 0), (1, 0, 0))), (2, 0, 0)))
+    if told:
+        monitors.heard_news("d0", "d1", 3)
+    start_d0 = StartExecuting(Task(TaskId(1, "d0", 1), (2, 2, 0)), d0_plan,
+                              {"d1": Trajectory(0, ((0, 0, 0),)), **held})
+    with pytest.raises(Violation, match=r"\(a\) d0 planned task .* with a stale trajectory of d1") \
+            if told else contextlib.nullcontext():
         monitors.action("d0", start_d0)
