@@ -93,7 +93,7 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
     rests: dict[str, Trajectory] = field(default_factory=dict)
     #: (a) the proposals each drone's committed plan was made against: (drone, proposer) -> proposal
     made_against: dict[tuple[str, str], Trajectory] = field(default_factory=dict)
-    #: (a) the same, for a plan its drone cut short since (braked): what the cut plan was made against
+    #: (a) the same, for a plan cut short since (braked, or its vehicle came down): until the news is heard
     cut_made_against: dict[tuple[str, str], Trajectory] = field(default_factory=dict)
     #: (a) each drone's last plan started, with the peers it held as gone then
     planned_without: dict[str, tuple[Trajectory, frozenset[str]]] = field(default_factory=dict)
