@@ -78,9 +78,13 @@ class Rounds(Confirming):
             return admitted or [Send(event.sender, self._request(now))]
         self.pending[event.sender] = event.task_id
         # It waits for my plan, so the trajectory its request carries is its answer.
-        self.received[event.sender] = self.known[event.sender] = self._news(event.sender, event.trajectory, now)
+        self._answered(event.sender, event.trajectory, now)
         self.peer_holds[event.sender] = event.holds
         return [*admitted, *self._plan_if_ready(now)]
+
+    def _answered(self, sender: str, trajectory: Trajectory, now: int) -> None:
+        """``sender``'s answer this round, and my word from now on on what it flies."""
+        self.received[sender] = self.known[sender] = self._news(sender, trajectory, now)
 
     def _outranks(self, theirs: TaskId, mine: TaskId) -> bool:
         return theirs < mine
@@ -93,7 +97,7 @@ class Rounds(Confirming):
         if proposal is not None and self._decided_already(proposal):
             self.received[sender] = self.known[sender]  # its decision came first: it said what it flies
         else:
-            self.received[sender] = self.known[sender] = self._news(sender, event.trajectory, now)
+            self._answered(sender, event.trajectory, now)
             if proposal is not None:
                 self._hold_proposal(proposal)
                 self.pledged[sender] = proposal.task_id
@@ -110,7 +114,7 @@ class Rounds(Confirming):
                 or sender in self.received or sender not in self.members):
             return []
         del self.pledged[sender]
-        self.received[sender] = self.known[sender] = self._news(sender, event.trajectory, now)
+        self._answered(sender, event.trajectory, now)
         return self._plan_if_ready(now)
 
     def _wait_for_decisions(self) -> bool:
