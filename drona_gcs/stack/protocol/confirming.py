@@ -88,7 +88,7 @@ class Confirming(Flight):
         rerouting = self.proposed.rerouting
         if self.proposed.starts <= now + 1:
             actions = self._abandon("not every peer held my plan in time", now)
-        elif rerouting and self._entry(now) == now + 1:
+        elif rerouting and self._enters_next(now):
             actions = self._abandon("braked", now)
         else:
             return []

@@ -171,10 +171,7 @@ class Flight(Knowledge):
         return self._steer_clear(", ".join(sorted(new)), now) if new else []  # once, clear of them all
 
     def _on_next_step(self, event: NextStep, now: int) -> list[Action]:
-        if self.trajectory is None:
-            return []
-        entry = self._entry(now)
-        return self._brake(entry) if entry == now + 1 else []
+        return self._brake(now + 1) if self._enters_next(now) else []
 
     def _steer_clear(self, drone: str, now: int) -> list[Action]:
         """News of ``drone`` holding cells for good, which plans made before did not avoid: if the plan
@@ -198,12 +195,16 @@ class Flight(Knowledge):
         crossed = self._held_on_plan(now)
         return None if not crossed or crossed[0] == now else next((t for t in crossed if t > now), None)
 
-    def _held_on_plan(self, now: int) -> list[int]:
+    def _enters_next(self, now: int) -> bool:
+        """Whether :meth:`_entry` is ``now + 1``, from the two steps that decide it (every boundary asks)."""
+        return self.trajectory is not None and self._held_on_plan(now, now + 1) == [now + 1]
+
+    def _held_on_plan(self, now: int, through: int | None = None) -> list[int]:
         """The steps from ``now`` on at which the plan I fly is in a cell held for good: a vehicle down's,
         one a departed drone may hold, one of the plan of a peer whose clock is off (or of any peer's, with
         mine off: our steps are not the same), or one a braked peer holds from when it gets there (less my
         lead, a margin for its clock) until the plan it made since starts (and Delta more), or one left
-        behind by a peer whose steps are not mine, to the step it is held to."""
+        behind by a peer whose steps are not mine, to the step it is held to. Up to step ``through`` (None: the plan's end)."""
         assert self.trajectory is not None
         trajectory = self.trajectory
         here = trajectory.at(now)
@@ -218,7 +219,8 @@ class Flight(Knowledge):
                 c == cell and step <= until + self.delta for c, until in self.held_until.values()) or (
                 cell != here and self.left_behind.get(cell, -1) >= step)
 
-        return [t for t in range(now, max(now, trajectory.end_step) + 1) if taken(t)]
+        last = max(now, trajectory.end_step) if through is None else min(through, max(now, trajectory.end_step))
+        return [t for t in range(now, last + 1) if taken(t)]
 
     def _timeless(self) -> list[Trajectory]:
         """What peers fly, or may, in steps that are not mine: every cell of it is held. A peer's whose

@@ -397,3 +397,18 @@ def test_a_peers_lost_vehicle_on_the_rest_of_my_plan_has_me_plan_it_anew_and_sta
     assert plan.at(5) not in new.suffix_from(4).cells
     proto.handle(PeerLost("b", ()), 3)  # back
     assert proto.peers_lost == {}
+
+
+@pytest.mark.parametrize("held_steps", [(5,), (1, 2), (3, 7), (0, 6), (2,)])
+def test_a_boundary_brakes_exactly_when_the_next_step_enters_a_held_cell(held_steps: tuple[int, ...]) -> None:
+    """At every boundary of the plan: a brake when the plan's next cell is held for good and its cell
+    now is not (already in one, stopping would not part us), and nothing otherwise."""
+    for now in range(0, flying_past_b()[1].end_step + 2):
+        proto, plan = flying_past_b()
+        for peer, step in zip(("b", "c"), held_steps, strict=False):
+            proto.peers_down[peer] = plan.at(step)
+        held = {plan.at(step) for step in held_steps}
+        enters = now < plan.end_step and plan.at(now) not in held and plan.at(now + 1) in held
+        braked = [a for a in proto.handle(NextStep(), now) if isinstance(a, Braked)]
+        assert bool(braked) == enters, now
+        assert all(b.trajectory.last == plan.at(now) for b in braked)
