@@ -180,8 +180,9 @@ class MailPlanner(MailPlannerInputs):
             if budget.allows(self._leg(self.cell, dropoff) + after + self.battery.margin_steps // 2):
                 return self._go(dropoff, budget, after, Phase.TO_DROPOFF, taken)
             return self._to_charger(budget, taken)  # charge with the mail on board, then deliver
-        spots = self._parking_spots()
-        if not self.low and spots and not self._parked() and any(g not in spots for g in self.tried):
+        # The parking spots only when asked for: a drone parked and idle looks every boundary.
+        if not self.low and self.tried and not self._parked() and (spots := self._parking_spots()) and any(
+                g not in spots for g in self.tried):
             # A leg found no plan: maybe our goal is where another drone waits, while we wait
             # where it wants to go. Clear the way on a parking cell before trying again (once:
             # should no parking cell be reached either, the mail is not kept waiting for one).
@@ -192,7 +193,7 @@ class MailPlanner(MailPlannerInputs):
             return self._to_charger(budget, taken)
         if self.queue and not self.paused:
             return self._start_next_mail(budget, taken)
-        if spots and not self._parked():
+        if not self._parked() and (spots := self._parking_spots()):
             return self._to_one_of(spots, budget, taken, Phase.TO_PARKING)
         return []
 
