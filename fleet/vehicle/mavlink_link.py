@@ -260,7 +260,7 @@ class PymavlinkLink(ConfirmedCommands):
     # ------------------------------------------------------------ telemetry
     def last_position(self) -> Position | None:
         """LOCAL_POSITION_NED; with ``frame``, GLOBAL_POSITION_INT in the workspace frame."""
-        return self.telemetry().position
+        return self._latest.position(self.frame)
 
     def last_global(self) -> GeoPoint | None:
         return self._latest.global_position()

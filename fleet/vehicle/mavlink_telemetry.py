@@ -33,6 +33,7 @@ ARDUPILOT_STREAMS = {mavlink2.MAVLINK_MSG_ID_EKF_STATUS_REPORT: Share.STATUS}
 KEPT = ("LOCAL_POSITION_NED", "GLOBAL_POSITION_INT", "SYS_STATUS", "BATTERY_STATUS", "GPS_RAW_INT",
         "EXTENDED_SYS_STATE", "EKF_STATUS_REPORT")
 _UNKNOWN_U16 = 0xFFFF
+_POSITION_KINDS = frozenset({"LOCAL_POSITION_NED", "GLOBAL_POSITION_INT"})
 
 
 def streams_for(frame: GeoFrame | None, autopilot: Autopilot | None) -> dict[int, Share]:
@@ -46,12 +47,18 @@ class Latest:
 
     def __init__(self) -> None:
         self.kept: dict[str, tuple[float, Message]] = {}
+        #: the position last read, and the frame it is in, until a position comes (read at every look)
+        self._where: tuple[GeoFrame | None, Position | None] | None = None
 
     def keep(self, msg: Message, now: float) -> None:
-        self.kept[msg.get_type()] = (now, msg)
+        kind = msg.get_type()
+        self.kept[kind] = (now, msg)
+        if kind in _POSITION_KINDS:
+            self._where = None
 
     def clear(self) -> None:
         self.kept.clear()
+        self._where = None
 
     def get(self, kind: str) -> Message | None:
         entry = self.kept.get(kind)
@@ -59,6 +66,11 @@ class Latest:
 
     def position(self, frame: GeoFrame | None) -> Position | None:
         """LOCAL_POSITION_NED; with ``frame``, GLOBAL_POSITION_INT in the workspace frame."""
+        if self._where is None or self._where[0] is not frame:
+            self._where = (frame, self._position(frame))
+        return self._where[1]
+
+    def _position(self, frame: GeoFrame | None) -> Position | None:
         if (entry := self.kept.get("LOCAL_POSITION_NED" if frame is None else "GLOBAL_POSITION_INT")) is None:
             return None
         at, msg = entry
