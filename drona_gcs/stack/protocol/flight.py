@@ -204,7 +204,8 @@ class Flight(Knowledge):
         one a departed drone may hold, one of the plan of a peer whose clock is off (or of any peer's, with
         mine off: our steps are not the same), or one a braked peer holds from when it gets there (less my
         lead, a margin for its clock) until the plan it made since starts (and Delta more), or one left
-        behind by a peer whose steps are not mine, to the step it is held to. Up to step ``through`` (None: the plan's end)."""
+        behind by a peer whose steps are not mine, to the step it is held to. Up to step ``through``
+        (None: the plan's end)."""
         assert self.trajectory is not None
         trajectory = self.trajectory
         here = trajectory.at(now)
