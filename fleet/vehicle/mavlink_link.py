@@ -116,6 +116,7 @@ class PymavlinkLink(ConfirmedCommands):
         self._streams = StreamRequests(self._ask_for_streams, str(self.url))
         self._started = clock()
         self._setpoint: Message | None = None  #: repeated at setpoint_hz (PX4 leaves OFFBOARD without it)
+        self._target: Ned | None = None  #: where ``_setpoint`` sends the vehicle
         self._setpoints_sent = 0
         self._latest = Latest()  #: telemetry: the last message of each type
         #: telemetry() as of the last message: read several times per drone at every step boundary
@@ -201,7 +202,7 @@ class PymavlinkLink(ConfirmedCommands):
         return verdict
 
     def _stop_setpoints(self) -> None:
-        self._setpoint = None
+        self._setpoint, self._target = None, None
 
     async def follow_setpoints(self) -> None:
         """GUIDED on ArduPilot; on PX4 stream the current position as the setpoint, then OFFBOARD."""
@@ -232,7 +233,11 @@ class PymavlinkLink(ConfirmedCommands):
 
     # ------------------------------------------------------------ setpoints
     async def send_position_target(self, target: Ned) -> None:
-        """Fly to ``target`` (local NED, or the workspace frame's with ``frame``); repeated at ``setpoint_hz``."""
+        """Fly to ``target`` (local NED, or the workspace frame's with ``frame``); repeated at ``setpoint_hz``.
+        The target being repeated, sent again, is left to the repeats (a drone at rest gets one at every boundary)."""
+        if self._setpoint is not None and target == self._target:
+            self._check_alive()
+            return
         ms = round((self.clock() - self._started) * 1000) & 0xFFFFFFFF
         if self.frame is None:
             self._setpoint = self._enc.set_position_target_local_ned_encode(
@@ -243,6 +248,7 @@ class PymavlinkLink(ConfirmedCommands):
             self._setpoint = self._enc.set_position_target_global_int_encode(
                 ms, self.sysid or 0, self.compid, mavlink2.MAV_FRAME_GLOBAL_INT, POSITION_ONLY,
                 round(g.lat * 1e7), round(g.lon * 1e7), g.alt_m, 0, 0, 0, 0, 0, 0, 0, 0)
+        self._target = target
         self._check_alive()
         self._send_setpoint()
 

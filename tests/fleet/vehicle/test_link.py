@@ -173,6 +173,33 @@ def test_the_link_repeats_the_last_setpoint_at_its_rate_and_px4_stays_in_offboar
     run(scenario)
 
 
+def test_a_target_sent_again_is_left_to_the_repeats_and_a_new_one_goes_at_once() -> None:
+    """A drone at rest is sent the same target at every step boundary: the link repeats it anyway, so
+    only a new target (or the first after the setpoints stopped) goes out at once."""
+    async def scenario() -> None:
+        async with fake_vehicle("ardupilot", "udp") as fake:
+            link = PymavlinkLink(fake.url, setpoint_hz=0.1)  # no repeat within the test
+            await link.connect(timeout=5)
+            model = fake.nodes[0].model
+            try:
+                await link.wait_ready(timeout=5)
+                await link.arm()
+                await link.takeoff(5.0)
+                await link.wait_until(lambda t: (t.height_m or 0) > 4.7, 5, "5 m up")
+                await link.follow_setpoints()
+                heard, last = len(model.setpoint_times), None
+                for target in (Ned(0.0, 0.0, -5.0),) * 4 + (Ned(1.0, 0.0, -5.0),) * 2:
+                    await link.send_position_target(target)
+                    await asyncio.sleep(0.2)
+                    got, heard = len(model.setpoint_times) - heard, len(model.setpoint_times)
+                    assert got == (0 if target == last else 1), f"{got} setpoints for {target}"
+                    last = target
+            finally:
+                await link.close()
+
+    run(scenario)
+
+
 def test_a_vehicle_that_reports_no_battery_level_is_not_ready() -> None:
     """An autopilot with no battery monitor sends battery_remaining -1 (the links' None): the battery
     monitor could not keep the drone above its threshold, so the agent must not fly it."""
