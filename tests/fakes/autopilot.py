@@ -40,8 +40,10 @@ class Backend(Protocol):
                  stream_hz: float = 10.0) -> VehicleLink: ...
 
 
-def _pymavlink(url: str, *, heartbeat_timeout: float = 3.0, frame: Any = None, stream_hz: float = 10.0) -> VehicleLink:
-    return PymavlinkLink(url, heartbeat_timeout=heartbeat_timeout, frame=frame, setpoint_hz=20.0, stream_hz=stream_hz)
+def _pymavlink(url: str, *, heartbeat_timeout: float = 3.0, frame: Any = None, stream_hz: float = 10.0,
+               setpoint_hz: float = 20.0) -> VehicleLink:
+    return PymavlinkLink(url, heartbeat_timeout=heartbeat_timeout, frame=frame, setpoint_hz=setpoint_hz,
+                         stream_hz=stream_hz)
 
 
 def _mavsdk(url: str, *, heartbeat_timeout: float = 3.0, frame: Any = None, stream_hz: float = 10.0) -> VehicleLink:

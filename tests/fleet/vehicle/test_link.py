@@ -22,11 +22,19 @@ from drona_gcs.geo import GeoPoint, Ned
 from fleet.clock import cancel_all
 from fleet.sim.fleet import placements
 from fleet.sim.mav import mavlink2
-from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry, not_ready
-from fleet.vehicle.mavlink_link import PymavlinkLink
+from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry, VehicleLink, not_ready
 from fleet.vehicle.policy import in_air
 from tests.fakes.autopilot import SPEEDUP, connected, fake_vehicle, run
 from tests.fleet.vehicle.link_helpers import backends, personalities, transports
+
+
+async def following_5_m_up(link: VehicleLink) -> None:
+    """Ready, armed, 5 m up and in the mode that follows setpoints."""
+    await link.wait_ready(timeout=5)
+    await link.arm()
+    await link.takeoff(5.0)
+    await link.wait_until(lambda t: (t.height_m or 0) > 4.7, 5, "5 m up")
+    await link.follow_setpoints()
 
 
 def near(target: Ned, tolerance: float) -> Callable[[Telemetry], bool]:
@@ -120,11 +128,7 @@ def test_a_landing_given_up_before_its_confirmation_does_not_outlive_follow_setp
     vehicle lands (and disarms) under a drone the stack believes is flying its plan."""
     async def scenario() -> None:
         async with fake_vehicle(personality, "udp") as fake, connected(backend, fake) as link:
-            await link.wait_ready(timeout=5)
-            await link.arm()
-            await link.takeoff(5.0)
-            await link.wait_until(lambda t: (t.height_m or 0) > 4.7, 5, "5 m up")
-            await link.follow_setpoints()
+            await following_5_m_up(link)
             here = Ned(0.0, 0.0, -5.0)
             await link.send_position_target(here)
 
@@ -151,20 +155,11 @@ def test_the_link_repeats_the_last_setpoint_at_its_rate_and_px4_stays_in_offboar
     """The setpoint loop sends a target once per step boundary; the link keeps it coming at
     ``setpoint_hz``, or PX4 (a stream under 2 Hz) leaves OFFBOARD between boundaries."""
     async def scenario() -> None:
-        async with fake_vehicle("px4", "udp") as fake:
-            link = PymavlinkLink(fake.url, setpoint_hz=8.0)
-            await link.connect(timeout=5)
-            try:
-                await link.wait_ready(timeout=5)
-                await link.arm()
-                await link.takeoff(5.0)
-                await link.wait_until(lambda t: (t.height_m or 0) > 4.7, 5, "5 m up")
-                await link.follow_setpoints()
-                await link.send_position_target(Ned(0.0, 0.0, -5.0))
-                await asyncio.sleep(1.2)  # twice the fake's offboard timeout (5 s simulated)
-                assert link.telemetry().mode == "OFFBOARD"
-            finally:
-                await link.close()
+        async with fake_vehicle("px4", "udp") as fake, connected("pymavlink", fake, setpoint_hz=8.0) as link:
+            await following_5_m_up(link)
+            await link.send_position_target(Ned(0.0, 0.0, -5.0))
+            await asyncio.sleep(1.2)  # twice the fake's offboard timeout (5 s simulated)
+            assert link.telemetry().mode == "OFFBOARD"
         # What reached the vehicle: one setpoint every 1/8 s (simulated: SPEEDUP times that).
         times = list(fake.nodes[0].model.setpoint_times)
         gaps = [(b - a) / SPEEDUP for a, b in itertools.pairwise(times)]
@@ -177,25 +172,17 @@ def test_a_target_sent_again_is_left_to_the_repeats_and_a_new_one_goes_at_once()
     """A drone at rest is sent the same target at every step boundary: the link repeats it anyway, so
     only a new target (or the first after the setpoints stopped) goes out at once."""
     async def scenario() -> None:
-        async with fake_vehicle("ardupilot", "udp") as fake:
-            link = PymavlinkLink(fake.url, setpoint_hz=0.1)  # no repeat within the test
-            await link.connect(timeout=5)
+        # setpoint_hz 0.1: no repeat within the test
+        async with fake_vehicle("ardupilot", "udp") as fake, connected("pymavlink", fake, setpoint_hz=0.1) as link:
             model = fake.nodes[0].model
-            try:
-                await link.wait_ready(timeout=5)
-                await link.arm()
-                await link.takeoff(5.0)
-                await link.wait_until(lambda t: (t.height_m or 0) > 4.7, 5, "5 m up")
-                await link.follow_setpoints()
-                heard, last = len(model.setpoint_times), None
-                for target in (Ned(0.0, 0.0, -5.0),) * 4 + (Ned(1.0, 0.0, -5.0),) * 2:
-                    await link.send_position_target(target)
-                    await asyncio.sleep(0.2)
-                    got, heard = len(model.setpoint_times) - heard, len(model.setpoint_times)
-                    assert got == (0 if target == last else 1), f"{got} setpoints for {target}"
-                    last = target
-            finally:
-                await link.close()
+            await following_5_m_up(link)
+            heard, last = len(model.setpoint_times), None
+            for target in (Ned(0.0, 0.0, -5.0),) * 4 + (Ned(1.0, 0.0, -5.0),) * 2:
+                await link.send_position_target(target)
+                await asyncio.sleep(0.2)
+                got, heard = len(model.setpoint_times) - heard, len(model.setpoint_times)
+                assert got == (0 if target == last else 1), f"{got} setpoints for {target}"
+                last = target
 
     run(scenario)
 
