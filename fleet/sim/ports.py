@@ -9,11 +9,11 @@ from pathlib import Path
 
 
 def free_port(kind: int = socket.SOCK_DGRAM, host: str = "127.0.0.1") -> int:
-    """A port the OS reports free for ``kind`` (SOCK_DGRAM or SOCK_STREAM) on ``host``."""
-    with socket.socket(socket.AF_INET, kind) as probe:
-        probe.bind((host, 0))
-        port: int = probe.getsockname()[1]
-        return port
+    """A port free for ``kind`` (SOCK_DGRAM or SOCK_STREAM) on ``host``, below the ephemeral range.
+
+    A port the OS hands out may be handed out again before it is bound: to a socket that connects to
+    it, even, which then holds it (a TCP connection to oneself)."""
+    return free_port_block(1, kind, host)
 
 
 def free_udp_base(count: int, host: str = "127.0.0.1") -> int:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import socket
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -112,7 +113,7 @@ def _until(put: Callable[[], None], inbox: Inbox, key: str, timeout: float = WAI
 
 
 def _endpoint() -> str:
-    return f"tcp/127.0.0.1:{free_port()}"
+    return f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
 
 
 @pytest.fixture

@@ -1,0 +1,28 @@
+"""Free ports for tests and benchmarks: never one the OS may hand a connecting socket meanwhile."""
+
+from __future__ import annotations
+
+import socket
+from pathlib import Path
+
+import pytest
+
+from fleet.sim.ports import free_port
+
+EPHEMERAL = Path("/proc/sys/net/ipv4/ip_local_port_range")
+
+
+@pytest.mark.parametrize("kind", [socket.SOCK_STREAM, socket.SOCK_DGRAM], ids=["tcp", "udp"])
+def test_a_free_port_lies_below_the_ephemeral_range_and_can_be_bound(kind: int) -> None:
+    """A port from the ephemeral range may be taken before it is bound: a gateway connecting to it
+    got it as its own local port (a TCP connection to itself), and the peer to listen there could not."""
+    if not EPHEMERAL.exists():
+        pytest.skip(f"{EPHEMERAL} is missing: no ephemeral range to keep out of")
+    low = int(EPHEMERAL.read_text().split()[0])
+    if low <= 12000:
+        pytest.skip(f"the ephemeral range starts at {low}: too low to search below it")
+    for _ in range(20):
+        port = free_port(kind)
+        assert port < low, f"port {port} is in the ephemeral range (from {low})"
+        with socket.socket(socket.AF_INET, kind) as sock:
+            sock.bind(("127.0.0.1", port))
