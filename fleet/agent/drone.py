@@ -173,6 +173,8 @@ class DroneAgent(Tracking, PeerSide):
         node.watch_liveliness(keys.alive(), self._on_liveliness, first=True)
         if not self.mail.adopt:  # a service dispatches the mail
             node.watch_liveliness(keys.service(), self._on_service, first=True)
+            # Any key of my reports: the service subscribes to them all.
+            node.on_matching(keys.status(self.me, "any"), self._on_reports_heard)
         # The token last: whoever sees us alive finds every queryable already declared (the
         # declarations reach a peer in order), so a mail order sent at once is answered.
         node.token(keys.alive(self.me))

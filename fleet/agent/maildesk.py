@@ -183,8 +183,8 @@ class MailDesk:
         self.node.put(self.keys.status(self.me, report.id), encode(self.me, self.clock(), report), once=True)
 
     def service_back(self) -> None:
-        """The service is back: the last word on each mail again, in order, since it may have missed
-        it (a delivery made meanwhile is not failed for want of news; it ignores what it knew)."""
+        """The service hears my reports again: the last word on each mail again, in order, since it may
+        have missed it (a delivery made meanwhile is not failed for want of news; it ignores what it knew)."""
         for report in self.latest.values():
             self._put_report(report)
         if self.latest:

@@ -145,10 +145,15 @@ class PeerSide:
     def _on_service(self, key: str, alive: bool) -> None:
         if alive:
             log.info("%s: the service is there", self.me)
-            self.mail.service_back()
             return
         log.warning("%s: the service is gone: mail not on board is handed back", self.me)
         self._carry_out(self.stack.service_lost())
+
+    def _on_reports_heard(self, heard: bool) -> None:
+        """The service's subscription reaches me again: what I reported while it did not may be lost.
+        (Its token may come first, after a partition heals: a report sent then was lost.)"""
+        if heard:
+            self.mail.service_back()
 
     def _silent_since(self, peer: str) -> int:
         """The earliest step ``peer`` may have gone silent at. A lost link is noticed only when the

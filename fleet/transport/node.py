@@ -83,6 +83,8 @@ class Node(Protocol):
 
     def token(self, key: str) -> None: ...
 
+    def on_matching(self, key: str, on_change: Callable[[bool], None]) -> None: ...
+
     def put(self, key: str, payload: bytes, once: bool = False, now: bool = False) -> None: ...
 
     async def get(self, selector: str, payload: bytes, timeout_s: float,
@@ -188,6 +190,20 @@ class ZenohNode:
     def token(self, key: str) -> None:
         with zenoh_errors(f"{self.name}: declare token {key}"):
             self._declared.append(self.session.liveliness().declare_token(key))
+
+    def on_matching(self, key: str, on_change: Callable[[bool], None]) -> None:
+        """``on_change(matching)`` whenever whether a subscriber anywhere would get a put on ``key`` changes.
+
+        The route itself, not its owner's liveliness: after a link heals, a peer's token can come
+        before its subscriptions, and a put made between the two is lost."""
+
+        def on_status(status: zenoh.MatchingStatus) -> None:
+            self._to_loop(on_change, status.matching)
+
+        with zenoh_errors(f"{self.name}: watch the subscribers of {key}"):
+            publisher = self.session.declare_publisher(key)
+            self._declared.append(publisher)
+            self._declared.append(publisher.declare_matching_listener(on_status))
 
     def watch_liveliness(self, key: str, on_change: Callable[[str, bool], None], first: bool = False) -> None:
         """``on_change(key, alive)`` for every token under ``key``, those already alive first. ``first``:

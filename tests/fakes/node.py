@@ -55,6 +55,8 @@ class FakeNetwork:
     queryables: list[tuple[str, QueryHandler]] = field(default_factory=list)
     tokens: list[str] = field(default_factory=list)
     watchers: list[tuple[str, Callable[[str, bool], None]]] = field(default_factory=list)
+    #: keys watched for subscribers: each with its callback and whether a subscription matches it
+    matching: list[tuple[str, Callable[[bool], None], list[bool]]] = field(default_factory=list)
 
     def deliver(self, key: str, payload: bytes) -> None:
         for expr, handler in list(self.subscriptions):
@@ -65,6 +67,13 @@ class FakeNetwork:
         for expr, on_change in list(self.watchers):
             if intersects(expr, key):
                 asyncio.get_running_loop().call_soon(on_change, key, alive)
+
+    def subscribed(self, key: str, handler: SampleHandler) -> None:
+        self.subscriptions.append((key, handler))
+        for watched, on_change, matched in self.matching:
+            if not matched[0] and intersects(key, watched):
+                matched[0] = True
+                asyncio.get_running_loop().call_soon(on_change, True)
 
     def drop(self, key: str) -> None:
         """The token ``key`` goes (its node left, or its lease ran out)."""
@@ -86,7 +95,7 @@ class FakeNode:
 
     # ------------------------------------------------------------ the port
     def subscribe(self, key: str, handler: SampleHandler, gather: bool = False, first: bool = False) -> None:
-        self.network.subscriptions.append((key, handler))
+        self.network.subscribed(key, handler)
 
     def queryable(self, key: str, handler: QueryHandler) -> None:
         self.network.queryables.append((key, handler))
@@ -100,6 +109,12 @@ class FakeNode:
     def token(self, key: str) -> None:
         self.network.tokens.append(key)
         self.network.announce(key, True)
+
+    def on_matching(self, key: str, on_change: Callable[[bool], None]) -> None:
+        matched = any(intersects(expr, key) for expr, _ in self.network.subscriptions)
+        self.network.matching.append((key, on_change, [matched]))
+        if matched:  # as Zenoh's listener, which tells the status it finds
+            asyncio.get_running_loop().call_soon(on_change, True)
 
     def put(self, key: str, payload: bytes, once: bool = False, now: bool = False) -> None:
         self.puts.append((key, payload))

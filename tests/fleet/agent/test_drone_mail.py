@@ -15,8 +15,8 @@ from drona_gcs.stack.drone import DroneStack, StackConfig
 from drona_gcs.workspace import Workspace
 from fleet.agent.drone import DroneAgent
 from fleet.setpoint_loop import StepReport
-from fleet.transport.wire import HeldMail, MailOrder, MailStatus, MailView, encode
-from tests.fakes.node import FakeNode
+from fleet.transport.wire import HeldMail, MailOrder, MailStatus, MailStatusReport, MailView, decode, encode
+from tests.fakes.node import FakeNetwork, FakeNode
 from tests.fleet.agent.drone_helpers import FRAME, KEYS, WS, statuses, vehicle_over_its_start
 
 
@@ -140,3 +140,28 @@ def test_a_drone_lists_what_it_handed_back_until_a_peer_holds_it() -> None:
     lists, reported = asyncio.run(scenario())
     assert lists == [["m:handed_back"], []]
     assert reported[-1] == (MailStatus.HANDED_BACK, "drone d1's vehicle is later than lambda")
+
+
+def test_a_report_the_service_missed_goes_again_once_its_subscription_reaches_the_drone() -> None:
+    """After a partition healed, the service's token came back before its subscription: the delivery,
+    sent again when the token came, was lost, and the service failed the mail for want of news. The
+    drone sends again once the subscription reaches it, whenever its token came."""
+    async def scenario() -> list[tuple[str, bytes]]:
+        network = FakeNetwork()
+        service = FakeNode(network)
+        service.token(KEYS.service())
+        stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
+        agent = DroneAgent(stack, FakeNode(network), KEYS, vehicle_over_its_start(), FRAME, lambda: 1000.0)
+        agent.mail.adopt = False
+        await agent.start()
+        agent.mail.report("m", MailStatus.DELIVERED)  # nobody subscribed yet: lost
+        await asyncio.sleep(0)
+        heard: list[tuple[str, bytes]] = []
+        service.subscribe(KEYS.status(), lambda key, payload: heard.append((key, payload)))
+        for _ in range(3):
+            await asyncio.sleep(0)
+        return heard
+
+    heard = asyncio.run(scenario())
+    bodies = [decode(payload).body for _, payload in heard]
+    assert [(b.id, b.status) for b in bodies if isinstance(b, MailStatusReport)] == [("m", MailStatus.DELIVERED)]

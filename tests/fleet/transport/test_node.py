@@ -200,3 +200,40 @@ def test_a_put_at_once_leaves_after_what_its_node_put_before_in_the_round() -> N
 
     got = asyncio.run(scenario())
     assert got[:2] == [b"answer", b"plan"]
+
+
+def test_a_node_hears_when_a_subscriber_elsewhere_starts_and_stops_matching_a_key() -> None:
+    """The event a drone sends its reports again on: the subscription itself reaching it, not its
+    owner's token. Nothing matches until the peer subscribes to a key expression that covers the key;
+    closing that peer ends the match."""
+    endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+
+    async def scenario() -> list[bool]:
+        drone = await ZenohNode.open(ZenohSettings(listen=(endpoint,)), "drone")
+        service = await ZenohNode.open(ZenohSettings(connect=(endpoint,)), "service")
+        seen: list[bool] = []
+        changed = asyncio.Event()
+
+        def on_change(matching: bool) -> None:
+            seen.append(matching)
+            changed.set()
+
+        async def changes(count: int) -> None:
+            while len(seen) < count:
+                changed.clear()
+                await asyncio.wait_for(changed.wait(), 10)
+
+        try:
+            drone.on_matching("t/status/d1/any", on_change)
+            service.subscribe("t/other/*", lambda key, payload: None)  # no match: nothing said
+            service.token("t/service")
+            service.subscribe("t/status/*/*", lambda key, payload: None)
+            await changes(1)
+            await service.close()
+            await changes(2)
+        finally:
+            await service.close()
+            await drone.close()
+        return seen
+
+    assert asyncio.run(scenario()) == [True, False]
