@@ -70,16 +70,18 @@ class DroneCore:
         self.late = False  #: my vehicle came to a cell later than lambda (see :meth:`DroneStack.tracking_bound`)
 
     def distance(self, a: Cell, b: Cell) -> int:
-        """Steps from ``a`` to ``b``, around the drones resting now and never through a vehicle down, nor
-        where a peer whose clock is off rests, for as long as it is off (the task planner's distance; see
-        :func:`_distance_function`). The rest of its plan is only passed through."""
+        """Steps from ``a`` to ``b``, around the drones resting now and never through a vehicle down or
+        lost, nor where a peer whose clock is off rests, for as long as it is off (the task planner's
+        distance; see :func:`_distance_function`). The rest of its plan is only passed through."""
         return self.ways(a, b, self.resting_now, self.walls())
 
     def walls(self) -> frozenset[Cell]:
-        """Cells held for good, which no way crosses: vehicles down, and where peers whose clock is off rest."""
+        """Cells held for good, which no way crosses: vehicles down, where lost vehicles may be (until they
+        are back), and where peers whose clock is off rest."""
         protocol = self.protocol
         off = (protocol.known[p].last for p in protocol.outliers if p in protocol.known)
-        return frozenset((*protocol.peers_down.values(), *off))
+        lost = (cell for cells in protocol.peers_lost.values() for cell in cells)
+        return frozenset((*protocol.peers_down.values(), *lost, *off))
 
     def copy(self) -> Self:
         """A copy whose task planner measures ways with the copy's state (the tester's clones)."""

@@ -227,7 +227,7 @@ class MailPlanner(MailPlannerInputs):
         cut_off = self._cut_off_end(best)
         if cut_off is not None:
             self.queue.pop(0)
-            why = f"its {cut_off} is cut off from here (obstacles, vehicles down, drones whose clock is off)"
+            why = f"its {cut_off} is cut off from here (obstacles, vehicles down or lost, drones whose clock is off)"
             return [MailRejected(best, why), *self.decide_again(budget, taken)]
         if budget.allows(self._need(self.cell, best)):
             self.queue.pop(0)

@@ -18,7 +18,7 @@ MAX_MISSES = 3  #: plans to a pickup that end with the vehicle not there, before
 SPENT = "its battery is low, and the workspace has no charger"
 DRAINED = "its battery affords no move above the floor, and it rests off every charger"
 STRANDED = ("its battery is low, and reaches no charger from here (the others are walled in by obstacles, "
-            "vehicles down or drones whose clock is off)")
+            "vehicles down or lost, or drones whose clock is off)")
 MAX_FAILURES = 4  #: rounds in a row that find no plan, before mail not on board is handed back (see leg_failed)
 MAX_STRIKES = 8  #: legs to a mail's pickup that found no plan, in a row or not, before it is handed back
 NOT_CLEARED = "at the pickup, not cleared by the service to take it on board"

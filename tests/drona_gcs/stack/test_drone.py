@@ -21,6 +21,7 @@ from drona_gcs.stack.mail import (
     MailDelivered,
     MailPickedUp,
     MailRejected,
+    MailStarted,
     Phase,
 )
 from drona_gcs.stack.messages import CurrentTraj, PlanAck, PlanProposal, ReqForCurrentTraj, Task, TaskId
@@ -243,7 +244,24 @@ def test_a_pickup_where_a_peer_whose_clock_is_off_rests_is_handed_back_at_once()
     stack.assign(MAIL)
     actions = stack.step(0, 100.0, stack.executor.cell)
     assert [a.reason for a in of(MailRejected, actions)] == [
-        "its pickup [3, 0, 0] is cut off from here (obstacles, vehicles down, drones whose clock is off)"]
+        "its pickup [3, 0, 0] is cut off from here (obstacles, vehicles down or lost, drones whose clock is off)"]
+
+
+def test_a_pickup_where_a_lost_vehicle_may_be_is_handed_back_at_once() -> None:
+    """A vehicle killed on its way to a pickup: its agent held every cell of the rest of its plan, the
+    pickup among them, for good. The heir took the mail over, flew back to park, tried four rounds,
+    and only then handed it back (30 s), with other mail waiting behind it. Cut off as under a vehicle
+    down: handed back before any round is spent on it, and the next mail goes at once."""
+    ws = Workspace.build(size=(6, 6, 1), drones={"d1": (0, 5, 0), "d2": (5, 0, 0)})
+    stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+    stack.peer_lost("d2", ((5, 0, 0), (4, 0, 0), MAIL.pickup))
+    other = dataclasses.replace(MAIL, id="other", pickup=(0, 3, 0), priority=MAIL.priority - 1)
+    stack.assign(MAIL)
+    stack.assign(other)
+    actions = stack.step(0, 100.0, stack.executor.cell)
+    assert [a.reason for a in of(MailRejected, actions)] == [
+        "its pickup [3, 0, 0] is cut off from here (obstacles, vehicles down or lost, drones whose clock is off)"]
+    assert [a.request.id for a in of(MailStarted, actions)] == ["other"]
 
 
 @pytest.mark.parametrize("moves", [0, 1])
