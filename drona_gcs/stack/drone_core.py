@@ -77,10 +77,11 @@ class DroneCore:
 
     def walls(self) -> frozenset[Cell]:
         """Cells held for good, which no way crosses: vehicles down, where lost vehicles may be (until they
-        are back), and where peers whose clock is off rest."""
-        protocol = self.protocol
+        are back; but my cell: had one stopped there, we would have met), and where peers whose clock
+        is off rest."""
+        protocol, here = self.protocol, self.executor.cell
         off = (protocol.known[p].last for p in protocol.outliers if p in protocol.known)
-        lost = (cell for cells in protocol.peers_lost.values() for cell in cells)
+        lost = (cell for cells in protocol.peers_lost.values() for cell in cells if cell != here)
         return frozenset((*protocol.peers_down.values(), *lost, *off))
 
     def copy(self) -> Self:

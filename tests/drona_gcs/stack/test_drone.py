@@ -264,6 +264,19 @@ def test_a_pickup_where_a_lost_vehicle_may_be_is_handed_back_at_once() -> None:
     assert [a.request.id for a in of(MailStarted, actions)] == ["other"]
 
 
+def test_a_drone_in_a_cell_a_lost_vehicle_may_be_in_is_not_walled_in() -> None:
+    """A lost vehicle's cells include those its plan crossed shortly before it was last seen: this
+    drone may have come to rest in one since. Had the vehicle stopped there, they would have met; as a
+    wall, the cell cut this drone off from everything, and its mail was handed back."""
+    ws = Workspace.build(size=(6, 6, 1), drones={"d1": (0, 5, 0), "d2": (5, 0, 0)})
+    stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+    stack.peer_lost("d2", ((5, 0, 0), (0, 4, 0), (0, 5, 0)))
+    stack.assign(MAIL)
+    actions = stack.step(0, 100.0, stack.executor.cell)
+    assert of(MailRejected, actions) == []
+    assert [a.request.id for a in of(MailStarted, actions)] == [MAIL.id]
+
+
 @pytest.mark.parametrize("moves", [0, 1])
 def test_a_drone_whose_battery_affords_no_move_off_a_charger_is_down_for_good(moves: int) -> None:
     """Found by the systematic tester (sweep 20142 with --skews 1): a drone whose clock was off landed on a
