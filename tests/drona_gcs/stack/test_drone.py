@@ -277,6 +277,17 @@ def test_a_drone_in_a_cell_a_lost_vehicle_may_be_in_is_not_walled_in() -> None:
     assert [a.request.id for a in of(MailStarted, actions)] == [MAIL.id]
 
 
+def test_a_leg_not_flown_from_a_cell_a_lost_vehicle_may_be_in_is_tried_again() -> None:
+    """Found in review: after a leg not flown, the task planner measures ways from where the vehicle
+    still is (the leg's start), not from the plan's end. A lost vehicle's cell there walled it in,
+    and the mail was handed back at once as cut off, not tried again."""
+    stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
+    stack.protocol.peers_lost["d9"] = ((5, 5, 0), (0, 0, 0))  # (a lone drone: no peer to say so)
+    _, actions = fly(stuck_at_start, 80, stack)
+    assert of(LegNotFlown, actions)[:MAX_MISSES] == [LegNotFlown(MAIL.pickup, (0, 0, 0))] * MAX_MISSES
+    assert ["never reached the pickup" in a.reason for a in of(MailRejected, actions)][:1] == [True]
+
+
 @pytest.mark.parametrize("moves", [0, 1])
 def test_a_drone_whose_battery_affords_no_move_off_a_charger_is_down_for_good(moves: int) -> None:
     """Found by the systematic tester (sweep 20142 with --skews 1): a drone whose clock was off landed on a
