@@ -145,13 +145,15 @@ class PeerSide:
     def _on_service(self, key: str, alive: bool) -> None:
         if alive:
             log.info("%s: the service is there", self.me)
+            self.mail.service_back()  # its subscription may already reach me through another subscriber's
             return
         log.warning("%s: the service is gone: mail not on board is handed back", self.me)
         self._carry_out(self.stack.service_lost())
 
     def _on_reports_heard(self, heard: bool) -> None:
-        """The service's subscription reaches me again: what I reported while it did not may be lost.
-        (Its token may come first, after a partition heals: a report sent then was lost.)"""
+        """A subscription to my reports reaches me again, the service's maybe: what I reported while
+        none did may be lost. (Its token may come first, after a partition heals: a report sent then
+        was lost. The token still counts: a client's subscription may have kept the match up.)"""
         if heard:
             self.mail.service_back()
 
