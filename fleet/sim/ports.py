@@ -7,6 +7,9 @@ import random
 import socket
 from pathlib import Path
 
+#: Ports this process handed out: free when handed, so two calls in a row could hand the same one.
+_HANDED: set[int] = set()
+
 
 def free_port(kind: int = socket.SOCK_DGRAM, host: str = "127.0.0.1") -> int:
     """A port free for ``kind`` (SOCK_DGRAM or SOCK_STREAM) on ``host``, below the ephemeral range.
@@ -34,12 +37,16 @@ def free_port_block(count: int, kind: int, host: str = "127.0.0.1") -> int:
     rng = random.Random()
     for _ in range(100):
         base = rng.randrange(first, last)
+        block = set(range(base, base + count))
+        if block & _HANDED:
+            continue
         socks: list[socket.socket] = []
         try:
-            for port in range(base, base + count):
+            for port in sorted(block):
                 sock = socket.socket(socket.AF_INET, kind)
                 socks.append(sock)
                 sock.bind((host, port))
+            _HANDED.update(block)
             return base
         except OSError:
             continue
