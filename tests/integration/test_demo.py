@@ -55,6 +55,10 @@ def test_the_demo_fleet_delivers_mail_shown_live_on_the_dashboard(tmp_path: Path
     try:
         headers = {"Authorization": f"Bearer {TOKEN}"}
         page = browser.new_page(viewport={"width": 1400, "height": 900})
+        # Shown with a failure: once (CI, 1 run in many) the token field never became visible.
+        page.on("console", lambda message: print("console:", message.type, message.text))
+        page.on("pageerror", lambda error: print("page error:", error))
+        page.on("requestfailed", lambda request: print("request failed:", request.url, request.failure))
         page.goto(url + "/")
         page.fill("#token", TOKEN)
         page.click("#token-form button")
