@@ -145,7 +145,7 @@ class PeerSide:
     def _on_service(self, key: str, alive: bool) -> None:
         if alive:
             log.info("%s: the service is there", self.me)
-            self.mail.service_back()  # its subscription may already reach me through another subscriber's
+            self.mail.service_back()  # a client's subscription may have kept the match up meanwhile
             return
         log.warning("%s: the service is gone: mail not on board is handed back", self.me)
         self._carry_out(self.stack.service_lost())

@@ -37,12 +37,12 @@ def free_port_block(count: int, kind: int, host: str = "127.0.0.1") -> int:
     rng = random.Random()
     for _ in range(100):
         base = rng.randrange(first, last)
-        block = set(range(base, base + count))
-        if block & _HANDED:
+        block = range(base, base + count)
+        if not _HANDED.isdisjoint(block):
             continue
         socks: list[socket.socket] = []
         try:
-            for port in sorted(block):
+            for port in block:
                 sock = socket.socket(socket.AF_INET, kind)
                 socks.append(sock)
                 sock.bind((host, port))
