@@ -133,7 +133,7 @@ def decode(payload: bytes) -> Envelope:
         return _DECODER.decode(payload)
     except msgspec.DecodeError as exc:  # its ValidationError too: msgspec names the field ("at `$.body.id`")
         raise WireError(f"malformed message: {exc}") from exc
-    except UnicodeDecodeError as exc:  # msgspec lets a string that is not UTF-8 through as this
+    except UnicodeDecodeError as exc:  # msgspec before 0.23 lets a string that is not UTF-8 through as this
         raise WireError(f"malformed message: not UTF-8: {exc.reason} at byte {exc.start}") from exc
 
 
