@@ -35,7 +35,7 @@ $(NATIVE_STAMP): setup.py $(wildcard drona_gcs/planner/*.py) | $(STAMP)
 test: $(STAMP) $(NATIVE_STAMP)
 	$(BIN)/ruff check drona_gcs fleet api tests
 	$(BIN)/mypy
-	$(BIN)/pytest -q -n 2 --dist loadfile
+	$(BIN)/pytest -q -n 3 --dist loadfile
 
 lint: $(STAMP)
 	$(BIN)/ruff check drona_gcs fleet api tests
