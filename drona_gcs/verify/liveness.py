@@ -55,10 +55,16 @@ class DeliveryMonitor:
     reach: Reach
 
     def liveness(self, steps_since_last_request: int, wait_for: Callable[[], str] = lambda: "",
-                 blocked: frozenset[Cell] = frozenset(), fleet: Mapping[str, Flier] | None = None) -> None:
+                 blocked: frozenset[Cell] = frozenset(), fleet: Mapping[str, Flier] | None = None,
+                 agents_gone: int = 0) -> None:
         """``wait_for`` describes who waits for whom, for the counterexample; ``blocked``: the cells
-        vehicles that came down rest on for good; ``fleet``: the drones still in service."""
+        vehicles that came down rest on for good; ``fleet``: the drones still in service;
+        ``agents_gone``: the drones whose agents crashed and have not restarted."""
         if steps_since_last_request <= self.config.liveness_steps:
+            return
+        if 2 * agents_gone >= len(self.config.drones):
+            # Half the agents gone, the rest cannot tell a crash from a partition: a partition-safe
+            # fleet plans nothing until one is back (or the operator releases one).
             return
         if fleet is not None:  # a drone that can never fly again is in the way for good
             grounded = {d for d, flier in fleet.items() if self._grounded(flier)}
