@@ -56,16 +56,14 @@ class DeliveryMonitor:
 
     def liveness(self, steps_since_last_request: int, wait_for: Callable[[], str] = lambda: "",
                  blocked: frozenset[Cell] = frozenset(), fleet: Mapping[str, Flier] | None = None,
-                 agents_gone: int = 0) -> None:
+                 agents_gone: frozenset[str] = frozenset()) -> None:
         """``wait_for`` describes who waits for whom, for the counterexample; ``blocked``: the cells
         vehicles that came down rest on for good; ``fleet``: the drones still in service;
         ``agents_gone``: the drones whose agents crashed and have not restarted."""
         if steps_since_last_request <= self.config.liveness_steps:
             return
-        if 2 * agents_gone >= len(self.config.drones):
-            # Half the agents gone, the rest cannot tell a crash from a partition: a partition-safe
-            # fleet plans nothing until one is back (or the operator releases one).
-            return
+        if not self._may_plan_without(agents_gone):
+            return  # the rest cannot tell a crash from a partition: nothing is owed until an agent is back
         if fleet is not None:  # a drone that can never fly again is in the way for good
             grounded = {d for d, flier in fleet.items() if self._grounded(flier)}
             blocked = blocked | {fleet[d].cell for d in grounded}
@@ -75,6 +73,13 @@ class DeliveryMonitor:
         if missing:
             raise Violation("d", f"mail {missing} not delivered {self.config.liveness_steps} steps after the "
                                  f"last request arrived. Wait-for: {wait_for()}")
+
+    def _may_plan_without(self, gone: frozenset[str]) -> bool:
+        """The README's quorum: the agents up are a strict majority of the fleet, or half of it with its
+        first drone by name (one side of a partition at most)."""
+        drones = self.config.drones
+        up = len(drones) - len(gone)
+        return 2 * up > len(drones) or (2 * up == len(drones) and min(drones) not in gone)
 
     def _grounded(self, flier: Flier) -> bool:
         """Off every charger, a battery that affords no move (a leg's overhead and one step above the

@@ -225,7 +225,7 @@ class World(FieldFaults):
             fleet = {d: Flier(s.executor.cell, self.battery[d], s.config.recharged_mark, s.protocol.lead_steps + 1)
                      for d, s in self.stacks.items() if d not in out}
             self.monitors.liveness(min(self.steps.values()) - self.last_injection_step, self.wait_for, blocked,
-                                   fleet, len(self.crashed))
+                                   fleet, frozenset(self.crashed))
 
     # --------------------------------------------- for the exhaustive search (see .dfs)
     def touched_by(self, move: Transition) -> frozenset[str]:
