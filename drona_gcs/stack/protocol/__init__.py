@@ -182,7 +182,8 @@ entry does not allow, raises :class:`~drona_gcs.errors.ProtocolViolation` naming
 
 The package: :mod:`.events` and :mod:`.actions` (what it takes and gives), :mod:`.state` (its
 states), :mod:`.knowledge` (what it knows, and the one place the state changes), the handlers of
-:mod:`.rounds`, :mod:`.confirming` and :mod:`.flight`, and :mod:`.machine` (the driver and the table).
+:mod:`.rounds`, :mod:`.confirming` and :mod:`.flight`, :mod:`.meeting` (its quick separation check),
+and :mod:`.machine` (the driver and the table).
 """
 
 from drona_gcs.stack.protocol.actions import (

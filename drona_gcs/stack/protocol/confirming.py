@@ -4,7 +4,6 @@ the peers' it holds, acks or refuses)."""
 from __future__ import annotations
 
 from drona_gcs.motion import Trajectory
-from drona_gcs.safety import check_pair
 from drona_gcs.stack.messages import PlanAck, PlanDecision, PlanProposal, PlanRefusal, ReqForCurrentTraj
 from drona_gcs.stack.protocol.actions import Action, Broadcast, RerouteFailed, Send, StartExecuting, TaskFailed
 from drona_gcs.stack.protocol.events import (
@@ -20,6 +19,7 @@ from drona_gcs.stack.protocol.events import (
 )
 from drona_gcs.stack.protocol.flight import Flight
 from drona_gcs.stack.protocol.knowledge import cut_overtakes
+from drona_gcs.stack.protocol.meeting import meets
 from drona_gcs.stack.protocol.state import State
 from drona_gcs.workspace import Cell
 
@@ -64,7 +64,7 @@ class Confirming(Flight):
             return []
         mine, since = proposed.proposal.trajectory, max(now, proposed.starts)
         theirs = [event.trajectory, *(Trajectory.stationary(c, 0) for c in event.holds)]
-        if any(check_pair(mine, other, self.delta, from_step=since) for other in theirs):
+        if any(meets(mine, other, self.delta, since) for other in theirs):
             return self._abandon(f"{event.sender} flies or holds across it", now)
         self.acked.add(event.sender)
         return self._go_if_held(now)
@@ -161,7 +161,7 @@ class Confirming(Flight):
         flown = [self.current_trajectory(now), *mine,
                  *(Trajectory.stationary(c, 0) for c in {*self.holds(), *cells})]
         since = max(now, theirs.start_step)  # what it flew already was held before
-        return any(check_pair(theirs, other, self.delta, from_step=since) for other in flown)
+        return any(meets(theirs, other, self.delta, since) for other in flown)
 
     def _gone_there(self, proposal: PlanProposal, now: int) -> tuple[tuple[str, tuple[Cell, ...]], ...]:
         """Each drone ``proposal``'s sender held as gone, with every cell it may be in for good as I know
