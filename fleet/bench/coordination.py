@@ -211,7 +211,9 @@ def run(args: argparse.Namespace) -> int:
           f"coordinating alone: asked, answered, planned, held, flown; 4(N-1) = {4 * (agents - 1)} for a fleet "
           f"coordinating at once, whose requests and proposals are the answers)\n"
           f"CPU per agent {result.cpu_ms_per_s_per_agent:.1f} ms/s (the agent processes / agents; the vehicles' "
-          f"process {result.vehicles_cpu_s_per_s:.2f} s/s)")
+          f"process {result.vehicles_cpu_s_per_s:.2f} s/s)\n"
+          f"host speed: a reference Python loop took {result.reference_ms_before:.0f} ms before the mail and "
+          f"{result.reference_ms_after:.0f} ms after (lower is faster; the figures above scale with it)")
     bench_plot.write(args, "coordination", result)
     if args.record is not None:
         print(audit_records(args.record, bench_workspace(agents)))

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from drona_gcs.stack.protocol import State
 from drona_gcs.workspace import Cell, Workspace
-from fleet.bench.processes import check_alive, cpu_seconds, up_or_gone
+from fleet.bench.processes import check_alive, cpu_seconds, reference_loop_ms, up_or_gone
 from fleet.transport.fleet_client import FleetClient
 from fleet.transport.identity import SERVICE
 from fleet.transport.keys import FleetKeys
@@ -42,6 +42,9 @@ class CoordinationResult:
     cpu_ms_per_s_per_agent: float
     vehicles_cpu_s_per_s: float
     delivered: int
+    #: the host's speed before and after (fleet.bench.processes.reference_loop_ms; lower is faster)
+    reference_ms_before: float = math.nan
+    reference_ms_after: float = math.nan
 
 
 async def measure(children: list[subprocess.Popen[bytes]], workspace: Workspace, names: list[str], fleet: str,
@@ -86,10 +89,12 @@ async def measure(children: list[subprocess.Popen[bytes]], workspace: Workspace,
         # cells at start-up, made while the last process may still be joining, are not counted.
         before = await between_rounds(client, IDLE_BOUND_S, idle=True)
         latencies.count_after(before)
+        reference_before = reference_loop_ms()
         cpu0 = [_cpu_of(c.pid) for c in children]
         started = time.monotonic()
         delivered, sent, plans = await _keep_busy(node, client, keys, workspace, names, seconds, seed, before)
         elapsed = time.monotonic() - started
+        reference_after = reference_loop_ms()
         check_alive(children)  # figures from a fleet that lost a process mean nothing
         cpu = [_cpu_of(c.pid) - c0 for c, c0 in zip(children, cpu0, strict=True)]
     finally:
@@ -99,7 +104,7 @@ async def measure(children: list[subprocess.Popen[bytes]], workspace: Workspace,
         len(names), elapsed, len(values), _percentile(values, 0.5), _percentile(values, 0.99), _percentile(values, 1),
         len(steady), _percentile(steady, 0.5), _percentile(steady, 0.99), _percentile(steady, 1),
         sent / plans if plans else float("nan"), 1000 * sum(cpu[1:]) / elapsed / len(names), cpu[0] / elapsed,
-        delivered)
+        delivered, reference_before, reference_after)
 
 
 class PlanLatencies:

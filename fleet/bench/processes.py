@@ -7,6 +7,7 @@ import asyncio
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any, cast
 
@@ -58,3 +59,17 @@ def cpu_seconds(pid: int) -> float | None:
     except OSError:
         return None
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime
+
+
+REFERENCE_LOOP = 1_000_000  #: additions in the reference loop
+
+
+def reference_loop_ms() -> float:
+    """Wall milliseconds of a fixed pure-Python loop: how fast this host runs Python now. A virtual
+    machine's speed follows its neighbours' load (this project's 2-core VM: 43-95 ms within minutes),
+    and CPU-bound figures with it; read beside them, it says how far two runs can be compared."""
+    started = time.perf_counter()
+    total = 0
+    for i in range(REFERENCE_LOOP):
+        total += i & 7
+    return (time.perf_counter() - started) * 1000

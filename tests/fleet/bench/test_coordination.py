@@ -41,6 +41,7 @@ def test_a_short_run_gives_one_strict_json_row_with_its_figures() -> None:
     assert 4 * (agents - 1) <= row["messages_per_round"] <= 7 * (agents - 1)
     assert row["steady_plans"] == 0 and row["steady_p50_ms"] is None  # 4 s: nothing after the opening
     assert row["cpu_ms_per_s_per_agent"] > 0
+    assert 0 < row["reference_ms_before"] < 60_000 and 0 < row["reference_ms_after"] < 60_000
 
 
 class _Fleet:
