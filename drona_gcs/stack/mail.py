@@ -182,7 +182,7 @@ class MailPlanner(MailPlannerInputs):
             return self._to_charger(budget, taken)  # charge with the mail on board, then deliver
         # The parking spots only when asked for: a drone parked and idle looks every boundary.
         if not self.low and self.tried and not self._parked() and (spots := self._parking_spots()) and any(
-                g not in spots for g in self.tried):
+                g not in spots for g in self.tried) and self._in_reach_charged(spots, budget):
             # A leg found no plan: maybe our goal is where another drone waits, while we wait
             # where it wants to go. Clear the way on a parking cell before trying again (once:
             # should no parking cell be reached either, the mail is not kept waiting for one).
@@ -196,6 +196,13 @@ class MailPlanner(MailPlannerInputs):
         if not self._parked() and (spots := self._parking_spots()):
             return self._to_one_of(spots, budget, taken, Phase.TO_PARKING)
         return []
+
+    def _in_reach_charged(self, spots: Sequence[Cell], budget: Budget) -> bool:
+        """Whether one of ``spots``, and the way on from it to a charger, is in reach now or once charged.
+        Beyond a full charge, the way to park would send the drone to charge (see :meth:`_to_one_of`), and
+        charged it would find the same: charging at 100 % for good, its mail waiting (sweep 30562)."""
+        reach = max(budget.steps, self.battery.steps_affordable(self.recharged_level))
+        return budget.unchecked or any(self._leg(self.cell, c) + self._after(c) <= reach for c in spots)
 
     def _make_way(self, budget: Budget, taken: Collection[Cell]) -> list[MailAction]:
         """Leave for the spot a peer's way asked for, and stay there a while: going home at once

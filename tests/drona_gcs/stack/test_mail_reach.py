@@ -93,6 +93,27 @@ def test_a_parking_cell_walled_off_does_not_keep_a_charged_drone_charging() -> N
     assert goto(mp.decide(0, 100.0, set())).goal == c(1, 5)
 
 
+def test_a_parking_cell_beyond_a_full_charge_does_not_keep_a_charged_drone_charging() -> None:
+    """Found by sweep seed 30562 (two agents crashed): a leg had found no plan, so the drone would park
+    first; its parking cell (and the way on to a charger) was beyond what a full battery affords, so it
+    went to charge instead at the charger it stood on, charged in full, and started again, for good,
+    its mail never tried."""
+    far = c(60, 0)
+    mp = MailPlanner(Q1, (Q1, Q2), (far,), manhattan, MODEL)
+    mp.tried.add(c(4, 4))
+    mp.assign(mail("m", c(1, 5), c(2, 3)))
+    assert goto(mp.decide(0, 100.0, set())).goal == c(1, 5)
+
+
+def test_a_parking_cell_a_charge_brings_in_reach_is_still_parked_on_after_charging() -> None:
+    """The way to park is cleared first when a charge affords it: a drone too low for it charges."""
+    mp = MailPlanner(Q1, (Q1, Q2), (P1,), manhattan, MODEL)
+    mp.tried.add(c(4, 4))
+    mp.assign(mail("m", c(1, 5), c(2, 3)))
+    assert mp.decide(0, 30.0, set()) == [] and mp.phase is Phase.CHARGING
+    assert goto(mp.decide(1, 100.0, set())).goal == P1
+
+
 def test_mail_on_board_whose_drop_off_is_walled_off_hands_the_queue_back() -> None:
     """Found by sweep seed 8007 once no way led into a vehicle down's cell: one came down on the
     drop-off of the mail on board, and the drone charged at 100% for good, the queue behind it held."""
