@@ -66,8 +66,8 @@ REFERENCE_LOOP = 1_000_000  #: additions in the reference loop
 
 def reference_loop_ms() -> float:
     """Wall milliseconds of a fixed pure-Python loop: how fast this host runs Python now. A virtual
-    machine's speed follows its neighbours' load (this project's 2-core VM: 43-95 ms within minutes),
-    and CPU-bound figures with it; read beside them, it says how far two runs can be compared."""
+    machine's speed follows its neighbours' load, and CPU-bound figures with it; read beside them, it
+    says how far two runs can be compared."""
     started = time.perf_counter()
     total = 0
     for i in range(REFERENCE_LOOP):

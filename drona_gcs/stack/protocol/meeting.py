@@ -1,10 +1,9 @@
 """Whether two trajectories break the separation rule: the protocol's own quick yes or no.
 
 :func:`drona_gcs.safety.check_pair` states the rule as plain loops and lists every violation, for
-the audit and the planner's tests. A drone asks the question for every proposal and every ack, a
-few hundred times a second in a fleet given mail at once, and needs only the answer: this finds it
-from where the other drone is at each step, indexed once, and stops at the first meeting. The two
-agree (tested on random walks).
+the audit and the planner's tests. A drone asks the question for every proposal it holds and every
+ack it gets, and needs only the answer: this finds it from where the other drone is at each step,
+indexed once, and stops at the first meeting. The two agree (tested on random walks).
 """
 
 from __future__ import annotations
