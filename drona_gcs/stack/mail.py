@@ -193,14 +193,15 @@ class MailPlanner(MailPlannerInputs):
             return self._to_charger(budget, taken)
         if self.queue and not self.paused:
             return self._start_next_mail(budget, taken)
-        if not self._parked() and (spots := self._parking_spots()):
+        if not self._parked() and (spots := self._parking_spots()) and self._in_reach_charged(spots, budget):
             return self._to_one_of(spots, budget, taken, Phase.TO_PARKING)
-        return []
+        return []  # (beyond a full charge, it rests idle where it is: it makes way when asked)
 
     def _in_reach_charged(self, spots: Sequence[Cell], budget: Budget) -> bool:
         """Whether one of ``spots``, and the way on from it to a charger, is in reach now or once charged.
         Beyond a full charge, the way to park would send the drone to charge (see :meth:`_to_one_of`), and
-        charged it would find the same: charging at 100 % for good, its mail waiting (sweep 30562)."""
+        charged it would find the same: charging at 100 % for good, its mail waiting (sweep 30562), and
+        the charger held by a drone that makes way for nobody while it charges."""
         reach = max(budget.steps, self.battery.steps_affordable(self.recharged_level))
         return budget.unchecked or any(self._leg(self.cell, c) + self._after(c) <= reach for c in spots)
 

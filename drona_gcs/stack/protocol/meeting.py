@@ -16,8 +16,8 @@ from drona_gcs.workspace import Cell
 
 
 def meets(mine: Trajectory, other: Trajectory, delta: int, from_step: int) -> bool:
-    """``bool(check_pair(mine, other, delta, from_step=from_step))``: a collision or a swap at a step
-    of mine from ``from_step`` on, within ``delta`` steps of the other's."""
+    """``bool(check_pair(mine, other, delta, from_step=from_step))`` for ``delta >= 0``: a collision or
+    a swap at a step of mine from ``from_step`` on, within ``delta`` steps of the other's."""
     cells = other.cells
     if set(cells).isdisjoint(mine.cells):
         return False

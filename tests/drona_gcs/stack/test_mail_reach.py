@@ -105,6 +105,15 @@ def test_a_parking_cell_beyond_a_full_charge_does_not_keep_a_charged_drone_charg
     assert goto(mp.decide(0, 100.0, set())).goal == c(1, 5)
 
 
+def test_an_idle_drone_whose_parking_cell_is_beyond_a_full_charge_rests_where_it_is() -> None:
+    """Found by review: with no mail, the way to park sent it to charge at the charger it stood on, for
+    good; charging, it makes way for nobody, and the charger was lost to the fleet. Idle, it is asked."""
+    mp = MailPlanner(Q1, (Q1, Q2), (c(60, 0),), manhattan, MODEL)
+    assert mp.decide(0, 100.0, set()) == [] and mp.phase is Phase.IDLE
+    mp.make_way(c(1, 0), 10)
+    assert goto(mp.decide(1, 100.0, set())).goal == c(1, 0)
+
+
 def test_a_parking_cell_a_charge_brings_in_reach_is_still_parked_on_after_charging() -> None:
     """The way to park is cleared first when a charge affords it: a drone too low for it charges."""
     mp = MailPlanner(Q1, (Q1, Q2), (P1,), manhattan, MODEL)
