@@ -195,7 +195,7 @@ class MailPlanner(MailPlannerInputs):
             return self._start_next_mail(budget, taken)
         if not self._parked() and (spots := self._parking_spots()) and self._in_reach_charged(spots, budget):
             return self._to_one_of(spots, budget, taken, Phase.TO_PARKING)
-        return []  # (beyond a full charge, it rests idle where it is: it makes way when asked)
+        return []  # parked, or its parking cells beyond a full charge: idle here, it makes way when asked
 
     def _in_reach_charged(self, spots: Sequence[Cell], budget: Budget) -> bool:
         """Whether one of ``spots``, and the way on from it to a charger, is in reach now or once charged.
