@@ -111,11 +111,12 @@ def make_world_config(workspace: Workspace, drones: int, requests: int, delta: i
     spots = set(workspace.parking) | set(workspace.charging_stations)
     pickups = [c for c in list(workspace.pickups) or region if c not in spots]
     dropoffs = [c for c in list(workspace.dropoffs) or region if c not in spots]
-    model = options.get("battery") or _battery_for(workspace)
-    assert isinstance(model, BatteryModel)
-    options = {**options, "battery": model}
     max_delay = options.get("max_delay", WorldConfig.max_delay)
     assert isinstance(max_delay, int)
+    extra_lead = model_lead(delta, max_delay) - model_lead(delta, WorldConfig.max_delay)
+    model = options.get("battery") or _battery_for(workspace, extra_lead)
+    assert isinstance(model, BatteryModel)
+    options = {**options, "battery": model}
     accepts = _service_check(workspace, model, model_lead(delta, max_delay))
     mail = []
     for i in range(requests):
@@ -144,15 +145,20 @@ def make_world_config(workspace: Workspace, drones: int, requests: int, delta: i
                        **{**defaults, **options})  # type: ignore[arg-type]
 
 
-def _battery_for(workspace: Workspace) -> BatteryModel:
+def _battery_for(workspace: Workspace, extra_lead: int = 0) -> BatteryModel:
     """A battery that flies across the workspace and back, with its margin: the default one where it
-    does (8x8, 16x16), a slower drain on larger grids (32x32), where no mail would be affordable."""
+    does (8x8, 16x16), a slower drain on larger grids (32x32), where no mail would be affordable.
+    ``extra_lead``: lead steps above those of the default network (max_delay 2), which each of a mail's
+    three legs takes too: the battery lasts that much longer, or a slower network would leave no mail
+    affordable on 16x16 (every draw was refused at max_delay 3)."""
     default = BatteryModel()
     need = 2 * (workspace.nx + workspace.ny + workspace.nz - 3) + default.margin_steps
     affordable = default.steps_affordable(95.0)
-    if need <= affordable:
+    least = default.steps_affordable(UPGRADE.recharged_mark)  # the mixed fleet's drone charges the least
+    stretch = max(need / affordable, 1.0) * (least + 3 * max(extra_lead, 0)) / least
+    if stretch == 1.0:
         return default
-    return BatteryModel(drain_per_step=default.drain_per_step * affordable / need)
+    return BatteryModel(drain_per_step=default.drain_per_step / stretch)
 
 
 def _service_check(workspace: Workspace, model: BatteryModel, lead: int) -> Callable[[MailRequest], bool]:

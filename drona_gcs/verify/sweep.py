@@ -37,8 +37,10 @@ class Configuration:
         crashes = f", {s.crashes} crash(es)" if s.crashes else ""
         partitions = f", {s.partitions} partition(s)" if s.partitions else ""
         skews = f", {s.skews} clock(s) off" if s.skews else ""
+        delay = f", messages within {s.max_delay} steps" if s.max_delay != Scenario.max_delay else ""
+        bugs = f", bugs {', '.join(s.bugs)}" if s.bugs else ""
         return (f"{s.drones} drones, {s.requests} requests, delta {s.delta}, {w}x{h} obstacles {s.obstacles:g}, "
-                f"{self.strategy.value}, seed {s.seed}{crashes}{partitions}{skews}")
+                f"{self.strategy.value}, seed {s.seed}{crashes}{partitions}{skews}{delay}{bugs}")
 
 
 @dataclass(frozen=True)
@@ -52,11 +54,13 @@ class SweepRow:
         return self.outcome.violation is None
 
 
-def configurations(seed: int, count: int, faults: bool = True, crashes: int = 0,
-                   partitions: int = 0, skews: int = 0) -> Iterator[Configuration]:
+def configurations(seed: int, count: int, faults: bool = True, crashes: int = 0, partitions: int = 0,
+                   skews: int = 0, max_delay: int = Scenario.max_delay,
+                   bugs: tuple[str, ...] = ()) -> Iterator[Configuration]:
     """``count`` configurations drawn from ``seed``: uniform over every range above; ``crashes``
-    agents may crash and restart in each, ``partitions`` times a drone may be cut off, and ``skews``
-    clocks may go beyond the fleet's bound. A draw no
+    agents may crash and restart in each, ``partitions`` times a drone may be cut off, ``skews``
+    clocks may go beyond the fleet's bound, each message arrives within ``max_delay`` steps, and
+    ``bugs`` are planted in each (does the sweep find them?). A draw no
     mail can be given in (obstacles leave no pickup a charged drone can fly) is drawn again: it is no
     fleet the stack must serve, and it ended the whole sweep."""
     rng = random.Random(f"sweep-{seed}")
@@ -66,7 +70,8 @@ def configurations(seed: int, count: int, faults: bool = True, crashes: int = 0,
             return
         scenario = Scenario(drones=rng.choice(DRONES), requests=rng.choice(REQUESTS), delta=rng.choice(DELTAS),
                             seed=rng.randrange(1_000_000), grid=rng.choice(GRIDS), obstacles=rng.choice(OBSTACLES),
-                            faults=faults, crashes=crashes, partitions=partitions, skews=skews)
+                            faults=faults, crashes=crashes, partitions=partitions, skews=skews,
+                            max_delay=max_delay, bugs=bugs)
         strategy = rng.choice(STRATEGIES)
         try:
             scenario.world_config(scenario.workspace())

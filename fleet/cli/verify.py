@@ -34,13 +34,14 @@ _GRID = re.compile(r"^(\d+)x(\d+)(?:x(\d+))?$")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--workspace", help="workspace file (YAML, DRONA XML, ...)")
-    where.add_argument("--grid", default="8x8", help="random grid WxH[xL] (default 8x8)")
-    parser.add_argument("--obstacles", type=float, default=0.2, help="obstacle ratio of --grid (default 0.2)")
-    parser.add_argument("--drones", type=int, default=4)
-    parser.add_argument("--requests", type=int, default=6, help="mail requests the environment sends")
+    where.add_argument("--grid", help="random grid WxH[xL] (default 8x8)")
+    parser.add_argument("--obstacles", type=float, help="obstacle ratio of --grid (default 0.2)")
+    parser.add_argument("--drones", type=int, help="drones (default 4)")
+    parser.add_argument("--requests", type=int, help="mail requests the environment sends (default 6)")
     parser.add_argument("--delta", type=int, help="the separation window in steps (default: the workspace's, "
                         "ceil((beta_s + lambda_s) / tau_s), or 1 on a random grid)")
-    parser.add_argument("--strategy", choices=[s.value for s in Strategy], default="random")
+    parser.add_argument("--strategy", choices=[s.value for s in Strategy], help="how schedules are chosen (default "
+                        "random)")
     parser.add_argument("--schedules", type=int, default=1000, help="schedules to run (random, pct)")
     parser.add_argument("--max-depth", type=int, default=None,
                         help="transitions per schedule (default 5000; 100 with --table3)")
@@ -71,8 +72,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "ahead of or behind the others' (default 0; not with --crashes or --partitions)")
     parser.add_argument("--sweep", type=int, metavar="N",
                         help="run N configurations drawn from --seed (2-6 drones, 2-10 requests, Delta 0-2, 8x8 "
-                             "and 16x16, with and without obstacles, random and pct), --time-limit each; prints a "
-                             "row per run and exits 1 if any fails")
+                             "and 16x16, with and without obstacles, random and pct), --time-limit each, with the "
+                             "faults, --max-delay and --seed-bug asked for; prints a row per run and exits 1 if any "
+                             "fails")
     parser.add_argument("--table3", action="store_true",
                         help="the paper's Table 3: exhaustive search of 2, 4 and 8 drones (one request each) on 8x8, "
                              "16x16 and 32x32 grids, --time-limit seconds per cell; prints how deep each got")
@@ -80,11 +82,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"dfs: iterative deepening raises the depth bound by this much (default {DEEPEN})")
 
 
+#: What a sweep draws, and the paper's table fixes, itself; the default of each otherwise.
+DRAWN = {"workspace": None, "grid": "8x8", "obstacles": 0.2, "drones": 4, "requests": 6, "delta": None,
+         "strategy": "random"}
+
+
 def run(args: argparse.Namespace) -> int:
     console = Console(stderr=True)
     try:
         if args.replay:
             return _replay(args.replay)
+        given = [f"--{name}" for name in DRAWN if getattr(args, name) is not None]
+        mode = "--sweep" if args.sweep is not None else "--table3" if args.table3 else None
+        if mode is not None and given:
+            raise ValueError(f"{mode} sets {', '.join(given)} itself: leave {'it' if len(given) == 1 else 'them'} out")
+        _defaults(args)
         if args.max_depth is None:
             args.max_depth = 100 if args.table3 else 5000
         if args.sweep is not None:
@@ -129,7 +141,14 @@ def run(args: argparse.Namespace) -> int:
     return 1
 
 
+def _defaults(args: argparse.Namespace) -> None:
+    for name, default in DRAWN.items():
+        if getattr(args, name) is None:
+            setattr(args, name, default)
+
+
 def _scenario(args: argparse.Namespace) -> Scenario:
+    _defaults(args)
     grid = (8, 8, 1)
     if not args.workspace:
         match = _GRID.match(args.grid)
@@ -164,7 +183,8 @@ def _sweep(args: argparse.Namespace) -> int:
             print(f"       {o.violation}\n       replay: drona verify --replay {row.token}", flush=True)
 
     configs = configurations(args.seed, args.sweep, faults=not args.no_faults, crashes=args.crashes,
-                             partitions=args.partitions, skews=args.skews)
+                             partitions=args.partitions, skews=args.skews,
+                             max_delay=2 if args.max_delay is None else args.max_delay, bugs=tuple(args.seed_bug))
     rows = run_sweep(configs, args.schedules, args.max_depth, stop_after, on_row)
     failed = [row for row in rows if not row.clean]
     by_monitor = sorted({row.outcome.violation.monitor for row in failed if row.outcome.violation is not None})

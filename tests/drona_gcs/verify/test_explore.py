@@ -15,6 +15,7 @@ import pytest
 
 import fleet.cli.verify as verify_cli
 from drona_gcs.errors import DronaError, ProblemError
+from drona_gcs.stack.battery import BatteryModel
 from drona_gcs.verify.explore import Explorer, Scenario, Strategy, decode_token, encode_token
 from drona_gcs.verify.mutants import SEEDED_BUGS
 from drona_gcs.verify.sweep import configurations
@@ -120,6 +121,40 @@ def test_a_sweep_draws_again_a_configuration_no_mail_can_be_given_in() -> None:
     assert len(drawn) == 12
     for config in drawn:
         config.scenario.world_config(config.scenario.workspace())  # each can be explored
+
+
+def test_a_sweep_runs_at_the_delay_and_with_the_bugs_asked_for(capsys: pytest.CaptureFixture[str]) -> None:
+    """A sweep left ``--max-delay`` and ``--seed-bug`` out of every configuration it drew: sweeps said
+    to run at a delay of 3 steps ran at 2."""
+    drawn = list(configurations(30590, 6, max_delay=4, bugs=("skip-delta",)))
+    assert {(c.scenario.max_delay, c.scenario.bugs) for c in drawn} == {(4, ("skip-delta",))}
+    assert main(["verify", "--sweep", "1", "--time-limit", "1", "--seed", "5", "--max-delay", "3", "--quiet"]) == 0
+    assert "messages within 3 steps" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("mode", [["--sweep", "2"], ["--table3"]])
+def test_a_sweep_and_the_papers_table_refuse_what_they_set_themselves(
+        mode: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    """Given anyway, ``--drones`` or ``--grid`` was silently ignored: the run was not the one asked for."""
+    assert main(["verify", *mode, "--drones", "3", "--grid", "8x8"]) == 2
+    assert f"{mode[0]} sets --grid, --drones itself: leave them out" in capsys.readouterr().err
+
+
+def test_a_slower_network_leaves_mail_to_give_on_16x16() -> None:
+    """At a delay of 3 steps or more, each leg's lead is longer, and every draw on 16x16 was refused
+    (no mail a charged drone could fly): the battery lasts those steps longer."""
+    rng = random.Random(3)
+    for _ in range(5):
+        scenario = Scenario(drones=4, requests=6, delta=rng.randrange(3), seed=rng.randrange(1_000_000),
+                            grid=(16, 16, 1), obstacles=0.2, max_delay=rng.randint(3, 5))
+        assert len(scenario.world_config(scenario.workspace()).requests) == 6
+
+
+@pytest.mark.parametrize("grid", [(8, 8, 1), (16, 16, 1)])
+def test_the_default_delay_keeps_the_battery_the_sweeps_found_their_bugs_with(grid: tuple[int, int, int]) -> None:
+    """The regression scenarios found by sweeps (at the default delay) must stay as they were found."""
+    scenario = Scenario(drones=4, requests=4, seed=7, grid=grid)
+    assert scenario.world_config(scenario.workspace()).battery == BatteryModel()
 
 
 def test_a_counterexample_is_the_same_whatever_the_hash_seed() -> None:
