@@ -150,7 +150,7 @@ def _battery_for(workspace: Workspace, extra_lead: int = 0) -> BatteryModel:
     does (8x8, 16x16), a slower drain on larger grids (32x32), where no mail would be affordable.
     ``extra_lead``: lead steps above those of the default network (max_delay 2), which each of a mail's
     three legs takes too: the battery lasts that much longer, or a slower network would leave no mail
-    affordable on 16x16 (every draw was refused at max_delay 3)."""
+    affordable on 16x16."""
     default = BatteryModel()
     need = 2 * (workspace.nx + workspace.ny + workspace.nz - 3) + default.margin_steps
     affordable = default.steps_affordable(95.0)
