@@ -154,11 +154,12 @@ def _battery_for(workspace: Workspace, extra_lead: int = 0) -> BatteryModel:
     default = BatteryModel()
     need = 2 * (workspace.nx + workspace.ny + workspace.nz - 3) + default.margin_steps
     affordable = default.steps_affordable(95.0)
-    least = default.steps_affordable(UPGRADE.recharged_mark)  # the mixed fleet's drone charges the least
-    stretch = max(need / affordable, 1.0) * (least + 3 * max(extra_lead, 0)) / least
-    if stretch == 1.0:
-        return default
-    return BatteryModel(drain_per_step=default.drain_per_step / stretch)
+    base = default if need <= affordable else BatteryModel(drain_per_step=default.drain_per_step * affordable / need)
+    if extra_lead <= 0:
+        return base
+    # Counted at the mixed fleet's lowest recharge mark; half a step more, as steps_affordable rounds down.
+    steps = base.steps_affordable(UPGRADE.recharged_mark) + 3 * extra_lead
+    return BatteryModel(drain_per_step=(UPGRADE.recharged_mark - default.safe_threshold) / (steps + 0.5))
 
 
 def _service_check(workspace: Workspace, model: BatteryModel, lead: int) -> Callable[[MailRequest], bool]:

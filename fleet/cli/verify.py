@@ -83,8 +83,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 #: What a sweep draws, and the paper's table fixes, itself; the default of each otherwise.
-DRAWN = {"workspace": None, "grid": "8x8", "obstacles": 0.2, "drones": 4, "requests": 6, "delta": None,
-         "strategy": "random"}
+DRAWN: dict[str, object] = {"workspace": None, "grid": "8x8", "obstacles": 0.2, "drones": 4, "requests": 6,
+                            "delta": None, "strategy": "random"}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -92,10 +92,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         if args.replay:
             return _replay(args.replay)
-        given = [f"--{name}" for name in DRAWN if getattr(args, name) is not None]
-        mode = "--sweep" if args.sweep is not None else "--table3" if args.table3 else None
-        if mode is not None and given:
-            raise ValueError(f"{mode} sets {', '.join(given)} itself: leave {'it' if len(given) == 1 else 'them'} out")
+        _refuse_what_is_set(args)
         _defaults(args)
         if args.max_depth is None:
             args.max_depth = 100 if args.table3 else 5000
@@ -141,6 +138,21 @@ def run(args: argparse.Namespace) -> int:
     return 1
 
 
+def _refuse_what_is_set(args: argparse.Namespace) -> None:
+    """A sweep draws its configurations, and the paper's table is fixed: given anyway, a flag that sets
+    what they set would be ignored, and the run would not be the one asked for."""
+    if args.sweep is not None and args.table3:
+        raise ValueError("--sweep and --table3 are two runs: ask for one")
+    given = [f"--{name}" for name in DRAWN if getattr(args, name) is not None]
+    if args.table3:  # the paper's setting: its delay, the clean stack, no crash, cut or skew
+        asked = {"--max-delay": args.max_delay is not None, "--seed-bug": bool(args.seed_bug),
+                 "--crashes": args.crashes > 0, "--partitions": args.partitions > 0, "--skews": args.skews > 0}
+        given += [flag for flag, is_set in asked.items() if is_set]
+    mode = "--sweep" if args.sweep is not None else "--table3" if args.table3 else None
+    if mode is not None and given:
+        raise ValueError(f"{mode} sets {', '.join(given)} itself: leave {'it' if len(given) == 1 else 'them'} out")
+
+
 def _defaults(args: argparse.Namespace) -> None:
     for name, default in DRAWN.items():
         if getattr(args, name) is None:
@@ -157,7 +169,7 @@ def _scenario(args: argparse.Namespace) -> Scenario:
         grid = (int(match[1]), int(match[2]), int(match[3] or 1))
     if args.schedules < 1 or args.max_depth < 1 or args.time_limit <= 0:
         raise ValueError("--schedules, --max-depth and --time-limit must be positive")
-    max_delay = args.max_delay if args.max_delay is not None else (0 if args.strategy == "dfs" else 2)
+    max_delay = args.max_delay if args.max_delay is not None else (0 if args.strategy == "dfs" else Scenario.max_delay)
     delta = args.delta
     if delta is None:
         delta = load_workspace(args.workspace).delta if args.workspace else 1
@@ -184,7 +196,8 @@ def _sweep(args: argparse.Namespace) -> int:
 
     configs = configurations(args.seed, args.sweep, faults=not args.no_faults, crashes=args.crashes,
                              partitions=args.partitions, skews=args.skews,
-                             max_delay=2 if args.max_delay is None else args.max_delay, bugs=tuple(args.seed_bug))
+                             max_delay=Scenario.max_delay if args.max_delay is None else args.max_delay,
+                             bugs=tuple(args.seed_bug))
     rows = run_sweep(configs, args.schedules, args.max_depth, stop_after, on_row)
     failed = [row for row in rows if not row.clean]
     by_monitor = sorted({row.outcome.violation.monitor for row in failed if row.outcome.violation is not None})

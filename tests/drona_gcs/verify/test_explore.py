@@ -16,9 +16,11 @@ import pytest
 import fleet.cli.verify as verify_cli
 from drona_gcs.errors import DronaError, ProblemError
 from drona_gcs.stack.battery import BatteryModel
+from drona_gcs.verify.config import UPGRADE, _battery_for
 from drona_gcs.verify.explore import Explorer, Scenario, Strategy, decode_token, encode_token
 from drona_gcs.verify.mutants import SEEDED_BUGS
 from drona_gcs.verify.sweep import configurations
+from drona_gcs.workspace import Workspace
 from fleet.cli import main
 from tests.drona_gcs.verify.verify_helpers import NEEDS
 
@@ -131,33 +133,64 @@ def test_a_sweep_runs_at_the_delay_and_with_the_bugs_asked_for(capsys: pytest.Ca
     to run at a delay of 3 steps ran at 2."""
     drawn = list(configurations(30590, 6, max_delay=4, bugs=("skip-delta",)))
     assert {(c.scenario.max_delay, c.scenario.bugs) for c in drawn} == {(4, ("skip-delta",))}
-    assert main(["verify", "--sweep", "1", "--time-limit", "1", "--seed", "5", "--max-delay", "3", "--quiet"]) == 0
-    assert "messages within 3 steps" in capsys.readouterr().out
+    main(["verify", "--sweep", "1", "--time-limit", "1", "--seed", "5", "--max-delay", "3", "--seed-bug", "skip-delta",
+          "--shrink", "0", "--quiet"])
+    assert "messages within 3 steps, bugs skip-delta" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("mode", [["--sweep", "2"], ["--table3"]])
+@pytest.mark.parametrize(("mode", "flags"), [
+    (["--sweep", "2"], ["--grid", "8x8", "--drones", "3"]),
+    (["--table3"], ["--grid", "8x8", "--drones", "3"]),
+    (["--table3"], ["--max-delay", "0", "--seed-bug", "skip-delta", "--crashes", "1"]),
+])
 def test_a_sweep_and_the_papers_table_refuse_what_they_set_themselves(
-        mode: list[str], capsys: pytest.CaptureFixture[str]) -> None:
-    """Given anyway, ``--drones`` or ``--grid`` was silently ignored: the run was not the one asked for."""
-    assert main(["verify", *mode, "--drones", "3", "--grid", "8x8"]) == 2
-    assert f"{mode[0]} sets --grid, --drones itself: leave them out" in capsys.readouterr().err
+        mode: list[str], flags: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    """Given anyway, ``--drones`` or ``--grid`` (and to the paper's table, a delay, a bug or a fault) was
+    silently ignored: the run was not the one asked for."""
+    assert main(["verify", *mode, *flags, "--time-limit", "0.2", "--max-depth", "3", "--quiet"]) == 2
+    named = ", ".join(f for f in flags if f.startswith("--"))
+    assert f"{mode[0]} sets {named} itself: leave them out" in " ".join(capsys.readouterr().err.split())
+    assert main(["verify", "--sweep", "2", "--table3"]) == 2
 
 
-def test_a_slower_network_leaves_mail_to_give_on_16x16() -> None:
-    """At a delay of 3 steps or more, each leg's lead is longer, and every draw on 16x16 was refused
-    (no mail a charged drone could fly): the battery lasts those steps longer."""
-    rng = random.Random(3)
-    for _ in range(5):
+def test_dfs_explores_at_no_delay_unless_told() -> None:
+    parser = argparse.ArgumentParser()
+    verify_cli.add_arguments(parser)
+
+    def delay(*flags: str) -> int:
+        return verify_cli._scenario(parser.parse_args(["--max-depth", "3", *flags])).max_delay
+
+    assert (delay("--strategy", "dfs"), delay(), delay("--strategy", "dfs", "--max-delay", "3")) == (0, 2, 3)
+
+
+@pytest.mark.parametrize("side", [8, 16, 32])
+def test_a_slower_network_gives_each_leg_its_longer_lead(side: int) -> None:
+    """At a delay of 3 steps or more, each of a mail's three legs takes a longer lead, and every draw on
+    16x16 was refused (no mail a charged drone could fly): the mixed fleet's drone, which charges the
+    least, affords those steps more, and a draw on 16x16 finds its mail."""
+    workspace = Workspace.build(size=(side, side, 1))
+    least = _battery_for(workspace).steps_affordable(UPGRADE.recharged_mark)
+    for extra in range(1, 9):
+        assert _battery_for(workspace, extra).steps_affordable(UPGRADE.recharged_mark) == least + 3 * extra
+    rng = random.Random(side)
+    for _ in range(3):
         scenario = Scenario(drones=4, requests=6, delta=rng.randrange(3), seed=rng.randrange(1_000_000),
                             grid=(16, 16, 1), obstacles=0.2, max_delay=rng.randint(3, 5))
-        assert len(scenario.world_config(scenario.workspace()).requests) == 6
+        scenario.world_config(scenario.workspace())  # refused (ProblemError) when no mail is affordable
 
 
-@pytest.mark.parametrize("grid", [(8, 8, 1), (16, 16, 1)])
-def test_the_default_delay_keeps_the_battery_the_sweeps_found_their_bugs_with(grid: tuple[int, int, int]) -> None:
-    """The regression scenarios found by sweeps (at the default delay) must stay as they were found."""
-    scenario = Scenario(drones=4, requests=4, seed=7, grid=grid)
-    assert scenario.world_config(scenario.workspace()).battery == BatteryModel()
+@pytest.mark.parametrize("side", [8, 16, 22, 32])
+def test_the_default_delay_keeps_the_battery_the_sweeps_found_their_bugs_with(side: int) -> None:
+    """The regression scenarios found by sweeps (at the default delay) must stay as they were found: the
+    default battery where it crosses the grid and back, else one draining slower by just that much."""
+    workspace = Workspace.build(size=(side, side, 1))
+    default = BatteryModel()
+    need = 2 * (2 * side + 1 - 3) + default.margin_steps
+    affordable = default.steps_affordable(95.0)
+    kept = default if need <= affordable else BatteryModel(drain_per_step=default.drain_per_step * affordable / need)
+    assert _battery_for(workspace) == kept
+    scenario = Scenario(drones=4, requests=4, seed=7, grid=(side, side, 1))
+    assert scenario.world_config(scenario.workspace()).battery == kept
 
 
 def test_a_counterexample_is_the_same_whatever_the_hash_seed() -> None:
