@@ -200,7 +200,7 @@ class MailPlanner(MailPlannerInputs):
     def _in_reach_charged(self, spots: Sequence[Cell], budget: Budget) -> bool:
         """Whether one of ``spots``, and the way on from it to a charger, is in reach now or once charged.
         Beyond a full charge, the way to park would send the drone to charge (see :meth:`_to_one_of`), and
-        charged it would find the same: charging at 100 % for good, its mail waiting (sweep 30562), and
+        charged it would find the same: charging at 100 % for good, its mail waiting, and
         the charger held by a drone that makes way for nobody while it charges."""
         reach = max(budget.steps, self.battery.steps_affordable(self.recharged_level))
         return budget.unchecked or any(self._leg(self.cell, c) + self._after(c) <= reach for c in spots)

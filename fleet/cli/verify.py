@@ -93,7 +93,6 @@ def run(args: argparse.Namespace) -> int:
         if args.replay:
             return _replay(args.replay)
         _refuse_what_is_set(args)
-        _defaults(args)
         if args.max_depth is None:
             args.max_depth = 100 if args.table3 else 5000
         if args.sweep is not None:
@@ -154,6 +153,7 @@ def _refuse_what_is_set(args: argparse.Namespace) -> None:
 
 
 def _defaults(args: argparse.Namespace) -> None:
+    """What a single run was not given (a sweep and the paper's table read none of it)."""
     for name, default in DRAWN.items():
         if getattr(args, name) is None:
             setattr(args, name, default)
