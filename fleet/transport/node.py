@@ -13,7 +13,8 @@ default, DROP, loses messages of a burst.
 Drones hosted in one process with ``--shared-session`` share one session
 (:meth:`ZenohNode.view`; by default each drone has a session of its own, and a
 view of it): each has its own declarations, and subscriptions to one key share one Zenoh
-subscriber, so a broadcast crosses into Python once per process.
+subscriber, so a broadcast crosses into Python once per process. A put reaches the session's
+own subscriptions straight through the loop's inbox, Zenoh carrying it only to other sessions.
 A subscription may *gather* the puts its handlers make into one message per key
 (:mod:`fleet.transport.gather`). The session's configuration is :mod:`fleet.transport.settings`.
 
@@ -102,6 +103,8 @@ class ZenohNode:
         self.owner = owner  #: the node that opened the session (None: this one)
         #: Subscriptions of the session's nodes, one Zenoh subscriber per key (kept by the owner).
         self._fanouts: dict[str, _Fanout] = owner._fanouts if owner is not None else {}
+        #: (on the root) put key -> the session's own subscriptions it reaches, handed its puts directly
+        self._local: dict[str, list[_Fanout]] = {}
         self._inbox = inbox_of(loop)
         self._subscribed: list[tuple[str, SampleHandler]] = []
         self._declared: list[Any] = []
@@ -116,7 +119,7 @@ class ZenohNode:
         """A node on the same session with declarations of its own: closing it undeclares them and
         leaves the session open. Drones hosted in one process can share a session this way: one set of
         links between processes instead of one per pair of drones, and a message between two of
-        them never leaves the process (Zenoh delivers it locally)."""
+        them never leaves the process: it is handed to the loop at once (see :meth:`_reached`)."""
         return ZenohNode(self.session, self.loop, name, owner=self.owner or self)
 
     @classmethod
@@ -147,7 +150,7 @@ class ZenohNode:
 
     def _fanout(self, key: str, gather: bool, first: bool) -> _Fanout:
         """A new Zenoh subscriber for ``key``, kept once declared."""
-        fanout = _Fanout(self.name, gather=gather)
+        fanout = _Fanout(self.name, gather=gather, first=first)
         root = self.owner or self  # open as long as the session is, whichever node subscribed first
 
         def on_sample(sample: zenoh.Sample) -> None:
@@ -156,6 +159,7 @@ class ZenohNode:
         with zenoh_errors(f"{self.name}: subscribe to {key}"):
             fanout.subscriber = self.session.declare_subscriber(key, on_sample)
         self._fanouts[key] = fanout
+        root._local.clear()
         return fanout
 
     def queryable(self, key: str, handler: QueryHandler) -> None:
@@ -274,11 +278,23 @@ class ZenohNode:
             return
         publisher = self._publishers.get(key)
         if publisher is None:
-            publisher = self.session.declare_publisher(
-                key, congestion_control=zenoh.CongestionControl.BLOCK, express=True)
+            publisher = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK,
+                                                       express=True, allowed_destination=zenoh.Locality.REMOTE)
             self._publishers[key] = publisher
             self._declared.append(publisher)
         publisher.put(payload)
+        root = self.owner or self
+        for fanout in root._reached(key):
+            root._to_loop(root._hand_round, fanout, key, payload, first=fanout.first)
+
+    def _reached(self, key: str) -> list[_Fanout]:
+        """(On the root.) The session's own subscriptions a put on ``key`` reaches: handed it on the loop
+        straight away, not through Zenoh's threads (which a busy process starves for milliseconds)."""
+        reached = self._local.get(key)
+        if reached is None:
+            put = zenoh.KeyExpr(key)
+            reached = self._local[key] = [f for k, f in self._fanouts.items() if zenoh.KeyExpr(k).intersects(put)]
+        return reached
 
     async def get(self, selector: str, payload: bytes, timeout_s: float,
                   stamp: Callable[[], float] | None = None, block: bool = False) -> list[Reply]:
@@ -358,6 +374,7 @@ class ZenohNode:
             fanout.handlers.remove(handler)
         if not fanout.handlers:
             del self._fanouts[key]
+            (self.owner or self)._local.clear()
             fanout.undeclare(self.name)
 
     def _to_loop(self, callback: Callable[..., None], *args: Any, first: bool = False) -> None:
@@ -374,6 +391,7 @@ class _Fanout:
 
     name: str
     gather: bool = False  #: the puts made while its samples are handed round go out together
+    first: bool = False  #: its samples go before the ordinary ones waiting for the loop
     handlers: list[SampleHandler] = field(default_factory=list)
     subscriber: Any = None
 

@@ -88,6 +88,56 @@ def test_drones_sharing_a_session_each_get_every_message_and_leave_alone() -> No
     asyncio.run(scenario())
 
 
+def test_a_put_reaches_its_own_sessions_subscribers_on_the_loop_at_once() -> None:
+    """Two drones of one host: what one puts is handed to the other at the loop's next turn, in the order
+    put, and once, not after a trip through Zenoh's threads (a busy process starves them for
+    milliseconds, and the next drone in line waits on that message). A session elsewhere gets it too."""
+    endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+
+    async def scenario() -> tuple[list[bytes], list[bytes]]:
+        host = await ZenohNode.open(ZenohSettings(listen=(endpoint,)), "host")
+        outside = await ZenohNode.open(ZenohSettings(connect=(endpoint,)), "outside")
+        a, b = host.view("a"), host.view("b")
+        local: list[bytes] = []
+        remote: list[bytes] = []
+        got = asyncio.Event()
+
+        def on_remote(key: str, payload: bytes) -> None:
+            remote.append(payload)
+            got.set()
+
+        try:
+            b.subscribe("t/proto/*/b", lambda key, payload: local.append(payload), first=True)
+            outside.subscribe("t/proto/*/b", on_remote)
+            for _ in range(100):  # until the outside subscription has reached the host
+                a.put("t/proto/a/b", b"probe")
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(got.wait(), 0.05)
+                if remote:
+                    break
+            await asyncio.sleep(0.2)  # every probe delivered, wherever
+            local.clear()
+            remote.clear()
+            for i in range(20):
+                a.put("t/proto/a/b", b"%d" % i)
+                await asyncio.sleep(0)
+                assert local[-1:] == [b"%d" % i], f"put {i} not handed over at the loop's next turn: {local}"
+            while len(remote) < 20:
+                got.clear()
+                await asyncio.wait_for(got.wait(), 5)
+            await asyncio.sleep(0.2)  # a second copy through Zenoh would have come by now
+            return local, remote
+        finally:
+            await outside.close()
+            await a.close()
+            await b.close()
+            await host.close()
+
+    local, remote = asyncio.run(scenario())
+    assert local == [b"%d" % i for i in range(20)]
+    assert remote == local
+
+
 @pytest.mark.parametrize(("now", "max_frames"), [(False, None), (True, None), (False, 2)])
 def test_the_answers_of_a_sessions_drones_to_one_request_travel_as_one_message(now: bool,
                                                                                max_frames: int | None) -> None:
