@@ -303,10 +303,12 @@ class Observer:
 
     async def parked(self) -> None:
         """Until every agent is alive and every drone, its first plan flown (idle drones park first),
-        rests landed and waiting for a task (at start-up every drone is landed and waiting, unplanned)."""
+        rests landed and waiting for a task (at start-up every drone is landed and waiting, unplanned),
+        its vehicle on time: one found late on its way takes no mail until a sample finds it there."""
         await self.joined()
         await self.until(lambda: len(self.states) == len(self.fleet.drones) and all(
-            s.plans >= 1 and s.landed and s.mode == "WaitForTaskRequest" for s in self.states.values()),
+            s.plans >= 1 and s.landed and s.mode == "WaitForTaskRequest"
+            and not any(alarm.startswith("late:") for alarm in s.health.alarms) for s in self.states.values()),
             60, "all parked")
 
     async def give(self, order: MailOrder, drone: str) -> None:
