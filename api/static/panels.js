@@ -78,7 +78,20 @@ function drawDrones() {
 }
 
 // ------------------------------------------------------------------ alarms
+// Kept while unchanged, as the drones' items are: the page draws on every state, and a button
+// rebuilt between the press and the release of a click loses that click.
+const alarmItems = new Map();  // n -> [what it shows, its li]
+
 function alarmItem(a) {
+  const shows = [a.acked_at, a.acked_by, a.cleared_at, a.text, a.meaning].join("\u0000");
+  const kept = alarmItems.get(a.n);
+  if (kept && kept[0] === shows) return kept[1];
+  const li = newAlarmItem(a);
+  alarmItems.set(a.n, [shows, li]);
+  return li;
+}
+
+function newAlarmItem(a) {
   const state_ = a.cleared_at ? `cleared ${clock(a.cleared_at)}` : "active";
   const ack = a.acked_at ? make("span", { className: "acked" }, `acknowledged by ${a.acked_by} ${clock(a.acked_at)}`)
     : make("button", { type: "button", className: "ack", textContent: "acknowledge", onclick: () => acknowledge(a.n) });
@@ -90,7 +103,10 @@ function alarmItem(a) {
 
 function drawAlarms() {
   const alarms = [...state.alarms.values()].sort((a, b) => b.n - a.n).slice(0, 100);
-  $("#alarms").replaceChildren(...alarms.map(alarmItem));
+  const ul = $("#alarms"), lis = alarms.map(alarmItem);
+  if (lis.length !== ul.children.length || lis.some((li, i) => ul.children[i] !== li)) ul.replaceChildren(...lis);
+  const shown = new Set(alarms.map((a) => a.n));
+  for (const n of [...alarmItems.keys()]) if (!shown.has(n)) alarmItems.delete(n);
   const open = alarms.filter((a) => !a.acked_at).length;
   $("#alarm-count").textContent = open ? `${open} to acknowledge` : "";
 }

@@ -103,6 +103,15 @@ def served(settings: ApiSettings, geo_workspace: Workspace) -> Iterator[Served]:
     service.stop()
 
 
+#: The acknowledge button now, and a count of the page's draws from now on.
+KEEP_ACK_BUTTON = """() => {
+  window.ackButton = document.querySelector('#alarms button.ack');
+  window.draws = 0;
+  const draw = drona.panels.draw;
+  drona.panels.draw = (...args) => { window.draws += 1; return draw(...args); };
+}"""
+
+
 def open_dashboard(browser: Any, served: Served, watched: Watched, width: int = 1400) -> Any:
     page = browser.new_page(viewport={"width": width, "height": 900})
     watched.attach(page)
@@ -187,6 +196,10 @@ def test_the_operator_sees_the_fleet_on_its_map_and_handles_alarms(browser: Any,
     alarm.wait_for(timeout=10_000)
     assert "trails the cell its plan puts it in" in alarm.inner_text()
     page.screenshot(path=str(screenshots / "alarm.png"))
+    # The page draws on every state: a button rebuilt between a click's press and release loses it.
+    page.evaluate(KEEP_ACK_BUTTON)
+    page.wait_for_function("window.draws >= 5", timeout=10_000)
+    assert page.evaluate("document.querySelector('#alarms button.ack') === window.ackButton"), "rebuilt while shown"
     alarm.locator("button.ack").click()
     page.wait_for_selector("#alarms li[data-acked='true'] >> text=acknowledged by ops", timeout=10_000)
     page.wait_for_selector("#log li >> text=alarm lag acknowledged by ops", timeout=10_000)
