@@ -24,6 +24,26 @@ D.ago = (ms) => {
 };
 const clock = (iso) => new Date(iso).toLocaleTimeString([], { hour12: false });
 
+// -------------------------------------------------------------- kept items
+// Items kept while what they show is the same (the drones' are kept too): the page draws on every
+// state, and a button rebuilt between the press and the release of a click loses that click.
+function kept(cache, key, shows, build) {
+  const held = cache.get(key);
+  if (held && held[0] === shows) return held[1];
+  const item = build();
+  cache.set(key, [shows, item]);
+  return item;
+}
+
+// The parent shows the items in order, touched only if they changed; the cache keeps only theirs.
+function showKept(parent, items, cache, keys) {
+  if (items.length !== parent.children.length || items.some((el, i) => parent.children[i] !== el)) {
+    parent.replaceChildren(...items);
+  }
+  const shown = new Set(keys);
+  for (const key of [...cache.keys()]) if (!shown.has(key)) cache.delete(key);
+}
+
 // ------------------------------------------------------------------ drones
 function altitude(d) {
   const h = d.vehicle && d.vehicle.height_m != null ? d.vehicle.height_m : d.position.alt_m - state.ws.geo_origin.alt_m;
@@ -71,24 +91,17 @@ function droneItem(d) {
 
 function drawDrones() {
   const drones = [...state.drones.values()].sort((a, b) => (a.id < b.id ? -1 : 1));
-  const ul = $("#drones"), lis = drones.map(droneItem);
-  if (lis.length !== ul.children.length || lis.some((li, i) => ul.children[i] !== li)) ul.replaceChildren(...lis);
+  showKept($("#drones"), drones.map(droneItem), items, drones.map((d) => d.id));
   const stale = drones.filter((d) => D.staleFor(d) != null).length;
   $("#drone-count").textContent = `${drones.length - stale} live${stale ? `, ${stale} stale` : ""}`;
 }
 
 // ------------------------------------------------------------------ alarms
-// Kept while unchanged, as the drones' items are: the page draws on every state, and a button
-// rebuilt between the press and the release of a click loses that click.
 const alarmItems = new Map();  // n -> [what it shows, its li]
 
 function alarmItem(a) {
   const shows = [a.acked_at, a.acked_by, a.cleared_at, a.text, a.meaning].join("\u0000");
-  const kept = alarmItems.get(a.n);
-  if (kept && kept[0] === shows) return kept[1];
-  const li = newAlarmItem(a);
-  alarmItems.set(a.n, [shows, li]);
-  return li;
+  return kept(alarmItems, a.n, shows, () => newAlarmItem(a));
 }
 
 function newAlarmItem(a) {
@@ -103,10 +116,7 @@ function newAlarmItem(a) {
 
 function drawAlarms() {
   const alarms = [...state.alarms.values()].sort((a, b) => b.n - a.n).slice(0, 100);
-  const ul = $("#alarms"), lis = alarms.map(alarmItem);
-  if (lis.length !== ul.children.length || lis.some((li, i) => ul.children[i] !== li)) ul.replaceChildren(...lis);
-  const shown = new Set(alarms.map((a) => a.n));
-  for (const n of [...alarmItems.keys()]) if (!shown.has(n)) alarmItems.delete(n);
+  showKept($("#alarms"), alarms.map(alarmItem), alarmItems, alarms.map((a) => a.n));
   const open = alarms.filter((a) => !a.acked_at).length;
   $("#alarm-count").textContent = open ? `${open} to acknowledge` : "";
 }
@@ -136,7 +146,14 @@ function shownMail() {
     : a[key] > b[key] ? 1 : 0));
 }
 
+const mailRows = new Map();  // id -> [what it shows, its tr]
+
 function mailRow(m) {
+  const shows = [m.created_at, m.status, m.priority, m.pickup, m.dropoff, m.drone, m.reason].join("\u0000");
+  return kept(mailRows, m.id, shows, () => newMailRow(m));
+}
+
+function newMailRow(m) {
   const cells = [clock(m.created_at), m.id, m.status, String(m.priority), `[${m.pickup}] → [${m.dropoff}]`,
                  m.drone || ""];
   const tr = make("tr", { data: { id: m.id, status: m.status } });
@@ -156,7 +173,8 @@ function drawMail() {
     select.replaceChildren(make("option", { value: "" }, "all"), ...ids.sort().map((d) => make("option", {}, d)));
     select.value = chosen;
   }
-  $("#mail tbody").replaceChildren(...shownMail().slice(0, 200).map(mailRow));
+  const mail = shownMail().slice(0, 200);
+  showKept($("#mail tbody"), mail.map(mailRow), mailRows, mail.map((m) => m.id));
   for (const th of document.querySelectorAll("#mail th[data-sort]")) {
     th.setAttribute("aria-sort", th.dataset.sort === sort.key ? (sort.down ? "descending" : "ascending") : "none");
   }

@@ -103,13 +103,20 @@ def served(settings: ApiSettings, geo_workspace: Workspace) -> Iterator[Served]:
     service.stop()
 
 
-#: The acknowledge button now, and a count of the page's draws from now on.
-KEEP_ACK_BUTTON = """() => {
-  window.ackButton = document.querySelector('#alarms button.ack');
+#: The element a selector finds now, and a count of the page's draws from now on.
+KEEP_ELEMENT = """(selector) => {
+  window.keptElement = document.querySelector(selector);
   window.draws = 0;
   const draw = drona.panels.draw;
   drona.panels.draw = (...args) => { window.draws += 1; return draw(...args); };
 }"""
+
+
+def assert_kept_through_draws(page: Any, selector: str) -> None:
+    """The page draws on every state: a button rebuilt between a click's press and release loses it."""
+    page.evaluate(KEEP_ELEMENT, selector)
+    page.wait_for_function("window.draws >= 5", timeout=10_000)
+    assert page.evaluate(f"document.querySelector({selector!r}) === window.keptElement"), f"{selector} rebuilt"
 
 
 def open_dashboard(browser: Any, served: Served, watched: Watched, width: int = 1400) -> Any:
@@ -196,10 +203,7 @@ def test_the_operator_sees_the_fleet_on_its_map_and_handles_alarms(browser: Any,
     alarm.wait_for(timeout=10_000)
     assert "trails the cell its plan puts it in" in alarm.inner_text()
     page.screenshot(path=str(screenshots / "alarm.png"))
-    # The page draws on every state: a button rebuilt between a click's press and release loses it.
-    page.evaluate(KEEP_ACK_BUTTON)
-    page.wait_for_function("window.draws >= 5", timeout=10_000)
-    assert page.evaluate("document.querySelector('#alarms button.ack') === window.ackButton"), "rebuilt while shown"
+    assert_kept_through_draws(page, "#alarms button.ack")
     alarm.locator("button.ack").click()
     page.wait_for_selector("#alarms li[data-acked='true'] >> text=acknowledged by ops", timeout=10_000)
     page.wait_for_selector("#log li >> text=alarm lag acknowledged by ops", timeout=10_000)
@@ -290,6 +294,14 @@ def test_the_operator_pauses_resumes_recalls_and_lands_through_the_page(browser:
     assert page.locator("#fleet-msg").get_attribute("data-kind") == "ok"
     assert "pause: d1, d2, d3 acknowledged" in page.locator("#fleet-msg").inner_text()
     page.wait_for_selector("#commands li[data-n='1'][data-action='pause']", timeout=10_000)
+    # Mail given while paused waits, and the operator cancels it from its row.
+    mail_id = submit(page, (1, 3, 0), (3, 6, 0), 2).split()[0]
+    cancel = f"#mail tr[data-id='{mail_id}'][data-status='queued'] button.cancel"
+    page.wait_for_selector(cancel, timeout=10_000)
+    assert_kept_through_draws(page, cancel)
+    page.click(cancel)
+    page.wait_for_selector(f"#mail tr[data-id='{mail_id}'][data-status='cancelled']", timeout=10_000)
+    assert httpx.get(f"{served.url}/v1/mail/{mail_id}", headers=auth()).json()["status"] == "cancelled"
     page.screenshot(path=str(screenshots / "paused.png"))
     page.click("#fleet-resume")
     page.wait_for_selector("#fleet-state[data-state='running']", timeout=10_000)
