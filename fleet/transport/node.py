@@ -103,8 +103,8 @@ class ZenohNode:
         self.owner = owner  #: the node that opened the session (None: this one)
         #: Subscriptions of the session's nodes, one Zenoh subscriber per key (kept by the owner).
         self._fanouts: dict[str, _Fanout] = owner._fanouts if owner is not None else {}
-        #: (on the root) put key -> the session's own subscriptions it reaches, handed its puts directly
-        self._local: dict[str, list[_Fanout]] = {}
+        #: put key -> the session's own subscriptions it reaches, handed its puts directly (shared too)
+        self._local: dict[str, list[_Fanout]] = owner._local if owner is not None else {}
         self._inbox = inbox_of(loop)
         self._subscribed: list[tuple[str, SampleHandler]] = []
         self._declared: list[Any] = []
@@ -154,12 +154,13 @@ class ZenohNode:
         root = self.owner or self  # open as long as the session is, whichever node subscribed first
 
         def on_sample(sample: zenoh.Sample) -> None:
-            root._to_loop(root._hand_round, fanout, str(sample.key_expr), sample.payload.to_bytes(), first=first)
+            root._to_loop(root._hand_round, fanout, str(sample.key_expr), sample.payload.to_bytes(),
+                          first=fanout.first)
 
         with zenoh_errors(f"{self.name}: subscribe to {key}"):
             fanout.subscriber = self.session.declare_subscriber(key, on_sample)
         self._fanouts[key] = fanout
-        root._local.clear()
+        self._local.clear()
         return fanout
 
     def queryable(self, key: str, handler: QueryHandler) -> None:
@@ -284,11 +285,11 @@ class ZenohNode:
             self._declared.append(publisher)
         publisher.put(payload)
         root = self.owner or self
-        for fanout in root._reached(key):
+        for fanout in self._reached(key):
             root._to_loop(root._hand_round, fanout, key, payload, first=fanout.first)
 
     def _reached(self, key: str) -> list[_Fanout]:
-        """(On the root.) The session's own subscriptions a put on ``key`` reaches: handed it on the loop
+        """The session's own subscriptions a put on ``key`` reaches: handed it on the loop
         straight away, not through Zenoh's threads (which a busy process starves for milliseconds)."""
         reached = self._local.get(key)
         if reached is None:
@@ -374,7 +375,7 @@ class ZenohNode:
             fanout.handlers.remove(handler)
         if not fanout.handlers:
             del self._fanouts[key]
-            (self.owner or self)._local.clear()
+            self._local.clear()
             fanout.undeclare(self.name)
 
     def _to_loop(self, callback: Callable[..., None], *args: Any, first: bool = False) -> None:

@@ -92,8 +92,9 @@ def test_drones_sharing_a_session_each_get_every_message_and_leave_alone() -> No
 def test_a_put_reaches_its_own_sessions_subscribers_on_the_loop_at_once() -> None:
     """Two drones of one host: what one puts is handed to the other at the loop's next turn, in the order
     put, and once, not after a trip through Zenoh's threads (a busy process starves them for
-    milliseconds, and the next drone in line waits on that message). Then a session elsewhere
-    subscribes: it gets each put too, and the drone still gets each once."""
+    milliseconds, and the next drone in line waits on that message), also when it subscribed after a
+    put with nobody to hear it. Then a session elsewhere subscribes: it gets each put too, and the
+    drone still gets each once."""
     endpoint = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
 
     async def scenario() -> tuple[list[bytes], list[bytes]]:
@@ -109,6 +110,7 @@ def test_a_put_reaches_its_own_sessions_subscribers_on_the_loop_at_once() -> Non
             got.set()
 
         try:
+            a.put("t/proto/a/b", b"before")  # nobody here hears it yet; a subscription then must
             b.subscribe("t/proto/*/b", lambda key, payload: local.append(payload), first=True)
             for i in range(20):  # nothing else feeds this loop meanwhile
                 a.put("t/proto/a/b", b"%d" % i)
