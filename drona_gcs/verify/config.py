@@ -4,6 +4,7 @@ upgrade's among it), and random scenarios the service would accept."""
 from __future__ import annotations
 
 import functools
+import math
 import random
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -154,12 +155,23 @@ def _battery_for(workspace: Workspace, extra_lead: int = 0) -> BatteryModel:
     default = BatteryModel()
     need = 2 * (workspace.nx + workspace.ny + workspace.nz - 3) + default.margin_steps
     affordable = default.steps_affordable(95.0)
-    base = default if need <= affordable else BatteryModel(drain_per_step=default.drain_per_step * affordable / need)
+    base = default if need <= affordable else _exact_drain(default.drain_per_step * affordable / need)
     if extra_lead <= 0:
         return base
     # Counted at the mixed fleet's lowest recharge mark; half a step more, as steps_affordable rounds down.
     steps = base.steps_affordable(UPGRADE.recharged_mark) + 3 * extra_lead
-    return BatteryModel(drain_per_step=(UPGRADE.recharged_mark - default.safe_threshold) / (steps + 0.5))
+    return _exact_drain((UPGRADE.recharged_mark - default.safe_threshold) / (steps + 0.5))
+
+
+#: drains are whole multiples of this (a power of two), at most that much below the one asked for
+DRAIN_QUANTUM = 2.0**-20
+
+
+def _exact_drain(drain: float) -> BatteryModel:
+    """A battery draining ``drain`` a step, rounded down to a multiple of :data:`DRAIN_QUANTUM`: every level
+    the world reaches (100, less drains, plus whole charges) is then exact in floating point, and a drone
+    the planner lets fly exactly to the threshold does not end a rounding error below it."""
+    return BatteryModel(drain_per_step=math.floor(drain / DRAIN_QUANTUM) * DRAIN_QUANTUM)
 
 
 def _service_check(workspace: Workspace, model: BatteryModel, lead: int) -> Callable[[MailRequest], bool]:

@@ -5,6 +5,7 @@ and exhaustive search, refuses bad scenarios and tokens, and runs from the CLI a
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import random
 import subprocess
@@ -187,10 +188,30 @@ def test_the_default_delay_keeps_the_battery_the_sweeps_found_their_bugs_with(si
     default = BatteryModel()
     need = 2 * (2 * side + 1 - 3) + default.margin_steps
     affordable = default.steps_affordable(95.0)
-    kept = default if need <= affordable else BatteryModel(drain_per_step=default.drain_per_step * affordable / need)
+    drain = math.floor(default.drain_per_step * affordable / need * 2**20) / 2**20  # exact in floating point
+    kept = default if need <= affordable else BatteryModel(drain_per_step=drain)
     assert _battery_for(workspace) == kept
     scenario = Scenario(drones=4, requests=4, seed=7, grid=(side, side, 1))
     assert scenario.world_config(scenario.workspace()).battery == kept
+
+
+@pytest.mark.parametrize("side", [8, 16, 22, 32])
+def test_a_drone_flown_as_far_as_its_battery_affords_ends_at_the_threshold_not_below(side: int) -> None:
+    """From every level the world's battery reaches (100 % drained step by step, and charged again), flying
+    the steps the planner affords, by the world's arithmetic, ends at or above the threshold: a drain such
+    as 70 / 82.5 a step does not add up exactly, and a sweep found a drone a rounding error below it."""
+    workspace = Workspace.build(size=(side, side, 1))
+    for extra in range(9):
+        model = _battery_for(workspace, extra)
+        levels, level = {100.0}, 100.0
+        while level > model.safe_threshold:
+            level = max(0.0, level - model.drain_per_step)
+            levels |= {level, *(min(100.0, level + k * model.charge_per_step) for k in range(1, 20))}
+        for start in (s for s in levels if s >= model.safe_threshold):
+            level = start
+            for _ in range(model.steps_affordable(start)):
+                level -= model.drain_per_step
+            assert level >= model.safe_threshold, f"extra lead {extra}: {start}% flown to {level}%"
 
 
 def test_a_counterexample_is_the_same_whatever_the_hash_seed() -> None:
