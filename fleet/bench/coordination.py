@@ -36,7 +36,7 @@ from drona_gcs.stack.drone import default_lead_steps
 from drona_gcs.workspace_files import load_workspace
 from fleet.bench import BenchError
 from fleet.bench import plot as bench_plot
-from fleet.bench.latency import CoordinationResult, measure
+from fleet.bench.latency import OPENING_S, CoordinationResult, measure
 from fleet.bench.processes import spawn
 from fleet.sim.ports import free_port_block, free_udp_base
 from fleet.transport.identity import SERVICE, make_certs
@@ -207,6 +207,9 @@ def run(args: argparse.Namespace) -> int:
           f"  after the first {args.steady_after:g} s (the opening burst: every drone given mail at once): "
           f"{result.steady_plans} plans, p50 {result.steady_p50_ms:.2f} ms, p99 {result.steady_p99_ms:.2f} ms, "
           f"max {result.steady_max_ms:.2f} ms\n"
+          f"  the opening burst: {result.plans - result.steady_plans} plans, the head of the line flown "
+          f"{result.opening_first_ms:.2f} ms after its task; CPU of each agent process in the first "
+          f"{OPENING_S:g} s of the mail: {', '.join(f'{ms:.0f}' for ms in result.opening_cpu_ms)} ms\n"
           f"protocol messages per round {result.messages_per_round:.1f} (5(N-1) = {5 * (agents - 1)} for a drone "
           f"coordinating alone: asked, answered, planned, held, flown; 4(N-1) = {4 * (agents - 1)} for a fleet "
           f"coordinating at once, whose requests and proposals are the answers)\n"

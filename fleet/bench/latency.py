@@ -24,6 +24,7 @@ from fleet.transport.settings import ZenohSettings
 from fleet.transport.wire import DroneState, MailOrder, MailStatus, MailStatusReport, WireError, decode
 
 IDLE_BOUND_S = 90.0  #: how long the drones may take to park at start-up (some detour around the others)
+OPENING_S = 1.0  #: the CPU of each agent process is also measured this long from the mail given
 
 
 @dataclass(frozen=True)
@@ -45,6 +46,11 @@ class CoordinationResult:
     #: the host's speed before and after (fleet.bench.processes.reference_loop_ms; lower is faster)
     reference_ms_before: float = math.nan
     reference_ms_after: float = math.nan
+    #: the opening burst's first plan flown (the head of the line), ms after its task came
+    opening_first_ms: float = math.nan
+    #: the CPU each agent process used in the first OPENING_S from the mail given (ms): a process busy all
+    #: along bounds the opening burst by its CPU, one mostly idle by waiting
+    opening_cpu_ms: tuple[float, ...] = ()
 
 
 async def measure(children: list[subprocess.Popen[bytes]], workspace: Workspace, names: list[str], fleet: str,
@@ -92,19 +98,29 @@ async def measure(children: list[subprocess.Popen[bytes]], workspace: Workspace,
         reference_before = reference_loop_ms()
         cpu0 = [_cpu_of(c.pid) for c in children]
         started = time.monotonic()
+        opening = asyncio.create_task(_cpu_after(children, cpu0, OPENING_S))
         delivered, sent, plans = await _keep_busy(node, client, keys, workspace, names, seconds, seed, before)
         elapsed = time.monotonic() - started
+        opening_cpu = await opening
         reference_after = reference_loop_ms()
         check_alive(children)  # figures from a fleet that lost a process mean nothing
         cpu = [_cpu_of(c.pid) - c0 for c, c0 in zip(children, cpu0, strict=True)]
     finally:
         await node.close()
     values, steady = latencies.since(), latencies.since(started + steady_after)
+    opening_plans = latencies.since(until=started + steady_after)
     return CoordinationResult(
         len(names), elapsed, len(values), _percentile(values, 0.5), _percentile(values, 0.99), _percentile(values, 1),
         len(steady), _percentile(steady, 0.5), _percentile(steady, 0.99), _percentile(steady, 1),
         sent / plans if plans else float("nan"), 1000 * sum(cpu[1:]) / elapsed / len(names), cpu[0] / elapsed,
-        delivered, reference_before, reference_after)
+        delivered, reference_before, reference_after, _percentile(opening_plans, 0),
+        tuple(1000 * c for c in opening_cpu[1:]))
+
+
+async def _cpu_after(children: list[subprocess.Popen[bytes]], cpu0: list[float], seconds: float) -> list[float]:
+    """The CPU seconds each of ``children`` used in the ``seconds`` after it had used ``cpu0``."""
+    await asyncio.sleep(seconds)
+    return [_cpu_of(c.pid) - c0 for c, c0 in zip(children, cpu0, strict=True)]
 
 
 class PlanLatencies:
@@ -126,9 +142,9 @@ class PlanLatencies:
         if state.coordination_ms is not None and state.plans > self._counted_from.get(state.drone, sys.maxsize):
             self._seen.setdefault((state.drone, state.plans), (now, state.coordination_ms))
 
-    def since(self, when: float = -math.inf) -> list[float]:
-        """The latencies (ms) of the plans first seen at ``when`` or later, sorted."""
-        return sorted(ms for seen, ms in self._seen.values() if seen >= when)
+    def since(self, when: float = -math.inf, until: float = math.inf) -> list[float]:
+        """The latencies (ms) of the plans first seen at ``when`` or later (and before ``until``), sorted."""
+        return sorted(ms for seen, ms in self._seen.values() if when <= seen < until)
 
 
 async def _keep_busy(node: ZenohNode, client: FleetClient, keys: FleetKeys, workspace: Workspace, names: list[str],
@@ -204,6 +220,7 @@ def _list(cell: Cell) -> list[int]:
 
 
 def _percentile(values: list[float], q: float) -> float:
+    """The ``q``-quantile of the sorted ``values`` (0: the least, 1: the most)."""
     if not values:
         return float("nan")
     return values[min(len(values) - 1, int(q * len(values)))] if q < 1 else values[-1]

@@ -42,6 +42,9 @@ def test_a_short_run_gives_one_strict_json_row_with_its_figures() -> None:
     assert row["steady_plans"] == 0 and row["steady_p50_ms"] is None  # 4 s: nothing after the opening
     assert row["cpu_ms_per_s_per_agent"] > 0
     assert 0 < row["reference_ms_before"] < 60_000 and 0 < row["reference_ms_after"] < 60_000
+    # The opening burst: its head of the line flew first, and the agent processes worked meanwhile.
+    assert 0 < row["opening_first_ms"] <= row["p50_ms"]
+    assert len(row["opening_cpu_ms"]) == row["processes"] and sum(row["opening_cpu_ms"]) > 0
 
 
 class _Fleet:
@@ -89,6 +92,7 @@ def test_only_plans_made_for_the_mail_count_each_once() -> None:
     latencies.observe(_state("d2", 2, None), now=6.0)  # no latency reported: nothing to count
     assert latencies.since() == [12.0, 30.0]
     assert latencies.since(4.0) == [30.0]  # when first seen, not when stated again
+    assert latencies.since(until=5.0) == [12.0]  # the opening: those seen before
 
 
 @pytest.mark.parametrize("agents", [4, 32, 64, 128, 200])
