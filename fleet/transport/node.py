@@ -8,7 +8,9 @@ are handed round before those of ordinary ones already waiting. The agents'
 protocol messages go first (see fleet.agent.drone): a drone that coordinates
 waits on them, while announced plans, states and mail can wait their turn
 when the whole fleet asks at once. Protocol messages are put with congestion control BLOCK: the
-default, DROP, loses messages of a burst.
+default, DROP, loses messages of a burst. They are batched (Zenoh's default), not express: an idle
+ping-pong favours express puts, but a fleet coordinating at once ran faster batched, each process
+spending less CPU on its puts (``drona bench coordination``).
 
 Drones hosted in one process with ``--shared-session`` share one session
 (:meth:`ZenohNode.view`; by default each drone has a session of its own, and a
@@ -275,12 +277,12 @@ class ZenohNode:
 
     def _put_now(self, key: str, payload: bytes, once: bool) -> None:
         if once:
-            self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK, express=True)
+            self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
             return
         publisher = self._publishers.get(key)
         if publisher is None:
             publisher = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK,
-                                                       express=True, allowed_destination=zenoh.Locality.REMOTE)
+                                                       allowed_destination=zenoh.Locality.REMOTE)
             self._publishers[key] = publisher
             self._declared.append(publisher)
         publisher.put(payload)
