@@ -46,7 +46,7 @@ class CoordinationResult:
     #: the host's speed before and after (fleet.bench.processes.reference_loop_ms; lower is faster)
     reference_ms_before: float = math.nan
     reference_ms_after: float = math.nan
-    #: the opening burst's first plan flown (the head of the line), ms after its task came
+    #: the latency of the opening burst's first plan flown (the head of the line's, mostly)
     opening_first_ms: float = math.nan
     #: the CPU each agent process used in the first OPENING_S from the mail given (ms): a process busy all
     #: along bounds the opening burst by its CPU, one mostly idle by waiting
@@ -108,12 +108,11 @@ async def measure(children: list[subprocess.Popen[bytes]], workspace: Workspace,
     finally:
         await node.close()
     values, steady = latencies.since(), latencies.since(started + steady_after)
-    opening_plans = latencies.since(until=started + steady_after)
     return CoordinationResult(
         len(names), elapsed, len(values), _percentile(values, 0.5), _percentile(values, 0.99), _percentile(values, 1),
         len(steady), _percentile(steady, 0.5), _percentile(steady, 0.99), _percentile(steady, 1),
         sent / plans if plans else float("nan"), 1000 * sum(cpu[1:]) / elapsed / len(names), cpu[0] / elapsed,
-        delivered, reference_before, reference_after, _percentile(opening_plans, 0),
+        delivered, reference_before, reference_after, latencies.first(until=started + steady_after),
         tuple(1000 * c for c in opening_cpu[1:]))
 
 
@@ -145,6 +144,11 @@ class PlanLatencies:
     def since(self, when: float = -math.inf, until: float = math.inf) -> list[float]:
         """The latencies (ms) of the plans first seen at ``when`` or later (and before ``until``), sorted."""
         return sorted(ms for seen, ms in self._seen.values() if when <= seen < until)
+
+    def first(self, when: float = -math.inf, until: float = math.inf) -> float:
+        """The latency (ms) of the plan first seen at ``when`` or later (and before ``until``); NaN if none."""
+        seen = [each for each in self._seen.values() if when <= each[0] < until]
+        return min(seen)[1] if seen else math.nan
 
 
 async def _keep_busy(node: ZenohNode, client: FleetClient, keys: FleetKeys, workspace: Workspace, names: list[str],
