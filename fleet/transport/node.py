@@ -9,8 +9,8 @@ protocol messages go first (see fleet.agent.drone): a drone that coordinates
 waits on them, while announced plans, states and mail can wait their turn
 when the whole fleet asks at once. Protocol messages are put with congestion control BLOCK: the
 default, DROP, loses messages of a burst. They are batched (Zenoh's default), not express: an idle
-ping-pong favours express puts, but a fleet coordinating at once ran faster batched, each process
-spending less CPU on its puts (``drona bench coordination``).
+ping-pong favours express puts, but under a fleet coordinating at once an express put holds the
+event loop two to three times as long (``drona bench coordination`` ran no slower batched).
 
 Drones hosted in one process with ``--shared-session`` share one session
 (:meth:`ZenohNode.view`; by default each drone has a session of its own, and a
