@@ -104,7 +104,7 @@ async def measure(children: list[subprocess.Popen[bytes]], workspace: Workspace,
         opening_cpu = await opening
         reference_after = reference_loop_ms()
         check_alive(children)  # figures from a fleet that lost a process mean nothing
-        cpu = [_cpu_of(c.pid) - c0 for c, c0 in zip(children, cpu0, strict=True)]
+        cpu = _cpu_since(children, cpu0)
     finally:
         await node.close()
     values, steady = latencies.since(), latencies.since(started + steady_after)
@@ -119,6 +119,11 @@ async def measure(children: list[subprocess.Popen[bytes]], workspace: Workspace,
 async def _cpu_after(children: list[subprocess.Popen[bytes]], cpu0: list[float], seconds: float) -> list[float]:
     """The CPU seconds each of ``children`` used in the ``seconds`` after it had used ``cpu0``."""
     await asyncio.sleep(seconds)
+    return _cpu_since(children, cpu0)
+
+
+def _cpu_since(children: list[subprocess.Popen[bytes]], cpu0: list[float]) -> list[float]:
+    """The CPU seconds each of ``children`` used since it had used ``cpu0``."""
     return [_cpu_of(c.pid) - c0 for c, c0 in zip(children, cpu0, strict=True)]
 
 
@@ -141,9 +146,9 @@ class PlanLatencies:
         if state.coordination_ms is not None and state.plans > self._counted_from.get(state.drone, sys.maxsize):
             self._seen.setdefault((state.drone, state.plans), (now, state.coordination_ms))
 
-    def since(self, when: float = -math.inf, until: float = math.inf) -> list[float]:
-        """The latencies (ms) of the plans first seen at ``when`` or later (and before ``until``), sorted."""
-        return sorted(ms for seen, ms in self._seen.values() if when <= seen < until)
+    def since(self, when: float = -math.inf) -> list[float]:
+        """The latencies (ms) of the plans first seen at ``when`` or later, sorted."""
+        return sorted(ms for seen, ms in self._seen.values() if seen >= when)
 
     def first(self, when: float = -math.inf, until: float = math.inf) -> float:
         """The latency (ms) of the plan first seen at ``when`` or later (and before ``until``); NaN if none."""
