@@ -3,7 +3,8 @@
 :func:`drona_gcs.safety.check_pair` states the rule as plain loops and lists every violation, for
 the audit and the planner's tests. A drone asks the question for every proposal it holds and every
 ack it gets, and needs only the answer: this finds it from where the other drone is at each step,
-indexed once, and stops at the first meeting. The two agree (tested on random walks).
+indexed once, and stops at the first meeting; a plan that ended more than Delta steps before is only
+its last cell (an idle drone answers with its last plan). The two agree (tested on random walks).
 """
 
 from __future__ import annotations
@@ -19,9 +20,11 @@ def meets(mine: Trajectory, other: Trajectory, delta: int, from_step: int) -> bo
     """``bool(check_pair(mine, other, delta, from_step=from_step))`` for ``delta >= 0``: a collision or
     a swap at a step of mine from ``from_step`` on, within ``delta`` steps of the other's."""
     cells = other.cells
+    start, end = other.start_step, other.end_step
+    if end + delta < from_step:
+        return _enters(mine, cells[-1], from_step, max(mine.end_step, end) + delta + 1)
     if set(cells).isdisjoint(mine.cells):
         return False
-    start, end = other.start_step, other.end_step
     first, last = cells[0], cells[-1]
     steps: dict[Cell, list[int]] = {}  #: the steps the other is in each cell, within its plan
     moves: dict[tuple[Cell, Cell], list[int]] = {}  #: the steps it leaves a cell for the next
@@ -41,6 +44,15 @@ def meets(mine: Trajectory, other: Trajectory, delta: int, from_step: int) -> bo
         if ahead != here and _any_within(moves.get((ahead, here), ()), lo, hi):
             return True
     return False
+
+
+def _enters(mine: Trajectory, cell: Cell, from_step: int, until: int) -> bool:
+    """Whether I am in ``cell`` at a step from ``from_step`` to ``until`` (past my end): the other rests
+    there from more than ``delta`` steps before ``from_step`` on, so only being there meets it."""
+    if from_step > until:
+        return False
+    first = min(max(from_step - mine.start_step, 0), len(mine.cells) - 1)
+    return cell in mine.cells[first:]
 
 
 def _any_within(ascending: Sequence[int], lo: int, hi: int) -> bool:
