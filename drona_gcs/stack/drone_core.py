@@ -150,10 +150,12 @@ class DroneCore:
         return self.stop_short
 
     def _stop_short_instead(self) -> list[DroneAction]:
-        """The rerouted leg found no plan to its goal: stop short of the held cells instead (once)."""
+        """The rerouted leg found no plan to its goal: stop short of the held cells instead (once), if the
+        plan flown still enters one once a new plan could start (one crossed before cannot be helped: a
+        stop after it would leave the leg for nothing)."""
         threat, self.threat = self.threat, None
         if (threat is None or self.stop_short is not None or self.braked is not None
-                or self.protocol.state is not State.EXECUTING):
+                or self.protocol.state is not State.EXECUTING or not self._ahead(threat)):
             self.stop_short = None
             return []
         stop = self._short_of(threat)
@@ -161,6 +163,13 @@ class DroneCore:
             return []
         task = self._hovering_task(stop)
         return self._protocol(Reroute(task))
+
+    def _ahead(self, threat: Threatened) -> bool:
+        """Whether the plan flown enters a cell ``threat`` holds from where a new plan would start on."""
+        trajectory = self.protocol.trajectory
+        assert trajectory is not None
+        start, held = self.now + self.protocol.airborne_lead, set(threat.cells)
+        return any(trajectory.at(t) in held for t in range(start, max(start, trajectory.end_step) + 1))
 
     def _way_to_clear(self, leg: GoTo) -> tuple[Cell, ...]:
         """The way a mail or charging leg (or one to park, from a charger) asks resting drones to leave: when

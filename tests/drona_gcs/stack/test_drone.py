@@ -164,6 +164,30 @@ def test_news_while_confirming_a_reroute_that_threatens_again_reroutes_once() ->
     assert state_of(protocol) is State.REROUTING and len([a for a in actions if isinstance(a, Threatened)]) == 1
 
 
+def _flying_rerouted(held: Cell) -> DroneStack:
+    """Drone a flying a plan (lead 3) whose rest could not be planned anew around ``held``."""
+    ws = Workspace.build(size=(5, 5, 1), drones={"a": (0, 0, 0), "b": (0, 4, 0)})
+    stack = DroneStack("a", StackConfig(ws, SafePlanner(ws, 0), lead_steps=3, hover_lead_steps=3), dict(ws.drones))
+    flown = Trajectory(0, ((0, 0, 0), (1, 0, 0), (2, 0, 0), (3, 0, 0), (4, 0, 0), (4, 1, 0), (4, 2, 0), (4, 3, 0)))
+    protocol = stack.protocol
+    protocol.task, protocol.trajectory = Task(TaskId(1, "a", 1), (4, 3, 0)), flown
+    protocol._state = State.EXECUTING  # placed flying ``flown``, which no round of this fleet would plan
+    stack.executor.start(flown)
+    stack.threat = Threatened("b", (held,))
+    return stack
+
+
+@pytest.mark.parametrize(("held", "stops_short"), [((1, 0, 0), False), ((4, 1, 0), True)])
+def test_a_rest_that_found_no_plan_stops_short_only_of_a_held_cell_still_ahead(held: Cell, stops_short: bool) -> None:
+    """Found by the tester (sweep 30625, a clock off): no new rest was found around a held cell the plan
+    crossed before a new plan could start, and the drone stopped short anyway, its mail's leg left for
+    nothing. A cell from then on is stopped short of; one crossed before, the plan flies on."""
+    stack = _flying_rerouted(held)
+    stack._stop_short_instead()
+    assert (stack.protocol.state is State.REROUTING) is stops_short
+    assert stack.stop_short == ((3, 0, 0) if stops_short else None)  # where a new plan would start
+
+
 def test_a_drone_starting_up_before_it_meets_its_peers_hands_back_nothing() -> None:
     ws = Workspace.build(size=(6, 6, 1), drones={"d1": (0, 0, 0), "d2": (5, 5, 0), "d3": (0, 5, 0)})
     stack = DroneStack("d3", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
