@@ -132,13 +132,14 @@ class DroneCore:
             goal = self._short_of(threat) or goal
         return self._hovering_task(goal)
 
-    def _hovering_task(self, goal: Cell) -> Task:
+    def _hovering_task(self, goal: Cell, entry: int | None = None) -> Task:
         """A new rest of the plan flown, to ``goal``: flown from now on, as far as budgets go, with what
         the battery affords now less what must remain there, and less the plan's first step (see
-        :meth:`_task`)."""
+        :meth:`_task`). ``entry``: the step the plan flown enters a held cell, which the rest must
+        start before (a stop short of it, past it, would leave the leg for nothing)."""
         flight = self.mail.flight_to(goal, self.level)
         return Task(self.clock.next_id(self.now), goal, None if flight is None else flight - 1,
-                    hovering_since=self.now)
+                    hovering_since=self.now, start_by=None if entry is None else entry - 1)
 
     def _short_of(self, threat: Threatened) -> Cell | None:
         """Where the leg flown stops short of the cells ``threat`` holds: the nearest cell off them from
@@ -151,25 +152,25 @@ class DroneCore:
 
     def _stop_short_instead(self) -> list[DroneAction]:
         """The rerouted leg found no plan to its goal: stop short of the held cells instead (once), if the
-        plan flown still enters one once a new plan could start (one crossed before cannot be helped: a
-        stop after it would leave the leg for nothing)."""
+        plan flown enters one after a new plan could start, and by then (a rest that starts later parts
+        past it). One crossed before cannot be helped: a stop after it would leave the leg for nothing."""
         threat, self.threat = self.threat, None
         if (threat is None or self.stop_short is not None or self.braked is not None
-                or self.protocol.state is not State.EXECUTING or not self._ahead(threat)):
+                or self.protocol.state is not State.EXECUTING or (entry := self._entry_of(threat)) is None):
             self.stop_short = None
             return []
         stop = self._short_of(threat)
         if stop is None:
             return []
-        task = self._hovering_task(stop)
-        return self._protocol(Reroute(task))
+        return self._protocol(Reroute(self._hovering_task(stop, entry)))
 
-    def _ahead(self, threat: Threatened) -> bool:
-        """Whether the plan flown enters a cell ``threat`` holds from where a new plan would start on."""
+    def _entry_of(self, threat: Threatened) -> int | None:
+        """The first step after a new plan could start at which the plan flown enters a cell ``threat``
+        holds (None: it is past them all by then, and no new plan can keep clear of them)."""
         trajectory = self.protocol.trajectory
         assert trajectory is not None
         start, held = self.now + self.protocol.airborne_lead, set(threat.cells)
-        return any(trajectory.at(t) in held for t in range(start, max(start, trajectory.end_step) + 1))
+        return next((t for t in range(start + 1, trajectory.end_step + 1) if trajectory.at(t) in held), None)
 
     def _way_to_clear(self, leg: GoTo) -> tuple[Cell, ...]:
         """The way a mail or charging leg (or one to park, from a charger) asks resting drones to leave: when

@@ -69,6 +69,8 @@ class Task:
     hovering_since: int | None = None
     #: a way to the goal whose resting drones are asked to make way (an earlier try found no plan)
     clear: tuple[Cell, ...] = ()
+    #: a rest that stops short of a held cell must start by this step (later, it parts after the cell)
+    start_by: int | None = None
 
     def max_length(self, start_step: int) -> int | None:
         if self.flight_steps is None:

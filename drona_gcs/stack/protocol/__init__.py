@@ -125,7 +125,9 @@ settled here, and one message it sends is saved (the second point):
   new plan to the same goal (``Reroute``) and I coordinate it as any task
   (``REROUTING``), answering with the plan I fly on meanwhile. The new plan starts
   where that one is at its start step, and the two joined are what I then answer
-  with. No plan (or the old one ended first): I fly on what I have. Sound as any
+  with. No plan (or the old one ended first): I fly on what I have. A rest that
+  stops short of a held cell must start before the plan flown enters it
+  (``Task.start_by``); a round that would start it later ends with no plan. Sound as any
   round: my new rest avoids every answer, and a drone ahead of me in line plans
   against the plan I fly, which I do not change before it has planned. A cell
   crossed within ``lead_steps`` cannot be helped this way (found by the tester).

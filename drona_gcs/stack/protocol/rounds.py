@@ -203,7 +203,7 @@ class Rounds(Confirming):
                **{f"{p}~lost{i}": Trajectory.stationary(c, now) for p, cells in sorted(self.peers_lost.items())
                   for i, c in enumerate(cells) if c != here}}
         max_length = task.max_length(start_step)
-        unfit = self._unfit_to_plan(max_length)
+        unfit = self._unfit_to_plan(max_length) or self._too_late(task, start_step)
         if unfit is not None:
             return self._no_plan(NoPlanFound(unfit), now)
         try:
@@ -232,6 +232,12 @@ class Rounds(Confirming):
             return "my vehicle is down"
         if max_length is not None and max_length < 0:
             return "the battery no longer affords the task"
+        return None
+
+    @staticmethod
+    def _too_late(task: Task, start_step: int) -> str | None:
+        if task.start_by is not None and start_step > task.start_by:
+            return f"too late: a rest from step {start_step} would part from my plan past the cell it stops short of"
         return None
 
     def _no_plan(self, exc: NoPlanFound, now: int) -> list[Action]:

@@ -177,11 +177,12 @@ def _flying_rerouted(held: Cell) -> DroneStack:
     return stack
 
 
-@pytest.mark.parametrize(("held", "stops_short"), [((1, 0, 0), False), ((4, 1, 0), True)])
+@pytest.mark.parametrize(("held", "stops_short"), [((1, 0, 0), False), ((3, 0, 0), False), ((4, 1, 0), True)])
 def test_a_rest_that_found_no_plan_stops_short_only_of_a_held_cell_still_ahead(held: Cell, stops_short: bool) -> None:
     """Found by the tester (sweep 30625, a clock off): no new rest was found around a held cell the plan
     crossed before a new plan could start, and the drone stopped short anyway, its mail's leg left for
-    nothing. A cell from then on is stopped short of; one crossed before, the plan flies on."""
+    nothing. A cell entered after a new plan could start is stopped short of; at or before it, the plan
+    flies on (a rest begun in the held cell cannot keep clear of it)."""
     stack = _flying_rerouted(held)
     stack._stop_short_instead()
     assert (stack.protocol.state is State.REROUTING) is stops_short

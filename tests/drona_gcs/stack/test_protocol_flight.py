@@ -127,6 +127,20 @@ def test_a_peer_that_leaves_across_the_rest_of_my_plan_has_me_plan_that_rest_ane
     assert state_of(proto) is State.EXECUTING and proto.trajectory == new
 
 
+@pytest.mark.parametrize(("start_by", "planned"), [(None, True), (3, False)])
+def test_a_rest_that_must_start_by_a_step_is_not_planned_later(start_by: int | None, planned: bool) -> None:
+    """A rest that stops short of a held cell, begun once the plan flown is at or past it, leaves the leg
+    for nothing (the tester found one begun at the cell, after which the plan reached its drop-off: sweep
+    30625, a clock off). A round that would start it later than its ``start_by`` fails: I fly on."""
+    proto, plan = flying_past_b()
+    proto.handle(PeerLeft("b", silent_since=0), 2)
+    proto.handle(Reroute(Task(TaskId(6, "a", 2), GOAL, start_by=start_by)), 2)
+    actions = proto.handle(CurrentTraj("c", location_of("c"), TaskId(6, "a", 2)), 2)
+    failed = [a for a in actions if isinstance(a, RerouteFailed)]
+    assert (not failed) is planned
+    assert planned or ("too late" in failed[0].reason and proto.trajectory == plan)
+
+
 def test_a_leave_behind_my_plan_changes_nothing() -> None:
     proto, _ = flying_past_b()
     assert proto.handle(PeerLeft("c"), 2) == []
