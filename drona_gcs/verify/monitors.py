@@ -45,7 +45,7 @@ A violation raises :class:`Violation`, which ends the schedule. (a), (c), (f) an
 
 from __future__ import annotations
 
-from collections.abc import Hashable
+from collections.abc import Hashable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -91,7 +91,8 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
     before_news: dict[str, Trajectory] = field(default_factory=dict)
     #: (a) where a drone said it rests, at the end of the plan it is committed to: that plan, told so
     rests: dict[str, Trajectory] = field(default_factory=dict)
-    #: (a) the proposals each drone's committed plan was made against: (drone, proposer) -> proposal
+    #: (a) what each drone's committed plan was made against of each peer: its proposal where it held one,
+    #: else its answer: (drone, peer) -> that trajectory
     made_against: dict[tuple[str, str], Trajectory] = field(default_factory=dict)
     #: (a) the same, for a plan cut short since (braked, or its vehicle came down): until the news is heard
     cut_made_against: dict[tuple[str, str], Trajectory] = field(default_factory=dict)
@@ -144,7 +145,7 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
             self._consistent(drone, action)
             self._carried_to_its_dropoff(drone, action)
             self._commit(drone, action.trajectory)
-            self.made_against.update({(drone, key[:-1]): t for key, t in action.psi.items() if key.endswith("?")})
+            self.made_against.update(self._made_against(drone, action.psi))
             self.planned_without[drone] = (action.trajectory, self.departed.get(drone, frozenset()))
             self.rests.pop(drone, None)
             self.cuts.pop(drone, None)
@@ -199,6 +200,13 @@ class Monitors(SeparationMonitor, DeliveryMonitor):
         self.committed[drone] = trajectory
         self.made_against = {k: t for k, t in self.made_against.items() if k[0] != drone}
         self.cut_made_against = {k: t for k, t in self.cut_made_against.items() if k[0] != drone}
+
+    def _made_against(self, drone: str, psi: Mapping[str, Trajectory]) -> dict[tuple[str, str], Trajectory]:
+        """A peer's plan later flown is one ``drone``'s plan was made against when it is the proposal held, or
+        (none held) the answer: a round that plans anew what the drone flies can end in that very plan."""
+        made = {(drone, key): t for key, t in psi.items() if key in self.config.drones}
+        made.update({(drone, key[:-1]): t for key, t in psi.items() if key.endswith("?")})
+        return made
 
     def _consistent(self, drone: str, action: StartExecuting) -> None:
         since = action.trajectory.start_step - self.config.delta - 1

@@ -241,6 +241,26 @@ def test_a_plan_made_against_a_proposal_counts_until_its_drone_flies_something_e
         monitors.action("d1", start_d1)
 
 
+@pytest.mark.parametrize("anew", ["the same plan", "another plan"])
+def test_a_plan_made_against_a_peers_answer_counts_while_that_peer_flies_it(anew: str) -> None:
+    """(a), found by the tester (sweep 30630, a clock off): d1 planned anew the plan it flew and came to
+    that very plan, which it had answered d0 with (no proposal held apart: the two were one). d0's plan,
+    made against it, counts as made against d1's plan; against another plan, d1 used a stale d0."""
+    ws = Workspace.build(size=(5, 3, 1))
+    config = WorldConfig(ws, ("d0", "d1"), ((0, 2, 0), (0, 0, 0)), (), (), delta=0)
+    monitors = Monitors(config)
+    d0_start = Trajectory(0, ((0, 2, 0),))
+    d1_plan = Trajectory(3, ((0, 0, 0), (1, 0, 0), (2, 0, 0)))
+    monitors.action("d1", StartExecuting(Task(TaskId(1, "d1", 1), (2, 0, 0)), d1_plan, {"d0": d0_start}))
+    d0_plan = Trajectory(4, ((0, 2, 0), (1, 2, 0), (2, 2, 0)))
+    monitors.action("d0", StartExecuting(Task(TaskId(2, "d0", 1), (2, 2, 0)), d0_plan, {"d1": d1_plan}))
+    d1_new = d1_plan if anew == "the same plan" else Trajectory(3, ((0, 0, 0), (0, 1, 0), (1, 1, 0)))
+    start_d1 = StartExecuting(Task(TaskId(2, "d1", 2), d1_new.last, hovering_since=2), d1_new, {"d0": d0_start})
+    with pytest.raises(Violation, match=r"\(a\) d1 planned task .* with a stale trajectory of d0") \
+            if anew == "another plan" else contextlib.nullcontext():
+        monitors.action("d1", start_d1)
+
+
 @pytest.mark.parametrize("held_at", [(2, 0, 0), (1, 0, 0)])
 def test_a_rest_held_from_another_step_is_the_same_rest(held_at: Cell) -> None:
     """(a): found by sweep 30513 (--skews 1): d1, its clock ahead, said it rests from its step 3; d0 heard
