@@ -152,8 +152,8 @@ class DroneCore:
 
     def _stop_short_instead(self) -> list[DroneAction]:
         """The rerouted leg found no plan to its goal: stop short of the held cells instead (once), if the
-        plan flown enters one after a new plan could start, and by then (a rest that starts later parts
-        past it). One crossed before cannot be helped: a stop after it would leave the leg for nothing."""
+        plan flown enters one after a new plan could start; the rest must start before it does. A cell
+        crossed by then cannot be helped: a stop past it would leave the leg for nothing."""
         threat, self.threat = self.threat, None
         if (threat is None or self.stop_short is not None or self.braked is not None
                 or self.protocol.state is not State.EXECUTING or (entry := self._entry_of(threat)) is None):
