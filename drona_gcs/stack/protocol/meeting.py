@@ -21,8 +21,8 @@ def meets(mine: Trajectory, other: Trajectory, delta: int, from_step: int) -> bo
     a swap at a step of mine from ``from_step`` on, within ``delta`` steps of the other's."""
     cells = other.cells
     start, end = other.start_step, other.end_step
-    if end + delta < from_step:
-        return _enters(mine, cells[-1], from_step, max(mine.end_step, end) + delta + 1)
+    if end + delta < from_step:  # by then the other is only its last cell
+        return from_step <= max(mine.end_step, end) + delta + 1 and _enters(mine, cells[-1], from_step)
     if set(cells).isdisjoint(mine.cells):
         return False
     first, last = cells[0], cells[-1]
@@ -46,11 +46,9 @@ def meets(mine: Trajectory, other: Trajectory, delta: int, from_step: int) -> bo
     return False
 
 
-def _enters(mine: Trajectory, cell: Cell, from_step: int, until: int) -> bool:
-    """Whether I am in ``cell`` at a step from ``from_step`` to ``until`` (past my end): the other rests
-    there from more than ``delta`` steps before ``from_step`` on, so only being there meets it."""
-    if from_step > until:
-        return False
+def _enters(mine: Trajectory, cell: Cell, from_step: int) -> bool:
+    """Whether I am in ``cell`` at ``from_step`` or later: the other rests there from more than ``delta``
+    steps before ``from_step`` on, so only being there meets it."""
     first = min(max(from_step - mine.start_step, 0), len(mine.cells) - 1)
     return cell in mine.cells[first:]
 
