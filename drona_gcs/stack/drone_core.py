@@ -175,17 +175,22 @@ class DroneCore:
     def _way_to_clear(self, leg: GoTo) -> tuple[Cell, ...]:
         """The way a mail or charging leg (or one to park, from a charger) asks resting drones to leave: when
         its goal is taken, or its last try found no plan (the paper leaves MRMP incomplete: resting drones
-        wall goals in). A shortest way, around cells it asked before that stayed taken (a vehicle down
-        cannot move)."""
+        wall goals in). A shortest way around cells it asked before that stayed taken, and always around
+        those no drone leaves when asked: vehicles down, and departed drones (until back; through them only
+        if there is no other way). Only the leg's tries remember what stayed taken: asked through a
+        vehicle down, it asked the same way after every leg flown in between, never the way around."""
         taken, here, ws = self.taken_cells(), self.protocol.location, self.config.workspace
         asking = leg.purpose in ASKING or (leg.purpose is Phase.TO_PARKING and here in ws.charging_stations)
         if not asking or (leg.goal not in taken and leg.goal not in self.unreached):
             return ()
+        walls = self.walls() - {leg.goal}
+        shut = (walls | {t.last for t in self.protocol.ghost_obstacles().values()}) - {leg.goal}
         self.stuck = self.stuck | (self.asked_clear & taken)
-        way = ws.shortest_way(here, leg.goal, self.stuck - {leg.goal})
+        way = ws.shortest_way(here, leg.goal, shut | (self.stuck - {leg.goal}))
         if not way:  # every way was asked once: ask them all again, in turn
             self.stuck = self.asked_clear & taken
-            way = ws.shortest_way(here, leg.goal, self.stuck - {leg.goal}) or ws.shortest_way(here, leg.goal)
+            way = (ws.shortest_way(here, leg.goal, shut | (self.stuck - {leg.goal}))
+                   or ws.shortest_way(here, leg.goal, walls))
         self.asked_clear = frozenset(way) & taken
         return way
 

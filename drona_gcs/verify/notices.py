@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.battery import BatteryLow, BatteryRecharged
 from drona_gcs.stack.mail import GoTo, MailDelivered, MailLost, MailPickedUp, MailRejected, MailStarted
-from drona_gcs.stack.messages import CurrentTraj, Message, PlanDecision
+from drona_gcs.stack.messages import CurrentTraj, Message, PlanDecision, ReqForCurrentTraj
 from drona_gcs.stack.protocol import Braked, RerouteFailed, StartExecuting, TaskFailed, Threatened
 from drona_gcs.verify.network import Joined, Left
 from drona_gcs.verify.verdicts import cell_text, cells_text
@@ -53,6 +53,9 @@ def describe(message: Notice) -> str:
         return f"{name}({message.mail_id})"
     if isinstance(message, PlanDecision):
         return f"{name}(task {message.task_id} of {message.sender}: {'flown' if message.flown else 'dropped'})"
+    if isinstance(message, ReqForCurrentTraj) and message.clear:
+        way = " ".join(map(cell_text, message.clear))
+        return f"{name}(task {message.task_id} of {message.sender}, asks to clear {way})"
     return f"{name}(task {message.task_id} of {message.sender})"
 
 

@@ -102,3 +102,46 @@ def test_a_drone_boxed_in_on_a_way_makes_way_to_a_charger_when_nothing_else_is_l
     assert yield_spot(corridor, (1, 0, 0), way | {(0, 0, 0)}, ()) is None
     wide = Workspace.build(size=(4, 2, 1), charging_stations=((0, 0, 0),), drones={"d1": (1, 0, 0)})
     assert yield_spot(wide, (1, 0, 0), way, ()) == (1, 1, 0)  # a free cell first, though farther
+
+
+
+@pytest.mark.parametrize("gone", ["down", "departed"])
+def test_a_way_asked_clear_goes_around_a_drone_that_cannot_leave_after_legs_elsewhere(gone: str) -> None:
+    """Found by a sweep (seed 30638, config 905545): the shortest way to a charger crossed a vehicle
+    down, which cannot leave. A leg elsewhere flown between two tries forgot that the way stayed
+    shut, so every try asked that way again, never the one by the drone parked on the other; the
+    drone went between charger and parking for good, and its mail waited. A departed drone cannot
+    leave either, until it is back."""
+    ws = Workspace.build(size=(5, 3, 1), obstacles=frozenset({(1, 1, 0), (2, 1, 0), (3, 1, 0)}),
+                         charging_stations=((4, 0, 0),), parking=((0, 1, 0),),
+                         drones={"d1": (0, 0, 0), "d2": (2, 0, 0), "d3": (2, 2, 0)})
+    config = StackConfig(ws, SafePlanner(ws))
+    stacks = {d: DroneStack(d, config, dict(ws.drones)) for d in ws.drones}
+    if gone == "down":  # on the shortest way; d3 rests on the other
+        stacks["d2"].vehicle_down("a failsafe", (2, 0, 0))
+    for peer in ("d1", "d3"):
+        if gone == "down":
+            stacks[peer].peer_down("d2", (2, 0, 0))
+        else:
+            stacks[peer].peer_left("d2")
+    if gone == "departed":
+        del stacks["d2"]
+    d1, done = stacks["d1"], []
+    charger, parking = GoTo((4, 0, 0), None, Phase.TO_CHARGER), GoTo((0, 1, 0), None, Phase.TO_PARKING)
+
+    def settle(actions: list[DroneAction]) -> None:
+        inbox: list[tuple[str, Message]] = []
+        done.extend(actions)
+        route(stacks, inbox, "d1", actions)
+        while inbox:
+            to, message = inbox.pop(0)
+            answered = stacks[to].receive(message)
+            done.extend(answered if to == "d1" else [])
+            route(stacks, inbox, to, answered)
+
+    settle(d1._protocol(NewTask(d1._task(charger, 0, 0))))
+    assert d1.protocol.state is State.WAIT_FOR_TASK and not of(StartExecuting, done)  # cut off: no plan
+    settle(d1._protocol(NewTask(d1._task(parking, 1, 1))))
+    assert of(StartExecuting, done)  # a leg flown in between
+    way = d1._way_to_clear(charger)
+    assert (2, 2, 0) in way and (2, 0, 0) not in way
