@@ -177,8 +177,8 @@ class DroneCore:
         its goal is taken, or its last try found no plan (the paper leaves MRMP incomplete: resting drones
         wall goals in). A shortest way around cells it asked before that stayed taken, and always around
         those no drone leaves when asked: vehicles down, and departed drones (until back; through them only
-        if there is no other way). Only the leg's tries remember what stayed taken: asked through a
-        vehicle down, it asked the same way after every leg flown in between, never the way around."""
+        if there is no other way). Those are not left to be learnt: what stayed taken is forgotten with every
+        plan flown, and legs flown between tries had a drone ask a way through a vehicle down for good."""
         taken, here, ws = self.taken_cells(), self.protocol.location, self.config.workspace
         asking = leg.purpose in ASKING or (leg.purpose is Phase.TO_PARKING and here in ws.charging_stations)
         if not asking or (leg.goal not in taken and leg.goal not in self.unreached):
