@@ -59,3 +59,14 @@ def route(stacks: Mapping[str, DroneStack], inbox: list[tuple[str, Message]], se
             inbox.append((action.to, action.message))
         elif isinstance(action, Broadcast):
             inbox.extend((d, action.message) for d in stacks if d != sender)
+
+
+def drain(stacks: Mapping[str, DroneStack], inbox: list[tuple[str, Message]],
+          done: dict[str, list[DroneAction]]) -> None:
+    """Hand every message in ``inbox`` to its receiver, and the messages that sends in turn, until none is
+    left (every one arrives at once); what each drone does goes in ``done``."""
+    while inbox:
+        to, message = inbox.pop(0)
+        answered = stacks[to].receive(message)
+        done[to] += answered
+        route(stacks, inbox, to, answered)

@@ -20,7 +20,7 @@ from drona_gcs.stack.protocol import (
     State,
 )
 from drona_gcs.workspace import Cell, Workspace
-from tests.drona_gcs.stack.drone_helpers import of, route
+from tests.drona_gcs.stack.drone_helpers import drain, of, route
 
 # ------------------------------------------------------------ making way
 #: A ring around a wall: from the pickup (2, 0) to the drop-off (3, 2), the way is by (0, 1) or
@@ -53,9 +53,7 @@ def fleet_on_the_ring(ws: Workspace, down: str, steps: int) -> dict[str, list[Dr
     for step in range(steps):
         for drone, stack in stacks.items():
             post(drone, stack.step(step, 100.0, stack.executor.cell, may_plan=drone != down))
-        while inbox:
-            to, message = inbox.pop(0)
-            post(to, stacks[to].receive(message))
+        drain(stacks, inbox, done)
     return done
 
 
@@ -104,7 +102,6 @@ def test_a_drone_boxed_in_on_a_way_makes_way_to_a_charger_when_nothing_else_is_l
     assert yield_spot(wide, (1, 0, 0), way, ()) == (1, 1, 0)  # a free cell first, though farther
 
 
-
 @pytest.mark.parametrize("gone", ["down", "departed"])
 def test_a_way_asked_clear_goes_around_a_drone_that_cannot_leave_after_legs_elsewhere(gone: str) -> None:
     """Found by a sweep (seed 30638, config 905545): the shortest way to a charger crossed a vehicle
@@ -119,29 +116,25 @@ def test_a_way_asked_clear_goes_around_a_drone_that_cannot_leave_after_legs_else
     stacks = {d: DroneStack(d, config, dict(ws.drones)) for d in ws.drones}
     if gone == "down":  # on the shortest way; d3 rests on the other
         stacks["d2"].vehicle_down("a failsafe", (2, 0, 0))
-    for peer in ("d1", "d3"):
-        if gone == "down":
+        for peer in ("d1", "d3"):
             stacks[peer].peer_down("d2", (2, 0, 0))
-        else:
-            stacks[peer].peer_left("d2")
-    if gone == "departed":
+    else:
         del stacks["d2"]
-    d1, done = stacks["d1"], []
+        for peer in ("d1", "d3"):
+            stacks[peer].peer_left("d2")
+    d1 = stacks["d1"]
+    done: dict[str, list[DroneAction]] = {d: [] for d in stacks}
     charger, parking = GoTo((4, 0, 0), None, Phase.TO_CHARGER), GoTo((0, 1, 0), None, Phase.TO_PARKING)
 
     def settle(actions: list[DroneAction]) -> None:
         inbox: list[tuple[str, Message]] = []
-        done.extend(actions)
+        done["d1"] += actions
         route(stacks, inbox, "d1", actions)
-        while inbox:
-            to, message = inbox.pop(0)
-            answered = stacks[to].receive(message)
-            done.extend(answered if to == "d1" else [])
-            route(stacks, inbox, to, answered)
+        drain(stacks, inbox, done)
 
     settle(d1._protocol(NewTask(d1._task(charger, 0, 0))))
-    assert d1.protocol.state is State.WAIT_FOR_TASK and not of(StartExecuting, done)  # cut off: no plan
+    assert d1.protocol.state is State.WAIT_FOR_TASK and not of(StartExecuting, done["d1"])  # cut off: no plan
     settle(d1._protocol(NewTask(d1._task(parking, 1, 1))))
-    assert of(StartExecuting, done)  # a leg flown in between
+    assert of(StartExecuting, done["d1"])  # a leg flown in between
     way = d1._way_to_clear(charger)
     assert (2, 2, 0) in way and (2, 0, 0) not in way
