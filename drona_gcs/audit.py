@@ -2,21 +2,25 @@
 
 Input is what ``drona agent --record`` (and ``drona demo --record``) write:
 records ``{"step": k, "drone": id, "cell": [x, y, z], "planned": [x, y, z] | null,
-"delta": D}``, D = ceil((beta + lambda) / tau). A record is taken lambda after its step
-begins: the step's cell if telemetry saw the vehicle there by then (all the separation
-window assumes of a vehicle), else where telemetry puts it. Three things are judged, each
-on its own:
+"delta": D, "via": [[x, y, z], ...]}``, D = ceil((beta + lambda) / tau); ``via`` (optional)
+is every other cell telemetry saw the vehicle in since the drone's record before, in order.
+A record is taken lambda after its step begins: the step's cell if telemetry saw the vehicle
+there by then (all the separation window assumes of a vehicle), else where telemetry puts it.
+Three things are judged, each on its own:
 
 * **Separation**: each drone's cells become a timed trajectory; a step with no
   record (telemetry gave no fix) counts as the cell of the step before it, and is
   reported as a gap, because an auditor must know what was not seen. The
   trajectories are checked pairwise under Delta by
   :func:`drona_gcs.safety.check_fleet`, the same checker the planner's tests trust.
+  A cell passed ``via`` was held at some time between its two records: it must be
+  clear of every other drone from Delta steps before the first to Delta after the second.
 * **Conformance**: of the steps that had a planned cell, the share flown in that
   very cell, and the worst distance (in cell moves) between flown and planned.
 * **Continuity**: a drone moves one cell per step at most, so two records ``s``
   steps apart more than ``s`` cell moves apart are a jump: the record missed
-  where the vehicle went in between.
+  where the vehicle went in between. A vehicle catching up on its plan may cross
+  several cells in a step; with the cells it passed ``via``, each move counts.
 """
 
 from __future__ import annotations
@@ -103,6 +107,7 @@ class _Record:
     cell: Cell
     planned: Cell | None
     delta: int
+    via: tuple[Cell, ...] = ()
 
 
 def moves(a: Cell, b: Cell) -> int:
@@ -115,6 +120,7 @@ def audit(workspace: Workspace, records: Iterable[Mapping[str, object]]) -> Audi
     trajectories, delta, gaps = _trajectories(parsed)
     # Jumps are judged below from the records themselves, not from the gap-filled trajectories.
     separation = [v for v in check_fleet(workspace, trajectories, delta) if v.kind is not ViolationKind.JUMP]
+    separation += _passing(workspace, parsed, trajectories, delta)
     return Audit(trajectories, delta, gaps, separation, _conformance(parsed), _jumps(parsed))
 
 
@@ -148,17 +154,48 @@ def _conformance(records: list[_Record]) -> Conformance:
     return Conformance(len(planned), deviations)
 
 
-def _jumps(records: list[_Record]) -> tuple[Jump, ...]:
-    by_drone: dict[str, dict[int, Cell]] = defaultdict(dict)
+def _by_drone(records: list[_Record]) -> dict[str, list[_Record]]:
+    """Each drone's records in step order, one per step (the last written)."""
+    by_step: dict[str, dict[int, _Record]] = defaultdict(dict)
     for r in records:
-        by_drone[r.drone][r.step] = r.cell
+        by_step[r.drone][r.step] = r
+    return {drone: [steps[k] for k in sorted(steps)] for drone, steps in sorted(by_step.items())}
+
+
+def _jumps(records: list[_Record]) -> tuple[Jump, ...]:
     found: list[Jump] = []
-    for drone, by_step in sorted(by_drone.items()):
-        steps = sorted(by_step)
-        for before, after in itertools.pairwise(steps):
-            if moves(by_step[before], by_step[after]) > after - before:
-                found.append(Jump(drone, after, after - before, by_step[before], by_step[after]))
+    for drone, mine in _by_drone(records).items():
+        for before, after in itertools.pairwise(mine):
+            steps = after.step - before.step
+            for a, b in itertools.pairwise((before.cell, *after.via, after.cell)):
+                if moves(a, b) > steps:
+                    found.append(Jump(drone, after.step, steps, a, b))
     return tuple(found)
+
+
+def _passing(workspace: Workspace, records: list[_Record], trajectories: Mapping[str, Trajectory],
+             delta: int) -> list[Violation]:
+    """Cells passed between two records: in the grid, off obstacles, and clear of every other drone
+    at any step within Delta of the time between the two records."""
+    found: list[Violation] = []
+    for drone, mine in _by_drone(records).items():
+        for k, after in enumerate(mine):
+            first = mine[k - 1].step if k else after.step - 1
+            for cell in after.via:
+                found += _passed_cell(workspace, drone, cell, range(first - delta, after.step + delta + 1),
+                                      after.step, trajectories)
+    return found
+
+
+def _passed_cell(workspace: Workspace, drone: str, cell: Cell, window: range, step: int,
+                 trajectories: Mapping[str, Trajectory]) -> list[Violation]:
+    if not workspace.in_bounds(cell):
+        return [Violation(ViolationKind.OUT_OF_BOUNDS, step, cell)]
+    if cell in workspace.obstacles:
+        return [Violation(ViolationKind.OBSTACLE, step, cell)]
+    return [Violation(ViolationKind.COLLISION, step, cell, f"{drone}~{other}", p)
+            for other, trajectory in sorted(trajectories.items()) if other != drone
+            for p in window if trajectory.at(p) == cell]
 
 
 def _fields(record: Mapping[str, object], number: int) -> _Record:
@@ -168,7 +205,17 @@ def _fields(record: Mapping[str, object], number: int) -> _Record:
     cell = _cell(record.get("cell"), number, "cell")
     if cell is None:
         raise ProblemError(f"record {number}: cell must be [x, y, z] integers, got null")
-    return _Record(step, drone, cell, _cell(record.get("planned"), number, "planned"), delta)
+    return _Record(step, drone, cell, _cell(record.get("planned"), number, "planned"), delta,
+                   _via(record.get("via", []), number))
+
+
+def _via(value: object, number: int) -> tuple[Cell, ...]:
+    if not isinstance(value, list):
+        raise ProblemError(f"record {number}: via must be a list of [x, y, z] cells, got {value!r}")
+    cells = tuple(_cell(v, number, "each cell of via") for v in value)
+    if any(c is None for c in cells):
+        raise ProblemError(f"record {number}: each cell of via must be [x, y, z] integers, got null")
+    return tuple(c for c in cells if c is not None)
 
 
 def _cell(value: object, number: int, name: str) -> Cell | None:

@@ -66,6 +66,8 @@ class Sample:
     planned: Cell  #: the cell of the step
     actual: Cell | None  #: ``planned`` if seen there in time, else where it is (None: no cell)
     late_s: float | None  #: how long after the boundary it was first seen in ``planned`` (None: not by lambda)
+    #: every cell telemetry put it in since the previous sample, in order, each once per visit
+    passed: tuple[Cell, ...] = ()
 
 
 @dataclass
@@ -110,6 +112,7 @@ class SetpointLoop:
         #: takes a boundary: the executor's own tick, or the whole drone stack's step (which ticks it)
         self.tick: Callable[[int], Sequence[object]] = tick or executor.tick
         self.suspended = False  #: the vehicle is lost: nothing is sent until its agent says where it is
+        self.sampled_at = -math.inf  #: the link time of the last sample: positions after it are news
 
     def step_at(self, t: float) -> int:
         """The step under way at local time ``t``."""
@@ -219,9 +222,17 @@ class SetpointLoop:
         if not self.arrivals or self.arrivals[0].step != step:
             return None
         arrival = self.arrivals.popleft()
+        passed = self._passed()
         if arrival.seen_at is None:
-            return Sample(step, arrival.cell, self._here(), None)
-        return Sample(step, arrival.cell, arrival.cell, max(0.0, arrival.seen_at - arrival.boundary))
+            return Sample(step, arrival.cell, self._here(), None, passed)
+        return Sample(step, arrival.cell, arrival.cell, max(0.0, arrival.seen_at - arrival.boundary), passed)
+
+    def _passed(self) -> tuple[Cell, ...]:
+        """The cells (as the flight record places them) of the positions reported since the last sample."""
+        positions = self.sink.positions_since(self.sampled_at)
+        self.sampled_at = self.link_clock()
+        cells = (self.frame.recorded_cell(p.ned) for p in positions)
+        return tuple(cell for cell, _ in itertools.groupby(c for c in cells if c is not None))
 
     def _short_of(self, previous: Cell, now: float) -> bool:
         """Whether the vehicle, not yet in ``previous``, must fly through it before the new target: it

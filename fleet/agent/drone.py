@@ -132,6 +132,7 @@ class DroneAgent(Tracking, PeerSide):
         self.placed = False  #: its vehicle was seen at its start cell (checked once it has a position)
         self.alive: set[str] = set()
         self.actual: Cell | None = None
+        self.recorded: Cell | None = None  #: the cell of the last record written
         self.battery_pct = 100.0
         self.may_plan = True
         #: why the vehicle is out of its lateness bound (None: within it; see on_sample)

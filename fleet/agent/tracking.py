@@ -17,7 +17,7 @@ from drona_gcs.stack.protocol import State
 from drona_gcs.workspace import Cell, Workspace
 from fleet.agent.maildesk import MailDesk
 from fleet.agent.vehicle import VehicleSupervisor
-from fleet.agent.watch import Seen, VehicleWatch, Verdict, record_line
+from fleet.agent.watch import Seen, VehicleWatch, Verdict, record_line, went_through
 from fleet.setpoint_loop import Sample, SetpointLoop, StepReport
 from fleet.vehicle.link import Readiness, VehicleLink
 
@@ -41,6 +41,7 @@ class Tracking:
     out_of_service: str | None
     placed: bool
     actual: Cell | None
+    recorded: Cell | None
     battery_pct: float
     late: str | None
     down: bool
@@ -123,7 +124,9 @@ class Tracking:
         seen = self.watch.seen_cell("sample")  # None: no fresh position, a gap in the record
         flown = sample.planned if sample.late_s is not None else seen
         if self.record is not None and seen is not None and flown is not None:
-            self.record.write(record_line(sample.step, self.me, flown, sample.planned, self.delta))
+            via = went_through(sample.passed, self.recorded, flown)
+            self.record.write(record_line(sample.step, self.me, flown, sample.planned, self.delta, via))
+            self.recorded = flown
         if self.down or self.watch.lost:
             return
         if self.late is not None and seen == self.stack.executor.cell and self.stack.executor.trajectory is None:

@@ -9,6 +9,7 @@ in the same units, whatever the autopilot.
 from __future__ import annotations
 
 import asyncio
+import collections
 import enum
 import logging
 from collections.abc import Awaitable, Callable
@@ -69,6 +70,27 @@ class Position:
 
     ned: Ned
     at: float
+
+
+TRAIL_SIZE = 256  #: positions a link keeps: seconds of them at any stream rate a link asks for
+
+
+class Trail:
+    """The last positions a link received, oldest first: where the vehicle went between two looks."""
+
+    def __init__(self, size: int = TRAIL_SIZE) -> None:
+        self._positions: collections.deque[Position] = collections.deque(maxlen=size)
+
+    def add(self, position: Position | None) -> None:
+        if position is not None and (not self._positions or self._positions[-1] != position):
+            self._positions.append(position)
+
+    def since(self, at: float) -> list[Position]:
+        """The positions reported after link time ``at``."""
+        return [p for p in self._positions if p.at > at]
+
+    def clear(self) -> None:
+        self._positions.clear()
 
 
 class Autopilot(enum.Enum):
@@ -161,6 +183,10 @@ class SetpointSink(Protocol):
         ...
 
     def last_position(self) -> Position | None: ...
+
+    def positions_since(self, at: float) -> list[Position]:
+        """The positions reported after link time ``at``, oldest first (the last few hundred)."""
+        ...
 
 
 class VehicleLink(SetpointSink, Protocol):

@@ -56,8 +56,16 @@ from drona_gcs.geo import GeoFrame, GeoPoint, Ned
 from fleet.clock import cancel_all, periodic
 from fleet.vehicle.commands import ConfirmedCommands
 from fleet.vehicle.frames import Deframer
-from fleet.vehicle.link import REOPEN_S, Position, Share, StreamRequests, Telemetry
-from fleet.vehicle.mavlink_telemetry import ARDUPILOT_STREAMS, FRAMED_STREAMS, KEPT, STREAMS, Latest, streams_for
+from fleet.vehicle.link import REOPEN_S, Position, Share, StreamRequests, Telemetry, Trail
+from fleet.vehicle.mavlink_telemetry import (
+    ARDUPILOT_STREAMS,
+    FRAMED_STREAMS,
+    KEPT,
+    POSITION_KINDS,
+    STREAMS,
+    Latest,
+    streams_for,
+)
 from fleet.vehicle.policy import (
     DEFAULT_TIMEOUTS,
     Command,
@@ -119,6 +127,7 @@ class PymavlinkLink(ConfirmedCommands):
         self._target: Ned | None = None  #: where ``_setpoint`` sends the vehicle
         self._setpoints_sent = 0
         self._latest = Latest()  #: telemetry: the last message of each type
+        self._trail = Trail()
         #: telemetry() as of the last message: read several times per drone at every step boundary
         self._snapshot: Telemetry | None = None
         self.unhandled: collections.Counter[str] = collections.Counter()
@@ -268,6 +277,9 @@ class PymavlinkLink(ConfirmedCommands):
         """LOCAL_POSITION_NED; with ``frame``, GLOBAL_POSITION_INT in the workspace frame."""
         return self._latest.position(self.frame)
 
+    def positions_since(self, at: float) -> list[Position]:
+        return self._trail.since(at)
+
     def last_global(self) -> GeoPoint | None:
         return self._latest.global_position()
 
@@ -324,6 +336,8 @@ class PymavlinkLink(ConfirmedCommands):
 
     def _keep(self, msg: Message) -> None:
         self._latest.keep(msg, self.clock())
+        if msg.get_type() in POSITION_KINDS:
+            self._trail.add(self.last_position())
 
     # ------------------------------------------------------------ plumbing
     def _fail(self, error: VehicleError, final: bool = False) -> None:
@@ -363,6 +377,7 @@ class PymavlinkLink(ConfirmedCommands):
         # What came before the loss is no news of the vehicle now; it gets a whole timeout to speak.
         self.session.reopened(self.clock())
         self._latest.clear()
+        self._trail.clear()
         self._snapshot = None
         self._streams.wanted = True
         self._send_heartbeat()

@@ -33,7 +33,7 @@ ARDUPILOT_STREAMS = {mavlink2.MAVLINK_MSG_ID_EKF_STATUS_REPORT: Share.STATUS}
 KEPT = ("LOCAL_POSITION_NED", "GLOBAL_POSITION_INT", "SYS_STATUS", "BATTERY_STATUS", "GPS_RAW_INT",
         "EXTENDED_SYS_STATE", "EKF_STATUS_REPORT")
 _UNKNOWN_U16 = 0xFFFF
-_POSITION_KINDS = frozenset({"LOCAL_POSITION_NED", "GLOBAL_POSITION_INT"})
+POSITION_KINDS = frozenset({"LOCAL_POSITION_NED", "GLOBAL_POSITION_INT"})
 
 
 def streams_for(frame: GeoFrame | None, autopilot: Autopilot | None) -> dict[int, Share]:
@@ -53,7 +53,7 @@ class Latest:
     def keep(self, msg: Message, now: float) -> None:
         kind = msg.get_type()
         self.kept[kind] = (now, msg)
-        if kind in _POSITION_KINDS:
+        if kind in POSITION_KINDS:
             self._where = None
 
     def clear(self) -> None:

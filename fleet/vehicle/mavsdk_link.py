@@ -59,7 +59,7 @@ from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from drona_gcs.geo import GeoFrame, GeoPoint, Ned
 from fleet.clock import cancel_all, periodic
 from fleet.vehicle.commands import ConfirmedCommands
-from fleet.vehicle.link import REOPEN_S, Autopilot, Position, Share, StreamRequests, Telemetry, not_ready
+from fleet.vehicle.link import REOPEN_S, Autopilot, Position, Share, StreamRequests, Telemetry, Trail, not_ready
 from fleet.vehicle.mavsdk_messages import (
     EKF_STATUS_REPORT,
     EXTENDED_SYS_STATE,
@@ -72,7 +72,7 @@ from fleet.vehicle.mavsdk_messages import (
     setpoint,
     settle,
 )
-from fleet.vehicle.mavsdk_telemetry import TELEMETRY, Subscribed
+from fleet.vehicle.mavsdk_telemetry import POSITION_NAMES, TELEMETRY, Subscribed
 from fleet.vehicle.policy import (
     DEFAULT_TIMEOUTS,
     Command,
@@ -124,6 +124,7 @@ class MavsdkLink(ConfirmedCommands):
         self._updates = Updates(self._check_alive, lambda: f"vehicle {self.sysid}")
         self._streams = StreamRequests(self._ask_for_streams, str(self.url))
         self._latest = Subscribed()  #: the subscriptions' latest values
+        self._trail = Trail()
 
     # ------------------------------------------------------------ connection
     async def connect(self, timeout: float = 10.0) -> None:
@@ -325,6 +326,9 @@ class MavsdkLink(ConfirmedCommands):
     def last_position(self) -> Position | None:
         return self._latest.position(self.frame)
 
+    def positions_since(self, at: float) -> list[Position]:
+        return self._trail.since(at)
+
     def last_global(self) -> GeoPoint | None:
         return self._latest.global_position()
 
@@ -352,6 +356,8 @@ class MavsdkLink(ConfirmedCommands):
 
     def _keep(self, name: str, value: Any) -> None:
         self._latest.keep(name, value, self.clock())
+        if name in POSITION_NAMES:
+            self._trail.add(self.last_position())
 
     def _on_heartbeat(self, msg: MavlinkMessage) -> None:
         if msg.component_id != 1:

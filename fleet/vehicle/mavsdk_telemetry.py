@@ -17,6 +17,7 @@ PREARM_CHECK = 1 << 28  #: MAV_SYS_STATUS_PREARM_CHECK
 #: MAVSDK telemetry kept as latest values, with its rate (a share of ``stream_hz``).
 TELEMETRY = {"position": Share.POSITION, "position_velocity_ned": Share.POSITION, "battery": Share.STATUS,
              "gps_info": Share.GPS, "landed_state": Share.LANDED}
+POSITION_NAMES = frozenset({"position", "position_velocity_ned"})  #: what Subscribed.position reads
 
 
 class Subscribed:

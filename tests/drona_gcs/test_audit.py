@@ -71,6 +71,28 @@ def test_a_move_of_two_cells_in_one_step_is_a_jump_but_not_over_a_gap_of_two_ste
     assert not over_gap.jumps and over_gap.gaps == {"d0": 1}
 
 
+def caught_up(via: list[tuple[int, int]]) -> list[dict[str, Any]]:
+    """d0 recorded in (0,0) then (3,0) a step later, with the cells telemetry saw it pass in between."""
+    second = json.loads(record_line(1, "d0", (3, 0, 0), (3, 0, 0), 1, tuple((*c, 0) for c in via)))
+    return [*flight("d0", 0, [(0, 0)], [None]), second]
+
+
+def test_cells_passed_via_make_a_catch_up_continuous_and_a_skipped_one_is_still_a_jump() -> None:
+    assert not audit(WS, caught_up([(1, 0), (2, 0)])).jumps
+    skipped = audit(WS, caught_up([(1, 0)]))
+    assert [(j.before, j.after) for j in skipped.jumps] == [((1, 0, 0), (3, 0, 0))]
+
+
+def test_a_cell_passed_via_is_checked_against_the_others_within_delta_of_both_records() -> None:
+    # b comes down column 2 to (2,0): at step 2 it is within Delta 1 of d0's second record, at step 3 not.
+    passing = caught_up([(1, 0), (2, 0)])
+    b_at_2 = flight("b", 0, [(2, 2), (2, 1), (2, 0)], [None] * 3)
+    unsafe = audit(WS, passing + b_at_2).violations
+    assert [(v.cell, v.other, v.other_step) for v in unsafe] == [((2, 0, 0), "d0~b", 2)]
+    b_at_3 = flight("b", 0, [(2, 3), (2, 2), (2, 1), (2, 0)], [None] * 4)
+    assert audit(WS, passing + b_at_3).safe
+
+
 def test_a_diagonal_move_is_a_jump() -> None:
     assert len(audit(WS, flight("d0", 0, [(0, 0), (1, 1)], [None, None])).jumps) == 1
 
@@ -89,6 +111,8 @@ def test_records_without_planned_are_still_read() -> None:
     ({"step": 0, "drone": "d0", "cell": [0, 0, 0], "planned": [0, 0], "delta": 0}, "planned"),
     ({"step": 0, "drone": "d0", "cell": None, "planned": None, "delta": 0}, "cell"),
     ({"step": "0", "drone": "d0", "cell": [0, 0, 0], "delta": 0}, "integer step"),
+    ({"step": 0, "drone": "d0", "cell": [0, 0, 0], "delta": 0, "via": [0, 0, 0]}, "each cell of via"),
+    ({"step": 0, "drone": "d0", "cell": [0, 0, 0], "delta": 0, "via": "[1, 0, 0]"}, "via must be a list"),
 ])
 def test_a_bad_record_is_named(record: dict[str, Any], named: str) -> None:
     with pytest.raises(ProblemError, match=named):

@@ -20,7 +20,7 @@ from collections.abc import Callable
 from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from drona_gcs.geo import GeoFrame, GeoPoint, Ned
 from drona_gcs.workspace import Cell
-from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry
+from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry, Trail
 
 GPS_FIX_WITH_ESTIMATE = 6  #: GPS_FIX_TYPE_RTK_FIXED: what a vehicle with its position estimate reports
 GPS_FIX_WITHOUT = 1  #: GPS_FIX_TYPE_NO_FIX
@@ -50,6 +50,7 @@ class FakeVehicle:
         self.where: Ned | None = None if cell is None else self._ned(cell)  #: its position (None: none reported)
         self.at = at  #: the link clock time of its last report (HEARTBEAT and position)
         self.lost: str | None = None  #: why its link cannot carry commands (None: it can)
+        self.trail = Trail()  #: every position it reported: placed by the test, or read
         # What it was sent.
         self.sent: list[tuple[float, Ned]] = []  #: (clock time, target) of every setpoint
         self.commands: list[str] = []  #: every command asked for, by name, refused ones too
@@ -65,6 +66,7 @@ class FakeVehicle:
         self.where = self._ned(cell)
         if at is not None:
             self.at = at
+        self.trail.add(self.last_position())
 
     def come_down(self) -> None:
         """On the ground and disarmed (a failsafe, a pilot)."""
@@ -77,7 +79,13 @@ class FakeVehicle:
             self.where, self.at = target, self.clock()
 
     def last_position(self) -> Position | None:
-        return Position(self.where, self.at) if self.estimate and self.where is not None else None
+        position = Position(self.where, self.at) if self.estimate and self.where is not None else None
+        self.trail.add(position)
+        return position
+
+    def positions_since(self, at: float) -> list[Position]:
+        self.last_position()
+        return self.trail.since(at)
 
     def last_global(self) -> GeoPoint | None:
         if not self.estimate or self.where is None or self.frame is None:

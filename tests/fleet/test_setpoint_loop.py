@@ -3,17 +3,19 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import math
 import time
 from collections.abc import Callable, Sequence
 
 import pytest
 
-from drona_gcs.audit import moves
+from drona_gcs.audit import audit, moves
 from drona_gcs.geo import GeoFrame, Ned
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.executor import Completed, ExecutorAction, PlanExecutor, Setpoint
 from drona_gcs.workspace import Cell, Workspace
+from fleet.agent.watch import record_line, went_through
 from fleet.setpoint_loop import Sample, SetpointLoop, StepReport
 from fleet.vehicle.link import Position
 from tests.fakes.vehicle import FakeVehicle
@@ -186,6 +188,24 @@ def test_a_stalled_process_catches_up_through_every_cell_and_cuts_no_corner(
 
 
 ZIGZAG = Trajectory(2, ((0, 0, 0), (1, 0, 0), (2, 0, 0), (2, 1, 0), (2, 2, 0), (3, 2, 0), (4, 2, 0), (4, 3, 0)))
+
+
+def test_a_stalled_process_records_every_cell_its_vehicle_went_through_on_the_way_back() -> None:
+    """Back from a stall, the vehicle flies the cells it missed at 2 cells a step: two samples a step
+    apart find it more than a cell apart. The cells telemetry saw in between go with the record
+    (``via``), so the audit sees where it went, and finds no jump."""
+    samples: list[Sample] = []
+    cruise(LONG, 2.0, 0.2, lambda report, _: report.step == 12, stall=(2, 3.5 * 0.2), lateness_s=0.05,
+           samples=samples)
+    records, before = [], None
+    for s in samples:
+        assert s.actual is not None
+        via = went_through(s.passed, before, s.actual)
+        records.append(json.loads(record_line(s.step, "d0", s.actual, s.planned, 1, via)))
+        before = s.actual
+    assert any("via" in r for r in records), records  # the catch-up crossed cells between two samples
+    result = audit(WS, records)
+    assert not result.jumps and result.safe, (result.jumps, records)
 
 
 @pytest.mark.parametrize("cells_a_step", [0.4, 0.5])

@@ -217,6 +217,7 @@ def test_a_link_in_a_workspace_frame_flies_global_setpoints(backend: str) -> Non
             await link.wait_until(lambda t: (t.height_m or 0) > 2.7, 5, "3 m up")
             await link.follow_setpoints()
             target = Ned(place.home.north + 4.0, place.home.east - 3.0, -4.0)
+            sent_at = link.clock()
             await link.send_position_target(target)
             # On the way north and west: the velocity says so, in the frame's axes.
             t = await link.wait_until(lambda t: t.velocity is not None and math.hypot(t.velocity.north,
@@ -226,6 +227,11 @@ def test_a_link_in_a_workspace_frame_flies_global_setpoints(backend: str) -> Non
             assert math.hypot(t.velocity.north, t.velocity.east) < 20, f"not in m/s: {t.velocity}"
             t = await link.wait_until(near(target, 0.3), 5, "the target")
             assert t.mode == "OFFBOARD"
+            # Every position on the way is kept, in order: the flight record's cells in between.
+            trail = link.positions_since(sent_at)
+            assert trail[-1] == link.last_position() and len(trail) >= 5, trail
+            assert all(a.at < b.at for a, b in itertools.pairwise(trail))
+            assert trail[0].ned.north < place.home.north + 1.0 < place.home.north + 3.0 < trail[-1].ned.north
             if backend == "pymavlink":
                 # Positions and velocities come from GLOBAL_POSITION_INT: the local position is not
                 # asked for at the position rate (it was a third of what a vehicle sent).
