@@ -3,7 +3,7 @@
 Input is what ``drona agent --record`` (and ``drona demo --record``) write:
 records ``{"step": k, "drone": id, "cell": [x, y, z], "planned": [x, y, z] | null,
 "delta": D, "via": [[x, y, z], ...]}``, D = ceil((beta + lambda) / tau); ``via`` (optional)
-is every other cell telemetry saw the vehicle in since the drone's record before, in order.
+is every other grid cell telemetry saw the vehicle in since the drone's record before, in order.
 A record is taken lambda after its step begins: the step's cell if telemetry saw the vehicle
 there by then (all the separation window assumes of a vehicle), else where telemetry puts it.
 Three things are judged, each on its own:
@@ -14,7 +14,8 @@ Three things are judged, each on its own:
   trajectories are checked pairwise under Delta by
   :func:`drona_gcs.safety.check_fleet`, the same checker the planner's tests trust.
   A cell passed ``via`` was held at some time between its two records: it must be
-  clear of every other drone from Delta steps before the first to Delta after the second.
+  clear of every other drone (its records, and the cells it passed) from Delta steps
+  before the first to Delta after the second.
 * **Conformance**: of the steps that had a planned cell, the share flown in that
   very cell, and the worst distance (in cell moves) between flown and planned.
 * **Continuity**: a drone moves one cell per step at most, so two records ``s``
@@ -26,6 +27,7 @@ Three things are judged, each on its own:
 from __future__ import annotations
 
 import itertools
+import json
 from collections import defaultdict
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
@@ -162,40 +164,59 @@ def _by_drone(records: list[_Record]) -> dict[str, list[_Record]]:
     return {drone: [steps[k] for k in sorted(steps)] for drone, steps in sorted(by_step.items())}
 
 
+@dataclass(frozen=True)
+class _Span:
+    """From a drone's record before (a step earlier for its first) to a record: the cells seen in order."""
+
+    drone: str
+    first: int  #: the step of the record before
+    record: _Record
+    before: Cell | None  #: the cell of the record before (None: the first record)
+
+    @property
+    def chain(self) -> tuple[Cell, ...]:
+        return (*(() if self.before is None else (self.before,)), *self.record.via, self.record.cell)
+
+    def overlaps(self, other: _Span, delta: int) -> bool:
+        """Whether some time of this span is within Delta steps of some time of ``other``."""
+        return self.first - delta <= other.record.step and other.first <= self.record.step + delta
+
+
+def _spans(records: list[_Record]) -> list[_Span]:
+    return [_Span(drone, mine[k - 1].step if k else r.step - 1, r, mine[k - 1].cell if k else None)
+            for drone, mine in _by_drone(records).items() for k, r in enumerate(mine)]
+
+
 def _jumps(records: list[_Record]) -> tuple[Jump, ...]:
     found: list[Jump] = []
-    for drone, mine in _by_drone(records).items():
-        for before, after in itertools.pairwise(mine):
-            steps = after.step - before.step
-            for a, b in itertools.pairwise((before.cell, *after.via, after.cell)):
-                if moves(a, b) > steps:
-                    found.append(Jump(drone, after.step, steps, a, b))
+    for span in _spans(records):
+        steps = span.record.step - span.first
+        found += [Jump(span.drone, span.record.step, steps, a, b)
+                  for a, b in itertools.pairwise(span.chain) if moves(a, b) > steps]
     return tuple(found)
 
 
 def _passing(workspace: Workspace, records: list[_Record], trajectories: Mapping[str, Trajectory],
              delta: int) -> list[Violation]:
     """Cells passed between two records: in the grid, off obstacles, and clear of every other drone
-    at any step within Delta of the time between the two records."""
+    (its records, and the cells it passed) at any step within Delta of the time between the two records."""
+    passing = [span for span in _spans(records) if span.record.via]
     found: list[Violation] = []
-    for drone, mine in _by_drone(records).items():
-        for k, after in enumerate(mine):
-            first = mine[k - 1].step if k else after.step - 1
-            for cell in after.via:
-                found += _passed_cell(workspace, drone, cell, range(first - delta, after.step + delta + 1),
-                                      after.step, trajectories)
+    for span in passing:
+        step = span.record.step
+        window = range(span.first - delta, step + delta + 1)
+        for cell in span.record.via:
+            if not workspace.in_bounds(cell):
+                found.append(Violation(ViolationKind.OUT_OF_BOUNDS, step, cell))
+            elif cell in workspace.obstacles:
+                found.append(Violation(ViolationKind.OBSTACLE, step, cell))
+            found += [Violation(ViolationKind.COLLISION, step, cell, f"{span.drone}~{other}", when)
+                      for other, trajectory in sorted(trajectories.items()) if other != span.drone
+                      if (when := next((p for p in window if trajectory.at(p) == cell), None)) is not None]
+            found += [Violation(ViolationKind.COLLISION, step, cell, f"{span.drone}~{them.drone}", them.record.step)
+                      for them in passing if them.drone > span.drone and cell in them.record.via
+                      and span.overlaps(them, delta)]
     return found
-
-
-def _passed_cell(workspace: Workspace, drone: str, cell: Cell, window: range, step: int,
-                 trajectories: Mapping[str, Trajectory]) -> list[Violation]:
-    if not workspace.in_bounds(cell):
-        return [Violation(ViolationKind.OUT_OF_BOUNDS, step, cell)]
-    if cell in workspace.obstacles:
-        return [Violation(ViolationKind.OBSTACLE, step, cell)]
-    return [Violation(ViolationKind.COLLISION, step, cell, f"{drone}~{other}", p)
-            for other, trajectory in sorted(trajectories.items()) if other != drone
-            for p in window if trajectory.at(p) == cell]
 
 
 def _fields(record: Mapping[str, object], number: int) -> _Record:
@@ -211,16 +232,19 @@ def _fields(record: Mapping[str, object], number: int) -> _Record:
 
 def _via(value: object, number: int) -> tuple[Cell, ...]:
     if not isinstance(value, list):
-        raise ProblemError(f"record {number}: via must be a list of [x, y, z] cells, got {value!r}")
-    cells = tuple(_cell(v, number, "each cell of via") for v in value)
-    if any(c is None for c in cells):
-        raise ProblemError(f"record {number}: each cell of via must be [x, y, z] integers, got null")
-    return tuple(c for c in cells if c is not None)
+        raise ProblemError(f"record {number}: via must be a list of [x, y, z] cells, got {_json(value)}")
+    return tuple(_strict_cell(v, number, "each cell of via", "") for v in value)
 
 
 def _cell(value: object, number: int, name: str) -> Cell | None:
-    if value is None:
-        return None
+    return None if value is None else _strict_cell(value, number, name, " or null")
+
+
+def _strict_cell(value: object, number: int, name: str, or_else: str) -> Cell:
     if not (isinstance(value, list) and len(value) == 3 and all(type(v) is int for v in value)):
-        raise ProblemError(f"record {number}: {name} must be [x, y, z] integers or null, got {value!r}")
+        raise ProblemError(f"record {number}: {name} must be [x, y, z] integers{or_else}, got {_json(value)}")
     return (value[0], value[1], value[2])
+
+
+def _json(value: object) -> str:
+    return json.dumps(value, default=repr)

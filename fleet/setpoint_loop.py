@@ -196,6 +196,8 @@ class SetpointLoop:
                     del self.route[1]
             self.changed_at = now
         self.arrivals.append(_Arrival(step, self.target, boundary))
+        if self.sampled_at == -math.inf:  # what came before the first step is no step's
+            self.sampled_at = self.link_clock()
         self.look(now)
         return self._report(step, previous, self.target, now - boundary), actions
 

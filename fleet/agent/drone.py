@@ -133,6 +133,7 @@ class DroneAgent(Tracking, PeerSide):
         self.alive: set[str] = set()
         self.actual: Cell | None = None
         self.recorded: Cell | None = None  #: the cell of the last record written
+        self.passing: tuple[Cell, ...] = ()  #: the cells telemetry saw since (see Tracking._record)
         self.battery_pct = 100.0
         self.may_plan = True
         #: why the vehicle is out of its lateness bound (None: within it; see on_sample)

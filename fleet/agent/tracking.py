@@ -17,7 +17,7 @@ from drona_gcs.stack.protocol import State
 from drona_gcs.workspace import Cell, Workspace
 from fleet.agent.maildesk import MailDesk
 from fleet.agent.vehicle import VehicleSupervisor
-from fleet.agent.watch import Seen, VehicleWatch, Verdict, record_line, went_through
+from fleet.agent.watch import Seen, VehicleWatch, Verdict, joined, record_line, went_through
 from fleet.setpoint_loop import Sample, SetpointLoop, StepReport
 from fleet.vehicle.link import Readiness, VehicleLink
 
@@ -42,6 +42,7 @@ class Tracking:
     placed: bool
     actual: Cell | None
     recorded: Cell | None
+    passing: tuple[Cell, ...]
     battery_pct: float
     late: str | None
     down: bool
@@ -123,10 +124,8 @@ class Tracking:
         """Lambda after a boundary: record where the vehicle was, and judge how late it came."""
         seen = self.watch.seen_cell("sample")  # None: no fresh position, a gap in the record
         flown = sample.planned if sample.late_s is not None else seen
-        if self.record is not None and seen is not None and flown is not None:
-            via = went_through(sample.passed, self.recorded, flown)
-            self.record.write(record_line(sample.step, self.me, flown, sample.planned, self.delta, via))
-            self.recorded = flown
+        if self.record is not None:
+            self._record(sample, flown if seen is not None else None)
         if self.down or self.watch.lost:
             return
         if self.late is not None and seen == self.stack.executor.cell and self.stack.executor.trajectory is None:
@@ -135,6 +134,17 @@ class Tracking:
             self._late(sample)
         self.mail.refusal = self._refusal()
         self._alarm("late", None if self.late is None else f"late: {self.late}")
+
+    def _record(self, sample: Sample, flown: Cell | None) -> None:
+        """One line of the flight record, with the cells passed since the last line (None: a gap, whose
+        cells go with the next line)."""
+        assert self.record is not None
+        self.passing = joined(self.passing, sample.passed)
+        if flown is None:
+            return
+        via = went_through(self.passing, self.recorded, flown)
+        self.record.write(record_line(sample.step, self.me, flown, sample.planned, self.delta, via))
+        self.recorded, self.passing = flown, ()
 
     def _on_time_again(self) -> None:
         log.warning("%s: its vehicle is where its plan ended: it takes tasks again", self.me)

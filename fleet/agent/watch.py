@@ -152,5 +152,10 @@ def went_through(passed: tuple[Cell, ...], before: Cell | None, after: Cell) -> 
     return passed[start:end]
 
 
+def joined(cells: tuple[Cell, ...], then: tuple[Cell, ...]) -> tuple[Cell, ...]:
+    """Cells seen, then the cells seen next: a cell at both ends of the join was one visit."""
+    return cells + (then[1:] if cells and then and cells[-1] == then[0] else then)
+
+
 def _cell_json(cell: Cell) -> str:
     return "[{}, {}, {}]".format(*cell)

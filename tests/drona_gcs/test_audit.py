@@ -93,6 +93,28 @@ def test_a_cell_passed_via_is_checked_against_the_others_within_delta_of_both_re
     assert audit(WS, passing + b_at_3).safe
 
 
+def test_two_drones_catching_up_through_one_cell_at_once_are_a_separation_violation() -> None:
+    """A stalled process lets all its drones fall behind at once, and they catch up at once: two of
+    them may pass the same cell between the same two records, where neither record shows it."""
+    # e, parked beside (2,0), darts into it and back between the same two records as d0 passes it.
+    darting = json.loads(record_line(1, "e", (2, 1, 0), None, 1, ((2, 0, 0),)))
+    crossing = [*caught_up([(1, 0), (2, 0)]), *flight("e", 0, [(2, 1)], [None]), darting]
+    assert [(v.cell, v.other) for v in audit(WS, crossing).violations] == [((2, 0, 0), "d0~e")]
+    later = json.loads(record_line(4, "e", (2, 1, 0), None, 1, ((2, 0, 0),)))  # steps 3-4: past Delta 1
+    apart = [*caught_up([(1, 0), (2, 0)]), *flight("e", 0, [(2, 1)] * 4, [None] * 4), later]
+    assert audit(WS, apart).safe
+
+
+def test_a_first_record_passing_cells_is_judged_too() -> None:
+    first = [json.loads(record_line(5, "d0", (0, 0, 0), None, 1, ((4, 4, 0),)))]
+    assert [(j.before, j.after) for j in audit(WS, first).jumps] == [((4, 4, 0), (0, 0, 0))]
+
+
+def test_a_cell_passed_next_to_a_parked_drone_is_one_violation_not_one_a_step() -> None:
+    parked = flight("b", 0, [(2, 0)], [None])
+    assert len(audit(WS, caught_up([(1, 0), (2, 0)]) + parked).violations) == 1
+
+
 def test_a_diagonal_move_is_a_jump() -> None:
     assert len(audit(WS, flight("d0", 0, [(0, 0), (1, 1)], [None, None])).jumps) == 1
 
@@ -111,8 +133,10 @@ def test_records_without_planned_are_still_read() -> None:
     ({"step": 0, "drone": "d0", "cell": [0, 0, 0], "planned": [0, 0], "delta": 0}, "planned"),
     ({"step": 0, "drone": "d0", "cell": None, "planned": None, "delta": 0}, "cell"),
     ({"step": "0", "drone": "d0", "cell": [0, 0, 0], "delta": 0}, "integer step"),
-    ({"step": 0, "drone": "d0", "cell": [0, 0, 0], "delta": 0, "via": [0, 0, 0]}, "each cell of via"),
-    ({"step": 0, "drone": "d0", "cell": [0, 0, 0], "delta": 0, "via": "[1, 0, 0]"}, "via must be a list"),
+    ({"step": 0, "drone": "d0", "cell": [0, 0, 0], "delta": 0, "via": [0, 0, 0]},
+     r"each cell of via must be \[x, y, z\] integers, got 0$"),
+    ({"step": 0, "drone": "d0", "cell": [0, 0, 0], "delta": 0, "via": [None]}, "integers, got null$"),
+    ({"step": 0, "drone": "d0", "cell": [0, 0, 0], "delta": 0, "via": None}, "via must be a list .* got null$"),
 ])
 def test_a_bad_record_is_named(record: dict[str, Any], named: str) -> None:
     with pytest.raises(ProblemError, match=named):

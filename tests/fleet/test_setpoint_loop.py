@@ -290,6 +290,19 @@ def test_an_arrival_counts_when_telemetry_reported_it_not_when_a_stalled_loop_lo
     assert sample is not None and sample.late_s == pytest.approx(0.05)
 
 
+def test_the_first_sample_passes_no_cell_the_vehicle_left_before_the_first_step() -> None:
+    """The link kept positions from before the loop began (the climb, a hover elsewhere): they are no
+    step's, and the first record must not say its vehicle passed them."""
+    executor = PlanExecutor((0, 0, 0))
+    vehicle = FakeVehicle(FRAME)
+    vehicle.over((3, 0, 0), at=1.0)
+    vehicle.over((0, 0, 0), at=2.0)
+    loop = SetpointLoop(vehicle, FRAME, executor, 0.0, 1.0, lambda: 0.0, lateness_s=0.3, link_clock=lambda: 2.5)
+    loop.take(0, 0.0)
+    sample = loop.sample(0)
+    assert sample is not None and sample.passed == ()
+
+
 @pytest.mark.parametrize("layer, on_time", [(0, True), (1, False)])
 def test_a_vehicle_climbing_under_its_lowest_layer_cell_is_in_it(layer: int, on_time: bool) -> None:
     """Below the grid (still climbing, or coming down to land) a vehicle is in its own column, where it

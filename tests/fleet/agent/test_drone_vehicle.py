@@ -219,16 +219,18 @@ def test_the_flight_record_has_only_fresh_sightings_never_a_stale_or_lost_vehicl
 
 
 def test_a_record_names_the_cells_passed_since_the_record_before_it() -> None:
-    """Catching up, the vehicle crossed (1,0,0) between two samples: the record says so, without the
-    two records' own cells."""
+    """Catching up, the vehicle crossed (1,0,0) and (2,0,0) over two samples, the first of which had no
+    fresh position (a gap in the record): the next record names both, without the records' own cells."""
     record, vehicle = io.StringIO(), vehicle_over_its_start()
     stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
     agent = DroneAgent(stack, FakeNode(), KEYS, vehicle, FRAME, lambda: 1000.0, record)
     agent.on_sample(Sample(0, (0, 0, 0), (0, 0, 0), 0.0, ((0, 0, 0),)))
-    vehicle.over((2, 0, 0), at=vehicle.at + 1.0)
-    agent.on_sample(Sample(1, (2, 0, 0), (2, 0, 0), 0.1, ((0, 0, 0), (1, 0, 0), (2, 0, 0))))
+    agent.on_sample(Sample(1, (1, 0, 0), (0, 0, 0), None, ((0, 0, 0), (1, 0, 0))))  # nothing fresh
+    vehicle.over((3, 0, 0), at=vehicle.at + 1.0)
+    agent.on_sample(Sample(2, (3, 0, 0), (3, 0, 0), 0.1, ((2, 0, 0), (3, 0, 0))))
     lines = [json.loads(line) for line in record.getvalue().splitlines()]
-    assert [(r["cell"], r.get("via")) for r in lines] == [([0, 0, 0], None), ([2, 0, 0], [[1, 0, 0]])]
+    assert [(r["step"], r["cell"], r.get("via")) for r in lines] == [
+        (0, [0, 0, 0], None), (2, [3, 0, 0], [[1, 0, 0], [2, 0, 0]])]
 
 
 def test_a_vehicle_later_than_lambda_holds_where_its_plan_ends_and_takes_no_task_until_on_time() -> None:
