@@ -14,6 +14,7 @@ from drona_gcs.stack.executor import PlanExecutor
 from drona_gcs.stack.mail import GoTo, MailPlanner, Phase
 from drona_gcs.stack.messages import HybridClock, Task
 from drona_gcs.stack.protocol import (
+    Brake,
     Braked,
     CoordinationProtocol,
     Event,
@@ -155,13 +156,15 @@ class DroneCore:
         plan flown enters one after a new plan could start; the rest must start before it does. A cell
         crossed by then cannot be helped: a stop past it would leave the leg for nothing."""
         threat, self.threat = self.threat, None
-        if (threat is None or self.stop_short is not None or self.braked is not None
-                or self.protocol.state is not State.EXECUTING or (entry := self._entry_of(threat)) is None):
+        if self.braked is not None or self.protocol.state is not State.EXECUTING:
             self.stop_short = None
             return []
+        if threat is None or self.stop_short is not None or (entry := self._entry_of(threat)) is None:
+            self.stop_short = None
+            return self._protocol(Brake())  # no rest planned: the plan stops short of the held cells now
         stop = self._short_of(threat)
         if stop is None:
-            return []
+            return self._protocol(Brake())
         return self._protocol(Reroute(self._hovering_task(stop, entry)))
 
     def _entry_of(self, threat: Threatened) -> int | None:

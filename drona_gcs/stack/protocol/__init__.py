@@ -131,6 +131,9 @@ settled here, and one message it sends is saved (the second point):
   round: my new rest avoids every answer, and a drone ahead of me in line plans
   against the plan I fly, which I do not change before it has planned. A cell
   crossed within ``lead_steps`` cannot be helped this way (found by the tester).
+  No rest planned at all, nor one that stops short: I brake at once (``Brake``),
+  short of the first held cell. Braked only the step before it, a peer that planned
+  in behind me on my plan, its clock ahead, heard too late (found by the tester).
 * **A vehicle that comes down by itself** (a failsafe, a pilot) stays where it came
   down. I then answer with that cell for good, tell every peer (``Grounded``), end a
   round under way with no plan and plan nothing more, and tell each peer that joins
@@ -202,6 +205,7 @@ from drona_gcs.stack.protocol.actions import (
     Threatened,
 )
 from drona_gcs.stack.protocol.events import (
+    Brake,
     ClockBound,
     Event,
     NewTask,
@@ -225,8 +229,9 @@ from drona_gcs.stack.protocol.rounds import ASK_AGAIN_STEPS
 from drona_gcs.stack.protocol.state import Move, State
 
 __all__ = [
-    "ASK_AGAIN_STEPS", "TRANSITIONS", "Action", "Braked", "Broadcast", "ClockBound", "CoordinationProtocol", "Event",
-    "Grounded", "Holding", "Move", "NewTask", "NextStep", "PeerAnnounced", "PeerBraked", "PeerDown", "PeerJoined",
-    "PeerLeft", "PeerLost", "PlanCompleted", "PlanFunction", "Present", "Proposed", "Released", "Relocated", "Reroute",
-    "RerouteFailed", "Send", "StartExecuting", "State", "TaskFailed", "Threatened", "VehicleDown", "VehicleLost",
+    "ASK_AGAIN_STEPS", "TRANSITIONS", "Action", "Brake", "Braked", "Broadcast", "ClockBound", "CoordinationProtocol",
+    "Event", "Grounded", "Holding", "Move", "NewTask", "NextStep", "PeerAnnounced", "PeerBraked", "PeerDown",
+    "PeerJoined", "PeerLeft", "PeerLost", "PlanCompleted", "PlanFunction", "Present", "Proposed", "Released",
+    "Relocated", "Reroute", "RerouteFailed", "Send", "StartExecuting", "State", "TaskFailed", "Threatened",
+    "VehicleDown", "VehicleLost",
 ]

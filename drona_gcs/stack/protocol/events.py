@@ -129,6 +129,12 @@ class Reroute:
     task: Task
 
 
+@dataclass(frozen=True)
+class Brake:
+    """No new rest of the plan I fly could be planned clear of the cells held for good on it (after
+    :class:`Threatened`): stop short of the first now, not a step before it."""
+
+
 Event = (NewTask | PlanCompleted | PeerLeft | PeerJoined | ReqForCurrentTraj | CurrentTraj | VehicleLost
-         | Relocated | Reroute | VehicleDown | PeerDown | PeerBraked | PeerAnnounced | Released | NextStep
+         | Relocated | Reroute | Brake | VehicleDown | PeerDown | PeerBraked | PeerAnnounced | Released | NextStep
          | PlanProposal | PlanAck | PlanRefusal | PlanDecision | ClockBound | PeerLost)

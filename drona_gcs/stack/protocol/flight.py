@@ -16,6 +16,7 @@ from drona_gcs.stack.protocol.actions import (
     Threatened,
 )
 from drona_gcs.stack.protocol.events import (
+    Brake,
     ClockBound,
     Event,
     NextStep,
@@ -172,6 +173,13 @@ class Flight(Knowledge):
 
     def _on_next_step(self, event: NextStep, now: int) -> list[Action]:
         return self._brake(now + 1) if self._enters_next(now) else []
+
+    def _on_brake(self, event: Brake, now: int) -> list[Action]:
+        """No new rest clear of the cells held for good on my plan: I stop short of the first now. Peers
+        that planned in behind me, on my plan, then have time to keep clear of where I stop; told the
+        step before I would enter it, one whose clock runs ahead has none (found by the tester)."""
+        entry = self._entry(now) if self.trajectory is not None else None
+        return self._brake(entry) if entry is not None else []
 
     def _steer_clear(self, drone: str, now: int) -> list[Action]:
         """News of ``drone`` holding cells for good, which plans made before did not avoid: if the plan

@@ -8,6 +8,7 @@ from drona_gcs.stack.messages import CurrentTraj, PlanAck, PlanDecision, PlanPro
 from drona_gcs.stack.protocol.actions import Action
 from drona_gcs.stack.protocol.confirming import failure_last
 from drona_gcs.stack.protocol.events import (
+    Brake,
     ClockBound,
     Event,
     NewTask,
@@ -153,6 +154,7 @@ TRANSITIONS: dict[State, dict[type, Move]] = {
         ClockBound: Move(CoordinationProtocol._on_clock_bound),  # may brake
         PeerLost: Move(CoordinationProtocol._on_peer_lost),  # may brake, or report Threatened
         NextStep: Move(CoordinationProtocol._on_next_step),  # may brake
+        Brake: Move(CoordinationProtocol._on_brake),  # no new rest: stop short of the cells held for good
     },
     State.REROUTING: {  # a round as COORDINATING's, while the plan is flown on
         **_UNCONFIRMED,

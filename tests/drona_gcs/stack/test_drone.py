@@ -189,6 +189,23 @@ def test_a_rest_that_found_no_plan_stops_short_only_of_a_held_cell_still_ahead(h
     assert stack.stop_short == ((3, 0, 0) if stops_short else None)  # where a new plan would start
 
 
+@pytest.mark.parametrize("tried", ["stopping short", "no threat left"])
+def test_a_plan_whose_rest_found_no_plan_at_all_brakes_short_of_the_held_cell_at_once(tried: str) -> None:
+    """Found by the tester (sweep 30687, a clock off, messages a step late): no rest of the plan flown
+    could be planned around a cell held for good ahead of it (the battery afforded none), and the drone
+    flew on to brake only the step before the cell. A peer that had planned in behind it on its plan,
+    its clock a step ahead, heard of the brake too late and met it. It brakes as soon as no rest is
+    planned: peers hear where it stops while they can still keep clear."""
+    stack = _flying_rerouted((4, 1, 0))
+    stack.protocol.peers_down["b"] = (4, 1, 0)
+    if tried == "stopping short":
+        stack.stop_short = (3, 0, 0)  # the rest to stop short found no plan either
+    else:
+        stack.threat = None
+    braked = of(Braked, stack._stop_short_instead())
+    assert [(b.trajectory.last, b.trajectory.end_step, b.held) for b in braked] == [((4, 0, 0), 5, (4, 1, 0))]
+
+
 def test_a_drone_starting_up_before_it_meets_its_peers_hands_back_nothing() -> None:
     ws = Workspace.build(size=(6, 6, 1), drones={"d1": (0, 0, 0), "d2": (5, 5, 0), "d3": (0, 5, 0)})
     stack = DroneStack("d3", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))

@@ -23,6 +23,7 @@ from drona_gcs.stack.messages import (
 )
 from drona_gcs.stack.protocol import (
     TRANSITIONS,
+    Brake,
     Broadcast,
     ClockBound,
     CoordinationProtocol,
@@ -71,11 +72,13 @@ from tests.drona_gcs.stack.protocol_helpers import (
 EVENT_TYPES: tuple[type, ...] = (NewTask, PlanCompleted, PeerLeft, PeerJoined, ReqForCurrentTraj, CurrentTraj,
                                  VehicleLost, Relocated, Reroute, VehicleDown, PeerDown, PeerBraked, PeerAnnounced,
                                  Released, NextStep, PlanProposal, PlanAck, PlanRefusal, PlanDecision, ClockBound,
-                                 PeerLost)
+                                 PeerLost, Brake)
 #: What Protocol 1 takes in each state (paper section 3.1); the rest is a protocol violation. A vehicle
 #: found again is not placed while a round is under way (its request carried where it was). Only a
-#: drone flying a plan plans its rest anew (Reroute), and that round ends when the plan does.
-REJECTED = {(State.COORDINATING, NewTask), (State.EXECUTING, NewTask), (State.REROUTING, NewTask),
+#: drone flying a plan plans its rest anew (Reroute), and that round ends when the plan does; a
+#: drone whose rest found no plan brakes (Brake) once the round is over, flying the plan.
+REJECTED = {*((state, Brake) for state in State if state is not State.EXECUTING),
+            (State.COORDINATING, NewTask), (State.EXECUTING, NewTask), (State.REROUTING, NewTask),
             (State.WAIT_FOR_TASK, PlanCompleted), (State.COORDINATING, PlanCompleted),
             (State.COORDINATING, Relocated), (State.REROUTING, Relocated),
             (State.WAIT_FOR_TASK, Reroute), (State.COORDINATING, Reroute), (State.REROUTING, Reroute),
@@ -120,6 +123,7 @@ def sample(event_type: type) -> Event:
         PlanDecision: PlanDecision("b", ID_B_LOW, Trajectory(3, (B, B)), flown=True),
         ClockBound: ClockBound(mine_off=False, outliers=frozenset({"b"})),
         PeerLost: PeerLost("b", ((3, 3, 0),)),
+        Brake: Brake(),
     }
     return samples[event_type]
 
