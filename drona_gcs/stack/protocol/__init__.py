@@ -152,6 +152,9 @@ settled here, and one message it sends is saved (the second point):
   it hears of it first. Plans keep Delta steps between drones, and the news travels in
   well under a period on a real link, so it does; with news slower than the window (the
   tester's ``max_delay`` allows it), it may not, and the tester judges that flight.
+  Where a peer braked is held from its arrival there less my lead, by the plans I make as
+  by the plan I fly: a plan made by the window alone went in first, then braked short of it
+  as soon as flown, where the braked peer had still to pass (found by the tester).
 * **A clock beyond the fleet's bound** (``ClockBound``, from the runtime's clock check). Mine off
   (most peers' clocks disagree with it), my steps are not the fleet's: I fly the plan I have to its
   end, or short of the first cell of any peer's plan (whenever it flies there), and hold there, plan

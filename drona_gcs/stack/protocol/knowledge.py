@@ -260,6 +260,18 @@ class Knowledge:
         return {f"{p}@{i}": Trajectory.stationary(cell, 0) for p in sorted(self.outliers & set(self.received))
                 for i, cell in enumerate(dict.fromkeys(self.received[p].cells)) if cell != sparing}
 
+    def _braked_holds(self) -> dict[str, Trajectory]:
+        """Where each member that braked holds, from when a plan flown must keep out of it (its arrival less
+        my lead: see :meth:`Flight._held_on_plan`): a plan made now keeps out of it as long, or it would
+        brake short of it as soon as flown, where the braked drone still has to pass (found by the tester)."""
+        held = {}
+        for p, cut in sorted(self.braked.items()):
+            if p in self.members:
+                since = max(cut.start_step, cut.end_step - self.lead_steps)
+                way = tuple(cut.at(t) for t in range(cut.start_step, since))
+                held[f"{p}~braked"] = Trajectory(cut.start_step, (*way, cut.last))
+        return held
+
     def _undecided(self) -> dict[str, Trajectory]:
         """Members' plans not decided yet (but the one a member answered with), which they may fly."""
         return {f"{p}?": proposal.trajectory for p, proposal in sorted(self.proposals.items())

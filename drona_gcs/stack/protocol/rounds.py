@@ -196,7 +196,7 @@ class Rounds(Confirming):
         here = flying.at(now) if flying is not None else self.location
         start = flying.at(start_step) if flying is not None else self.location
         psi = {**self.ghost_obstacles(sparing=here), **self._held_by_peers(now),
-               **{p: self.received[p] for p in sorted(self.members)},
+               **{p: self.received[p] for p in sorted(self.members)}, **self._braked_holds(),
                **self._undecided(), **self._held_for_outliers(sparing=here),
                **self._left_behind_obstacles(now, sparing=here),
                **{f"{p}!": Trajectory.stationary(c, now) for p, c in sorted(self.peers_down.items())},

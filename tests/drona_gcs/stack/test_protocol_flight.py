@@ -41,6 +41,7 @@ from drona_gcs.stack.protocol import (
     VehicleDown,
     VehicleLost,
 )
+from drona_gcs.workspace import Workspace
 from tests.drona_gcs.stack.protocol_helpers import (
     B_AWAY,
     GOAL,
@@ -426,3 +427,20 @@ def test_a_boundary_brakes_exactly_when_the_next_step_enters_a_held_cell(held_st
         braked = [a for a in proto.handle(NextStep(), now) if isinstance(a, Braked)]
         assert bool(braked) == enters, now
         assert all(b.trajectory.last == plan.at(now) for b in braked)
+
+
+def test_a_plan_made_after_a_peer_braked_keeps_out_of_where_it_holds_as_long_as_a_plan_flown_must() -> None:
+    """Found by the tester (sweep 30691, a clock off, messages two steps late): a plan flown keeps out of
+    where a braked peer holds from its arrival less my lead; a plan made by the plain window went in
+    before the peer came, so the drone braked short of it as soon as it flew, where the braked peer had
+    still to pass, and they met."""
+    corridor = Workspace.build(size=(7, 2, 1))
+    proto = machine({"a": (0, 0, 0), "b": (3, 1, 0)}, lead_steps=4, workspace=corridor)
+    cut = traj(0, *[(3, 1)] * 9, (3, 0), (3, 0))  # b hovers over the corridor, then holds (3, 0) from step 9
+    proto.handle(PeerBraked("b", cut), 0)
+    proto.handle(NewTask(Task(ID_A, (6, 0, 0))), 0)
+    plan = started(confirmed(proto, proto.handle(CurrentTraj("b", cut, ID_A), 0))).trajectory
+    held_from = cut.end_step - proto.lead_steps
+    assert all(plan.at(t) != (3, 0, 0) for t in range(held_from, plan.end_step + 1)), plan
+    proto.location, proto.trajectory = plan.first, plan
+    assert proto._held_on_plan(0) == []  # flown, it needs no brake
