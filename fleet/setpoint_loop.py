@@ -224,15 +224,19 @@ class SetpointLoop:
         if not self.arrivals or self.arrivals[0].step != step:
             return None
         arrival = self.arrivals.popleft()
-        passed = self._passed()
         if arrival.seen_at is None:
-            return Sample(step, arrival.cell, self._here(), None, passed)
-        return Sample(step, arrival.cell, arrival.cell, max(0.0, arrival.seen_at - arrival.boundary), passed)
+            due = self.epoch + step * self.tau + self.lateness
+            return Sample(step, arrival.cell, self._here(), None, self._passed(due))
+        return Sample(step, arrival.cell, arrival.cell, max(0.0, arrival.seen_at - arrival.boundary),
+                      self._passed(arrival.seen_at))
 
-    def _passed(self) -> tuple[Cell, ...]:
-        """The cells (as the flight record places them) of the positions reported since the last sample."""
-        positions = self.sink.positions_since(self.sampled_at)
-        self.sampled_at = self.link_clock()
+    def _passed(self, until: float) -> tuple[Cell, ...]:
+        """The cells (as the flight record places them) of the positions reported since the last sample's
+        sighting, up to this one's (local time ``until``): when the vehicle was seen in the step's cell, or
+        when the sample was due. Not up to now: lambda may span steps, and a process may sample late."""
+        reported_until = self.link_clock() - max(0.0, self.clock() - until)
+        positions = [p for p in self.sink.positions_since(self.sampled_at) if p.at <= reported_until]
+        self.sampled_at = max(self.sampled_at, reported_until)
         cells = (self.frame.recorded_cell(p.ned) for p in positions)
         return tuple(cell for cell, _ in itertools.groupby(c for c in cells if c is not None))
 

@@ -303,6 +303,27 @@ def test_the_first_sample_passes_no_cell_the_vehicle_left_before_the_first_step(
     assert sample is not None and sample.passed == ()
 
 
+def test_a_sample_taken_late_passes_only_the_cells_reported_before_it_was_due() -> None:
+    """A loaded process samples step 2 at 2.4 s, 0.1 s after it was due: the vehicle reported (2,0,0)
+    since, on its way on; that cell is the next sample's, not this one's (a bench of 32 drones was
+    recorded two cells ahead of its own records)."""
+    executor = PlanExecutor((0, 0, 0))
+    executor.start(Trajectory(1, ((0, 0, 0), (1, 0, 0), (2, 0, 0))))
+    vehicle = FakeVehicle(FRAME, (0, 0, 0), at=100.0)
+    now = [0.0]
+    loop = SetpointLoop(vehicle, FRAME, executor, 0.0, 1.0, lambda: now[0], lateness_s=0.3,
+                        link_clock=lambda: 100.0 + now[0])
+    for step in range(3):
+        loop.take(step, float(step))
+    for step in range(2):
+        loop.sample(step)
+    vehicle.over((1, 0, 0), at=102.2)
+    vehicle.over((2, 0, 0), at=102.35)
+    now[0] = 2.4
+    late = loop.sample(2)
+    assert late is not None and late.passed == ((1, 0, 0),)
+
+
 @pytest.mark.parametrize("layer, on_time", [(0, True), (1, False)])
 def test_a_vehicle_climbing_under_its_lowest_layer_cell_is_in_it(layer: int, on_time: bool) -> None:
     """Below the grid (still climbing, or coming down to land) a vehicle is in its own column, where it
