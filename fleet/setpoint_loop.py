@@ -66,7 +66,7 @@ class Sample:
     planned: Cell  #: the cell of the step
     actual: Cell | None  #: ``planned`` if seen there in time, else where it is (None: no cell)
     late_s: float | None  #: how long after the boundary it was first seen in ``planned`` (None: not by lambda)
-    #: every cell telemetry put it in since the previous sample, in order, each once per visit
+    #: every cell telemetry put it in since the previous sample's sighting, in order, each once per visit
     passed: tuple[Cell, ...] = ()
 
 
@@ -112,7 +112,7 @@ class SetpointLoop:
         #: takes a boundary: the executor's own tick, or the whole drone stack's step (which ticks it)
         self.tick: Callable[[int], Sequence[object]] = tick or executor.tick
         self.suspended = False  #: the vehicle is lost: nothing is sent until its agent says where it is
-        self.sampled_at = -math.inf  #: the link time of the last sample: positions after it are news
+        self.sampled_at = -math.inf  #: the link time the last sample's cells end at: positions after it are news
 
     def step_at(self, t: float) -> int:
         """The step under way at local time ``t``."""
