@@ -138,10 +138,9 @@ def record_line(step: int, drone: str, cell: Cell, planned: Cell | None, delta: 
                 via: tuple[Cell, ...] = ()) -> str:
     """One line of the flight record (``--record``): where telemetry put the vehicle at ``step``, the
     cell its plan put it in, and the cells it went through since the last record (see drona_gcs.audit)."""
-    x, y, z = cell
     plan = "null" if planned is None else _cell_json(planned)
     through = f', "via": [{", ".join(map(_cell_json, via))}]' if via else ""
-    return (f'{{"step": {step}, "drone": "{drone}", "cell": [{x}, {y}, {z}], "planned": {plan}, "delta": {delta}'
+    return (f'{{"step": {step}, "drone": "{drone}", "cell": {_cell_json(cell)}, "planned": {plan}, "delta": {delta}'
             f'{through}}}\n')
 
 
