@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import collections
 import enum
+import itertools
 import logging
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
@@ -87,7 +88,8 @@ class Trail:
 
     def since(self, at: float) -> list[Position]:
         """The positions reported after link time ``at``."""
-        return [p for p in self._positions if p.at > at]
+        newer = itertools.takewhile(lambda p: p.at > at, reversed(self._positions))
+        return list(newer)[::-1]  # from the newest back: a look wants the few since the last
 
     def clear(self) -> None:
         self._positions.clear()
