@@ -95,7 +95,8 @@ def check_pair(mine: Trajectory, other: Trajectory, delta: int, other_id: str = 
     step by step passes the last step it can judge.
     """
     n = mine.start_step if from_step is None else from_step
-    horizon = max(mine.end_step, other.end_step) + delta + 1 if until is None else until
+    # Both still from there on: one step past it tells whether they share a cell for good.
+    horizon = max(mine.end_step, other.end_step, n - 1) + delta + 1 if until is None else until
     found: list[Violation] = []
     theirs = set(other.cells)  # both a collision and a swap put me in a cell of theirs
     if theirs.isdisjoint(mine.cells):

@@ -77,6 +77,8 @@ class StackConfig:
     recharged_mark: float = 95.0
     lead_steps: int | None = None  #: steps between planning and a plan's start; default Delta + 1
     hover_lead_steps: int | None = None  #: the same for a drone in the air (at most ``lead_steps``); default that
+    #: a task's plan is proposed at once, made against what the drone knows; off, every task asks first
+    propose_at_once: bool = True
 
     def __deepcopy__(self, memo: dict[int, object]) -> StackConfig:
         return self

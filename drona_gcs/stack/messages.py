@@ -131,6 +131,8 @@ class PlanProposal:
     trajectory: Trajectory
     #: the members that must hold it: the plan avoided the others as gone, where it last knew them
     members: tuple[str, ...] = ()
+    #: made against what the sender knew, before any round (a task has at most one, and a round's after it)
+    direct: bool = False
 
 
 @dataclass(frozen=True)
@@ -142,6 +144,7 @@ class PlanAck:
     task_id: TaskId
     trajectory: Trajectory
     holds: tuple[Cell, ...] = ()
+    direct: bool = False  #: of the task's direct proposal (not its round's)
 
 
 @dataclass(frozen=True)
@@ -153,6 +156,7 @@ class PlanRefusal:
     sender: str
     task_id: TaskId
     gone: tuple[tuple[str, tuple[Cell, ...]], ...] = ()
+    direct: bool = False  #: of the task's direct proposal (not its round's)
 
 
 @dataclass(frozen=True)

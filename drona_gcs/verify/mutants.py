@@ -98,11 +98,17 @@ _MAIL_PLANNERS: dict[str, type[MailPlanner]] = {"no-battery-check": NoBatteryChe
 _EXECUTORS: dict[str, type[PlanExecutor]] = {"executor-early": ExecutorEarly}
 
 
+#: Bugs of a round's requests and answers: planted in a drone that asks first, for a round is otherwise only
+#: what a direct proposal not held falls back to.
+_ROUND_BUGS = frozenset({"stale-trajectory", "tie-break-reversed", "answer-while-coordinating"})
+
+
 def plant(stack: DroneStack, bugs: Collection[str]) -> None:
     """Give ``stack`` the seeded ``bugs`` (at most one per machine; skip-delta is the planner's)."""
     for bug in bugs:
         if bug in _PROTOCOLS:
             stack.protocol.__class__ = _PROTOCOLS[bug]
+            stack.protocol.propose_at_once = bug not in _ROUND_BUGS
         elif bug in _MAIL_PLANNERS:
             stack.mail.__class__ = _MAIL_PLANNERS[bug]
         elif bug in _EXECUTORS:

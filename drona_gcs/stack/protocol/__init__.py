@@ -63,6 +63,22 @@ settled here, and one message it sends is saved (the second point):
   before I plan. I send it my request, which makes me a member again there (see
   above), and wait for its answer. Taken as its answer, I planned with its old
   location while it flew a new plan (found by the tester's crash and restart).
+* **A task may skip the asking** (``propose_at_once``, on by default). What I know of every member
+  (its last decision, announcement or answer, and the proposals I hold) stands for its answer: I plan
+  against it and propose at once (``PlanProposal.direct``). The confirming below checks that plan where
+  it counts: each member acks it only if it keeps clear of what the member flies and proposes, and
+  says what it flies, which the plan must keep clear of too (and which it avoided, for whoever checks).
+  Not held as it is (a refusal, an ack across it, too late), the task goes on as a round with the same
+  id: the proposal is not decided until the round is, so peers hold it meanwhile, and the requests
+  that came meanwhile are taken as the round takes any (held for the decision instead, a drone behind
+  me in line and I waited on each other until asked again). Acks and refusals name which proposal of
+  the task they answer, and a task's direct proposal never replaces its round's at a peer. Two drones
+  that proposed at once across each other would each refuse the other's: the one behind in line acks
+  the other's and asks instead. Two plans flown that neither waited for were each checked against the
+  other by its own drone (the window is symmetric). Without a member unheard from since it came back,
+  one whose clock is off, or a lost vehicle (what only an answer says), and with at least one member.
+  An answer older than a plan its sender decided since (a direct plan my round did not hold back) is
+  not planned with. A round once cost 5(N-1) messages; a task held at once costs 3(N-1).
 * **Psi is rebuilt for every task.** Answers from an earlier round describe
   plans that may have been replaced since; planning with them is the race the
   paper's model checker found (the tester seeds this bug).

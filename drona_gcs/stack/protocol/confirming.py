@@ -4,7 +4,7 @@ the peers' it holds, acks or refuses)."""
 from __future__ import annotations
 
 from drona_gcs.motion import Trajectory
-from drona_gcs.stack.messages import PlanAck, PlanDecision, PlanProposal, PlanRefusal, ReqForCurrentTraj
+from drona_gcs.stack.messages import PlanAck, PlanDecision, PlanProposal, PlanRefusal, ReqForCurrentTraj, TaskId
 from drona_gcs.stack.protocol.actions import Action, Broadcast, RerouteFailed, Send, StartExecuting, TaskFailed
 from drona_gcs.stack.protocol.events import (
     ClockBound,
@@ -35,10 +35,18 @@ class Confirming(Flight):
         assert self.task is not None
         trajectory = proposed.proposal.trajectory
         self._enter(State.EXECUTING)
-        self.proposed, self.trajectory = None, trajectory
+        self.proposed, self.trajectory, self.unsettled = None, trajectory, None
         return [StartExecuting(self.task, trajectory, dict(proposed.psi)),
                 Broadcast(PlanDecision(self.me, self.task.id, trajectory, flown=True)),
                 *self._release_pending(trajectory)]
+
+    def _drop(self, reason: str, now: int) -> list[Action]:
+        """My plan will not be held as it is: a direct one is asked for instead, a round's abandoned."""
+        assert self.proposed is not None
+        return self._ask_instead(now) if self.proposed.direct else self._abandon(reason, now)
+
+    def _ask_instead(self, now: int) -> list[Action]:
+        raise NotImplementedError  # a round asks: see Rounds
 
     def _abandon(self, reason: str, now: int) -> list[Action]:
         """Not every member held my plan in time (or the fleet changed since it was made): I fly what I
@@ -52,7 +60,7 @@ class Confirming(Flight):
             self._enter(State.WAIT_FOR_TASK)
             self.task = None
             failed = TaskFailed(task, reason)
-        self.proposed = None
+        self.proposed, self.unsettled = None, None
         flown = self.current_trajectory(now)
         return [Broadcast(PlanDecision(self.me, task.id, flown, flown=False)), *self._release_pending(flown), failed]
 
@@ -60,12 +68,14 @@ class Confirming(Flight):
         """A member holds my plan (it checked it against what it knows: see :meth:`_clashes`), and says what
         it flies and holds: a plan across that is dropped (the acker's check runs on its clock)."""
         proposed = self.proposed
-        if proposed is None or event.task_id != proposed.proposal.task_id:
+        if proposed is None or (event.task_id, event.direct) != (proposed.proposal.task_id, proposed.direct):
             return []
         mine, since = proposed.proposal.trajectory, max(now, proposed.starts)
         theirs = [event.trajectory, *(Trajectory.stationary(c, 0) for c in event.holds)]
         if any(meets(mine, other, self.delta, since) for other in theirs):
-            return self._abandon(f"{event.sender} flies or holds across it", now)
+            return self._drop(f"{event.sender} flies or holds across it", now)
+        if proposed.direct:  # made against what I knew of it: what it says it flies is what the plan avoids
+            self.proposed = proposed.avoiding(event.sender, event.trajectory)
         self.acked.add(event.sender)
         return self._go_if_held(now)
 
@@ -74,20 +84,19 @@ class Confirming(Flight):
         them too from now (our views of where it stopped differ: its is the wider), so the next plan keeps
         clear of them; and I drop this one now rather than at its start."""
         proposed = self.proposed
-        if proposed is None or event.task_id != proposed.proposal.task_id:
+        if proposed is None or (event.task_id, event.direct) != (proposed.proposal.task_id, proposed.direct):
             return []
         for drone, cells in event.gone:
             if drone in self.peers and drone not in self.members and drone != self.me:
                 self.hearsay[drone] = self.hearsay.get(drone, frozenset()) | frozenset(cells)
-        return self._abandon(f"{event.sender} will not hold it: it flies, holds or knows of a drone across it",
-                             now)
+        return self._drop(f"{event.sender} will not hold it: it flies, holds or knows of a drone across it", now)
 
     def _on_next_step_while_confirming(self, event: NextStep, now: int) -> list[Action]:
         """The next boundary would pass my plan's start: too late to fly it."""
         assert self.proposed is not None
         rerouting = self.proposed.rerouting
         if self.proposed.starts <= now + 1:
-            actions = self._abandon("not every peer held my plan in time", now)
+            actions = self._drop("not every peer held my plan in time", now)
         elif rerouting and self._enters_next(now):
             actions = self._abandon("braked", now)
         else:
@@ -134,10 +143,27 @@ class Confirming(Flight):
         self._hold_proposal(event)
         if sender in self.outliers:
             return []  # not flown: it runs out of time (an outlier's steps are not ours)
+        asked: list[Action] = []
         if self.off_since is None and self._clashes(event, now):
             # (my clock off, my steps say nothing: the cells my ack holds for good do)
-            return [Send(sender, PlanRefusal(self.me, event.task_id, self._gone_there(event, now)))]
-        return [Send(sender, PlanAck(self.me, event.task_id, self.current_trajectory(now), self.holds()))]
+            if not self._yields_to(event, now):
+                return [Send(sender, PlanRefusal(self.me, event.task_id, self._gone_there(event, now), event.direct))]
+            asked = self._ask_instead(now)
+        elif self.proposed is not None and (event.direct or self.proposed.direct):
+            # Neither plan waited for the other (a direct one asks nobody): mine keeps clear of it, checked here.
+            self.proposed = self.proposed.avoiding(f"{sender}?", event.trajectory)
+        ack = PlanAck(self.me, event.task_id, self.current_trajectory(now), self.holds(), event.direct)
+        return [Send(sender, ack), *asked]
+
+    def _yields_to(self, proposal: PlanProposal, now: int) -> bool:
+        """Whether my direct proposal gives way to ``proposal``, which comes before it in line and meets only it:
+        two drones that proposed at once across each other would each refuse the other's."""
+        mine, task = self.proposed, self.task
+        return (mine is not None and task is not None and mine.direct and self._outranks(proposal.task_id, task.id)
+                and not self._clashes(proposal, now, mine_too=False))
+
+    def _outranks(self, theirs: TaskId, mine: TaskId) -> bool:
+        return theirs < mine
 
     def _decided_already(self, proposal: PlanProposal) -> bool:
         decided = self.decided.get(proposal.sender)
@@ -146,18 +172,20 @@ class Confirming(Flight):
     def _hold_proposal(self, proposal: PlanProposal) -> None:
         """Held until decided (the newest a drone proposed: it may fly it)."""
         held = self.proposals.get(proposal.sender)
-        if held is None or not held.task_id.newer_than(proposal.task_id):
+        after_its_round = held is not None and held.task_id == proposal.task_id and proposal.direct > held.direct
+        if (held is None or not held.task_id.newer_than(proposal.task_id)) and not after_its_round:
             self.proposals[proposal.sender] = proposal
 
-    def _clashes(self, proposal: PlanProposal, now: int) -> bool:
+    def _clashes(self, proposal: PlanProposal, now: int, mine_too: bool = True) -> bool:
         """Whether ``proposal`` comes within the window of what I fly, or enters a cell where a drone its
         sender held as gone may be for good, as I know it: a member of mine may stop anywhere on the rest
         of what it flies or proposed (were it gone), a departed drone anywhere on its rest. A partition
         leaves views apart, and two plans made by majorities that overlap meet at a drone that holds
-        both, here. Confirming, I may fly my proposal or what I fly now: it keeps clear of both."""
+        both, here. Confirming, I may fly my proposal or what I fly now: it keeps clear of both (``mine_too``:
+        of what I fly alone)."""
         theirs = proposal.trajectory
         cells = {c for _, rest in self._gone_there(proposal, now) for c in rest}
-        mine = [] if self.proposed is None else [self.proposed.proposal.trajectory]  # I may fly either
+        mine = [self.proposed.proposal.trajectory] if self.proposed is not None and mine_too else []  # I may fly either
         flown = [self.current_trajectory(now), *mine,
                  *(Trajectory.stationary(c, 0) for c in {*self.holds(), *cells})]
         since = max(now, theirs.start_step)  # what it flew already was held before
@@ -187,6 +215,8 @@ class Confirming(Flight):
         if held is not None and not held.task_id.newer_than(event.task_id):
             del self.proposals[sender]
         self.heard(sender, event.trajectory, now)  # its word on what it flies, the plan or not
+        if event.flown:
+            self.flown[sender] = event.trajectory
         if event.flown and sender in self.received:  # what it answered this round, or its request carried, is old
             self.received[sender] = self._news(sender, event.trajectory, now)
         return []

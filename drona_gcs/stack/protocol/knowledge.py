@@ -4,7 +4,7 @@ with, what it holds for good, whether it may plan. Its state changes in one plac
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from drona_gcs.motion import Trajectory
 from drona_gcs.planner import Plan
@@ -27,6 +27,13 @@ class Proposed:
     psi: tuple[tuple[str, Trajectory], ...]  #: what it avoided
     starts: int  #: the step its new part starts: it is flown only if every member holds it before
     rerouting: bool  #: a new rest of the plan I fly (which I fly on meanwhile)
+    #: made against what I knew, nobody asked (see :meth:`.rounds.Rounds._on_new_task`): dropped, a round asks
+    direct: bool = False
+
+    def avoiding(self, drone: str, trajectory: Trajectory) -> Proposed:
+        """The same plan, known to keep clear of ``trajectory`` of ``drone`` too (a member's ack said it flies
+        that, or I held its proposal while confirming): what the plan avoided, for whoever checks it."""
+        return replace(self, psi=(*((k, t) for k, t in self.psi if k != drone), (drone, trajectory)))
 
 
 @dataclass
@@ -41,6 +48,8 @@ class Knowledge:
     lead_steps: int = 1
     delta: int = 0  #: the planner's skew window, in steps: a plan keeps that clear of every other drone
     hover_lead_steps: int | None = None  #: ``lead_steps`` for a drone in the air, which climbs no more
+    #: a new task's plan is made against what I know and proposed at once (a round asks if it is not held)
+    propose_at_once: bool = True
     _state: State = field(default=State.WAIT_FOR_TASK, init=False)  #: read as :attr:`state`
     #: the event being taken, while a handler runs: what :meth:`_enter` checks a change against
     _taking: Taking | None = field(default=None, init=False, repr=False, compare=False)
@@ -49,6 +58,8 @@ class Knowledge:
     members: set[str] = field(default_factory=set)
     received: dict[str, Trajectory] = field(default_factory=dict)  #: R_recv with Psi
     pending: dict[str, TaskId] = field(default_factory=dict)  #: R_pend, with their task ids
+    #: the requests in R_pend while a direct proposal of mine waits: taken anew by the round that may follow
+    deferred: dict[str, ReqForCurrentTraj] = field(default_factory=dict)
     ghosts: dict[str, Trajectory] = field(default_factory=dict)  #: departed drones, kept as obstacles
     known: dict[str, Trajectory] = field(default_factory=dict)  #: last trajectory heard of each peer
     newest: dict[str, TaskId] = field(default_factory=dict)  #: the newest request id seen from each drone
@@ -66,6 +77,7 @@ class Knowledge:
     acked: set[str] = field(default_factory=set)  #: the members that hold it
     proposals: dict[str, PlanProposal] = field(default_factory=dict)  #: peers' plans not yet decided
     decided: dict[str, TaskId] = field(default_factory=dict)  #: each peer's newest decided proposal
+    flown: dict[str, Trajectory] = field(default_factory=dict)  #: each peer's newest plan decided flown
     #: departed drones' proposals, undecided when they left: each may fly it, so its rest is held for good
     maybe_flown: dict[str, Trajectory] = field(default_factory=dict)
     #: cells a member holds for good for a drone gone here too (its refusal said): held here as well
@@ -80,6 +92,9 @@ class Knowledge:
     #: members back since they left, not heard from since: held where they may be until they say (Present)
     unreported: set[str] = field(default_factory=set)
     cut: Trajectory | None = None  #: my last brake: the plan I cut short, held at its end
+    #: the task whose direct proposal was dropped undecided (a round asks instead): peers hold it until the
+    #: task's decision, which a round ending in no plan must then send too
+    unsettled: TaskId | None = None
     asked_at: int = 0  #: the step this round last asked the members that have not answered
 
     def __post_init__(self) -> None:
@@ -193,6 +208,9 @@ class Knowledge:
         if decided is not None and not event.task_id.newer_than(decided):
             return False
         self.newest[event.sender] = event.task_id
+        held = self.proposals.get(event.sender)
+        if held is not None and held.direct and held.task_id == event.task_id:
+            del self.proposals[event.sender]  # it asks instead: that proposal is never flown
         pledged = self.pledged.get(event.sender)
         if pledged is not None and event.task_id.newer_than(pledged):
             del self.pledged[event.sender]  # a new round of its: the one I waited on is over
@@ -283,7 +301,7 @@ class Knowledge:
                 if peer in self.members for i, cell in enumerate(cells)}
 
     def _release_pending(self, trajectory: Trajectory, proposal: PlanProposal | None = None) -> Iterable[Action]:
-        pending, self.pending = self.pending, {}
+        pending, self.pending, self.deferred = self.pending, {}, {}
         holds = self.holds()
         return [Send(peer, CurrentTraj(self.me, trajectory, task_id, holds, proposal))
                 for peer, task_id in pending.items()]

@@ -74,6 +74,8 @@ class CoordinationProtocol(Rounds):
         if event.sender == self.me or not self._current(event):
             return []
         self.pending[event.sender] = event.task_id
+        if self.proposed is not None and self.proposed.direct:
+            self.deferred[event.sender] = event
         return []
 
     def _on_news_while_confirming(self, event: Event, now: int) -> list[Action]:
@@ -95,6 +97,8 @@ _ENDS_REROUTE = frozenset({State.CONFIRMING, State.EXECUTING})
 _DECIDES = frozenset({State.EXECUTING, State.WAIT_FOR_TASK})
 _RESTS = frozenset({State.WAIT_FOR_TASK})
 _BRAKES = frozenset({State.EXECUTING})  #: a brake ends a round for a new rest
+#: my proposal is decided, or (a direct one, not held as it is) a round asks instead
+_DECIDES_OR_ASKS = _DECIDES | frozenset({State.COORDINATING}) | _ENDS_ROUND
 
 #: News every state takes alike: a peer's plan, announced, proposed or decided; a departed drone released.
 _NEWS: dict[type, Move] = {
@@ -171,9 +175,10 @@ TRANSITIONS: dict[State, dict[type, Move]] = {
     },
     State.CONFIRMING: {  # planned: the plan is flown once every member holds it, or dropped
         **_NEWS,
-        PlanAck: Move(CoordinationProtocol._on_ack, _DECIDES),  # flown once every member's came
-        PlanRefusal: Move(CoordinationProtocol._on_refusal, _DECIDES),  # dropped
-        NextStep: Move(CoordinationProtocol._on_next_step_while_confirming, _DECIDES),  # too late: dropped
+        PlanProposal: Move(CoordinationProtocol._on_proposal, _DECIDES_OR_ASKS),  # a direct one may give way
+        PlanAck: Move(CoordinationProtocol._on_ack, _DECIDES_OR_ASKS),  # flown once every member's came
+        PlanRefusal: Move(CoordinationProtocol._on_refusal, _DECIDES_OR_ASKS),  # dropped
+        NextStep: Move(CoordinationProtocol._on_next_step_while_confirming, _DECIDES_OR_ASKS),  # too late: dropped
         ReqForCurrentTraj: Move(CoordinationProtocol._on_request_while_confirming, _DECIDES),  # answered once decided
         CurrentTraj: Move(CoordinationProtocol._ignore),
         PlanCompleted: Move(CoordinationProtocol._on_completed_while_confirming, _DECIDES),  # the rest dropped, I rest

@@ -21,8 +21,8 @@ def meets(mine: Trajectory, other: Trajectory, delta: int, from_step: int) -> bo
     a swap at a step of mine from ``from_step`` on, within ``delta`` steps of the other's."""
     cells = other.cells
     start, end = other.start_step, other.end_step
-    if end + delta < from_step:  # by then the other is only its last cell
-        return from_step <= max(mine.end_step, end) + delta + 1 and _enters(mine, cells[-1], from_step)
+    if end + delta < from_step:  # by then the other is only its last cell (for good: so am I, later on)
+        return _enters(mine, cells[-1], from_step)
     if set(cells).isdisjoint(mine.cells):
         return False
     first, last = cells[0], cells[-1]

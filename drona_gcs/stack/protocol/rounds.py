@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from drona_gcs.errors import GoalCutOff, NoPlanFound
 from drona_gcs.motion import Trajectory
-from drona_gcs.stack.messages import CurrentTraj, PlanDecision, PlanProposal, ReqForCurrentTraj, Task, TaskId
+from drona_gcs.stack.messages import CurrentTraj, PlanDecision, PlanProposal, ReqForCurrentTraj, Task
 from drona_gcs.stack.protocol.actions import Action, Broadcast, RerouteFailed, Send, TaskFailed
 from drona_gcs.stack.protocol.confirming import Confirming
 from drona_gcs.stack.protocol.events import NewTask, NextStep, PeerJoined, PeerLeft, Reroute
@@ -20,7 +20,20 @@ class Rounds(Confirming):
     """Protocol 1's handlers of rounds: collecting every member's trajectory, then planning against them."""
 
     def _on_new_task(self, event: NewTask, now: int) -> list[Action]:
+        if self._may_propose_at_once():
+            self._enter(State.COORDINATING)
+            self.task, self.pending = event.task, {}
+            self._forget_answers()
+            self.received = {p: self.known[p] for p in sorted(self.members)}
+            planned = self._plan_if_ready(now, direct=True)
+            if self.state is not State.COORDINATING:
+                return planned
         return self._begin_round(event.task, State.COORDINATING, now)
+
+    def _may_propose_at_once(self) -> bool:
+        """Whether what I know of every member is its word (nobody is back unheard from, off the clock, or
+        holding cells its answer alone would name): then I propose a plan made against it at once."""
+        return self.propose_at_once and bool(self.members) and not (self.unreported or self.outliers or self.peers_lost)
 
     def _on_reroute(self, event: Reroute, now: int) -> list[Action]:
         return self._begin_round(event.task, State.REROUTING, now)
@@ -34,6 +47,28 @@ class Rounds(Confirming):
             return self._no_plan(NoPlanFound(self._no_majority()), now)
         actions: list[Action] = [Broadcast(self._request(now))]
         return actions + self._plan_if_ready(now)
+
+    def _ask_instead(self, now: int) -> list[Action]:
+        """My direct proposal is dropped undecided: the task goes on as a round, with the same id. Those who
+        held the proposal hold it until the round's decision. The requests that came meanwhile are taken as
+        the round takes any: one ahead of me in line has my request as my answer, one behind waits for my
+        plan, its request its answer (held until decided, they would wait on each other until asked again)."""
+        task = self.task
+        assert task is not None and self.proposed is not None
+        self.proposed, self.acked, self.unsettled = None, set(), task.id
+        deferred, self.deferred = self.deferred, {}
+        actions = self._begin_round(task, State.COORDINATING, now)
+        for _, request in sorted(deferred.items()):
+            actions += self._on_request_again(request, now)
+        return actions
+
+    def _on_request_again(self, request: ReqForCurrentTraj, now: int) -> list[Action]:
+        if self.coordinating:
+            return self._on_request_while_coordinating(request, now)
+        if self.state is State.CONFIRMING:  # planned at once: nobody left to wait on
+            self.pending[request.sender] = request.task_id
+            return []
+        return self._answer(request, now)  # the round ended with no plan: my location
 
     def _forget_answers(self) -> None:
         """A new round starts from no answers: last round's trajectories may have changed since."""
@@ -86,9 +121,6 @@ class Rounds(Confirming):
         """``sender``'s answer this round, and my word from now on on what it flies."""
         self.received[sender] = self.known[sender] = self._news(sender, trajectory, now)
 
-    def _outranks(self, theirs: TaskId, mine: TaskId) -> bool:
-        return theirs < mine
-
     def _on_reply(self, event: CurrentTraj, now: int) -> list[Action]:
         assert self.task is not None
         if event.in_reply_to != self.task.id or event.sender not in self.members:
@@ -96,6 +128,8 @@ class Rounds(Confirming):
         sender, proposal = event.sender, event.proposal
         if proposal is not None and self._decided_already(proposal):
             self.received[sender] = self.known[sender]  # its decision came first: it said what it flies
+        elif proposal is None and self._flown_since(sender, event.trajectory):
+            self.received[sender] = self.known[sender]
         else:
             self._answered(sender, event.trajectory, now)
             if proposal is not None:
@@ -105,6 +139,12 @@ class Rounds(Confirming):
                 self.pledged.pop(sender, None)
         self.peer_holds[sender] = event.holds
         return self._plan_if_ready(now)
+
+    def _flown_since(self, sender: str, answer: Trajectory) -> bool:
+        """Whether ``sender`` decided to fly a plan since it answered (a direct plan, which my round did not
+        hold back; messages reorder), and that is still the last I know of it."""
+        flown = self.flown.get(sender)
+        return flown is not None and flown.start_step > answer.start_step and self.known[sender] == flown
 
     def _on_decision_while_coordinating(self, event: PlanDecision, now: int) -> list[Action]:
         """A decision I wait for (see :meth:`_wait_for_decisions`) is the answer it stood for."""
@@ -184,7 +224,8 @@ class Rounds(Confirming):
             return [told, Send(event.drone, self._request(now))]
         return [told]
 
-    def _plan_if_ready(self, now: int) -> list[Action]:
+    def _plan_if_ready(self, now: int, direct: bool = False) -> list[Action]:
+        """``direct``: the answers are what I know; no plan found, nothing is done (a round asks)."""
         if not self.members.issubset(self.received):
             return []
         assert self.task is not None
@@ -209,11 +250,12 @@ class Rounds(Confirming):
         try:
             plan = self.plan(start, task.goal, start_step, psi, max_length)
         except NoPlanFound as exc:
-            return [] if self._wait_for_decisions() else self._no_plan(exc, now)
+            return [] if direct or self._wait_for_decisions() else self._no_plan(exc, now)
         trajectory = flying.spliced(plan.trajectory) if flying is not None else plan.trajectory
-        proposal = PlanProposal(self.me, task.id, trajectory, tuple(sorted(self.members)))
+        proposal = PlanProposal(self.me, task.id, trajectory, tuple(sorted(self.members)), direct)
         self._enter(State.CONFIRMING)
-        self.proposed = Proposed(proposal, tuple(psi.items()), plan.trajectory.start_step, flying is not None)
+        self.proposed = Proposed(proposal, tuple(psi.items()), plan.trajectory.start_step, flying is not None,
+                                 direct)
         self.acked = set()
         # The peers that waited for me plan now, against what I fly and what I propose alike (held as
         # undecided): whichever I end up flying, their plans keep clear of it.
@@ -251,4 +293,7 @@ class Rounds(Confirming):
         self._enter(State.WAIT_FOR_TASK)
         self.task = None
         failed = TaskFailed(task, str(exc), isinstance(exc, GoalCutOff))
-        return [*self._release_pending(self.current_trajectory(now)), failed]
+        flown = self.current_trajectory(now)
+        settled = [Broadcast(PlanDecision(self.me, task.id, flown, flown=False))] if self.unsettled == task.id else []
+        self.unsettled = None
+        return [*settled, *self._release_pending(flown), failed]

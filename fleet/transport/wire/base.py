@@ -24,7 +24,7 @@ from drona_gcs.stack.messages import TaskId
 #: 10: ``held`` lists mail handed back that no peer holds yet, and a status says ``handed_back``; ``refuse``.
 #: 11: ``mail_clear``, the service's clearance to take a mail on board.
 #: 13: a host's drones send to one drone on ``proto/<host>/<to>``, several messages in one.
-VERSION: Final = 14
+VERSION: Final = 15
 
 CellList = Annotated[list[int], msgspec.Meta(min_length=3, max_length=3)]
 #: A mail id is a Zenoh key chunk (mail/status/<id>); \Z, not $: "$" would let a final newline through.

@@ -31,9 +31,9 @@ def from_core(message: Message) -> ProtocolBody:
         return proposing(message, {})
     if isinstance(message, PlanAck):
         return Ack(task_id=WireTaskId.of(message.task_id), trajectory=WireTrajectory.of(message.trajectory),
-                   holds=message.holds)
+                   holds=message.holds, direct=message.direct)
     if isinstance(message, PlanRefusal):
-        return Refuse(task_id=WireTaskId.of(message.task_id), gone=dict(message.gone))
+        return Refuse(task_id=WireTaskId.of(message.task_id), gone=dict(message.gone), direct=message.direct)
     if isinstance(message, PlanDecision):
         return Decide(task_id=WireTaskId.of(message.task_id), trajectory=WireTrajectory.of(message.trajectory),
                       flown=message.flown)
@@ -63,7 +63,8 @@ def proposing(proposal: PlanProposal, replies: Mapping[str, TaskId], current: Tr
     """A ``propose`` that also answers the drones in ``replies`` with ``current`` and the proposal."""
     return Propose(task_id=WireTaskId.of(proposal.task_id), trajectory=WireTrajectory.of(proposal.trajectory),
                    members=proposal.members, replies={drone: WireTaskId.of(task) for drone, task in replies.items()},
-                   current=None if current is None else WireTrajectory.of(current), holds=holds)
+                   current=None if current is None else WireTrajectory.of(current), holds=holds,
+                   direct=proposal.direct)
 
 
 def answer_in(envelope: Envelope, me: str) -> CurrentTraj | None:
@@ -113,11 +114,11 @@ def to_core(envelope: Envelope, me: str) -> Message | None:
         return ReqForCurrentTraj(made_by(sender, body), sender, body.trajectory.core(), body.asked, body.holds,
                                  body.clear)
     if isinstance(body, Propose):
-        return PlanProposal(sender, made_by(sender, body), body.trajectory.core(), body.members)
+        return PlanProposal(sender, made_by(sender, body), body.trajectory.core(), body.members, body.direct)
     if isinstance(body, Ack):
-        return PlanAck(sender, body.task_id.core(), body.trajectory.core(), body.holds)
+        return PlanAck(sender, body.task_id.core(), body.trajectory.core(), body.holds, body.direct)
     if isinstance(body, Refuse):
-        return PlanRefusal(sender, body.task_id.core(), tuple(sorted(body.gone.items())))
+        return PlanRefusal(sender, body.task_id.core(), tuple(sorted(body.gone.items())), body.direct)
     if isinstance(body, Decide):
         return PlanDecision(sender, made_by(sender, body), body.trajectory.core(), body.flown)
     if isinstance(body, CurTraj):

@@ -32,7 +32,7 @@ Body = (ReqTraj | CurTraj | CurTrajTo | Propose | Ack | Refuse | Decide | PlanAn
 
 
 class Envelope(WireStruct, frozen=True, kw_only=True):
-    v: Literal[14] = VERSION
+    v: Literal[15] = VERSION
     sender: Annotated[str, msgspec.Meta(min_length=1)]
     sent_at: float
     body: Body

@@ -43,12 +43,14 @@ class Propose(WireBody, frozen=True, kw_only=True, tag="propose"):
     replies: dict[str, WireTaskId] = msgspec.field(default_factory=dict)
     current: WireTrajectory | None = None  #: of the answers (there are replies: required)
     holds: Holds = ()  #: of the answers: cells the sender's lost vehicle may be in
+    direct: bool = False  #: made before any round of its task (see the protocol's theory of operation)
 
 
 class Ack(WireBody, frozen=True, kw_only=True, tag="ack"):
     task_id: WireTaskId  #: the proposal held
     trajectory: WireTrajectory  #: what the sender flies
     holds: Holds = ()  #: cells its lost vehicle may be in, besides the trajectory
+    direct: bool = False  #: the proposal held is its task's direct one
 
 
 class Refuse(WireBody, frozen=True, kw_only=True, tag="refuse"):
@@ -57,6 +59,7 @@ class Refuse(WireBody, frozen=True, kw_only=True, tag="refuse"):
 
     task_id: WireTaskId
     gone: dict[str, Holds] = msgspec.field(default_factory=dict)
+    direct: bool = False  #: the proposal refused is its task's direct one
 
 
 class Decide(WireBody, frozen=True, kw_only=True, tag="decide"):

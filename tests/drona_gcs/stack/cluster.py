@@ -55,13 +55,13 @@ class ProtocolCluster:
     """Protocol machines for the drones of ``starts``, an in-memory network and a shared clock."""
 
     def __init__(self, workspace: Workspace, starts: Mapping[str, Cell], *,
-                 delta: int | None = None, lead_steps: int | None = None) -> None:
+                 delta: int | None = None, lead_steps: int | None = None, at_once: bool = False) -> None:
         self.workspace = workspace
         self.planner = SafePlanner(workspace, delta)
         self.delta = self.planner.delta
         self.lead_steps = self.delta + 1 if lead_steps is None else lead_steps  # as DroneStack does
-        self.protocols = {d: CoordinationProtocol(d, cell, dict(starts), self.planner.plan, self.lead_steps, self.delta)
-                          for d, cell in starts.items()}
+        self.protocols = {d: CoordinationProtocol(d, cell, dict(starts), self.planner.plan, self.lead_steps, self.delta,
+                                                  propose_at_once=at_once) for d, cell in starts.items()}
         self.clocks = {d: HybridClock(d) for d in starts}
         self.net: Network[Message] = Network()
         self.started: list[Started] = []

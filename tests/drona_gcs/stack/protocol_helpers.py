@@ -46,10 +46,12 @@ def manhattan(a: Cell, b: Cell) -> int:
 
 
 def machine(peers: Mapping[str, Cell] | None = None, me: str = "a", lead_steps: int = 2,
-            workspace: Workspace = OPEN) -> CoordinationProtocol:
-    """Drone ``me`` with ``peers`` (default a, b and c); the peer map includes ``me``."""
+            workspace: Workspace = OPEN, at_once: bool = False) -> CoordinationProtocol:
+    """Drone ``me`` with ``peers`` (default a, b and c); the peer map includes ``me``. ``at_once``: a new
+    task's plan is proposed at once (off: every task asks first, the rounds these tests follow)."""
     peers = dict(STARTS if peers is None else peers)
-    return CoordinationProtocol(me, peers[me], peers, SafePlanner(workspace, 0).plan, lead_steps)
+    return CoordinationProtocol(me, peers[me], peers, SafePlanner(workspace, 0).plan, lead_steps,
+                                propose_at_once=at_once)
 
 
 def started(actions: list[Action]) -> StartExecuting:

@@ -31,3 +31,10 @@ def test_a_swap_alone_is_a_meeting() -> None:
     assert check_pair(mine, other, 0, from_step=0)
     assert meets(mine, other, 0, 0)
     assert not meets(mine, Trajectory(5, ((1, 0, 0), (0, 0, 0))), 0, 6)
+
+
+def test_two_drones_resting_in_one_cell_meet_however_late_the_look() -> None:
+    """Both plans over long before ``since``: they share their last cell for good."""
+    mine, other = Trajectory(0, ((0, 0, 0), (1, 0, 0))), Trajectory(0, ((2, 0, 0), (1, 0, 0)))
+    assert meets(mine, other, 1, 50) and check_pair(mine, other, 1, from_step=50)
+    assert not meets(mine, Trajectory(0, ((2, 0, 0),)), 1, 50)

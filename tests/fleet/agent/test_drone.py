@@ -99,13 +99,30 @@ def test_a_departed_peer_last_heard_after_its_plan_holds_only_where_it_rested() 
 
 def _coordinating(ws: Workspace, node: FakeNode, pickup: list[int],
                   dropoff: list[int]) -> tuple[DroneAgent, DroneStack, TaskId]:
-    """Drone d1 of ``ws``, given a mail and past its first boundary: coordinating, its request out."""
-    stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+    """Drone d1 of ``ws`` (one that asks first), given a mail and past its first boundary: coordinating,
+    its request out."""
+    stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws), propose_at_once=False), dict(ws.drones))
     agent = DroneAgent(stack, node, KEYS, vehicle_over_its_start(), GeoFrame(ws), lambda: 1000.0)
     agent.mail.take(MailOrder(id="m", pickup=pickup, dropoff=dropoff, priority=1))
     agent.tick(0)
     mine = next(b.task_id.core() for k, p in node.puts if isinstance(b := decode(p).body, ReqTraj))
     return agent, stack, mine
+
+
+def test_a_task_proposed_at_once_goes_to_everyone_in_one_put_and_asks_nobody() -> None:
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0, drones={"d1": (0, 0, 0), "d2": (7, 0, 0)})
+
+    async def scenario() -> tuple[list[tuple[str, object]], State]:
+        node = FakeNode()
+        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+        agent = DroneAgent(stack, node, KEYS, vehicle_over_its_start(), GeoFrame(ws), lambda: 1000.0)
+        agent.mail.take(MailOrder(id="m", pickup=[3, 3, 0], dropoff=[5, 5, 0], priority=1))
+        agent.tick(0)
+        return [(k, decode(p).body) for k, p in node.puts if k.startswith(f"{KEYS.root}/proto/")], stack.protocol.state
+
+    sent, state = asyncio.run(scenario())
+    assert [k for k, _ in sent] == [KEYS.proto("all", "d1")]
+    assert isinstance(sent[0][1], Propose) and sent[0][1].direct and state is State.CONFIRMING
 
 
 def _protocol_state(stack: DroneStack) -> State:

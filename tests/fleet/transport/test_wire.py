@@ -9,7 +9,16 @@ import re
 import pytest
 
 from drona_gcs.motion import Trajectory
-from drona_gcs.stack.messages import CurrentTraj, Message, PlanDecision, PlanProposal, ReqForCurrentTraj, TaskId
+from drona_gcs.stack.messages import (
+    CurrentTraj,
+    Message,
+    PlanAck,
+    PlanDecision,
+    PlanProposal,
+    PlanRefusal,
+    ReqForCurrentTraj,
+    TaskId,
+)
 from fleet.transport.keys import FleetKeys, check_name
 from fleet.transport.wire import (
     VERSION,
@@ -33,6 +42,9 @@ TASK = TaskId(12, "d1", 3)
 @pytest.mark.parametrize("message", [
     ReqForCurrentTraj(TASK, "d1", Trajectory(40, ((1, 2, 0), (2, 2, 0))), ("d2", "d3")),
     CurrentTraj("d1", Trajectory(40, ((1, 2, 0), (2, 2, 0))), TASK),
+    PlanProposal("d1", TASK, Trajectory(40, ((1, 2, 0), (2, 2, 0))), ("d2",), direct=True),
+    PlanAck("d1", TaskId(9, "d2", 1), Trajectory(40, ((1, 2, 0),)), direct=True),
+    PlanRefusal("d1", TaskId(9, "d2", 1), direct=True),
 ])
 def test_protocol_messages_round_trip(message: object) -> None:
     envelope = decode(encode("d1", 5.5, from_core(message)))  # type: ignore[arg-type]
@@ -55,7 +67,7 @@ def envelope(body: dict[str, object], **over: object) -> bytes:
 
 @pytest.mark.parametrize("payload, problem", [
     (b"not json", "JSON is malformed"),
-    (b'{"v": 14, "sender": "d\xff", "sent_at": 1.0, "body": {"kind": "clock_ping"}}', "UTF-8"),
+    (b'{"v": 15, "sender": "d\xff", "sent_at": 1.0, "body": {"kind": "clock_ping"}}', "UTF-8"),
     (envelope({"kind": "clock_ping"}, v=3), "Invalid enum value 3 - at `$.v`"),
     (envelope({"kind": "teleport"}), "Invalid value 'teleport' - at `$.body.kind`"),
     (envelope({"kind": "req_traj", "task_id": {"stamp": "12", "drone": "d1", "seq": 1}}),
@@ -99,7 +111,7 @@ def test_the_wire_format_is_the_documented_json() -> None:
     """Other tools read these bytes: the envelope's fields in order, the body tagged by its kind."""
     request = ReqForCurrentTraj(TASK, "d1", Trajectory(40, ((1, 2, 0), (2, 2, 0))), ("d2",))
     payload = encode("d1", 5.5, from_core(request))
-    assert payload == (b'{"v":14,"sender":"d1","sent_at":5.5,"body":{"kind":"req_traj",'
+    assert payload == (b'{"v":15,"sender":"d1","sent_at":5.5,"body":{"kind":"req_traj",'
                        b'"task_id":{"stamp":%d,"drone":"%s","seq":%d,"epoch":0},'
                        b'"trajectory":{"start_step":40,"cells":[[1,2,0],[2,2,0]]},"asked":["d2"],"holds":[],"clear":[]}}'
                        % (TASK.stamp, TASK.drone.encode(), TASK.seq))
