@@ -138,8 +138,8 @@ class Confirming(Flight):
     def _on_proposal(self, event: PlanProposal, now: int) -> list[Action]:
         """A member's plan, not flown yet: I hold it besides what I knew, until decided, and say so."""
         sender = event.sender
-        if sender == self.me or sender not in self.members or self._decided_already(event):
-            return []  # decided already, or from a drone I hold as departed (it will not fly it)
+        if sender == self.me or sender not in self.members or self._decided_already(event) or self._asked_since(event):
+            return []  # decided already, asked for instead, or from a drone I hold as departed (it will not fly it)
         self._hold_proposal(event)
         if sender in self.outliers:
             return []  # not flown: it runs out of time (an outlier's steps are not ours)
@@ -164,6 +164,11 @@ class Confirming(Flight):
 
     def _outranks(self, theirs: TaskId, mine: TaskId) -> bool:
         return theirs < mine
+
+    def _asked_since(self, proposal: PlanProposal) -> bool:
+        """A direct proposal whose sender asked for its task since (messages reorder): it never flies it."""
+        newest = self.newest.get(proposal.sender)
+        return proposal.direct and newest is not None and not proposal.task_id.newer_than(newest)
 
     def _decided_already(self, proposal: PlanProposal) -> bool:
         decided = self.decided.get(proposal.sender)

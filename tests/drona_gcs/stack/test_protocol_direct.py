@@ -188,3 +188,12 @@ def test_a_peer_holds_a_direct_proposal_no_more_once_its_sender_asks_for_that_ta
     assert "a" in peer.proposals
     peer.handle(request(ID_A, "a"), 0)
     assert "a" not in peer.proposals
+
+
+def test_a_direct_proposal_come_after_its_senders_request_for_that_task_is_not_held() -> None:
+    """Messages reorder: held then, a sender whose vehicle came down before its round planned would have had
+    the proposal's goal held for good (found by the tester, sweep 30714: a charger walled off)."""
+    peer = machine(me="b", at_once=True)
+    peer.handle(request(ID_A, "a"), 0)
+    assert peer.handle(PlanProposal("a", ID_A, traj(2, (0, 0), (1, 0)), ("b", "c"), direct=True), 0) == []
+    assert "a" not in peer.proposals
