@@ -184,6 +184,7 @@ class Rounds(Confirming):
         if event.drone not in self.members:
             return []
         self.members.discard(event.drone)
+        self.flown.pop(event.drone, None)  # back, its agent may have restarted: its answers are news again
         # The newest of what it answered and what it announced (an answer of a round over is old).
         answered, known = self.received.pop(event.drone, None), self.known[event.drone]
         last = answered if answered is not None and answered.start_step > known.start_step else known

@@ -18,7 +18,17 @@ from drona_gcs.stack.messages import (
     ReqForCurrentTraj,
     Task,
 )
-from drona_gcs.stack.protocol import Action, Broadcast, CoordinationProtocol, NewTask, Send, State, TaskFailed
+from drona_gcs.stack.protocol import (
+    Action,
+    Broadcast,
+    CoordinationProtocol,
+    NewTask,
+    PeerJoined,
+    PeerLeft,
+    Send,
+    State,
+    TaskFailed,
+)
 from tests.drona_gcs.stack.cluster import ProtocolCluster
 from tests.drona_gcs.stack.protocol_helpers import (
     GOAL,
@@ -197,3 +207,17 @@ def test_a_direct_proposal_come_after_its_senders_request_for_that_task_is_not_h
     peer.handle(request(ID_A, "a"), 0)
     assert peer.handle(PlanProposal("a", ID_A, traj(2, (0, 0), (1, 0)), ("b", "c"), direct=True), 0) == []
     assert "a" not in peer.proposals
+
+
+def test_an_answer_from_a_peer_back_since_its_plan_was_decided_is_planned_with() -> None:
+    """b decided a plan starting late, then left (its agent crashed) and came back where it stood: its
+    answer is news, however early it starts (found by the tester, sweep 30721, config 549460)."""
+    proto = machine()
+    decided = traj(11, (4, 4), (4, 3), (4, 2))
+    proto.handle(PlanDecision("b", ID_B_LOW, decided, flown=True), 0)
+    proto.handle(PeerLeft("b", 1), 2)
+    proto.handle(PeerJoined("b", (4, 2, 0), decided), 3)  # as it was last heard of
+    proto.handle(NewTask(Task(ID_A, GOAL)), 3)
+    back = Trajectory.stationary((4, 4, 0), 4)
+    proto.handle(CurrentTraj("b", back, ID_A), 4)
+    assert proto.received["b"] == back
