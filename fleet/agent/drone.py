@@ -197,6 +197,7 @@ class DroneAgent(Tracking, PeerSide):
         self._carry_out(actions)
         # A lease of grace: a drone cut off (not gone) has seen it too by then, and handed its mail back.
         self.mail.adopt_due(step, self.alive, self.stack.in_touch)
+        self.mail.publish_held()
         return actions
 
     def _may_plan(self) -> bool:

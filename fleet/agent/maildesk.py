@@ -250,13 +250,13 @@ class MailDesk:
 
     def rejoined(self, peer: str) -> None:
         """``peer`` is back: what it held is its own again (it says what, see :meth:`publish_held`), and
-        what I hold goes to it too (it may have missed what changed)."""
+        what I hold goes to it too at the next boundary (it may have missed what changed): once for
+        every peer back by then, not to every peer for each (a fleet starting up sent N^2 lists)."""
         for mail_id in [m for m, v in self.orphans.items() if v[0] == peer]:
             del self.orphans[mail_id]
         for mail_id in [m for m, v in self.stranded.items() if v[0] == peer]:
             del self.stranded[mail_id]
         self.published = None
-        self.publish_held()
 
     def released(self, drone: str, alive: Collection[str]) -> None:
         """The operator took ``drone``, gone, out of the fleet: what it carried is lost with it (said by

@@ -100,6 +100,27 @@ def test_a_gone_drone_back_within_the_lease_keeps_its_mail() -> None:
     assert statuses(asyncio.run(scenario()), "q") == []
 
 
+def test_peers_back_hear_what_a_drone_holds_once_at_the_next_boundary() -> None:
+    """Each drone said what it holds again for every peer that joined, to every peer: 128 drones
+    starting up sent 128 x 127 lists, each to every drone, and answered their first mail orders
+    seconds late (the bench's client gave up on them). Peers back since a boundary hear it once, then."""
+    async def scenario() -> list[int]:
+        node, agent = _heir_of_d2()
+        said = [len(node.bodies(KEYS.held("d1")))]
+        for step in range(2):
+            agent.tick(step)
+            said.append(len(node.bodies(KEYS.held("d1"))))
+        for up in (False, True):
+            for peer in ("d2", "d3"):
+                agent._on_liveliness(KEYS.alive(peer), up)
+        said.append(len(node.bodies(KEYS.held("d1"))))
+        agent.tick(2)
+        said.append(len(node.bodies(KEYS.held("d1"))))
+        return said
+
+    assert asyncio.run(scenario()) == [0, 1, 1, 1, 2]
+
+
 @pytest.mark.parametrize("in_touch, service", [(True, False), (False, False), (True, True)],
                          ids=["majority", "cut-off", "a-service-dispatches"])
 def test_the_heir_takes_over_mail_a_live_drone_handed_back_at_once(in_touch: bool, service: bool) -> None:
