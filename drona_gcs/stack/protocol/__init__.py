@@ -197,7 +197,8 @@ settled here, and one message it sends is saved (the second point):
   the request it answers (``in_reply_to``); replies to anything but my current
   request are ignored, and duplicates only overwrite an entry with itself. A round still
   waiting :data:`ASK_AGAIN_STEPS` after it asked asks the silent members again (a request
-  or answer lost must not hold it for good).
+  or answer lost must not hold it for good), each time twice as late, up to
+  :data:`ASK_AGAIN_MOST_STEPS` (answers late under load are not asked for over and over).
 
 Every transition is in :data:`TRANSITIONS`: for each state, the events it takes, the handler of each,
 and the states taking it may lead to. The state changes in one place, ``_enter``, which checks each
@@ -244,13 +245,13 @@ from drona_gcs.stack.protocol.events import (
 )
 from drona_gcs.stack.protocol.knowledge import PlanFunction, Proposed
 from drona_gcs.stack.protocol.machine import TRANSITIONS, CoordinationProtocol
-from drona_gcs.stack.protocol.rounds import ASK_AGAIN_STEPS
+from drona_gcs.stack.protocol.rounds import ASK_AGAIN_MOST_STEPS, ASK_AGAIN_STEPS
 from drona_gcs.stack.protocol.state import Move, State
 
 __all__ = [
-    "ASK_AGAIN_STEPS", "TRANSITIONS", "Action", "Brake", "Braked", "Broadcast", "ClockBound", "CoordinationProtocol",
-    "Event", "Grounded", "Holding", "Move", "NewTask", "NextStep", "PeerAnnounced", "PeerBraked", "PeerDown",
-    "PeerJoined", "PeerLeft", "PeerLost", "PlanCompleted", "PlanFunction", "Present", "Proposed", "Released",
-    "Relocated", "Reroute", "RerouteFailed", "Send", "StartExecuting", "State", "TaskFailed", "Threatened",
-    "VehicleDown", "VehicleLost",
+    "ASK_AGAIN_MOST_STEPS", "ASK_AGAIN_STEPS", "TRANSITIONS", "Action", "Brake", "Braked", "Broadcast", "ClockBound",
+    "CoordinationProtocol", "Event", "Grounded", "Holding", "Move", "NewTask", "NextStep", "PeerAnnounced",
+    "PeerBraked", "PeerDown", "PeerJoined", "PeerLeft", "PeerLost", "PlanCompleted", "PlanFunction", "Present",
+    "Proposed", "Released", "Relocated", "Reroute", "RerouteFailed", "Send", "StartExecuting", "State", "TaskFailed",
+    "Threatened", "VehicleDown", "VehicleLost",
 ]

@@ -96,6 +96,7 @@ class Knowledge:
     #: task's decision, which a round ending in no plan must then send too
     unsettled: TaskId | None = None
     asked_at: int = 0  #: the step this round last asked the members that have not answered
+    asked_again: int = 0  #: how many times this round asked again
 
     def __post_init__(self) -> None:
         self.members = set(self.peers) - {self.me}

@@ -12,8 +12,11 @@ from drona_gcs.stack.protocol.events import NewTask, NextStep, PeerJoined, PeerL
 from drona_gcs.stack.protocol.knowledge import Proposed
 from drona_gcs.stack.protocol.state import State
 
-#: steps a round waits for answers before it asks the members that have not answered again
+#: steps a round waits for answers before it asks the members that have not answered again; twice
+#: as long each time after, up to ASK_AGAIN_MOST_STEPS: answers late, not lost, are not asked for
+#: again and again by every drone waiting (a fleet short of CPU then spends it all on asking)
 ASK_AGAIN_STEPS = 4
+ASK_AGAIN_MOST_STEPS = 32
 
 
 class Rounds(Confirming):
@@ -40,7 +43,7 @@ class Rounds(Confirming):
 
     def _begin_round(self, task: Task, state: State, now: int) -> list[Action]:
         self._enter(state)
-        self.task, self.asked_at = task, now
+        self.task, self.asked_at, self.asked_again = task, now, 0
         self._forget_answers()
         self.pending = {}
         if not self.in_quorum():  # nothing to ask: no plan could be flown
@@ -173,10 +176,11 @@ class Rounds(Confirming):
     def _ask_again(self, now: int) -> list[Action]:
         """A round still waiting :data:`ASK_AGAIN_STEPS` after it asked asks again the members that have not
         answered: one request lost (a link just back drops what it carries before its routes are up) would
-        hold a round for good. A copy is harmless: it is answered, or held for an answer, again."""
-        if now - self.asked_at < ASK_AGAIN_STEPS:
+        hold a round for good. A copy is harmless: it is answered, or held for an answer, again. Each
+        time it waits twice as long (see :data:`ASK_AGAIN_MOST_STEPS`)."""
+        if now - self.asked_at < min(ASK_AGAIN_STEPS << self.asked_again, ASK_AGAIN_MOST_STEPS):
             return []
-        self.asked_at = now
+        self.asked_at, self.asked_again = now, self.asked_again + 1
         request = self._request(now)
         return [Send(p, request) for p in sorted(self.members - set(self.received))]
 

@@ -4,6 +4,8 @@ stale replies and members that leave or join.
 
 from __future__ import annotations
 
+import itertools
+
 import pytest
 
 from drona_gcs.motion import Trajectory
@@ -18,6 +20,7 @@ from drona_gcs.stack.messages import (
     TaskId,
 )
 from drona_gcs.stack.protocol import (
+    ASK_AGAIN_MOST_STEPS,
     ASK_AGAIN_STEPS,
     Broadcast,
     NewTask,
@@ -387,6 +390,19 @@ def test_a_request_of_a_round_whose_plan_was_decided_is_late_even_after_a_rejoin
     proto.handle(CurrentTraj("b", b_plan, ID_A), 1)
     assert proto.handle(request(ID_B_LOW, "b"), 1) == []  # late: its plan is decided
     assert proto.received["b"] == b_plan and "b" not in proto.pending
+
+
+def test_a_round_asks_again_twice_as_late_each_time_up_to_a_bound() -> None:
+    """128 drones on two cores: answers came later than the round waited, every waiting drone asked
+    every silent member again every 4 steps, and the asking took all the CPU (4 plans in 300 s). A
+    round waiting still asks again, each time twice as late as the last, up to ASK_AGAIN_MOST_STEPS."""
+    proto = machine()
+    proto.handle(NewTask(Task(ID_A, GOAL)), 0)
+    asked = [step for step in range(1, 100) if proto.handle(NextStep(), step)]
+    waits = [b - a for a, b in itertools.pairwise([0, *asked])]
+    assert waits[:5] == [ASK_AGAIN_STEPS, 2 * ASK_AGAIN_STEPS, 4 * ASK_AGAIN_STEPS, ASK_AGAIN_MOST_STEPS,
+                         ASK_AGAIN_MOST_STEPS]
+    assert set(waits[3:]) == {ASK_AGAIN_MOST_STEPS}
 
 
 def test_a_round_asks_again_the_members_that_have_not_answered() -> None:
