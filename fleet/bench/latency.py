@@ -15,8 +15,9 @@ from pathlib import Path
 
 from drona_gcs.stack.protocol import State
 from drona_gcs.workspace import Cell, Workspace
+from fleet.bench import BenchError
 from fleet.bench.processes import check_alive, cpu_seconds, reference_loop_ms, up_or_gone
-from fleet.transport.fleet_client import FleetClient
+from fleet.transport.fleet_client import QUERY_TIMEOUT_S, FleetClient, FleetUnavailable
 from fleet.transport.identity import SERVICE
 from fleet.transport.keys import FleetKeys
 from fleet.transport.node import ZenohNode
@@ -182,20 +183,23 @@ async def _keep_busy(node: ZenohNode, client: FleetClient, keys: FleetKeys, work
                                              priority=rng.randint(0, 9)))
 
     node.subscribe(keys.status(), on_report)
-    # Every order at once: one after the other they can take longer than a step, and the drones would
-    # take their mail at several boundaries, in bursts of a size left to chance.
-    async with asyncio.TaskGroup() as group:
-        for drone in names:
-            for _ in range(2):
-                group.create_task(give(drone))
-    deadline = time.monotonic() + seconds
-    while (left := deadline - time.monotonic()) > 0:
-        try:
-            drone = await asyncio.wait_for(deliveries.get(), left)
-        except TimeoutError:
-            break
-        delivered += 1
-        await give(drone)
+    try:
+        # Every order at once: one after the other they can take longer than a step, and the drones would
+        # take their mail at several boundaries, in bursts of a size left to chance.
+        async with asyncio.TaskGroup() as group:
+            for drone in names:
+                for _ in range(2):
+                    group.create_task(give(drone))
+        deadline = time.monotonic() + seconds
+        while (left := deadline - time.monotonic()) > 0:
+            try:
+                drone = await asyncio.wait_for(deliveries.get(), left)
+            except TimeoutError:
+                break
+            delivered += 1
+            await give(drone)
+    except* FleetUnavailable as unanswered:  # a fleet too busy to take its mail: said so, not as a traceback
+        raise BenchError(f"{unanswered.exceptions[0]} within {QUERY_TIMEOUT_S:g} s") from unanswered
     after = await between_rounds(client)
     sent = sum(s.messages_sent - before[d].messages_sent for d, s in after.items() if d in before)
     plans = sum(s.plans - before[d].plans for d, s in after.items() if d in before)

@@ -16,9 +16,13 @@ import yaml
 
 from drona_gcs.stack.protocol import State
 from drona_gcs.workspace_files import workspace_from_mapping
+from fleet.bench import BenchError
 from fleet.bench.coordination import audit_records, bench_workspace, default_processes, gather_records
-from fleet.bench.latency import PlanLatencies, between_rounds
+from fleet.bench.latency import PlanLatencies, _keep_busy, between_rounds
+from fleet.transport.fleet_client import FleetClient
+from fleet.transport.keys import FleetKeys
 from fleet.transport.wire import DroneState
+from tests.fakes.node import FakeNode
 
 
 def _strict(constant: str) -> object:
@@ -72,6 +76,16 @@ def test_a_fleet_never_between_rounds_is_measured_anyway_saying_which_drones_wer
     flying = _Fleet({"d1": State.WAIT_FOR_TASK, "d2": State.EXECUTING})
     assert set(asyncio.run(between_rounds(flying, 5.0))) == {"d1", "d2"}  # type: ignore[arg-type]
     assert flying.asked == 1 and capsys.readouterr().err == ""
+
+
+def test_a_fleet_that_does_not_take_its_mail_is_a_bench_error_naming_the_drone() -> None:
+    """128 drones in two processes answered their first orders after the client's 2 s: the bench died
+    with a traceback of the task group. It says which drone did not answer, and how long it waited."""
+    workspace = workspace_from_mapping(yaml.safe_load(bench_workspace(4)))
+    node, keys = FakeNode(), FleetKeys("bench")  # no drone answers on it
+    with pytest.raises(BenchError, match=r"^drone d1 did not answer the mail order b1 within 2 s$"):
+        asyncio.run(_keep_busy(node, FleetClient(node, keys, "bench"), keys, workspace,  # type: ignore[arg-type]
+                               ["d1"], 1.0, 1, {}))
 
 
 def _state(drone: str, plans: int, ms: float | None) -> DroneState:
