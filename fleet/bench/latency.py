@@ -17,13 +17,15 @@ from drona_gcs.stack.protocol import State
 from drona_gcs.workspace import Cell, Workspace
 from fleet.bench import BenchError
 from fleet.bench.processes import check_alive, cpu_seconds, reference_loop_ms, up_or_gone
-from fleet.transport.fleet_client import QUERY_TIMEOUT_S, FleetClient, FleetUnavailable
+from fleet.transport.fleet_client import FleetClient, FleetUnavailable
 from fleet.transport.identity import SERVICE
 from fleet.transport.keys import FleetKeys
 from fleet.transport.node import ZenohNode
 from fleet.transport.settings import ZenohSettings
 from fleet.transport.wire import DroneState, MailOrder, MailStatus, MailStatusReport, WireError, decode
 
+#: A fleet of 128 on two cores answered its first orders 1.5 to 2.5 s late: measured, not refused.
+ORDER_TIMEOUT_S = 10.0
 IDLE_BOUND_S = 90.0  #: how long the drones may take to park at start-up (some detour around the others)
 OPENING_S = 1.0  #: the CPU of each agent process is also measured this long from the mail given
 
@@ -180,7 +182,7 @@ async def _keep_busy(node: ZenohNode, client: FleetClient, keys: FleetKeys, work
         pickup, dropoff = rng.sample(free, 2)
         count += 1
         await client.assign(drone, MailOrder(id=f"b{count}", pickup=_list(pickup), dropoff=_list(dropoff),
-                                             priority=rng.randint(0, 9)))
+                                             priority=rng.randint(0, 9)), ORDER_TIMEOUT_S)
 
     node.subscribe(keys.status(), on_report)
     try:
@@ -199,7 +201,7 @@ async def _keep_busy(node: ZenohNode, client: FleetClient, keys: FleetKeys, work
             delivered += 1
             await give(drone)
     except* FleetUnavailable as unanswered:  # a fleet too busy to take its mail: said so, not as a traceback
-        raise BenchError(f"{unanswered.exceptions[0]} within {QUERY_TIMEOUT_S:g} s") from unanswered
+        raise BenchError(str(unanswered.exceptions[0])) from unanswered
     after = await between_rounds(client)
     sent = sum(s.messages_sent - before[d].messages_sent for d, s in after.items() if d in before)
     plans = sum(s.plans - before[d].plans for d, s in after.items() if d in before)

@@ -51,9 +51,9 @@ class FleetClient:
             await asyncio.sleep(min(pause, max(0.0, deadline - time.monotonic())))  # retry with back-off
             pause = min(pause * 2, 1.0)
 
-    async def assign(self, drone: str, order: MailOrder) -> MailAck:
+    async def assign(self, drone: str, order: MailOrder, timeout_s: float = QUERY_TIMEOUT_S) -> MailAck:
         replies = await self.node.get(self.keys.assign(drone), encode(self.name, time.time(), order),
-                                      QUERY_TIMEOUT_S, block=True)
+                                      timeout_s, block=True)
         for reply in replies:
             try:
                 body = decode(reply.payload).body
@@ -61,7 +61,7 @@ class FleetClient:
                 continue
             if isinstance(body, MailAck) and body.id == order.id:
                 return body
-        raise FleetUnavailable(f"drone {drone} did not answer the mail order {order.id}")
+        raise FleetUnavailable(f"drone {drone} did not answer the mail order {order.id} within {timeout_s:g} s")
 
     async def dispatch(self, order: MailOrder, drone: str | None, timeout_s: float) -> MailAck:
         """Give ``order`` to ``drone``, or to the best candidate among the live drones that takes it (the

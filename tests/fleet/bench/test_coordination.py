@@ -80,10 +80,11 @@ def test_a_fleet_never_between_rounds_is_measured_anyway_saying_which_drones_wer
 
 def test_a_fleet_that_does_not_take_its_mail_is_a_bench_error_naming_the_drone() -> None:
     """128 drones in two processes answered their first orders after the client's 2 s: the bench died
-    with a traceback of the task group. It says which drone did not answer, and how long it waited."""
+    with a traceback of the task group. It waits longer, and says which drone did not answer, and how
+    long it waited."""
     workspace = workspace_from_mapping(yaml.safe_load(bench_workspace(4)))
     node, keys = FakeNode(), FleetKeys("bench")  # no drone answers on it
-    with pytest.raises(BenchError, match=r"^drone d1 did not answer the mail order b1 within 2 s$"):
+    with pytest.raises(BenchError, match=r"^drone d1 did not answer the mail order b1 within 10 s$"):
         asyncio.run(_keep_busy(node, FleetClient(node, keys, "bench"), keys, workspace,  # type: ignore[arg-type]
                                ["d1"], 1.0, 1, {}))
 
