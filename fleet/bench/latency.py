@@ -24,7 +24,7 @@ from fleet.transport.node import ZenohNode
 from fleet.transport.settings import ZenohSettings
 from fleet.transport.wire import DroneState, MailOrder, MailStatus, MailStatusReport, WireError, decode
 
-#: A fleet of 128 on two cores answered its first orders 1.5 to 2.5 s late: measured, not refused.
+#: How long a drone may take to answer an order: a fleet short of CPU answers late, and is measured so.
 ORDER_TIMEOUT_S = 10.0
 IDLE_BOUND_S = 90.0  #: how long the drones may take to park at start-up (some detour around the others)
 OPENING_S = 1.0  #: the CPU of each agent process is also measured this long from the mail given

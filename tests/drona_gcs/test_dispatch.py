@@ -50,7 +50,7 @@ def test_drona_mail_offers_a_mail_down_the_ranking_while_drones_refuse() -> None
             return {d: DroneState(drone=d, step=0, cell=[i, 0, 0], mode="WaitForTaskRequest", phase="idle",
                                   landed=True, health=sick) for i, d in enumerate(("d3", "d1", "d2"))}
 
-        async def assign(self, drone: str, order: MailOrder) -> MailAck:
+        async def assign(self, drone: str, order: MailOrder, timeout_s: float = 2.0) -> MailAck:
             orders.append(drone)
             takes = drone in accepting
             return MailAck(id=order.id, drone=drone, accepted=takes, reason="" if takes else f"{drone} is off")
