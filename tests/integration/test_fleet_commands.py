@@ -23,11 +23,9 @@ def _post(url: str, path: str, body: dict[str, Any] | None = None) -> httpx.Resp
     return httpx.post(f"{url}{path}", headers=HEADERS, json=body, timeout=30)
 
 
-def _mail(url: str, events: Events, pickup: list[int], dropoff: list[int], priority: int = 5) -> str:
-    """A new mail, known to ``events`` from the start (its stream tells only what changes while it is open)."""
+def _mail(url: str, pickup: list[int], dropoff: list[int], priority: int = 5) -> str:
     res = _post(url, "/v1/mail", {"pickup": pickup, "dropoff": dropoff, "priority": priority})
     assert res.status_code == 201, res.text
-    events.mail[res.json()["id"]] = res.json()
     mail_id: str = res.json()["id"]
     return mail_id
 
@@ -66,7 +64,7 @@ def test_pause_resume_recall_and_land_through_the_api(tmp_path: Path) -> None:
         # Pause: every drone answers; mail waits, never offered, until resumed; then it is delivered.
         paused = _post(url, "/v1/fleet/pause")
         assert paused.status_code == 200 and {a["drone"] for a in paused.json()["acks"]} == set(fleet.drones)
-        first = _mail(url, events, [2, 2, 0], [7, 7, 0])
+        first = _mail(url, [2, 2, 0], [7, 7, 0])
         then = max(d["step"] for d in events.drones.values())
         events.until(lambda: min(d["step"] for d in events.drones.values()) >= then + 4, 30, "a few steps",
                      fleet.logs)
@@ -76,7 +74,7 @@ def test_pause_resume_recall_and_land_through_the_api(tmp_path: Path) -> None:
 
         # Recall the drone that took a mail: the mail goes back and another drone delivers it.
         # The pickup is far from where the drones park: recalled on its way there.
-        second = _mail(url, events, [8, 8, 0], [2, 8, 0])
+        second = _mail(url, [8, 8, 0], [2, 8, 0])
         _until(lambda: _status(url, second)["status"] == "assigned", 30, "the second mail assigned", fleet)
         recalled = _status(url, second)["drone"]
         res = _post(url, f"/v1/fleet/drones/{recalled}/recall")
@@ -87,7 +85,7 @@ def test_pause_resume_recall_and_land_through_the_api(tmp_path: Path) -> None:
         assert _post(url, f"/v1/fleet/drones/{recalled}/resume").status_code == 200
 
         # Land a drone mid-flight: it stops at the cell its plan reached once a round could end, and stays.
-        third = _mail(url, events, [8, 8, 0], [8, 1, 0])
+        third = _mail(url, [8, 8, 0], [8, 1, 0])
 
         def flying_to_the_pickup() -> bool:
             mail = _status(url, third)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import signal
 import socket
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -22,29 +23,53 @@ HEADERS = {"Authorization": f"Bearer {TOKEN}"}
 
 
 class Events:
-    """The service's /v1/events stream, folded into the latest mail and drone states."""
+    """The service's /v1/events stream, read from the moment it is made until the service goes, folded into
+    the latest mail and drone states: nothing that happens between two waits is missed."""
 
     def __init__(self, url: str) -> None:
         self.url = url
         self.mail: dict[str, dict[str, Any]] = {}
         self.drones: dict[str, dict[str, Any]] = {}
         self.lost: set[str] = set()
+        self._changed = threading.Condition()
+        self._connected = threading.Event()
+        self._ended: BaseException | None = None
+        threading.Thread(target=self._read, name="events", daemon=True).start()
+        if not self._connected.wait(10):
+            raise AssertionError(f"no event stream from {url} within 10 s")
 
     def until(self, condition: Callable[[], bool], timeout: float, what: str, logs: Callable[[], str]) -> None:
         deadline = time.monotonic() + timeout
-        with httpx.stream("GET", f"{self.url}/v1/events", params={"access_token": TOKEN},
-                          timeout=httpx.Timeout(timeout, read=5.0)) as stream:
-            kind = ""
-            for line in stream.iter_lines():  # the service pings every few seconds: bounded by the deadline
-                if line.startswith("event: "):
-                    kind = line[7:]
-                elif line.startswith("data: "):
-                    self._take(kind, json.loads(line[6:]))
-                if condition():
-                    return
-                if time.monotonic() > deadline:
-                    break
-        raise AssertionError(f"timed out after {timeout:g} s waiting for {what}: {self.mail}\n{logs()}")
+        with self._changed:
+            while not condition():
+                left = deadline - time.monotonic()
+                if left <= 0 or self._ended is not None:
+                    ended = f" (the stream ended: {self._ended!r})" if self._ended else ""
+                    raise AssertionError(f"timed out after {timeout:g} s waiting for {what}{ended}: {self.mail}\n"
+                                         f"{logs()}")
+                self._changed.wait(left)
+
+    def status(self, mail: str) -> str | None:
+        return self.mail.get(mail, {}).get("status")
+
+    def _read(self) -> None:
+        try:
+            with httpx.stream("GET", f"{self.url}/v1/events", params={"access_token": TOKEN},
+                              timeout=httpx.Timeout(10.0, read=60.0)) as stream:
+                kind = ""
+                for line in stream.iter_lines():
+                    self._connected.set()  # the first line comes once the service subscribed this stream
+                    if line.startswith("event: "):
+                        kind = line[7:]
+                    elif line.startswith("data: "):
+                        with self._changed:
+                            self._take(kind, json.loads(line[6:]))
+                            self._changed.notify_all()
+            raise ConnectionError("the service closed the stream")
+        except Exception as exc:  # reported by the next wait
+            with self._changed:
+                self._ended = exc
+                self._changed.notify_all()
 
     def _take(self, kind: str, data: dict[str, Any]) -> None:
         if kind == "mail":
@@ -53,9 +78,6 @@ class Events:
             self.drones[data["id"]] = data
         elif kind == "drone_lost":
             self.lost.add(data["id"])
-
-    def status(self, mail: str) -> str | None:
-        return self.mail.get(mail, {}).get("status")
 
 
 def start_service(fleet: FleetProcesses, db: Path) -> str:
@@ -88,8 +110,8 @@ def test_a_dead_agent_never_leaves_its_mail_stuck_and_another_drone_delivers_it(
                            json={"pickup": [2, 2, 0], "dropoff": [7, 7, 0], "priority": 9}).json()["id"]
         events.until(lambda: events.status(first) in ("assigned", "picked_up"), 30, "the first mail assigned",
                      fleet.logs)
-        busy = events.mail[first]["drone"]
-        idle = "d2" if busy == "d1" else "d1"
+        busy, idle = events.mail[first]["drone"], "d2"
+        assert busy == "d1", f"the first mail went to {busy}: alone, only d1 (first by name) is a quorum of two"
         fleet.signal(idle, signal.SIGSTOP)  # frozen: the service still sees it, and will give it the next mail
         second = httpx.post(f"{url}/v1/mail", headers=HEADERS, timeout=10,
                             json={"pickup": [8, 2, 0], "dropoff": [2, 8, 0], "priority": 5}).json()["id"]
