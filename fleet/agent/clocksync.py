@@ -41,14 +41,15 @@ class ClockCheck:
     samples: dict[str, deque[OffsetSample]] = field(default_factory=dict)
     #: each peer's tightest sample: the state a drone publishes at every step names them all
     _best: Mapping[str, OffsetSample] | None = field(default=None, init=False, repr=False, compare=False)
+    _offsets: dict[str, float] | None = field(default=None, init=False, repr=False, compare=False)
 
     def observe(self, peer: str, sample: OffsetSample) -> None:
         self.samples.setdefault(peer, deque(maxlen=self.keep)).append(sample)
-        self._best = None
+        self._best = self._offsets = None
 
     def forget(self, peer: str) -> None:
         self.samples.pop(peer, None)
-        self._best = None
+        self._best = self._offsets = None
 
     @property
     def peers(self) -> Mapping[str, OffsetSample]:
@@ -56,6 +57,13 @@ class ClockCheck:
             best = {p: min(s, key=lambda x: x.error_s) for p, s in self.samples.items() if s}
             self._best = MappingProxyType(best)  # read-only: it is handed to every caller until the next sample
         return self._best
+
+    def offsets_s(self) -> dict[str, float]:
+        """Each peer's offset to the microsecond, by name, as the state says it: the same dict until
+        the next sample (not to be changed)."""
+        if self._offsets is None:
+            self._offsets = {p: round(s.offset_s, 6) for p, s in sorted(self.peers.items())}
+        return self._offsets
 
     def violations(self) -> dict[str, OffsetSample]:
         """The peers whose clock is provably more than beta from mine."""

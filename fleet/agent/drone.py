@@ -342,7 +342,7 @@ class DroneAgent(Tracking, PeerSide):
             mode=protocol.state.value, phase=planner.phase.value, landed=stack.landed, task=task,
             trajectory=WireTrajectory.of(trajectory) if trajectory else None, mail=self.mail.held(),
             health=Health(ok=not alarms, alarms=alarms),
-            clock_offset_s={p: round(s.offset_s, 6) for p, s in sorted(self.clocks.peers.items())},
+            clock_offset_s=self.clocks.offsets_s(),
             plans=self.metrics.plans, messages_sent=self.metrics.messages_sent,
             coordination_ms=round(self.metrics.latencies_s[-1] * 1000, 3) if self.metrics.latencies_s else None,
             vehicle=self.watch.view(), command=stack.commanded)

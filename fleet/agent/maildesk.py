@@ -21,6 +21,7 @@ of a majority, since the drone gave it up.
 from __future__ import annotations
 
 import collections
+import heapq
 import logging
 from collections.abc import Callable, Collection
 
@@ -72,6 +73,7 @@ class MailDesk:
         self.seq = 0
         self.delivered: set[str] = set()  #: a repeated order for one of these is acknowledged, not flown again
         self.peer_mail: dict[str, list[MailView]] = {}  #: what each peer last said it holds
+        self.listing: dict[str, set[str]] = {}  #: mail id -> the peers whose last list holds it
         #: mail nobody took over yet: of departed drones, or handed back; whose, and from which step on
         self.orphans: dict[str, tuple[str, MailView, int]] = {}
         self.handed: dict[str, MailView] = {}  #: mail I handed back that no peer lists yet
@@ -221,7 +223,7 @@ class MailDesk:
         writer = self.keys.writer(key)
         if isinstance(body, HeldMail) and body.drone == writer != self.me and writer in self.stack.protocol.peers:
             held = [m for m in body.mail if m.stage != "handed_back"]
-            self.peer_mail[body.drone] = held
+            self._peer_holds(writer, held)
             taken_over = False
             for mail in held:  # taken over by that drone (or its own again)
                 self.orphans.pop(mail.id, None)
@@ -233,16 +235,30 @@ class MailDesk:
                 if mail.stage == "handed_back" and not self._listed_by_other(mail.id, writer):
                     self.orphans.setdefault(mail.id, (writer, mail, self.stack.now))
 
+    def _peer_holds(self, peer: str, held: list[MailView] | None) -> None:
+        """``peer``'s list of mail held is now ``held`` (None: it has none any more, it left)."""
+        for mail in self.peer_mail.pop(peer, []):
+            holders = self.listing.get(mail.id, set())
+            holders.discard(peer)
+            if not holders:
+                self.listing.pop(mail.id, None)
+        if held is not None:
+            self.peer_mail[peer] = held
+            for mail in held:
+                self.listing.setdefault(mail.id, set()).add(peer)
+
     def _listed_by_other(self, mail_id: str, than: str) -> bool:
         """Whether a drone other than ``than`` (me too) holds the mail: it took it over already."""
         mine = any(m.id == mail_id for m in self.held())
-        return mine or any(m.id == mail_id for d, held in self.peer_mail.items() if d != than for m in held)
+        return mine or bool(self.listing.get(mail_id, set()) - {than})
 
     # ---------------------------------------------------------- adoption
     def orphan(self, peer: str, due: int) -> None:
         """``peer`` left: what it had not picked up is orphaned, to be taken over from step ``due`` on
         (see :meth:`adopt_due`); what it carried stays its own."""
-        for mail in self.peer_mail.pop(peer, []):
+        gone = self.peer_mail.get(peer, [])
+        self._peer_holds(peer, None)
+        for mail in gone:
             if mail.stage == "carrying":
                 self.stranded[mail.id] = (peer, mail)
             else:
@@ -274,9 +290,13 @@ class MailDesk:
         """In touch with most of the fleet, I take over every orphan due by ``step`` whose heir I am (the
         smallest live name but its drone's). Orphans stay known until some drone says it holds them, so
         drones leaving together, heirs first, lose nothing."""
-        if not self.adopt or not in_touch:
+        if not self.adopt or not in_touch or not self.orphans:
             return
-        due = {k: v for k, v in self.orphans.items() if v[2] <= step and min({*alive, self.me} - {v[0]}) == self.me}
+        first_two = heapq.nsmallest(2, {*alive, self.me})  # the heir of any drone is one of these
+        if self.me not in first_two:
+            return
+        due = {k: v for k, v in self.orphans.items()
+               if v[2] <= step and next((name for name in first_two if name != v[0]), None) == self.me}
         for mail_id in due:
             del self.orphans[mail_id]
         for owner, mail, _ in due.values():

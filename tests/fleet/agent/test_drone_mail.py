@@ -17,6 +17,7 @@ from fleet.agent.drone import DroneAgent
 from fleet.setpoint_loop import StepReport
 from fleet.transport.wire import HeldMail, MailOrder, MailStatus, MailStatusReport, MailView, decode, encode
 from tests.fakes.node import FakeNetwork, FakeNode
+from tests.fakes.vehicle import FakeVehicle
 from tests.fleet.agent.drone_helpers import FRAME, KEYS, WS, statuses, vehicle_over_its_start
 
 
@@ -143,6 +144,49 @@ def test_the_heir_takes_over_mail_a_live_drone_handed_back_at_once(in_touch: boo
     adopted = [(MailStatus.ACCEPTED, ""), (MailStatus.REASSIGNED, "drone d2 handed it back")]
     assert statuses(node, "h")[:2] == (adopted if in_touch and not service else [])
     assert statuses(node, "q") == []  # d2 holds it still
+
+
+@pytest.mark.parametrize("owner, heir", [("d2", "d1"), ("d1", "d2")])
+def test_the_heir_is_the_smallest_live_name_but_the_owners_and_no_other_drone_adopts(owner: str, heir: str) -> None:
+    """Each of d1, d2 and d3 hears ``owner`` hand mail back: only ``heir`` takes it over."""
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0,
+                         drones={"d1": (0, 0, 0), "d2": (7, 0, 0), "d3": (7, 7, 0)})
+    handed = MailView(id="h", pickup=[2, 2, 0], dropoff=[4, 4, 0], priority=3, stage="handed_back")
+
+    async def adopted_by(me: str) -> bool:
+        node = FakeNode()
+        stack = DroneStack(me, StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+        agent = DroneAgent(stack, node, KEYS, FakeVehicle(GeoFrame(ws), ws.drones[me]), GeoFrame(ws), lambda: 1000.0)
+        agent.alive = {"d1", "d2", "d3"} - {me}
+        agent.mail._on_peer_mail(KEYS.held(owner), encode(owner, 1000.0, HeldMail(drone=owner, mail=[handed])))
+        agent.tick(0)
+        agent.tick(1)
+        await asyncio.sleep(0)
+        return any(isinstance(r, MailStatusReport) for r in node.bodies(KEYS.status(me, "h")))
+
+    assert [me for me in ("d1", "d2", "d3") if me != owner and asyncio.run(adopted_by(me))] == [heir]
+
+
+def test_mail_handed_back_is_adopted_only_while_no_peer_lists_it() -> None:
+    """d2 lists mail handed back that d3 lists as its own: d3 took it over, d1 (the heir) leaves it.
+    Once d3's newest list no longer holds it, d2's next list makes it d1's to take over."""
+    async def scenario() -> list[tuple[MailStatus, str]]:
+        handed = MailView(id="h", pickup=[2, 2, 0], dropoff=[4, 4, 0], priority=3, stage="handed_back")
+        node, agent = _heir_of_d2()
+        said = agent.mail._on_peer_mail
+        taken = MailView(id="h", pickup=[2, 2, 0], dropoff=[4, 4, 0], priority=3, stage="queued")
+        said(KEYS.held("d3"), encode("d3", 1000.0, HeldMail(drone="d3", mail=[taken])))
+        said(KEYS.held("d2"), encode("d2", 1000.0, HeldMail(drone="d2", mail=[handed])))
+        agent.tick(0)
+        agent.tick(1)
+        assert statuses(node, "h") == []
+        said(KEYS.held("d3"), encode("d3", 1000.0, HeldMail(drone="d3", mail=[])))
+        said(KEYS.held("d2"), encode("d2", 1000.0, HeldMail(drone="d2", mail=[handed])))
+        agent.tick(2)
+        return statuses(node, "h")
+
+    adopted = [(MailStatus.ACCEPTED, ""), (MailStatus.REASSIGNED, "drone d2 handed it back")]
+    assert asyncio.run(scenario())[:2] == adopted
 
 
 def test_a_drone_lists_what_it_handed_back_until_a_peer_holds_it() -> None:

@@ -32,6 +32,16 @@ def test_skew_is_an_alarm_only_when_provably_beyond_beta() -> None:
     assert check.alarm() is None
 
 
+def test_the_offsets_a_drone_states_follow_each_sample_and_forgotten_peer() -> None:
+    check = ClockCheck(beta_s=0.2)
+    check.observe("d3", OffsetSample(0.0300004, 0.01))
+    check.observe("d2", OffsetSample(-0.1, 0.02))
+    assert check.offsets_s() == {"d2": -0.1, "d3": 0.03}
+    check.observe("d2", OffsetSample(-0.05, 0.001))  # tighter: it is the one judged and stated
+    check.forget("d3")
+    assert check.offsets_s() == {"d2": -0.05}
+
+
 def test_the_clock_off_is_the_one_most_peers_disagree_with() -> None:
     """One skewed clock must not stall the fleet: the drones whose clocks agree plan on around it, and
     it alone holds. With two drones neither can tell which clock is off: both hold."""
