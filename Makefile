@@ -36,7 +36,7 @@ $(NATIVE_STAMP): setup.py $(wildcard drona_gcs/planner/*.py) | $(STAMP)
 # CAP_SYS_NICE (root's) they run one at a time beside two workers for the rest, whose tests of the
 # core yield the CPU to them (tests/conftest.py): two fleets at once on two cores starved each
 # other's vehicles, which ran late. Elsewhere two workers take a file each, as before.
-FLEET_TESTS := tests/integration tests/fleet/bench/test_coordination.py
+FLEET_TESTS := tests/integration tests/fleet/bench/test_coordination.py tests/fleet/bench/test_delivery.py
 CAP_SYS_NICE := $(shell cap=$$(awk '/^CapEff:/ {print $$2}' /proc/self/status 2>/dev/null); \
 	echo $$(( 0x$${cap:-0} >> 23 & 1 )))
 

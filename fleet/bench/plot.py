@@ -11,7 +11,8 @@ drawn from the very result it prints:
 * mavlink: messages per link per second against the rate asked, and the setpoint
   boundaries' lateness (p50, p99, max) against its target;
 * coordination: coordination latency p50, p99 and max, all plans and past the opening burst;
-* api: the submissions' latency percentiles against the p99 target.
+* api: the submissions' latency percentiles against the p99 target;
+* delivery: the mail delivered over time, against the mail posted.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
     from fleet.bench.api import Result as ApiResult
+    from fleet.bench.delivery import DeliveryResult
     from fleet.bench.latency import CoordinationResult
     from fleet.bench.mavlink import JitterRow, TelemetryRow
     from fleet.bench.planner import Row
@@ -166,10 +168,25 @@ def api_figure(result: ApiResult) -> Figure:
     return figure
 
 
+def delivery_figure(result: DeliveryResult) -> Figure:
+    figure, (ax,) = _figure()
+    times = [0.0, *result.delivered_s, result.seconds]
+    counts = [0, *range(1, len(result.delivered_s) + 1), len(result.delivered_s)]
+    ax.step(times, counts, where="post", color="#1565c0", label=f"delivered: {result.delivered}")
+    _target(ax, result.mails, f"posted: {result.mails}")
+    ax.set_xlabel("seconds after the mail was posted")
+    ax.set_ylabel("mail delivered")
+    ax.set_title(f"drona bench delivery: {result.drones} drones of {result.workspace}, "
+                 f"{result.per_minute:.2f} a minute")
+    ax.legend(fontsize=8)
+    return figure
+
+
 _COLOURS = ["#1565c0", "#2e7d32", "#6a1b9a", "#e08a00"]
 FIGURES: dict[str, Callable[[Any], Figure]] = {
     "planner": planner_figure,
     "mavlink": mavlink_figure,
     "coordination": coordination_figure,
     "api": api_figure,
+    "delivery": delivery_figure,
 }

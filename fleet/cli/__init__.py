@@ -18,7 +18,7 @@ from typing import Any, NoReturn
 # name -> (module, help). Each module has `add_arguments(parser)` and `run(args) -> int`.
 COMMANDS: dict[str, tuple[str, str]] = {
     "plan": ("fleet.cli.plan", "plan safe trajectories for JSON Lines problems"),
-    "bench": ("fleet.cli.bench", "benchmarks: planner, mavlink, coordination, api"),
+    "bench": ("fleet.cli.bench", "benchmarks: planner, mavlink, coordination, api, delivery"),
     "verify": ("fleet.cli.verify", "systematic tester: explore schedules of the real stack for bugs"),
     "sim-vehicle": ("fleet.cli.sim_vehicle", "fake ArduCopter/PX4 vehicles speaking MAVLink over UDP or TCP"),
     "serve": ("fleet.cli.serve", "the mail-request service and dashboard (FastAPI)"),

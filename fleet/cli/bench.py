@@ -2,7 +2,8 @@
 
 ``planner``: the paper's planner workload in CPU time; ``mavlink``: fake
 vehicles and MAVLink links on loopback; ``coordination``: agents over Zenoh on
-loopback; ``api``: durable mail submissions against the service. Each prints
+loopback; ``api``: durable mail submissions against the service; ``delivery``: a
+workspace's whole fleet delivering a batch of mail, its flight record audited. Each prints
 its figures beside its target, and shares ``--quick``, ``--json``, ``--seed``
 and ``--plot``.
 """
@@ -24,6 +25,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "mavlink": ("fleet.bench.mavlink", "telemetry throughput and setpoint jitter of fake vehicles on loopback"),
     "coordination": ("fleet.bench.coordination", "coordination latency of N agents over Zenoh on loopback"),
     "api": ("fleet.bench.api", "sustained durable mail submissions against the service"),
+    "delivery": ("fleet.bench.delivery", "a workspace's fleet delivers a batch of mail through the service"),
 }
 
 

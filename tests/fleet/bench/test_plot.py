@@ -14,6 +14,7 @@ import pytest
 
 from fleet.bench import plot as bench_plot
 from fleet.bench.api import Result as ApiResult
+from fleet.bench.delivery import DeliveryResult
 from fleet.bench.latency import CoordinationResult
 from fleet.bench.mavlink import JitterRow, TelemetryRow
 from fleet.bench.planner import Row
@@ -41,6 +42,7 @@ RESULTS: dict[str, Any] = {
     ],
     "coordination": CoordinationResult(8, 15.0, 120, 9.5, 40.2, 61.0, 90, 8.1, 30.0, 35.0, 14.0, 6.2, 0.3, 20),
     "api": ApiResult(1000.0, 3.0, 64, 8, 3000, 3000, 0, 998.7, 2.1, 4.0, 9.8, 20.5, 3000, True),
+    "delivery": DeliveryResult("16_4", 4, 5, 4, 0, 1, 300.0, 0.8, 1200, 0, 0, 1.0, (40.5, 90.0, 150.2, 200.0)),
 }
 
 
