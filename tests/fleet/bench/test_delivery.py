@@ -31,6 +31,15 @@ def test_mails_are_drawn_by_seed_where_the_service_takes_them_and_no_drone_rests
         assert pickup not in resting and dropoff not in resting
 
 
+def test_no_mail_is_drawn_that_no_charged_battery_can_fly() -> None:
+    """A corridor 160 cells long with its charger at one end: far pairs need more than a battery."""
+    ws = Workspace.build(size=(160, 1, 1), cell_size_m=1.0, tau_s=1.0, drones={"d1": (0, 0, 0)},
+                         charging_stations=((1, 0, 0),))
+    checker = MailChecker(ws)
+    assert any(checker.check((2, 0, 0), (x, 0, 0)) for x in range(3, 160))  # some pairs are refused
+    assert all(not checker.check(pickup, dropoff) for pickup, dropoff, _ in draw_mails(ws, 30, seed=5))
+
+
 def test_a_workspace_with_no_two_cells_for_mail_is_an_error_naming_the_count() -> None:
     ws = Workspace.build(size=(2, 1, 1), cell_size_m=1.0, tau_s=1.0, drones={"d1": (0, 0, 0)})
     with pytest.raises(BenchError, match=r"found 0 of 3 mails the service accepts"):
