@@ -203,17 +203,18 @@ class DroneStack(DroneCore):
         self.clock_off = mine_off
         return self._out_of_bounds(outliers, reason)
 
-    def tracking_bound(self, late: bool, reason: str) -> list[DroneAction]:
+    def tracking_bound(self, late: bool, reason: str, on_time_at: int | None = None) -> list[DroneAction]:
         """The lateness check's verdict: my vehicle came to a cell later than lambda, so the margin
         peers planned with is gone. As with a clock off, I hold where my plan ends, hand back the mail
-        not on board, and every peer holds that for good, until the vehicle is back on time."""
+        not on board, and every peer holds that for good (from ``on_time_at``, the last step the vehicle
+        was seen on time), until the vehicle is back on time."""
         self.late = late
-        return self._out_of_bounds(self.protocol.outliers, reason)
+        return self._out_of_bounds(self.protocol.outliers, reason, on_time_at)
 
-    def _out_of_bounds(self, outliers: frozenset[str], reason: str) -> list[DroneAction]:
+    def _out_of_bounds(self, outliers: frozenset[str], reason: str, on_time_at: int | None = None) -> list[DroneAction]:
         off = self.clock_off or self.late
         newly_off = off and self.protocol.off_since is None
-        actions = self._protocol(ClockBound(off, outliers))
+        actions = self._protocol(ClockBound(off, outliers, on_time_at))
         return [*actions, *(self.mail.release(reason) if newly_off else ())]
 
     def vehicle_back(self, cell: Cell, landed: bool) -> list[DroneAction]:

@@ -45,6 +45,7 @@ class Tracking:
     passing: tuple[Cell, ...]
     battery_pct: float
     late: str | None
+    on_time_at: int | None
     down: bool
 
     if TYPE_CHECKING:  # the agent's own
@@ -128,6 +129,8 @@ class Tracking:
             self._record(sample, flown if seen is not None else None)
         if self.down or self.watch.lost:
             return
+        if sample.late_s is not None:
+            self.on_time_at = sample.step
         if self.late is not None and seen == self.stack.executor.cell and self.stack.executor.trajectory is None:
             self._on_time_again()  # in the air or landed below it: its vehicle is where its plan ended
         elif self.late is None and sample.late_s is None and self.vehicle.settled:
@@ -157,7 +160,8 @@ class Tracking:
         self.late = (f"its vehicle was not in {list(sample.planned)} {self.ws.lateness_s:g} s (lambda) after "
                      f"step {sample.step} began")
         log.warning("%s: %s: it holds where its plan ends, and takes no task until it is on time", self.me, self.late)
-        self._carry_out(self.stack.tracking_bound(True, f"drone {self.me}'s vehicle is later than lambda"))
+        self._carry_out(self.stack.tracking_bound(True, f"drone {self.me}'s vehicle is later than lambda",
+                                                  self.on_time_at))
 
     def _lag(self, report: StepReport) -> str | None:
         """Trailing its timed trajectory, or on the ground while its plan flies: the separation argument

@@ -180,6 +180,10 @@ settled here, and one message it sends is saved (the second point):
   waits for it: it answers as ever. Its news (its rest, a new answer) frees no cell at once: it left
   one before it sent the news, which may find my clock up to Delta behind the fleet's, so what it was
   to fly stays held ``2 max(Delta, 1)`` steps more (``left_behind``; found by the tester, sweep 30391).
+  My vehicle later than lambda is the same verdict (the runtime's lateness check), with the last step
+  telemetry saw it on time (``on_time_at``): it flies my plan's cells in order, so it is somewhere on
+  the plan from then on, and that is what I hold, not only the rest from when the lateness was found
+  (a process behind its boundaries finds it steps late: found over 128 agents on 2 cores).
 * **The operator may release a departed drone** (``Released``): having seen its vehicle
   out of the air for good, it tells every drone to hold none of its cells.
 * **My vehicle can be lost** (its link closed or silent). It may then be anywhere on

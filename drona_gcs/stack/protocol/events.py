@@ -115,6 +115,9 @@ class ClockBound:
 
     mine_off: bool
     outliers: frozenset[str] = frozenset()
+    #: my vehicle late: the last step it was seen on time. It flies my plan's cells in order, so it is
+    #: somewhere on the plan from then on, and all of that is held, not only the rest from now
+    on_time_at: int | None = None
 
 
 @dataclass(frozen=True)

@@ -160,7 +160,7 @@ class Flight(Knowledge):
         within; ``outliers``' proposals get no ack of mine, and their plans are held for good."""
         newly_off = event.mine_off and self.off_since is None
         if newly_off:
-            self.off_since = now
+            self.off_since = now if event.on_time_at is None else min(now, event.on_time_at)
         elif not event.mine_off:
             self.off_since = None
         new, self.outliers = event.outliers - self.outliers, event.outliers

@@ -271,3 +271,34 @@ def test_a_vehicle_later_than_lambda_holds_where_its_plan_ends_and_takes_no_task
     assert statuses(node, "first")[-1] == (MailStatus.HANDED_BACK, "drone d1's vehicle is later than lambda")
     assert statuses(node, "again")[0] == (MailStatus.ACCEPTED, "")
     assert "late" not in agent.alarms
+
+
+def test_a_late_vehicle_is_held_on_its_plan_from_the_last_step_it_was_seen_on_time() -> None:
+    """Found over 128 agents on 2 cores: a process behind its boundaries saw its vehicle late only
+    steps after it fell behind. Peers held the rest of its plan from then, not the cells the vehicle
+    still had to fly through, and planned through them."""
+    async def scenario() -> tuple[DroneStack, int, int]:
+        node, vehicle = FakeNode(), vehicle_over_its_start()
+        stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
+        agent = DroneAgent(stack, node, KEYS, vehicle, FRAME, lambda: 1000.0)
+        agent.mail.take(MailOrder(id="far", pickup=[7, 6, 0], dropoff=[0, 7, 0], priority=9))
+        on_time: list[int] = []
+        for step in range(60):
+            agent.on_step(StepReport(step, stack.executor.cell, None, 0.0, False, 0.0), agent.tick(step))
+            agent.vehicle.airborne = True
+            if not stack.executor.flying or stack.executor.cell == (0, 0, 0):
+                continue
+            if len(on_time) < 2:
+                agent.on_sample(Sample(step, stack.executor.cell, stack.executor.cell, 0.2))
+                on_time.append(step)
+            elif step >= on_time[-1] + WS.delta + 3:  # no sample since: the process was behind
+                agent.on_sample(Sample(step, stack.executor.cell, (1, 0, 0), None))
+                return stack, on_time[-1], step
+            await asyncio.sleep(0)
+        raise AssertionError("the plan never flew")
+
+    stack, last_on_time, found_late = asyncio.run(scenario())
+    assert stack.protocol.off_since == last_on_time < found_late - WS.delta - 1
+    plan = stack.protocol.trajectory
+    assert plan is not None
+    assert set(plan.suffix_from(last_on_time - WS.delta - 1).cells) <= set(stack.protocol.holds())
