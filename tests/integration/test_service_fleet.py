@@ -105,7 +105,10 @@ def test_a_dead_agent_never_leaves_its_mail_stuck_and_another_drone_delivers_it(
     try:
         url = start_service(fleet, tmp_path / "mail.db")
         events = Events(url)
-        events.until(lambda: set(events.drones) == {"d1", "d2"}, 60, "both drones", fleet.logs)
+        # Both parked: d1 nearer the first pickup than d2, so the service gives it to d1.
+        events.until(lambda: set(events.drones) == {"d1", "d2"} and all(
+            d["phase"] == "idle" and d["health"]["ok"] for d in events.drones.values()), 60, "both drones parked",
+            fleet.logs)
         first = httpx.post(f"{url}/v1/mail", headers=HEADERS, timeout=10,
                            json={"pickup": [2, 2, 0], "dropoff": [7, 7, 0], "priority": 9}).json()["id"]
         events.until(lambda: events.status(first) in ("assigned", "picked_up"), 30, "the first mail assigned",
