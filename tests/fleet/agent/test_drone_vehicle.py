@@ -32,6 +32,7 @@ from fleet.transport.wire import (
     to_core,
 )
 from tests.fakes.node import FakeNode
+from tests.fakes.vehicle import FakeVehicle
 from tests.fleet.agent.drone_helpers import FRAME, KEYS, WS, statuses, vehicle_over_its_start
 
 
@@ -233,15 +234,22 @@ def test_a_record_names_the_cells_passed_since_the_record_before_it() -> None:
         (0, [0, 0, 0], None), (2, [3, 0, 0], [[1, 0, 0], [2, 0, 0]])]
 
 
+def _d1_with_mail(order: MailOrder) -> tuple[FakeNode, FakeVehicle, DroneStack, DroneAgent]:
+    """d1's agent over its vehicle at its start, given ``order``."""
+    node, vehicle = FakeNode(), vehicle_over_its_start()
+    stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
+    agent = DroneAgent(stack, node, KEYS, vehicle, FRAME, lambda: 1000.0)
+    agent.mail.take(order)
+    return node, vehicle, stack, agent
+
+
 def test_a_vehicle_later_than_lambda_holds_where_its_plan_ends_and_takes_no_task_until_on_time() -> None:
     """Peers plan with a margin of lambda for a vehicle's lateness: past it, the margin is gone. The
     drone plans nothing more, hands back the mail not on board, and every peer holds the rest of its
     plan; once its vehicle is where that plan ended, it takes tasks again."""
     async def scenario() -> tuple[FakeNode, DroneAgent, list[str]]:
-        node, vehicle = FakeNode(), vehicle_over_its_start()
-        stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
-        agent = DroneAgent(stack, node, KEYS, vehicle, FRAME, lambda: 1000.0)
-        agent.mail.take(MailOrder(id="first", pickup=[3, 0, 0], dropoff=[5, 5, 0], priority=9))
+        node, vehicle, stack, agent = _d1_with_mail(MailOrder(id="first", pickup=[3, 0, 0], dropoff=[5, 5, 0],
+                                                              priority=9))
         seen: list[str] = []
         for step in range(40):
             agent.on_step(StepReport(step, stack.executor.cell, None, 0.0, False, 0.0), agent.tick(step))
@@ -278,10 +286,7 @@ def test_a_late_vehicle_is_held_on_its_plan_from_the_last_step_it_was_seen_on_ti
     steps after it fell behind. Peers held the rest of its plan from then, not the cells the vehicle
     still had to fly through, and planned through them."""
     async def scenario() -> tuple[DroneStack, int, int]:
-        node, vehicle = FakeNode(), vehicle_over_its_start()
-        stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
-        agent = DroneAgent(stack, node, KEYS, vehicle, FRAME, lambda: 1000.0)
-        agent.mail.take(MailOrder(id="far", pickup=[7, 6, 0], dropoff=[0, 7, 0], priority=9))
+        _, _, stack, agent = _d1_with_mail(MailOrder(id="far", pickup=[7, 6, 0], dropoff=[0, 7, 0], priority=9))
         on_time: list[int] = []
         for step in range(60):
             agent.on_step(StepReport(step, stack.executor.cell, None, 0.0, False, 0.0), agent.tick(step))
