@@ -115,9 +115,9 @@ class Followed:
 
 
 async def run_bench(ws_file: Path, mails: list[Mail], speedup: float, minutes: float, workdir: Path,
-                    log: IO[str]) -> tuple[Followed, Path]:
-    """The demo up, ``mails`` posted and followed; what they did, and the flight record."""
-    record, token = workdir / "flight.jsonl", secrets.token_urlsafe(18)
+                    log: IO[str], record: Path) -> Followed:
+    """The demo up, ``mails`` posted and followed, every drone's flight recorded in ``record``."""
+    token = secrets.token_urlsafe(18)
     drones = len(load_workspace(ws_file).drones)
     port = free_port_block(1, socket.SOCK_STREAM)
     demo = await asyncio.create_subprocess_exec(
@@ -138,7 +138,7 @@ async def run_bench(ws_file: Path, mails: list[Mail], speedup: float, minutes: f
         with contextlib.suppress(ProcessLookupError):
             demo.kill()
         await demo.wait()
-    return followed, record
+    return followed
 
 
 async def _until_flying(stdout: asyncio.StreamReader, log: IO[str]) -> None:
@@ -235,6 +235,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speedup", type=float, default=1.0,
                         help="the fake vehicles' simulated seconds per second, battery drain included (default 1)")
     parser.add_argument("--minutes", type=float, help="most minutes to wait for the mail (default 30; 5 with --quick)")
+    parser.add_argument("--record", type=Path, help="keep the flight record here, written anew (JSON Lines, for "
+                        "`drona audit` and `drona replay` with the same --workspace)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -249,6 +251,8 @@ def run(args: argparse.Namespace) -> int:
             ws_file: Path = args.workspace
             workspace = load_workspace(ws_file)
             mails = draw_mails(workspace, mails_wanted, args.seed)
+            record = args.record.resolve() if args.record is not None else workdir / "flight.jsonl"
+            record.write_text("", encoding="utf-8")  # the agents append to it
         except (DronaError, BenchError, OSError, ValueError) as exc:
             print(f"drona bench delivery: {exc}", file=sys.stderr)
             return 2
@@ -259,7 +263,7 @@ def run(args: argparse.Namespace) -> int:
         failures: list[Exception] = []
         with (workdir / "demo.log").open("w", encoding="utf-8") as log:
             try:
-                followed, record = asyncio.run(run_bench(ws_file, mails, args.speedup, minutes, workdir, log))
+                followed = asyncio.run(run_bench(ws_file, mails, args.speedup, minutes, workdir, log, record))
             except* (BenchError, httpx.HTTPError, OSError) as group:
                 failures = list(group.exceptions)
         if failures:

@@ -73,11 +73,20 @@ def test_the_run_passes_only_with_every_mail_delivered_and_a_clean_record(
 def test_a_short_run_delivers_its_mail_and_prints_one_json_row(tmp_path: Path) -> None:
     ws_file = tmp_path / "ws.yaml"
     ws_file.write_text(workspace_yaml(2))
+    record = tmp_path / "flight.jsonl"
+    record.write_text("a stale line\n")
     done = subprocess.run([sys.executable, "-m", "fleet.cli", "bench", "delivery", "--workspace", str(ws_file),
-                           "--mails", "2", "--speedup", "6", "--minutes", "3", "--seed", "3", "--json"],
-                          check=False, capture_output=True, text=True, timeout=400)
+                           "--mails", "2", "--speedup", "6", "--minutes", "3", "--seed", "3", "--json",
+                           "--record", str(record)], check=False, capture_output=True, text=True, timeout=400)
     assert done.returncode == 0, done.stderr[-3000:]
     row = json.loads(done.stdout.strip().splitlines()[-1])
     assert (row["mails"], row["delivered"], row["drones"], row["violations"], row["jumps"]) == (2, 2, 2, 0, 0)
-    assert row["record_steps"] > 0 and row["conformance"] >= 0.95
+    assert row["record_steps"] == len(record.read_text().splitlines()) > 0 and row["conformance"] >= 0.95
     assert "delivered 2" in done.stderr  # the progress, as the mail went
+
+
+def test_a_record_it_cannot_write_is_refused_before_the_fleet_starts(tmp_path: Path) -> None:
+    done = subprocess.run([sys.executable, "-m", "fleet.cli", "bench", "delivery", "--workspace", str(DRONA_16_4),
+                           "--record", str(tmp_path / "no" / "such" / "folder.jsonl")],
+                          check=False, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and "folder.jsonl" in done.stderr and "drones flying" not in done.stderr
