@@ -88,6 +88,9 @@ class Conformance:
         return max(self.deviations, key=lambda d: d.cells, default=None)
 
 
+MIN_CONFORMANCE = 0.95  #: the least share of planned steps flown in the planned cell, by default
+
+
 @dataclass(frozen=True)
 class Audit:
     trajectories: Mapping[str, Trajectory]
@@ -100,6 +103,18 @@ class Audit:
     @property
     def safe(self) -> bool:
         return not self.violations
+
+    def broken(self, min_conformance: float = MIN_CONFORMANCE, max_jumps: int = 0) -> list[str]:
+        """What the run breaks: separation, conformance below ``min_conformance``, more than ``max_jumps``
+        jumps (none: it audits clean)."""
+        broken = []
+        if not self.safe:
+            broken.append(f"{len(self.violations)} separation violations")
+        if self.conformance.fraction < min_conformance:
+            broken.append(f"conformance {self.conformance.fraction:.1%} < {min_conformance:.1%}")
+        if len(self.jumps) > max_jumps:
+            broken.append(f"{len(self.jumps)} jumps > {max_jumps}")
+        return broken
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from drona_gcs.audit import Audit, audit
+from drona_gcs.audit import MIN_CONFORMANCE, Audit, audit
 from drona_gcs.errors import DronaError
 from drona_gcs.workspace_files import load_workspace
 
@@ -25,8 +25,8 @@ from drona_gcs.workspace_files import load_workspace
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("records", nargs="+", type=Path, help="JSON Lines files written by --record")
     parser.add_argument("--workspace", required=True, help="the workspace the run flew in")
-    parser.add_argument("--min-conformance", type=_fraction, default=0.95,
-                        help="least share of planned steps flown in the planned cell (default 0.95)")
+    parser.add_argument("--min-conformance", type=_fraction, default=MIN_CONFORMANCE,
+                        help=f"least share of planned steps flown in the planned cell (default {MIN_CONFORMANCE:g})")
     parser.add_argument("--max-jumps", type=_count, default=0,
                         help="most moves of more than one cell per step (default 0)")
     parser.add_argument("--json", action="store_true", help="print the verdict as one JSON object")
@@ -39,23 +39,12 @@ def run(args: argparse.Namespace) -> int:
     except (DronaError, OSError) as exc:
         print(f"drona audit: {exc}", file=sys.stderr)
         return 2
-    broken = _broken(result, args.min_conformance, args.max_jumps)
+    broken = result.broken(args.min_conformance, args.max_jumps)
     if args.json:
         print(json.dumps(_verdict(result, broken)))
     else:
         _print(result, broken)
     return 1 if broken else 0
-
-
-def _broken(result: Audit, min_conformance: float, max_jumps: int) -> list[str]:
-    broken = []
-    if not result.safe:
-        broken.append(f"{len(result.violations)} separation violations")
-    if result.conformance.fraction < min_conformance:
-        broken.append(f"conformance {result.conformance.fraction:.1%} < {min_conformance:.1%}")
-    if len(result.jumps) > max_jumps:
-        broken.append(f"{len(result.jumps)} jumps > {max_jumps}")
-    return broken
 
 
 def _print(result: Audit, broken: list[str]) -> None:
