@@ -15,7 +15,7 @@ from drona_gcs.stack.drone import SERVICE_LOST, DroneStack
 from drona_gcs.stack.executor import ExecutorAction, ExecutorState, PlanExecutor
 from drona_gcs.stack.mail import Budget, MailAction, MailPlanner, MailRequest
 from drona_gcs.stack.messages import ReqForCurrentTraj, TaskId
-from drona_gcs.stack.protocol import Action, CoordinationProtocol, Event, State
+from drona_gcs.stack.protocol import Action, CoordinationProtocol, Event, PeerLost, State
 
 #: Bugs that ``--seed-bug`` can plant, and what each does.
 SEEDED_BUGS = {
@@ -29,8 +29,9 @@ SEEDED_BUGS = {
     "fly-unheld": "a drone flies a plan at once, held by its peers or not, with a majority of the fleet or not",
     "pickup-uncleared": "a drone takes mail on board without the service's clearance, and keeps it when "
                         "out of touch with the service",
-    "skew-blind": "a drone reads the steps of a clock found off as its own: the plan it flies goes on through "
-                  "that drone's cells, and with its own clock off it flies its plan to the end",
+    "skew-blind": "a drone reads the steps of a clock found off as its own, and takes no notice of where that "
+                  "drone says its vehicle may be: the plan it flies goes on through that drone's cells, and with "
+                  "its own clock off it flies its plan to the end",
 }
 
 
@@ -66,6 +67,9 @@ class FlyUnheld(CoordinationProtocol):
 class SkewBlind(CoordinationProtocol):
     def _timeless(self) -> list[Trajectory]:
         return []
+
+    def handle(self, event: Event, now: int) -> list[Action]:
+        return [] if isinstance(event, PeerLost) else super().handle(event, now)
 
 
 class ExecutorEarly(PlanExecutor):

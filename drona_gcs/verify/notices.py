@@ -12,6 +12,7 @@ from drona_gcs.stack.messages import CurrentTraj, Message, PlanDecision, ReqForC
 from drona_gcs.stack.protocol import Braked, RerouteFailed, StartExecuting, TaskFailed, Threatened
 from drona_gcs.verify.network import Joined, Left
 from drona_gcs.verify.verdicts import cell_text, cells_text
+from drona_gcs.workspace import Cell
 
 
 @dataclass(frozen=True)
@@ -24,6 +25,13 @@ class Announce:
 
 
 @dataclass(frozen=True)
+class Holds:
+    """The cells the sender's vehicle may be in, held for good (none: no more), as ``plan/<me>`` says."""
+
+    cells: tuple[Cell, ...]
+
+
+@dataclass(frozen=True)
 class Clear:
     """The service holds ``mail_id`` as the receiver's from now on: it may take it on board."""
 
@@ -33,7 +41,7 @@ class Clear:
 #: The sender of the service's clearances (``drona serve``: the drone's mail/clear query).
 SERVICE = "service"
 
-Notice = Message | Announce | Left | Joined | Clear
+Notice = Message | Announce | Holds | Left | Joined | Clear
 
 
 def describe(message: Notice) -> str:
@@ -45,6 +53,8 @@ def describe(message: Notice) -> str:
         return f"{name}(vehicle down in {cell_text(message.trajectory.last)})"
     if isinstance(message, Announce):
         return f"{name}({cells_text(message.trajectory)})"
+    if isinstance(message, Holds):
+        return f"{name}({' '.join(map(cell_text, message.cells)) or 'none'})"
     if isinstance(message, Left):
         return f"{name}(silent since step {message.since})"
     if isinstance(message, Joined):

@@ -9,9 +9,9 @@ from collections.abc import Sequence
 from drona_gcs.dispatch import Candidate, choose_drone
 from drona_gcs.stack.drone import DroneStack
 from drona_gcs.stack.mail import MailDelivered, MailLost, MailProgress, MailRejected, MailRequest, MailStarted
-from drona_gcs.stack.protocol import Braked, Broadcast, Grounded, Present, Send, State
+from drona_gcs.stack.protocol import Braked, Broadcast, Grounded, Holding, Present, Send, State
 from drona_gcs.verify.fleet import Fleet
-from drona_gcs.verify.notices import SERVICE, Announce, Clear, note
+from drona_gcs.verify.notices import SERVICE, Announce, Clear, Holds, note
 from drona_gcs.verify.verdicts import cell_text
 
 
@@ -37,6 +37,10 @@ class Service(Fleet):
                     if peer != drone:
                         self._post(drone, peer, Announce(action.trajectory, grounded=isinstance(action, Grounded),
                                                          braked=isinstance(action, Braked)))
+            if isinstance(action, Holding):  # as the agent does, on plan/<me>
+                for peer in self.config.drones:
+                    if peer != drone:
+                        self._post(drone, peer, Holds(action.cells))
             if isinstance(action, MailProgress):
                 self.stacks[drone].mail.reported(action)
                 self._report(drone, action)

@@ -45,7 +45,7 @@ from drona_gcs.verify.faults import FieldFaults
 from drona_gcs.verify.fleet import Transition
 from drona_gcs.verify.liveness import Flier
 from drona_gcs.verify.network import InFlight, Joined, Left
-from drona_gcs.verify.notices import SERVICE, Announce, Clear, Notice, describe
+from drona_gcs.verify.notices import SERVICE, Announce, Clear, Holds, Notice, describe
 from drona_gcs.verify.snapshot import clone_stack, key_of_stack, shallow
 
 __all__ = [
@@ -188,6 +188,9 @@ class World(FieldFaults):
             self._carry_out(msg.to, stack.peer_braked(msg.sender, notice.trajectory))
         elif isinstance(notice, Announce):
             self._carry_out(msg.to, stack.heard(msg.sender, notice.trajectory))
+        elif isinstance(notice, Holds):
+            self.monitors.heard_news(msg.to, msg.sender, self.steps[msg.to])
+            self._carry_out(msg.to, stack.peer_lost(msg.sender, notice.cells))
         elif isinstance(notice, Left):
             self.monitors.left(msg.to, msg.sender)
             self._carry_out(msg.to, stack.peer_left(msg.sender, notice.since))

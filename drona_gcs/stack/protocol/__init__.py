@@ -183,7 +183,12 @@ settled here, and one message it sends is saved (the second point):
   My vehicle later than lambda is the same verdict (the runtime's lateness check), with the last step
   telemetry saw it on time (``on_time_at``): it flies my plan's cells in order, so it is somewhere on
   the plan from then on, and that is what I hold, not only the rest from when the lateness was found
-  (a process behind its boundaries finds it steps late: found over 128 agents on 2 cores).
+  (a process behind its boundaries finds it steps late: found over 128 agents on 2 cores). Either
+  way every peer is told at once where my vehicle may be (``Holding``, as for a lost vehicle), again
+  when my plan ends, and that it is no more once I am back within: a peer flying learns it without a
+  round. A late vehicle stays held on the plan it flies until it is on time, though my steps end that
+  plan first (``trailing``): a peer told only of my brake stopped in a cell my vehicle had still to
+  leave (found over 128 agents).
 * **The operator may release a departed drone** (``Released``): having seen its vehicle
   out of the air for good, it tells every drone to hold none of its cells.
 * **My vehicle can be lost** (its link closed or silent). It may then be anywhere on

@@ -70,7 +70,8 @@ class Braked:
 
 @dataclass(frozen=True)
 class Holding:
-    """Tell every peer the cells my lost vehicle may be in, for good (none: it is back, see ``Relocated``)."""
+    """Tell every peer the cells my vehicle may be in, for good: it is lost, late, or my clock is off (none: it
+    is back, see ``Relocated``, or on time again)."""
 
     cells: tuple[Cell, ...]
 

@@ -46,12 +46,12 @@ class Flight(Knowledge):
 
     def _on_completed(self, event: PlanCompleted, now: int) -> list[Action]:
         """I rest at my plan's end. Out of the fleet's bound, my steps are not the fleet's: peers hold for
-        good every cell of the plan they last heard of, so I tell them at once that I rest in one, and
-        answer with it from now on."""
+        good every cell of the plan they last heard of, so I tell them at once that I rest in one (a late
+        vehicle, still on its way, is held on the plan's cells too), and answer with it from now on."""
         assert self.trajectory is not None
         self._enter(State.WAIT_FOR_TASK)
         self.location, self.task = self.trajectory.last, None
-        return self._tell_rest(now) if self.off_since is not None else []
+        return [*self._tell_rest(now), Holding(self.holds())] if self.off_since is not None else []
 
     def _tell_rest(self, now: int) -> list[Action]:
         """With my clock off, I say at once that I rest in my location alone, and answer with it."""
@@ -158,18 +158,26 @@ class Flight(Knowledge):
     def _on_clock_bound(self, event: ClockBound, now: int) -> list[Action]:
         """My clock is off (every cell of the rest of my plan is held for good in my answers), or back
         within; ``outliers``' proposals get no ack of mine, and their plans are held for good."""
-        newly_off = event.mine_off and self.off_since is None
+        was_off = self.off_since is not None
+        newly_off = event.mine_off and not was_off
         if newly_off:
             self.off_since = now if event.on_time_at is None else min(now, event.on_time_at)
         elif not event.mine_off:
-            self.off_since = None
+            self.off_since = self.trailing = None
         new, self.outliers = event.outliers - self.outliers, event.outliers
+        actions: list[Action] = []
         if newly_off and self.state in (State.EXECUTING, State.REROUTING) and self.trajectory is not None:
             entry = self._entry(now)  # no rest can be planned anew with my clock off: stop short
-            return self._brake(entry) if entry is not None else []
-        if newly_off and self.trajectory is not None:  # at rest after a plan peers hold for good
-            return self._tell_rest(now)
-        return self._steer_clear(", ".join(sorted(new)), now) if new else []  # once, clear of them all
+            actions = self._brake(entry) if entry is not None else []
+            self.trailing = self.trajectory if event.on_time_at is not None else None
+        elif newly_off and self.trajectory is not None:  # at rest after a plan peers hold for good
+            self.trailing = self.trajectory if event.on_time_at is not None else None
+            actions = self._tell_rest(now)
+        elif new:
+            actions = self._steer_clear(", ".join(sorted(new)), now)  # once, clear of them all
+        if event.mine_off != was_off:  # peers wait for no round of theirs to hear where my vehicle may be
+            actions.append(Holding(self.holds()))
+        return actions
 
     def _on_next_step(self, event: NextStep, now: int) -> list[Action]:
         return self._brake(now + 1) if self._enters_next(now) else []

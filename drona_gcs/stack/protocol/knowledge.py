@@ -84,6 +84,9 @@ class Knowledge:
     hearsay: dict[str, frozenset[Cell]] = field(default_factory=dict)
     released: set[str] = field(default_factory=set)  #: departed drones the operator took out of the fleet
     off_since: int | None = None  #: my clock is beyond the fleet's bound, since this step
+    #: my vehicle late: the plan it may still be on, held from ``off_since`` until it is on time (a plan
+    #: ended by my steps is not yet flown by it)
+    trailing: Trajectory | None = None
     outliers: frozenset[str] = frozenset()  #: peers whose clock is beyond the fleet's bound
     #: cells a peer whose steps are not mine (an outlier; any, with my clock off) was to fly before its
     #: latest news, each held to a step of mine: by its clock, it may have left one only just
@@ -149,8 +152,9 @@ class Knowledge:
             if since is None or seen is None:
                 continue
             cells += [seen, self.location]
-            if self.trajectory is not None:
-                cells += self.trajectory.suffix_from(since - self.delta - 1).cells
+            for plan in (self.trajectory, self.trailing if since == self.off_since else None):
+                if plan is not None:
+                    cells += plan.suffix_from(since - self.delta - 1).cells
         return tuple(dict.fromkeys(cells))
 
     def ghost_obstacles(self, sparing: Cell | None = None) -> dict[str, Trajectory]:

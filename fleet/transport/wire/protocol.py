@@ -78,7 +78,8 @@ class PlanAnnounce(WireBody, frozen=True, kw_only=True, tag="plan"):
     """A drone's new plan, to everyone, once made (peers outside the round learn where it goes);
     ``grounded``: its vehicle came down by itself, and stays at the trajectory's end for good;
     ``braked``: it cut the plan it flies short, and holds at the trajectory's end until its next plan;
-    ``lost``: its vehicle is lost, and may be in any of ``holds`` for good (none: it is back)."""
+    ``lost``: its vehicle may be in any of ``holds`` for good: lost, late beyond lambda, or its clock
+    off (none: it is back, on time)."""
 
     trajectory: WireTrajectory
     grounded: bool = False

@@ -20,6 +20,7 @@ from drona_gcs.stack.messages import (
 from drona_gcs.stack.protocol import (
     Braked,
     ClockBound,
+    Holding,
     NewTask,
     PeerAnnounced,
     PlanCompleted,
@@ -82,8 +83,10 @@ def test_a_drone_whose_clock_is_off_holds_where_its_plan_ends_and_plans_nothing(
     plan = started(confirmed(proto, proto.handle(NewTask(Task(ID_A, GOAL)), 0)
                              + proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0)
                              + proto.handle(CurrentTraj("c", location_of("c"), ID_A), 0))).trajectory
-    assert proto.handle(ClockBound(mine_off=True), 3) == []
+    # Every peer is told at once where its vehicle may be, not only the next round that asks.
+    assert proto.handle(ClockBound(mine_off=True), 3) == [Holding(proto.holds())]
     assert set(plan.suffix_from(3).cells) <= set(proto.holds())
+    assert proto.handle(ClockBound(mine_off=True), 4) == []  # said once
     [answer] = proto.handle(request(ID_B_LOW, "b", 4), 4)
     assert isinstance(answer, Send) and isinstance(answer.message, CurrentTraj)
     assert set(answer.message.holds) == set(proto.holds())
@@ -97,7 +100,7 @@ def test_a_drone_whose_clock_is_off_holds_where_its_plan_ends_and_plans_nothing(
     [answer] = proto.handle(request(TaskId(30, "b", 3), "b", plan.end_step + 1), plan.end_step + 1)
     assert isinstance(answer, Send) and isinstance(answer.message, CurrentTraj)
     assert set(answer.message.trajectory.cells) == {GOAL}
-    proto.handle(ClockBound(mine_off=False), plan.end_step + 1)
+    assert proto.handle(ClockBound(mine_off=False), plan.end_step + 1) == [Holding(())]  # peers hold no more
     assert proto.holds() == ()
 
 
@@ -146,7 +149,7 @@ def test_a_drone_whose_clock_is_off_stops_short_of_every_cell_of_its_peers_plans
     safe: the plan is cut short of the first cell a peer's plan holds, and that is what I answer with."""
     proto, plan = flying_past_b()
     actions = proto.handle(ClockBound(mine_off=True), 2)
-    assert [type(a) for a in actions] == [Braked]
+    assert [type(a) for a in actions] == [Braked, Holding]
     assert proto.trajectory is not None and proto.trajectory.last == plan.at(4) == (2, 0, 0)
     assert not set(proto.holds()) & set(B_AWAY.cells)
 
@@ -160,7 +163,7 @@ def test_a_drone_whose_clock_is_off_tells_every_peer_at_once_that_it_rests() -> 
     assert proto.trajectory is not None
     rest = Trajectory.stationary(proto.trajectory.last, proto.trajectory.end_step)
     told = proto.handle(PlanCompleted(), proto.trajectory.end_step)
-    assert told == [Present(peer, rest, braked=False) for peer in ("b", "c")]
+    assert told == [*(Present(peer, rest, braked=False) for peer in ("b", "c")), Holding((rest.last,))]
 
 
 def test_a_drone_found_off_at_rest_after_a_plan_tells_every_peer_at_once_that_it_rests() -> None:
@@ -172,7 +175,7 @@ def test_a_drone_found_off_at_rest_after_a_plan_tells_every_peer_at_once_that_it
     proto.handle(PlanCompleted(), end)
     rest = Trajectory.stationary(proto.trajectory.last, end + 3)
     told = proto.handle(ClockBound(mine_off=True), end + 3)
-    assert told == [Present(peer, rest, braked=False) for peer in ("b", "c")]
+    assert told == [*(Present(peer, rest, braked=False) for peer in ("b", "c")), Holding((rest.last,))]
     assert proto.current_trajectory(end + 4) == rest
 
 
@@ -184,3 +187,19 @@ def test_a_drone_whose_clock_is_off_acks_with_the_cells_it_holds_for_good() -> N
     proposal = PlanProposal("b", ID_B_LOW, traj(3, (4, 4), (4, 3)), ("a", "c"))
     assert proto.handle(proposal, 0) == [Send("b", PlanAck("a", ID_B_LOW, location_of("a"), proto.holds()))]
     assert A in proto.holds()
+
+
+def test_a_late_vehicle_is_told_to_every_peer_at_once_and_held_on_its_plan_until_it_is_on_time() -> None:
+    """Found over 128 agents on 2 cores: d26's vehicle was late on its way to (23, 7); it braked and said so,
+    but its holds went only into answers. d43, flying, heard of the brake and stopped short of (23, 7) in
+    (22, 7), where d26's vehicle still was. Now every peer hears at once every cell the vehicle may be in,
+    also once my steps end the plan (the vehicle is still on its way), and that no more once it is on time."""
+    proto, plan = flying_past_b()
+    late = proto.handle(ClockBound(mine_off=True, on_time_at=1), 3)
+    [told] = [a for a in late if isinstance(a, Holding)]
+    assert proto.trajectory is not None
+    assert set(proto.trajectory.suffix_from(0).cells) <= set(told.cells)  # from on time, less Delta + 1
+    assert set(told.cells) <= set(plan.cells)
+    rest = proto.handle(PlanCompleted(), proto.trajectory.end_step)
+    assert isinstance(rest[-1], Holding) and set(rest[-1].cells) == set(told.cells)  # its vehicle is on it still
+    assert proto.handle(ClockBound(mine_off=False), proto.trajectory.end_step + 2) == [Holding(())]
