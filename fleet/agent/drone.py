@@ -93,6 +93,7 @@ log = logging.getLogger(__name__)
 
 BROADCAST = "all"  #: proto/all: a message to every drone of the fleet (no drone may be called "all")
 ARRIVAL_FRACTION = 0.2  #: over a cell: within this fraction of a cell of its centre (before landing)
+KEEP_UP_TAU = 0.25  #: a host behind by more than this share of tau starts no task (see _keeping_up)
 
 
 @dataclass
@@ -143,6 +144,9 @@ class DroneAgent(Tracking, PeerSide):
         #: vehicle may be anywhere once down: it rejoins the fleet when its agent is restarted)
         self.down = False
         self.task_since: float | None = None
+        #: how late this drone's last boundary was taken, and how long peers' news waits for the loop
+        self.boundary_late_s = 0.0
+        self.backlog_s: Callable[[], float] = lambda: 0.0  #: (set by the host: its inbox's)
         self.metrics = Metrics()
         self.lease_steps = 0  #: the Zenoh lease in steps (set by the host)
         #: the step at which each peer was last heard from (a protocol message, a plan, a clock reply)
@@ -203,7 +207,18 @@ class DroneAgent(Tracking, PeerSide):
 
     def _may_plan(self) -> bool:
         self.mail.refusal = self._refusal()
-        return self.may_plan and self.mail.accepting and self.mail.refusal is None
+        return self.may_plan and self.mail.accepting and self.mail.refusal is None and self._keeping_up()
+
+    def _keeping_up(self) -> bool:
+        """Whether this host takes its boundaries, and its peers' news, in time: a task started while it
+        does not makes it later still, and a brake of a peer reaches a drone flying only as fast as the
+        inbox (found over 128 agents on 2 cores: news seconds old, vehicles late, two braked into one
+        cell). A task waits for the next boundary instead; its mail stays this drone's."""
+        bound = KEEP_UP_TAU * self.ws.tau_s
+        behind = max(self.boundary_late_s, self.backlog_s())
+        busy = f"busy: the host is {behind * 1000:.0f} ms behind (bound {bound * 1000:.0f} ms): no task starts"
+        self._alarm("busy", busy if behind > bound else None)
+        return behind <= bound
 
     def _refusal(self) -> str | None:
         """Why this drone takes no mail and starts no task now (None: it may)."""

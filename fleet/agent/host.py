@@ -40,6 +40,7 @@ from fleet.agent.settings import AgentSettings
 from fleet.clock import cancel_all, periodic
 from fleet.setpoint_loop import Sample, SetpointFleet, SetpointLoop, StepReport
 from fleet.transport.identity import Speakers, identity_for
+from fleet.transport.inbox import inbox_of
 from fleet.transport.keys import FleetKeys, check_name
 from fleet.transport.node import ZenohNode
 from fleet.transport.settings import ZenohSettings, agent_endpoint
@@ -165,6 +166,7 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
             if not settings.adopt_mail:  # a service dispatches the mail: it clears each for pickup
                 stack.mail.cleared = set()
             agent.lease_steps = math.ceil(settings.lease_s / ws.tau_s)
+            agent.backlog_s = inbox_of(asyncio.get_running_loop()).backlog_s
             host.agents.append(agent)
         for agent in host.agents:
             _check_placement(agent)

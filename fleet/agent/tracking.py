@@ -45,6 +45,7 @@ class Tracking:
     passing: tuple[Cell, ...]
     battery_pct: float
     late: str | None
+    boundary_late_s: float
     on_time_at: int | None
     down: bool
 
@@ -98,6 +99,7 @@ class Tracking:
 
     def on_step(self, report: StepReport, actions: Sequence[object]) -> None:
         """After the boundary's setpoints went out: judge the vehicle, record it, publish the state."""
+        self.boundary_late_s = report.late_s
         self.actual = self.watch.seen_cell()
         if self.actual is None:
             log.debug("%s: no cell at step %d: position %s", self.me, report.step, self.link.last_position())
@@ -133,8 +135,8 @@ class Tracking:
             self.on_time_at = sample.step
         if self.late is not None and seen == self.stack.executor.cell and self.stack.executor.trajectory is None:
             self._on_time_again()  # in the air or landed below it: its vehicle is where its plan ended
-        elif self.late is None and sample.late_s is None and self.vehicle.settled:
-            self._late(sample)
+        elif self.late is None and sample.late_s is None and self.vehicle.wanted:
+            self._late(sample)  # in the air or not yet: a climb longer than the lead is late too
         self.mail.refusal = self._refusal()
         self._alarm("late", None if self.late is None else f"late: {self.late}")
 

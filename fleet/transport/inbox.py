@@ -57,6 +57,12 @@ class Inbox:
                 self._ordinary.clear()
                 self._scheduled = False
 
+    def backlog_s(self) -> float:
+        """How long the oldest item still waiting for the loop has waited (0: none waits)."""
+        with self._lock:
+            oldest = min((queue[0][0] for queue in (self._first, self._ordinary) if queue), default=None)
+        return 0.0 if oldest is None else time.monotonic() - oldest
+
     def _take_one(self) -> None:
         with self._lock:
             ordinary = self._ordinary

@@ -307,3 +307,47 @@ def test_a_late_vehicle_is_held_on_its_plan_from_the_last_step_it_was_seen_on_ti
     plan = stack.protocol.trajectory
     assert plan is not None
     assert set(plan.suffix_from(last_on_time - WS.delta - 1).cells) <= set(stack.protocol.holds())
+
+
+def test_a_host_behind_its_boundaries_or_its_inbox_starts_no_task_and_keeps_the_mail() -> None:
+    """Found over 128 agents on 2 cores: tasks started while the host was seconds behind made its vehicles
+    later and its peers' news older, and drones braked into one cell. Behind by more than a quarter of tau,
+    at a boundary or in the inbox, a drone waits; its mail stays its own, and it starts once caught up."""
+    async def scenario() -> tuple[DroneAgent, list[str]]:
+        _, _, stack, agent = _d1_with_mail(MailOrder(id="m", pickup=[3, 0, 0], dropoff=[5, 5, 0], priority=9))
+        backlog = [WS.tau_s]  # the inbox is behind at the first boundary, the boundary itself at the second
+        agent.backlog_s = lambda: backlog[0]
+        seen: list[str] = []
+        for step in range(3):
+            actions = agent.tick(step)
+            waiting = stack.protocol.state is State.WAIT_FOR_TASK
+            seen.append(("waits" if waiting else "starts") + (" busy" if "busy" in agent.alarms else ""))
+            agent.on_step(StepReport(step, stack.executor.cell, None, 0.0, False, 0.4 * WS.tau_s * (step == 0)),
+                          actions)
+            backlog[0] = 0.0
+            await asyncio.sleep(0)
+        return agent, seen
+
+    agent, seen = asyncio.run(scenario())
+    assert seen == ["waits busy", "waits busy", "starts"]
+    assert [m.id for m in agent.mail.listed()] == ["m"]
+
+
+def test_a_vehicle_still_on_the_ground_when_its_plan_moves_on_is_late() -> None:
+    """Found over 128 agents on 2 cores: d75's vehicle had not taken off when its plan left its cell, and
+    only a vehicle in the air was judged. Its plan flew on, peers planned through the cell it sat under,
+    and d93 came down the column into it. A climb longer than the lead is late like any other."""
+    async def scenario() -> tuple[DroneStack, DroneAgent]:
+        _, _, stack, agent = _d1_with_mail(MailOrder(id="m", pickup=[3, 0, 0], dropoff=[5, 5, 0], priority=9))
+        for step in range(40):
+            agent.on_step(StepReport(step, stack.executor.cell, None, 0.0, False, 0.0), agent.tick(step))
+            assert not agent.vehicle.airborne  # never taken off
+            if stack.executor.flying and stack.executor.cell != (0, 0, 0):
+                agent.on_sample(Sample(step, stack.executor.cell, (0, 0, 0), None))  # on the ground at its start
+                return stack, agent
+            await asyncio.sleep(0)
+        raise AssertionError("the plan never moved")
+
+    stack, agent = asyncio.run(scenario())
+    assert agent.late is not None and "late" in agent.alarms
+    assert stack.protocol.off_since is not None

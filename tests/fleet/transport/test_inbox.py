@@ -96,3 +96,21 @@ def test_an_ordinary_item_that_waited_too_long_goes_before_first_ones() -> None:
         return handled
 
     assert asyncio.run(scenario()) == ["old", "first 1", "first 2", "new"]
+
+
+def test_the_backlog_is_how_long_the_oldest_item_still_waiting_has_waited() -> None:
+    """What a drone reads before it starts a task: news of its peers waiting for a busy loop."""
+    async def scenario() -> tuple[float, float, float]:
+        inbox = Inbox(asyncio.get_running_loop())
+        idle = inbox.backlog_s()
+        inbox.put(False, "t", lambda: None, ())
+        time.sleep(0.05)  # the loop busy: nothing is taken meanwhile
+        inbox.put(True, "t", lambda: None, ())
+        waited = inbox.backlog_s()
+        for _ in range(4):
+            await asyncio.sleep(0)
+        return idle, waited, inbox.backlog_s()
+
+    idle, waited, after = asyncio.run(scenario())
+    assert idle == 0.0 and after == 0.0
+    assert waited >= 0.05  # the ordinary item's wait, not the newer first one's
