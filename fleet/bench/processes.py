@@ -14,8 +14,12 @@ from typing import Any, cast
 from fleet.bench import BenchError
 
 
-def spawn(arguments: list[str]) -> subprocess.Popen[bytes]:
-    return subprocess.Popen([sys.executable, "-m", "fleet.cli", *arguments], stdout=subprocess.DEVNULL)
+def spawn(arguments: list[str], nice: int = 0) -> subprocess.Popen[bytes]:
+    """``drona`` with ``arguments``, at ``nice`` (added to this process's niceness: lower priority)."""
+    child = subprocess.Popen([sys.executable, "-m", "fleet.cli", *arguments], stdout=subprocess.DEVNULL)
+    if nice:  # at once: it is still importing, long before it serves a drone
+        os.setpriority(os.PRIO_PROCESS, child.pid, os.getpriority(os.PRIO_PROCESS, 0) + nice)
+    return child
 
 
 async def up_or_gone(all_up: asyncio.Event, children: list[subprocess.Popen[bytes]], timeout_s: float,
