@@ -207,7 +207,8 @@ class DroneAgent(Tracking, PeerSide):
 
     def _may_plan(self) -> bool:
         self.mail.refusal = self._refusal()
-        return self.may_plan and self.mail.accepting and self.mail.refusal is None and self._keeping_up()
+        keeping_up = self._keeping_up()  # its alarm kept current either way
+        return self.may_plan and self.mail.accepting and self.mail.refusal is None and keeping_up
 
     def _keeping_up(self) -> bool:
         """Whether this host takes its boundaries, and its peers' news, in time: a task started while it
