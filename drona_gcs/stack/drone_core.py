@@ -79,12 +79,13 @@ class DroneCore:
 
     def walls(self) -> frozenset[Cell]:
         """Cells held for good, which no way crosses: vehicles down, where lost vehicles may be (until they
-        are back; but where I am: had one stopped there, we would have met), and where peers whose
-        clock is off rest. Where I am: my plan's cell, and the task planner's (a leg not flown left
-        the vehicle at its start)."""
+        are back; but where I am: had one stopped there, we would have met; not a late vehicle's cells,
+        held only for now), and where peers whose clock is off rest. Where I am: my plan's cell, and the
+        task planner's (a leg not flown left the vehicle at its start)."""
         protocol, here = self.protocol, {self.executor.cell, self.mail.cell}
         off = (protocol.known[p].last for p in protocol.outliers if p in protocol.known)
-        lost = (cell for cells in protocol.peers_lost.values() for cell in cells if cell not in here)
+        lost = (cell for peer, cells in protocol.peers_lost.items() if peer not in protocol.peers_late
+                for cell in cells if cell not in here)
         return frozenset((*protocol.peers_down.values(), *lost, *off))
 
     def copy(self) -> Self:

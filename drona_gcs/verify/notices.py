@@ -29,6 +29,7 @@ class Holds:
     """The cells the sender's vehicle may be in, held for good (none: no more), as ``plan/<me>`` says."""
 
     cells: tuple[Cell, ...]
+    for_now: bool = False  #: late or its clock off, not lost
 
 
 @dataclass(frozen=True)

@@ -296,7 +296,8 @@ class DroneAgent(Tracking, PeerSide):
                 self.node.put(self.keys.plan(self.me), encode(self.me, self.clock(), grounded))
             elif isinstance(action, Holding):
                 flies = self.stack.protocol.current_trajectory(self.stack.now)
-                told = PlanAnnounce(trajectory=WireTrajectory.of(flies), lost=True, holds=action.cells)
+                told = PlanAnnounce(trajectory=WireTrajectory.of(flies), lost=True, holds=action.cells,
+                                    for_now=action.for_now)
                 self.node.put(self.keys.plan(self.me), encode(self.me, self.clock(), told))
             elif isinstance(action, Present) and action.trajectory != presented:
                 presented = action.trajectory

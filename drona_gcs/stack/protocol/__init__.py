@@ -184,8 +184,9 @@ settled here, and one message it sends is saved (the second point):
   telemetry saw it on time (``on_time_at``): it flies my plan's cells in order, so it is somewhere on
   the plan from then on, and that is what I hold, not only the rest from when the lateness was found
   (a process behind its boundaries finds it steps late: found over 128 agents on 2 cores). Either
-  way every peer is told at once where my vehicle may be (``Holding``, as for a lost vehicle), again
-  when my plan ends, and that it is no more once I am back within: a peer flying learns it without a
+  way every peer is told at once where my vehicle may be (``Holding``, as for a lost vehicle, but
+  ``for_now``: planned around, no wall for the task planner, which rejected mail there), again when
+  my plan ends, and that it is no more once I am back within: a peer flying learns it without a
   round. A late vehicle stays held on the plan it flies until it is on time, though my steps end that
   plan first (``trailing``): a peer told only of my brake stopped in a cell my vehicle had still to
   leave (found over 128 agents).

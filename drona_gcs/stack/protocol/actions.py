@@ -74,6 +74,8 @@ class Holding:
     is back, see ``Relocated``, or on time again)."""
 
     cells: tuple[Cell, ...]
+    #: late, or my clock off (not lost): held until I say so, but no wall a way to mail must go around
+    for_now: bool = False
 
 
 @dataclass(frozen=True)

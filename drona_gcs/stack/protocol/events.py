@@ -77,10 +77,12 @@ class PeerDown:
 
 @dataclass(frozen=True)
 class PeerLost:
-    """``drone``'s vehicle is lost: it may be in any of ``cells`` for good (none: it is back)."""
+    """``drone``'s vehicle is lost: it may be in any of ``cells`` for good (none: it is back). ``for_now``:
+    late, or its clock off, not lost: held until it says so, but no wall for the task planner."""
 
     drone: str
     cells: tuple[Cell, ...]
+    for_now: bool = False
 
 
 @dataclass(frozen=True)

@@ -51,12 +51,16 @@ class Flight(Knowledge):
         assert self.trajectory is not None
         self._enter(State.WAIT_FOR_TASK)
         self.location, self.task = self.trajectory.last, None
-        return [*self._tell_rest(now), Holding(self.holds())] if self.off_since is not None else []
+        return [*self._tell_rest(now), self._holding()] if self.off_since is not None else []
 
     def _tell_rest(self, now: int) -> list[Action]:
         """With my clock off, I say at once that I rest in my location alone, and answer with it."""
         self.trajectory = Trajectory.stationary(self.location, now)
         return [Present(peer, self.trajectory, braked=False) for peer in sorted(self.peers) if peer != self.me]
+
+    def _holding(self) -> Holding:
+        """Where my vehicle may be, for every peer: for now if it is late or my clock is off, for good if lost."""
+        return Holding(self.holds(), for_now=self.lost is None)
 
     def _on_completed_while_rerouting(self, event: PlanCompleted, now: int) -> list[Action]:
         """The plan ended before its new rest was planned: the round is moot, and I rest at its end."""
@@ -141,8 +145,10 @@ class Flight(Knowledge):
         self._reported(event.drone)
         if not event.cells:
             self.peers_lost.pop(event.drone, None)
+            self.peers_late.discard(event.drone)
             return []
         self.peers_lost[event.drone] = event.cells
+        (self.peers_late.add if event.for_now else self.peers_late.discard)(event.drone)
         return self._steer_clear(event.drone, now)
 
     def _on_released(self, event: Released, now: int) -> list[Action]:
@@ -152,6 +158,7 @@ class Flight(Knowledge):
         for held in (self.ghosts, self.maybe_flown, self.peers_down, self.braked, self.known, self.peers_lost,
                      self.hearsay, self.held_until):
             held.pop(event.drone, None)
+        self.peers_late.discard(event.drone)
         self.released.add(event.drone)
         return []
 
@@ -176,7 +183,7 @@ class Flight(Knowledge):
         elif new:
             actions = self._steer_clear(", ".join(sorted(new)), now)  # once, clear of them all
         if event.mine_off != was_off:  # peers wait for no round of theirs to hear where my vehicle may be
-            actions.append(Holding(self.holds()))
+            actions.append(self._holding())
         return actions
 
     def _on_next_step(self, event: NextStep, now: int) -> list[Action]:

@@ -92,6 +92,7 @@ class Knowledge:
     #: latest news, each held to a step of mine: by its clock, it may have left one only just
     left_behind: dict[Cell, int] = field(default_factory=dict)
     peers_lost: dict[str, tuple[Cell, ...]] = field(default_factory=dict)  #: peers' lost vehicles, where they may be
+    peers_late: set[str] = field(default_factory=set)  #: of those, the late ones and clocks off (``PeerLost.for_now``)
     #: members back since they left, not heard from since: held where they may be until they say (Present)
     unreported: set[str] = field(default_factory=set)
     cut: Trajectory | None = None  #: my last brake: the plan I cut short, held at its end
@@ -247,6 +248,7 @@ class Knowledge:
         for gone in (self.ghosts, self.maybe_flown, self.hearsay, self.peers_down, self.peers_lost, self.braked,
                      self.held_until):
             gone.pop(drone, None)
+        self.peers_late.discard(drone)
         return True
 
     def _present(self, drone: str, now: int) -> Action:

@@ -79,10 +79,11 @@ class PlanAnnounce(WireBody, frozen=True, kw_only=True, tag="plan"):
     ``grounded``: its vehicle came down by itself, and stays at the trajectory's end for good;
     ``braked``: it cut the plan it flies short, and holds at the trajectory's end until its next plan;
     ``lost``: its vehicle may be in any of ``holds`` for good: lost, late beyond lambda, or its clock
-    off (none: it is back, on time)."""
+    off (none: it is back, on time); ``for_now``: late or its clock off, not lost."""
 
     trajectory: WireTrajectory
     grounded: bool = False
     braked: bool = False
     lost: bool = False
     holds: Holds = ()
+    for_now: bool = False

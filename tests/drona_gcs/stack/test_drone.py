@@ -306,6 +306,21 @@ def test_a_pickup_where_a_lost_vehicle_may_be_is_handed_back_at_once() -> None:
     assert [a.request.id for a in of(MailStarted, actions)] == ["other"]
 
 
+def test_a_pickup_on_a_late_peers_plan_is_held_for_now_and_not_handed_back() -> None:
+    """Found by the fleets lane: d3's clock was found off while it flew to park, and it told every peer the
+    cells of that plan. Taken as a lost vehicle's, they walled the pickup of d1's mail off for good, and d1
+    rejected it, though d3 was to leave those cells within steps. A late drone or a clock off holds its
+    cells until it says so: planned around, but no wall for the task planner."""
+    ws = Workspace.build(size=(6, 6, 1), drones={"d1": (0, 5, 0), "d2": (5, 0, 0)})
+    stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+    stack.peer_lost("d2", ((5, 0, 0), (4, 0, 0), MAIL.pickup), for_now=True)
+    stack.assign(MAIL)
+    actions = stack.step(0, 100.0, stack.executor.cell)
+    assert not of(MailRejected, actions)
+    assert [a.request.id for a in of(MailStarted, actions)] == [MAIL.id]
+    assert MAIL.pickup in stack.protocol.peers_lost["d2"]  # planned around all the same
+
+
 def test_a_drone_in_a_cell_a_lost_vehicle_may_be_in_is_not_walled_in() -> None:
     """A lost vehicle's cells include those its plan crossed shortly before it was last seen: this
     drone may have come to rest in one since. Had the vehicle stopped there, they would have met; as a

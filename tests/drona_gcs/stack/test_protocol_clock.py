@@ -84,7 +84,7 @@ def test_a_drone_whose_clock_is_off_holds_where_its_plan_ends_and_plans_nothing(
                              + proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0)
                              + proto.handle(CurrentTraj("c", location_of("c"), ID_A), 0))).trajectory
     # Every peer is told at once where its vehicle may be, not only the next round that asks.
-    assert proto.handle(ClockBound(mine_off=True), 3) == [Holding(proto.holds())]
+    assert proto.handle(ClockBound(mine_off=True), 3) == [Holding(proto.holds(), for_now=True)]
     assert set(plan.suffix_from(3).cells) <= set(proto.holds())
     assert proto.handle(ClockBound(mine_off=True), 4) == []  # said once
     [answer] = proto.handle(request(ID_B_LOW, "b", 4), 4)
@@ -100,7 +100,8 @@ def test_a_drone_whose_clock_is_off_holds_where_its_plan_ends_and_plans_nothing(
     [answer] = proto.handle(request(TaskId(30, "b", 3), "b", plan.end_step + 1), plan.end_step + 1)
     assert isinstance(answer, Send) and isinstance(answer.message, CurrentTraj)
     assert set(answer.message.trajectory.cells) == {GOAL}
-    assert proto.handle(ClockBound(mine_off=False), plan.end_step + 1) == [Holding(())]  # peers hold no more
+    back = proto.handle(ClockBound(mine_off=False), plan.end_step + 1)
+    assert back == [Holding((), for_now=True)]  # peers hold no more
     assert proto.holds() == ()
 
 
@@ -163,7 +164,7 @@ def test_a_drone_whose_clock_is_off_tells_every_peer_at_once_that_it_rests() -> 
     assert proto.trajectory is not None
     rest = Trajectory.stationary(proto.trajectory.last, proto.trajectory.end_step)
     told = proto.handle(PlanCompleted(), proto.trajectory.end_step)
-    assert told == [*(Present(peer, rest, braked=False) for peer in ("b", "c")), Holding((rest.last,))]
+    assert told == [*(Present(peer, rest, braked=False) for peer in ("b", "c")), Holding((rest.last,), for_now=True)]
 
 
 def test_a_drone_found_off_at_rest_after_a_plan_tells_every_peer_at_once_that_it_rests() -> None:
@@ -175,7 +176,7 @@ def test_a_drone_found_off_at_rest_after_a_plan_tells_every_peer_at_once_that_it
     proto.handle(PlanCompleted(), end)
     rest = Trajectory.stationary(proto.trajectory.last, end + 3)
     told = proto.handle(ClockBound(mine_off=True), end + 3)
-    assert told == [*(Present(peer, rest, braked=False) for peer in ("b", "c")), Holding((rest.last,))]
+    assert told == [*(Present(peer, rest, braked=False) for peer in ("b", "c")), Holding((rest.last,), for_now=True)]
     assert proto.current_trajectory(end + 4) == rest
 
 
@@ -202,4 +203,4 @@ def test_a_late_vehicle_is_told_to_every_peer_at_once_and_held_on_its_plan_until
     assert set(told.cells) <= set(plan.cells)
     rest = proto.handle(PlanCompleted(), proto.trajectory.end_step)
     assert isinstance(rest[-1], Holding) and set(rest[-1].cells) == set(told.cells)  # its vehicle is on it still
-    assert proto.handle(ClockBound(mine_off=False), proto.trajectory.end_step + 2) == [Holding(())]
+    assert proto.handle(ClockBound(mine_off=False), proto.trajectory.end_step + 2) == [Holding((), for_now=True)]
