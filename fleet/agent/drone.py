@@ -163,14 +163,16 @@ class DroneAgent(Tracking, PeerSide):
         node, keys = self.node, self.keys
         # Protocol messages first (see fleet.transport.node), requests and answers alike, in the order they
         # came: a drone that coordinates waits on both (every peer's answer to its request, then the plans of
-        # those before it in line), while announced plans, states, mail and clocks can wait their turn.
+        # those before it in line), while states, mail and clocks can wait their turn.
         # With only the answers first, the requests of the drones later in line waited while those before
         # them planned, when the whole fleet coordinated at once.
         node.subscribe(keys.proto(self.me), self._on_protocol, first=True)
         node.subscribe(keys.answers(), self._on_protocol, first=True)
         # A request to everyone: this host's drones answer it in one message (see ZenohNode.subscribe).
         node.subscribe(keys.proto(BROADCAST), self._on_protocol, gather=True, first=True)
-        node.subscribe(keys.plan(), self._on_plan)
+        # News on plan/ goes before all: a drone flying must act on a peer's brake, or its vehicle down, late
+        # or lost (found over 128 agents: read seconds late, behind the protocol's messages).
+        node.subscribe(keys.plan(), self._on_plan, urgent=True)
         node.queryable(keys.state(self.me), self._on_state_query)
         node.queryable(keys.clock(self.me), self._on_clock_query)
         node.queryable(keys.command(self.me), self._on_command)

@@ -1,8 +1,9 @@
 """What Zenoh's threads hand to one event loop, and the order the loop takes it in.
 
 zenoh-python calls back on its own threads; :class:`Inbox` queues each callback for the loop, the
-*first* ones (protocol messages, which a coordinating drone waits on) before the ordinary ones, one
-per turn of the loop. :func:`guarded` runs each: a handler's error is logged, never fatal.
+*urgent* ones (news a drone flying must act on: a peer's brake, its vehicle down, late or lost) before
+all, then the *first* ones (protocol messages, which a coordinating drone waits on), then the
+ordinary ones, one per turn of the loop. :func:`guarded` runs each: a handler's error is logged, never fatal.
 """
 
 from __future__ import annotations
@@ -36,16 +37,19 @@ class Inbox:
     def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
         self._loop = weakref.ref(loop)  # weak: the inbox is the loop's, and must not keep it alive
         self._lock = threading.Lock()  # Zenoh's threads put, the loop takes
+        self._urgent: collections.deque[_Item] = collections.deque()
         self._first: collections.deque[_Item] = collections.deque()
         self._ordinary: collections.deque[_Item] = collections.deque()
         self._scheduled = False  #: a _take_one is queued on the loop
 
-    def put(self, first: bool, name: str, callback: Callable[..., None], args: Sequence[Any]) -> None:
+    def put(self, first: bool, name: str, callback: Callable[..., None], args: Sequence[Any],
+            urgent: bool = False) -> None:
         loop = self._loop()
         if loop is None or loop.is_closed():
             return  # a session that outlived its loop: nobody is left to hand it to
         with self._lock:
-            (self._first if first else self._ordinary).append((time.monotonic(), name, callback, args))
+            queue = self._urgent if urgent else self._first if first else self._ordinary
+            queue.append((time.monotonic(), name, callback, args))
             if self._scheduled:
                 return
             self._scheduled = True
@@ -53,6 +57,7 @@ class Inbox:
             loop.call_soon_threadsafe(self._take_one)
         except RuntimeError:  # the loop closed under us during shutdown
             with self._lock:
+                self._urgent.clear()
                 self._first.clear()
                 self._ordinary.clear()
                 self._scheduled = False
@@ -60,16 +65,16 @@ class Inbox:
     def backlog_s(self) -> float:
         """How long the oldest item still waiting for the loop has waited (0: none waits)."""
         with self._lock:
-            oldest = min((queue[0][0] for queue in (self._first, self._ordinary) if queue), default=None)
+            oldest = min((q[0][0] for q in (self._urgent, self._first, self._ordinary) if q), default=None)
         return 0.0 if oldest is None else time.monotonic() - oldest
 
     def _take_one(self) -> None:
         with self._lock:
             ordinary = self._ordinary
             overdue = bool(ordinary) and time.monotonic() - ordinary[0][0] > ORDINARY_WAITS_AT_MOST_S
-            queue = ordinary if overdue or not self._first else self._first
+            queue = self._urgent or (ordinary if overdue or not self._first else self._first)
             _, name, callback, args = queue.popleft()
-            more = self._scheduled = bool(self._first or ordinary)
+            more = self._scheduled = bool(self._urgent or self._first or ordinary)
         try:
             guarded(name, callback, args)
         finally:

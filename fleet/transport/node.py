@@ -4,10 +4,11 @@ zenoh-python calls back on its own threads. Every callback here only hands
 the sample (key and bytes) to the event loop, through the loop's inbox
 (:class:`~fleet.transport.inbox.Inbox`); the handlers run on the loop, one at a time, like
 everything else in the process. A subscription may go *first*: its samples
-are handed round before those of ordinary ones already waiting. The agents'
-protocol messages go first (see fleet.agent.drone): a drone that coordinates
-waits on them, while announced plans, states and mail can wait their turn
-when the whole fleet asks at once. Protocol messages are put with congestion control BLOCK: the
+are handed round before those of ordinary ones already waiting, and an *urgent*
+one before those too. The agents' protocol messages go first (see fleet.agent.drone):
+a drone that coordinates waits on them, while states and mail can wait their turn
+when the whole fleet asks at once; a peer's brake, or its vehicle down, late or lost,
+is urgent: a drone flying must act on it. Protocol messages are put with congestion control BLOCK: the
 default, DROP, loses messages of a burst. They are batched (Zenoh's default), not express: an idle
 ping-pong favours express puts, but under a fleet coordinating at once an express put holds the
 event loop two to three times as long (``drona bench coordination`` ran no slower batched).
@@ -78,7 +79,8 @@ QueryHandler = Callable[[str, bytes, Query], None]
 class Node(Protocol):
     """What a drone's agent needs of its Zenoh node (:class:`ZenohNode` is one; tests pass a fake)."""
 
-    def subscribe(self, key: str, handler: SampleHandler, gather: bool = False, first: bool = False) -> None: ...
+    def subscribe(self, key: str, handler: SampleHandler, gather: bool = False, first: bool = False,
+                  urgent: bool = False) -> None: ...
 
     def queryable(self, key: str, handler: QueryHandler) -> None: ...
 
@@ -135,29 +137,30 @@ class ZenohNode:
         return node
 
     # ------------------------------------------------------ declarations
-    def subscribe(self, key: str, handler: SampleHandler, gather: bool = False, first: bool = False) -> None:
+    def subscribe(self, key: str, handler: SampleHandler, gather: bool = False, first: bool = False,
+                  urgent: bool = False) -> None:
         """``handler(key, payload)`` on the loop for every sample under ``key``.
 
         The nodes of one session that subscribe to the same key share one Zenoh subscriber: a
         message to every drone of a host crosses to Python once and wakes the loop once.
         ``gather``: the session's puts made while a sample is handed round go out together
         (see the module docstring). ``first``: its samples are handed round before the others
-        waiting for the loop. The first subscription to a key decides both.
+        waiting for the loop; ``urgent``: before those too. The first subscription to a key decides.
         """
         fanout = self._fanouts.get(key)
         if fanout is None:
-            fanout = self._fanout(key, gather, first)
+            fanout = self._fanout(key, gather, first, urgent)
         fanout.handlers.append(handler)
         self._subscribed.append((key, handler))
 
-    def _fanout(self, key: str, gather: bool, first: bool) -> _Fanout:
+    def _fanout(self, key: str, gather: bool, first: bool, urgent: bool) -> _Fanout:
         """A new Zenoh subscriber for ``key``, kept once declared."""
-        fanout = _Fanout(self.name, gather=gather, first=first)
+        fanout = _Fanout(self.name, gather=gather, first=first, urgent=urgent)
         root = self.owner or self  # open as long as the session is, whichever node subscribed first
 
         def on_sample(sample: zenoh.Sample) -> None:
             root._to_loop(root._hand_round, fanout, str(sample.key_expr), sample.payload.to_bytes(),
-                          first=fanout.first)
+                          first=fanout.first, urgent=fanout.urgent)
 
         with zenoh_errors(f"{self.name}: subscribe to {key}"):
             fanout.subscriber = self.session.declare_subscriber(key, on_sample)
@@ -288,7 +291,7 @@ class ZenohNode:
         publisher.put(payload)
         root = self.owner or self
         for fanout in self._reached(key):
-            root._to_loop(root._hand_round, fanout, key, payload, first=fanout.first)
+            root._to_loop(root._hand_round, fanout, key, payload, first=fanout.first, urgent=fanout.urgent)
 
     def _reached(self, key: str) -> list[_Fanout]:
         """The session's own subscriptions a put on ``key`` reaches: handed it on the loop
@@ -380,12 +383,12 @@ class ZenohNode:
             self._local.clear()
             fanout.undeclare(self.name)
 
-    def _to_loop(self, callback: Callable[..., None], *args: Any, first: bool = False) -> None:
+    def _to_loop(self, callback: Callable[..., None], *args: Any, first: bool = False, urgent: bool = False) -> None:
         """From a Zenoh thread: run ``callback(*args)`` on the loop (dropped once the loop is gone),
         in arrival order; ``first``: before every ordinary one still waiting."""
         if self.closed:
             return
-        self._inbox.put(first, self.name, callback, args)
+        self._inbox.put(first, self.name, callback, args, urgent)
 
 
 @dataclass
@@ -395,6 +398,7 @@ class _Fanout:
     name: str
     gather: bool = False  #: the puts made while its samples are handed round go out together
     first: bool = False  #: its samples go before the ordinary ones waiting for the loop
+    urgent: bool = False  #: its samples go before every other waiting for the loop
     handlers: list[SampleHandler] = field(default_factory=list)
     subscriber: Any = None
 

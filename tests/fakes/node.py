@@ -94,7 +94,8 @@ class FakeNode:
         return [decode(payload).body for put, payload in self.puts if intersects(key, put)]
 
     # ------------------------------------------------------------ the port
-    def subscribe(self, key: str, handler: SampleHandler, gather: bool = False, first: bool = False) -> None:
+    def subscribe(self, key: str, handler: SampleHandler, gather: bool = False, first: bool = False,
+                  urgent: bool = False) -> None:
         self.network.subscribed(key, handler)
 
     def queryable(self, key: str, handler: QueryHandler) -> None:

@@ -114,3 +114,19 @@ def test_the_backlog_is_how_long_the_oldest_item_still_waiting_has_waited() -> N
     idle, waited, after = asyncio.run(scenario())
     assert idle == 0.0 and after == 0.0
     assert waited >= 0.05  # the ordinary item's wait, not the newer first one's
+
+
+def test_urgent_items_go_before_first_ones_and_overdue_ordinary_ones() -> None:
+    """A peer's brake or late vehicle waited behind the protocol's messages of a fleet coordinating at
+    once (over 128 agents: seconds), while a drone flying had to act on it."""
+    async def scenario() -> list[str]:
+        inbox, handled = Inbox(asyncio.get_running_loop()), list[str]()
+        inbox.put(False, "t", handled.append, ("old",))
+        inbox.put(True, "t", handled.append, ("first",))
+        time.sleep(ORDINARY_WAITS_AT_MOST_S * 1.5)  # the loop busy: "old" is overdue
+        inbox.put(False, "t", handled.append, ("brake",), urgent=True)
+        for _ in range(6):
+            await asyncio.sleep(0)
+        return handled
+
+    assert asyncio.run(scenario()) == ["brake", "old", "first"]
