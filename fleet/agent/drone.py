@@ -209,18 +209,19 @@ class DroneAgent(Tracking, PeerSide):
 
     def _may_plan(self) -> bool:
         self.mail.refusal = self._refusal()
-        keeping_up = self._keeping_up()  # its alarm kept current either way
-        return self.may_plan and self.mail.accepting and self.mail.refusal is None and keeping_up
+        return self.may_plan and self.mail.accepting and self.mail.refusal is None and self._keeping_up()
 
     def _keeping_up(self) -> bool:
         """Whether this host takes its boundaries, and its peers' news, in time: a task started while it
         does not makes it later still, and a brake of a peer reaches a drone flying only as fast as the
         inbox (found over 128 agents on 2 cores: news seconds old, vehicles late, two braked into one
-        cell). A task waits for the next boundary instead; its mail stays this drone's."""
+        cell). A task waits for the next boundary instead; its mail stays this drone's. No alarm: the
+        drone is healthy, and the service must not give its mail to another for a moment's load."""
         bound = KEEP_UP_TAU * self.ws.tau_s
         behind = max(self.boundary_late_s, self.backlog_s())
-        busy = f"busy: the host is {behind * 1000:.0f} ms behind (bound {bound * 1000:.0f} ms): no task starts"
-        self._alarm("busy", busy if behind > bound else None)
+        if behind > bound:
+            self.dropped.warning("busy", "%s: the host is %.0f ms behind (bound %.0f ms): no task starts", self.me,
+                                 behind * 1000, bound * 1000)
         return behind <= bound
 
     def _refusal(self) -> str | None:
