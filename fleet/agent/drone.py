@@ -226,6 +226,7 @@ class DroneAgent(Tracking, PeerSide):
 
     def _refusal(self) -> str | None:
         """Why this drone takes no mail and starts no task now (None: it may)."""
+        self.mail.refusing_for_good = self.down or self.out_of_service is not None
         if self.down:
             return "its vehicle came down by itself"
         if self.out_of_service is not None:

@@ -69,6 +69,8 @@ class MailDesk:
         self.on_change = on_change  #: the drone's state changed (a mail taken)
         self.accepting = True  #: False once shutting down: no new mail
         self.refusal: str | None = None  #: why this drone takes no mail for now (its vehicle is down)
+        #: the refusal ends only with a restart (its vehicle down, out of service): an heir does not wait it out
+        self.refusing_for_good = False
         self.adopt = True  #: off when a service dispatches the mail (it reassigns a lost drone's)
         self.seq = 0
         self.delivered: set[str] = set()  #: a repeated order for one of these is acknowledged, not flown again
@@ -297,6 +299,8 @@ class MailDesk:
             return
         due = {k: v for k, v in self.orphans.items()
                if v[2] <= step and next((name for name in first_two if name != v[0]), None) == self.me}
+        if due and self.refusal is not None and not self.refusing_for_good:
+            return  # late, or not ready, for now: taken over once I may, not rejected (no drone else would)
         for mail_id in due:
             del self.orphans[mail_id]
         for owner, mail, _ in due.values():

@@ -146,6 +146,26 @@ def test_the_heir_takes_over_mail_a_live_drone_handed_back_at_once(in_touch: boo
     assert statuses(node, "q") == []  # d2 holds it still
 
 
+def test_an_heir_late_for_now_takes_the_mail_over_once_on_time_not_rejects_it() -> None:
+    """Found by the fleets lane (the rogue test): d3 handed two mails back, late; its heir d1 was late at
+    that moment too, rejected both, and no drone else would take them: never delivered. An heir that may
+    take mail again later keeps the orphans until it may; one whose vehicle is down rejects at once."""
+    async def scenario() -> tuple[list[tuple[MailStatus, str]], list[tuple[MailStatus, str]]]:
+        handed = MailView(id="h", pickup=[2, 2, 0], dropoff=[4, 4, 0], priority=3, stage="handed_back")
+        node, agent = _heir_of_d2(handed)
+        agent.late = "its vehicle was not in [1, 0, 0] 0.3 s (lambda) after step 0 began"
+        agent.tick(0)
+        agent.tick(1)
+        while_late = statuses(node, "h")
+        agent.late = None
+        agent.tick(2)
+        return while_late, statuses(node, "h")
+
+    while_late, after = asyncio.run(scenario())
+    assert while_late == []
+    assert after[:2] == [(MailStatus.ACCEPTED, ""), (MailStatus.REASSIGNED, "drone d2 handed it back")]
+
+
 @pytest.mark.parametrize("owner, heir", [("d2", "d1"), ("d1", "d2")])
 def test_the_heir_is_the_smallest_live_name_but_the_owners_and_no_other_drone_adopts(owner: str, heir: str) -> None:
     """Each of d1, d2 and d3 hears ``owner`` hand mail back: only ``heir`` takes it over."""
