@@ -251,13 +251,16 @@ class Knowledge:
         self.peers_late.discard(drone)
         return True
 
-    def _present(self, drone: str, now: int) -> Action:
-        """What ``drone``, back, is told of me: my vehicle down or lost, or the plan I fly (a brake or not)."""
+    def _present(self, drone: str, now: int) -> list[Action]:
+        """What ``drone``, back, is told of me: my vehicle down or lost, or the plan I fly (a brake or not),
+        and where my vehicle may be if it is late or my clock off (told to all, as when it went off)."""
         if self.down is not None and self.trajectory is not None:
-            return Grounded(self.trajectory)  # a restarted agent missed the news: it never moves
+            return [Grounded(self.trajectory)]  # a restarted agent missed the news: it never moves
         if self.lost is not None:
-            return Holding(self.holds())
-        return Present(drone, self.current_trajectory(now), self.trajectory is not None and self.trajectory == self.cut)
+            return [Holding(self.holds())]
+        braked = self.trajectory is not None and self.trajectory == self.cut
+        held = self.holds()
+        return [Present(drone, self.current_trajectory(now), braked), *([Holding(held, for_now=True)] * bool(held))]
 
     def _leave_behind(self, drone: str, now: int) -> None:
         """News of ``drone``, whose steps are not mine: what it was to fly, or may have flown while gone, stays

@@ -216,7 +216,7 @@ class Rounds(Confirming):
         if event.drone == self.me:
             return []
         if event.drone in self.members:  # met as I start (my agent restarted), or back already (a message)
-            return [self._present(event.drone, now)]
+            return self._present(event.drone, now)
         self._leave_behind(event.drone, now)  # an outlier back: where it may have been stays held a while
         self.members.add(event.drone)
         self.released.discard(event.drone)
@@ -226,8 +226,8 @@ class Rounds(Confirming):
         self.unreported.add(event.drone)
         told = self._present(event.drone, now)
         if self.coordinating and self.task is not None:
-            return [told, Send(event.drone, self._request(now))]
-        return [told]
+            return [*told, Send(event.drone, self._request(now))]
+        return told
 
     def _plan_if_ready(self, now: int, direct: bool = False) -> list[Action]:
         """``direct``: the answers are what I know; no plan found, nothing is done (a round asks)."""

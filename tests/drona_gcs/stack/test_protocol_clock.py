@@ -23,6 +23,8 @@ from drona_gcs.stack.protocol import (
     Holding,
     NewTask,
     PeerAnnounced,
+    PeerJoined,
+    PeerLeft,
     PlanCompleted,
     Present,
     Send,
@@ -204,3 +206,14 @@ def test_a_late_vehicle_is_told_to_every_peer_at_once_and_held_on_its_plan_until
     rest = proto.handle(PlanCompleted(), proto.trajectory.end_step)
     assert isinstance(rest[-1], Holding) and set(rest[-1].cells) == set(told.cells)  # its vehicle is on it still
     assert proto.handle(ClockBound(mine_off=False), proto.trajectory.end_step + 2) == [Holding((), for_now=True)]
+
+
+def test_a_peer_back_is_told_at_once_where_my_late_vehicle_may_be() -> None:
+    """A peer back from a partition missed the news that my vehicle went late: told only my plan, it would
+    plan through the cells my vehicle trails in until it next asked me."""
+    proto, _ = flying_past_b()
+    [told] = [a for a in proto.handle(ClockBound(mine_off=True, on_time_at=1), 3) if isinstance(a, Holding)]
+    proto.handle(PeerLeft("b"), 4)
+    back = proto.handle(PeerJoined("b", B_AWAY.last), 5)
+    assert Holding(told.cells, for_now=True) in back
+    assert any(isinstance(a, Present) and a.to == "b" for a in back)
