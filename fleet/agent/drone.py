@@ -54,6 +54,7 @@ from drona_gcs.stack.protocol import (
     Threatened,
 )
 from drona_gcs.workspace import Cell, Workspace
+from fleet.agent.admission import TaskBudget
 from fleet.agent.clocksync import ClockCheck
 from fleet.agent.maildesk import MailDesk
 from fleet.agent.outbox import Answers, Decided, Proposed, coalesced, urgency
@@ -147,6 +148,8 @@ class DroneAgent(Tracking, PeerSide):
         #: how late this drone's last boundary was taken, and how long peers' news waits for the loop
         self.boundary_late_s = 0.0
         self.backlog_s: Callable[[], float] = lambda: 0.0  #: (set by the host: its inbox's)
+        #: the tasks this host's drones may start at a boundary (set by the host: one for all its drones)
+        self.budget = TaskBudget(KEEP_UP_TAU * self.ws.tau_s)
         self.metrics = Metrics()
         self.lease_steps = 0  #: the Zenoh lease in steps (set by the host)
         #: the step at which each peer was last heard from (a protocol message, a plan, a clock reply)
@@ -200,16 +203,31 @@ class DroneAgent(Tracking, PeerSide):
         task planner) with the cell telemetry puts the vehicle in."""
         self._watch_vehicle(step)
         level = self._battery()
-        actions = self.stack.step(step, level, self.watch.flown(), may_plan=self._may_plan())
+        actions = self.stack.step(step, level, self.watch.flown(), may_plan=self._may_plan(step))
+        if any(isinstance(action, GoTo) for action in actions):
+            self.budget.started(step)
         self._carry_out(actions)
         # A lease of grace: a drone cut off (not gone) has seen it too by then, and handed its mail back.
         self.mail.adopt_due(step, self.alive, self.stack.in_touch)
         self.mail.publish_held()
         return actions
 
-    def _may_plan(self) -> bool:
+    def _may_plan(self, step: int) -> bool:
         self.mail.refusal = self._refusal()
-        return self.may_plan and self.mail.accepting and self.mail.refusal is None and self._keeping_up()
+        return (self.may_plan and self.mail.accepting and self.mail.refusal is None and self._keeping_up()
+                and self._within_budget(step))
+
+    def _within_budget(self, step: int) -> bool:
+        """Whether the host may start one more task at this boundary (see fleet.agent.admission). Else the
+        task waits for the next boundary, its mail this drone's, as a busy host's does."""
+        peers = len(self.alive - {self.me})
+        waiting = self.stack.protocol.state is State.WAIT_FOR_TASK and bool(self.mail.listed())
+        if self.budget.may_start(step, peers, self.me, waiting):
+            return True
+        if waiting:
+            self.dropped.warning("budget", "%s: the host started %s task(s) at this boundary, all it may with %d "
+                                 "peers: no task starts", self.me, self.budget.per_boundary(peers), peers)
+        return False
 
     def _keeping_up(self) -> bool:
         """Whether this host takes its boundaries, and its peers' news, in time: a task started while it

@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 from drona_gcs.stack.drone import DroneAction, DroneStack
 from drona_gcs.stack.messages import CurrentTraj, PlanDecision
 from drona_gcs.workspace import Workspace
+from fleet.agent.admission import TaskBudget
 from fleet.agent.clocksync import ClockCheck, OffsetSample
 from fleet.agent.maildesk import MailDesk
 from fleet.logs import Throttled
@@ -59,6 +61,7 @@ class PeerSide:
     alarms: dict[str, str]
     may_plan: bool
     mail: MailDesk
+    budget: TaskBudget
 
     if TYPE_CHECKING:  # the agent's own
         def _carry_out(self, actions: Sequence[DroneAction]) -> None: ...
@@ -66,6 +69,11 @@ class PeerSide:
         def _refusal(self) -> str | None: ...
 
     def _on_protocol(self, key: str, payload: bytes) -> None:
+        began = time.perf_counter()
+        self._take_protocol(key, payload)
+        self.budget.handled(time.perf_counter() - began)
+
+    def _take_protocol(self, key: str, payload: bytes) -> None:
         try:
             envelope = decode(payload)
             if envelope.sender == self.me:

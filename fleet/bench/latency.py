@@ -54,6 +54,9 @@ class CoordinationResult:
     #: the CPU each agent process used in the first OPENING_S from the mail given (ms): a process busy all
     #: along bounds the opening burst by its CPU, one mostly idle by waiting
     opening_cpu_ms: tuple[float, ...] = ()
+    #: from the opening's mail given to each drone's first plan seen (ms), waits for a task start included
+    opening_first_plan_p50_ms: float = math.nan
+    opening_last_first_plan_ms: float = math.nan
 
 
 async def measure(children: list[subprocess.Popen[bytes]], workspace: Workspace, names: list[str], fleet: str,
@@ -111,12 +114,13 @@ async def measure(children: list[subprocess.Popen[bytes]], workspace: Workspace,
     finally:
         await node.close()
     values, steady = latencies.since(), latencies.since(started + steady_after)
+    first_plans = sorted(1000 * (seen - started) for seen in latencies.first_seen().values())
     return CoordinationResult(
         len(names), elapsed, len(values), _percentile(values, 0.5), _percentile(values, 0.99), _percentile(values, 1),
         len(steady), _percentile(steady, 0.5), _percentile(steady, 0.99), _percentile(steady, 1),
         sent / plans if plans else float("nan"), 1000 * sum(cpu[1:]) / elapsed / len(names), cpu[0] / elapsed,
         delivered, reference_before, reference_after, latencies.first(until=started + steady_after),
-        tuple(1000 * c for c in opening_cpu[1:]))
+        tuple(1000 * c for c in opening_cpu[1:]), _percentile(first_plans, 0.5), _percentile(first_plans, 1))
 
 
 async def _cpu_after(children: list[subprocess.Popen[bytes]], cpu0: list[float], seconds: float) -> list[float]:
@@ -152,6 +156,13 @@ class PlanLatencies:
     def since(self, when: float = -math.inf) -> list[float]:
         """The latencies (ms) of the plans first seen at ``when`` or later, sorted."""
         return sorted(ms for seen, ms in self._seen.values() if seen >= when)
+
+    def first_seen(self) -> dict[str, float]:
+        """When each drone's first plan counted was first seen."""
+        seen: dict[str, float] = {}
+        for (drone, _), (when, _) in self._seen.items():
+            seen[drone] = min(when, seen.get(drone, when))
+        return seen
 
     def first(self, when: float = -math.inf, until: float = math.inf) -> float:
         """The latency (ms) of the plan first seen at ``when`` or later (and before ``until``); NaN if none."""

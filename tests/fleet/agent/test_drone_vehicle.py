@@ -336,6 +336,44 @@ def test_a_host_behind_its_boundaries_or_its_inbox_starts_no_task_and_keeps_the_
     assert [m.id for m in agent.mail.listed()] == ["m"]
 
 
+def test_a_host_starts_no_more_tasks_at_a_boundary_than_it_can_coordinate_within_its_bound(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """Found over 128 agents on 2 cores: the 64 drones of a process, given mail at once, started 64 tasks at
+    one boundary, before any lag showed, and the process fell seconds behind. A host whose messages take
+    long to handle starts fewer tasks at a boundary; a drone past the host's share waits for the next
+    boundary, its mail its own."""
+    async def scenario() -> tuple[DroneAgent, list[str]]:
+        _, _, stack, agent = _d1_with_mail(MailOrder(id="m", pickup=[3, 0, 0], dropoff=[5, 5, 0], priority=9))
+        agent.alive = {"d1", "d2", "d3"}
+        assert agent.budget.handling_s is None
+        agent.budget.handled(0.03)  # 3 x 2 peers x 30 ms: one task fills the 250 ms bound
+        agent.budget.started(0)  # another drone of the host took it at the first boundary
+        seen: list[str] = []
+        for step in range(2):
+            actions = agent.tick(step)
+            seen.append("waits" if stack.protocol.state is State.WAIT_FOR_TASK else "starts")
+            agent.on_step(StepReport(step, stack.executor.cell, None, 0.0, False, 0.0), actions)
+            await asyncio.sleep(0)
+        return agent, seen
+
+    agent, seen = asyncio.run(scenario())
+    assert seen == ["waits", "starts"]
+    assert "d1: the host started 1 task(s) at this boundary, all it may with 2 peers" in caplog.text
+    assert [m.id for m in agent.mail.listed()] == ["m"]
+    assert agent.alarms == {}
+
+
+def test_a_host_measures_how_long_a_protocol_message_takes_to_handle() -> None:
+    async def scenario() -> DroneAgent:
+        _, _, _, agent = _d1_with_mail(MailOrder(id="m", pickup=[3, 0, 0], dropoff=[5, 5, 0], priority=9))
+        asked = ReqForCurrentTraj(TaskId(50, "d2", 9), "d2", Trajectory.stationary((7, 7, 0), 0), ("d1",))
+        agent._on_protocol(KEYS.proto("all", "d2"), encode("d2", 1000.0, from_core(asked)))
+        return agent
+
+    agent = asyncio.run(scenario())
+    assert agent.budget.handling_s is not None and agent.budget.handling_s > 0
+
+
 def test_a_vehicle_still_on_the_ground_when_its_plan_moves_on_is_late() -> None:
     """Found over 128 agents on 2 cores: d75's vehicle had not taken off when its plan left its cell, and
     only a vehicle in the air was judged. Its plan flew on, peers planned through the cell it sat under,

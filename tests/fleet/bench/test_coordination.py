@@ -50,6 +50,9 @@ def test_a_short_run_gives_one_strict_json_row_with_its_figures() -> None:
     # The opening burst: its head of the line flew first, and the agent processes worked meanwhile.
     assert 0 < row["opening_first_ms"] <= row["max_ms"]
     assert len(row["opening_cpu_ms"]) == row["processes"] and sum(row["opening_cpu_ms"]) > 0
+    # From the mail given to each drone's first plan: at least its coordination, at most the whole run.
+    assert row["opening_first_ms"] <= row["opening_last_first_plan_ms"] < 1000 * row["seconds"]
+    assert 0 < row["opening_first_plan_p50_ms"] <= row["opening_last_first_plan_ms"]
 
 
 class _Fleet:
@@ -112,6 +115,7 @@ def test_only_plans_made_for_the_mail_count_each_once() -> None:
     assert math.isnan(latencies.first(until=2.5))
     latencies.observe(_state("d1", 4, 5.0), now=7.0)
     assert latencies.first() == 12.0  # the first one seen, not the quickest
+    assert latencies.first_seen() == {"d1": 3.0, "d2": 5.0}  # each drone's first plan counted
 
 
 @pytest.mark.parametrize("agents", [4, 32, 64, 128, 200])
