@@ -111,6 +111,9 @@ class Tracking:
             log.warning("%s: the vehicle came down by itself %s: its mail is handed back", self.me, where)
             cell = below if below is not None else self.stack.executor.cell
             self._carry_out(self.stack.vehicle_down(f"drone {self.me}'s vehicle came down by itself {where}", cell))
+        if self._sent_too_late(report):
+            self._late(f"its setpoint for {list(report.target)} went out {report.late_s:.3g} s after step "
+                       f"{report.step} began, later than lambda ({self.ws.lateness_s:g} s)")
         self._alarm("lag", self._lag(report))
         self._alarm("down", "vehicle: came down while its plan flew (a failsafe or a pilot?); its mail was handed "
                     "back and it starts no task; restart its agent once it is back in service" if self.down else None)
@@ -136,7 +139,9 @@ class Tracking:
         if self.late is not None and seen == self.stack.executor.cell and self.stack.executor.trajectory is None:
             self._on_time_again()  # in the air or landed below it: its vehicle is where its plan ended
         elif self.late is None and sample.late_s is None and self.vehicle.wanted:
-            self._late(sample)  # in the air or not yet: a climb longer than the lead is late too
+            # In the air or not yet: a climb longer than the lead is late too.
+            self._late(f"its vehicle was not in {list(sample.planned)} {self.ws.lateness_s:g} s (lambda) after "
+                       f"step {sample.step} began")
         self.mail.refusal = self._refusal()
         self._alarm("late", None if self.late is None else f"late: {self.late}")
 
@@ -156,14 +161,20 @@ class Tracking:
         self.late = None
         self._carry_out(self.stack.tracking_bound(False, ""))
 
-    def _late(self, sample: Sample) -> None:
+    def _late(self, why: str) -> None:
         """Later than lambda, the margin peers planned with is gone: hold where the plan ends, until the
         vehicle is there."""
-        self.late = (f"its vehicle was not in {list(sample.planned)} {self.ws.lateness_s:g} s (lambda) after "
-                     f"step {sample.step} began")
+        self.late = why
         log.warning("%s: %s: it holds where its plan ends, and takes no task until it is on time", self.me, self.late)
         self._carry_out(self.stack.tracking_bound(True, f"drone {self.me}'s vehicle is later than lambda",
                                                   self.on_time_at))
+
+    def _sent_too_late(self, report: StepReport) -> bool:
+        """A vehicle sent to its next cell more than lambda into the step cannot be there within lambda:
+        late at once, not a sample later (a host that far behind samples late too)."""
+        moving = report.planned is not None and report.target != report.planned
+        return (moving and report.late_s > self.ws.lateness_s and self.late is None and not self.down
+                and not self.watch.lost and self.vehicle.wanted)
 
     def _lag(self, report: StepReport) -> str | None:
         """Trailing its timed trajectory, or on the ground while its plan flies: the separation argument

@@ -374,6 +374,32 @@ def test_a_host_measures_how_long_a_protocol_message_takes_to_handle() -> None:
     assert agent.budget.handling_s is not None and agent.budget.handling_s > 0
 
 
+@pytest.mark.parametrize("late_by", [-0.01, 0.01])
+def test_a_setpoint_sent_later_than_lambda_into_its_step_makes_the_vehicle_late_at_once(late_by: float) -> None:
+    """Found over 128 agents on 2 cores: a host seconds behind sent each setpoint seconds late, and sampled
+    its vehicles as late: they were judged seconds after peers planned around them. A vehicle sent to its
+    next cell later than lambda into the step cannot be there in time: it is late at that boundary."""
+    async def scenario() -> tuple[DroneStack, DroneAgent]:
+        _, _, stack, agent = _d1_with_mail(MailOrder(id="m", pickup=[3, 0, 0], dropoff=[5, 5, 0], priority=9))
+        for step in range(40):
+            before = stack.executor.cell
+            actions = agent.tick(step)
+            agent.vehicle.airborne = True
+            if stack.executor.flying and stack.executor.cell != before:
+                late = WS.lateness_s + late_by
+                agent.on_step(StepReport(step, stack.executor.cell, before, 0.0, False, late, 0, before), actions)
+                return stack, agent
+            agent.on_step(StepReport(step, stack.executor.cell, before, 0.0, False, 0.0, 0, before), actions)
+            await asyncio.sleep(0)
+        raise AssertionError("the plan never moved")
+
+    stack, agent = asyncio.run(scenario())
+    assert (agent.late is not None) is (late_by > 0)
+    assert (stack.protocol.off_since is not None) is (late_by > 0)
+    if late_by > 0:
+        assert agent.late is not None and "later than lambda" in agent.late
+
+
 def test_a_vehicle_still_on_the_ground_when_its_plan_moves_on_is_late() -> None:
     """Found over 128 agents on 2 cores: d75's vehicle had not taken off when its plan left its cell, and
     only a vehicle in the air was judged. Its plan flew on, peers planned through the cell it sat under,
