@@ -122,7 +122,7 @@ async def run_bench(ws_file: Path, mails: list[Mail], speedup: float, minutes: f
     port = free_port_block(1, socket.SOCK_STREAM)
     demo = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "fleet.cli", "demo", "--workspace", str(ws_file), "--port", str(port),
-        "--db", str(workdir / "mail.db"), "--record", str(record), "--token", token, "--speedup", str(speedup),
+        "--db", str(workdir / "mail.db"), "--record", str(record), f"--token={token}", "--speedup", str(speedup),
         "--ready-after", "2", "--vehicle-port", str(free_udp_base(drones)),
         "--zenoh-port", str(free_port_block(drones, socket.SOCK_STREAM)),
         stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT, start_new_session=True)

@@ -171,7 +171,7 @@ async def _fly(args: argparse.Namespace, workspace: Path, drones: int, token: st
     if args.record:
         agent_args += ["--record", str(args.record)]
     agents = await start("agent", *agent_args, stderr=asyncio.subprocess.PIPE)
-    service = await start("serve", *ws, "--demo", "--token", token, "--db", str(args.db),
+    service = await start("serve", *ws, "--demo", f"--token={token}", "--db", str(args.db),
                            "--host", args.host, "--port", str(args.port), "--connect", zenoh, *security,
                            stdout=asyncio.subprocess.PIPE)
     children = {"service": service, "agents": agents, "vehicles": vehicles}

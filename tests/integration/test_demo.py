@@ -24,7 +24,7 @@ from fleet.sim.ports import free_port_block, free_udp_base
 from tests.api.conftest import browser  # noqa: F401  (the fixture)
 
 pytestmark = pytest.mark.slow
-TOKEN = "demo-test-token-0123456789"
+TOKEN = "-demo-test-token-0123456789"  #: a random token may begin with a dash: it must not pass for an option
 
 
 def demo_ports(drones: int) -> list[str]:
@@ -37,7 +37,7 @@ def start_demo(tmp_path: Path, drones: int, ports: list[str] | None = None,
                env: dict[str, str] | None = None) -> tuple[subprocess.Popen[str], str]:
     command = [sys.executable, "-m", "fleet.cli", "demo", "--drones", str(drones),
                "--tau", "0.5", "--speedup", "4", "--db", str(tmp_path / "demo.db"),
-               "--record", str(tmp_path / "record.jsonl"), "--token", TOKEN, *(ports or demo_ports(drones))]
+               "--record", str(tmp_path / "record.jsonl"), f"--token={TOKEN}", *(ports or demo_ports(drones))]
     demo = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})})
     assert demo.stdout is not None
