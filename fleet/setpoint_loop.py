@@ -113,7 +113,7 @@ class SetpointLoop:
         #: takes a boundary: the executor's own tick, or the whole drone stack's step (which ticks it)
         self.tick: Callable[[int], Sequence[object]] = tick or executor.tick
         self.suspended = False  #: the vehicle is lost: nothing is sent until its agent says where it is
-        #: whether a peer rests in a cell now (its plan ended there): a vehicle is never sent into one
+        #: whether a peer rests in a cell (or will within the window): a vehicle is never sent into one
         self.rested_in = rested_in or (lambda cell: False)
         self.sampled_at = -math.inf  #: the link time the last sample's cells end at: positions after it are news
 
