@@ -91,8 +91,7 @@ class SetpointLoop:
     def __init__(self, sink: SetpointSink, frame: GeoFrame, executor: PlanExecutor, epoch: float, tau: float,
                  clock: Callable[[], float], check_hz: float = 10.0, lag_tolerance_m: float | None = None,
                  tick: Callable[[int], Sequence[object]] | None = None, lateness_s: float = 0.0,
-                 link_clock: Callable[[], float] | None = None,
-                 rested_in: Callable[[Cell], bool] | None = None) -> None:
+                 link_clock: Callable[[], float] | None = None) -> None:
         if tau <= 0 or check_hz <= 0 or lateness_s < 0:
             raise ValueError("tau and check_hz must be > 0, lateness_s >= 0")
         self.lateness = lateness_s
@@ -113,8 +112,6 @@ class SetpointLoop:
         #: takes a boundary: the executor's own tick, or the whole drone stack's step (which ticks it)
         self.tick: Callable[[int], Sequence[object]] = tick or executor.tick
         self.suspended = False  #: the vehicle is lost: nothing is sent until its agent says where it is
-        #: whether a peer rests in a cell (or will within the window): a vehicle is never sent into one
-        self.rested_in = rested_in or (lambda cell: False)
         self.sampled_at = -math.inf  #: the link time the last sample's cells end at: positions after it are news
 
     def step_at(self, t: float) -> int:
@@ -130,13 +127,8 @@ class SetpointLoop:
     # ------------------------------------------------- used by SetpointFleet
     @property
     def aim(self) -> Cell:
-        """The cell the vehicle is sent to: the next one of its route, or the target; the cell it is in
-        while a peer rests in that one. A vehicle on time never meets a resting peer; one trailing its
-        plan may, in a cell its plan left long ago, where the peer came to rest (found over 128 agents on
-        2 cores: a late vehicle, catching up, flew into a drone resting in its plan's cells)."""
-        aim = self.route[0] if self.route else self.target
-        here = self._here()
-        return here if here is not None and here != aim and self.rested_in(aim) else aim
+        """The cell the vehicle is sent to: the next one of its route, or the target."""
+        return self.route[0] if self.route else self.target
 
     def aim_point(self) -> Ned:
         """Where in the aimed cell the vehicle is sent: its centre, or past it towards the next cell when
@@ -145,8 +137,6 @@ class SetpointLoop:
         gains falls ever further behind one cell per tau (1 m cells, tau 1 s)."""
         aim, here = self.aim, self._here()
         centre = self.frame.cell_to_ned(aim)
-        if aim not in (*self.route, self.target):  # held in its cell
-            return centre
         before = self.before_target if here in (None, aim) else here
         after = self._after(aim)
         if after is None or before is None or _offset(before, aim) != _offset(aim, after) or after == aim:

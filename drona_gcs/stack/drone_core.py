@@ -213,13 +213,6 @@ class DroneCore:
                 for cell in (traj.cells if drone in outliers else (traj.last,))} | {
             cell for cell, until in self.protocol.left_behind.items() if until >= now}
 
-    def rested_in(self, cell: Cell) -> bool:
-        """Whether a peer rests in ``cell`` now, its plan ended there, as this drone knows: its vehicle,
-        trailing its plan, must not fly into it (see fleet.setpoint_loop.SetpointLoop.aim). Not one
-        coming to rest later: a vehicle late within lambda passes before it, as the window allows."""
-        return any(traj.last == cell and traj.end_step <= self.now
-                   for drone, traj in self.protocol.known.items() if drone != self.me)
-
     def taken_cells(self) -> set[Cell]:
         """Cells where other drones rest, as far as this drone knows."""
         resting = {traj.last for drone, traj in self.protocol.known.items()

@@ -274,8 +274,7 @@ async def _fly(host: Host, frame: GeoFrame, record: TextIO | None) -> None:
     settings, ws = host.settings, host.workspace
     # A route after a stall is checked as often as positions come.
     loops = [SetpointLoop(agent.link, frame, agent.stack.executor, settings.epoch, ws.tau_s, host.clock,
-                          settings.telemetry_hz, tick=agent.tick, lateness_s=ws.lateness_s, link_clock=agent.link.clock,
-                          rested_in=agent.stack.rested_in)
+                          settings.telemetry_hz, tick=agent.tick, lateness_s=ws.lateness_s, link_clock=agent.link.clock)
              for agent in host.agents]
     for agent, loop in zip(host.agents, loops, strict=True):
         agent.setpoints = loop

@@ -125,8 +125,7 @@ class CruisingSink(FakeVehicle):
 def cruise(plan: Trajectory, cells_a_step: float, tau: float,
            until: Callable[[StepReport, CruisingSink], bool], check_hz: float = 40.0,
            stall: tuple[int, float] | None = None, lateness_s: float = 0.0,
-           samples: list[Sample] | None = None,
-           rested_in: Callable[[Cell], bool] | None = None) -> tuple[CruisingSink, list[StepReport]]:
+           samples: list[Sample] | None = None) -> tuple[CruisingSink, list[StepReport]]:
     """Fly ``plan`` with a :class:`CruisingSink` at ``cells_a_step`` until ``until(report, sink)``;
     ``stall``: at that step the whole process blocks for that many seconds (a blocking call, a
     paused VM)."""
@@ -146,7 +145,7 @@ def cruise(plan: Trajectory, cells_a_step: float, tau: float,
                 stop.set()
 
         runner = SetpointLoop(sink, FRAME, executor, loop.time() + 0.05, tau, loop.time, check_hz=check_hz,
-                              lateness_s=lateness_s, rested_in=rested_in)
+                              lateness_s=lateness_s)
         sampled = None if samples is None else samples.append
         await asyncio.wait_for(runner.run(on_step, stop, on_sample=sampled), timeout=10)
         return sink, reports
@@ -342,26 +341,3 @@ def test_a_vehicle_climbing_under_its_lowest_layer_cell_is_in_it(layer: int, on_
     loop.take(0, 0.0)
     sample = loop.sample(0)
     assert sample is not None and (sample.late_s is not None) == on_time, sample
-
-
-@pytest.mark.parametrize("rested_until", [None, 9])
-def test_a_vehicle_trailing_its_plan_never_flies_into_a_cell_a_peer_rests_in(rested_until: int | None) -> None:
-    """Found over 128 agents on 2 cores: d56's vehicle, late, caught up along its plan through (18, 4),
-    where d104 had come to rest after the plan left it. Trailing its plan, a vehicle holds in its cell
-    while a peer rests in the next; once the peer has left, it flies on."""
-    steps: list[int] = []
-    rested = (2, 0, 0)
-
-    def resting(cell: Cell) -> bool:
-        return cell == rested and (rested_until is None or not steps or steps[-1] < rested_until)
-
-    def record(report: StepReport, sink: CruisingSink) -> bool:
-        steps.append(report.step)
-        return report.step == 16
-
-    sink, _ = cruise(LONG, 0.5, 0.2, record, check_hz=100.0, rested_in=resting)
-    entered = [cell_of(end) for _, end in sink.legs]
-    if rested_until is None:
-        assert rested not in entered and cell_of(sink.here) == (1, 0, 0)  # held short, where it was
-    else:
-        assert entered[-1] == LONG.last  # on along its plan once the peer had left

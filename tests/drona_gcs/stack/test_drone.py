@@ -384,17 +384,3 @@ def test_a_plan_that_ends_short_of_the_legs_goal_is_no_leg_done() -> None:
     actions += stack.step(stack.now + 1, 100.0, stack.executor.cell)
     assert of(MailPickedUp, actions) == [] and stack.mail.cell == short
     assert [g.goal for g in of(GoTo, actions)] == [MAIL.pickup]
-
-
-def test_a_peer_rests_in_the_last_cell_of_its_plan_once_its_plan_has_ended() -> None:
-    """What the setpoint loop asks before it sends a vehicle trailing its plan on: a peer resting there
-    now, as the drone knows it. One coming to rest later does not count: a vehicle late within lambda
-    passes before it, as the separation window allows."""
-    ws = Workspace.build(size=(6, 6, 1), drones={"d1": (0, 0, 0), "d2": (5, 5, 0)})
-    stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
-    assert stack.rested_in((5, 5, 0)) and not stack.rested_in((0, 0, 0))  # its own cell is no peer's
-    stack.heard("d2", Trajectory(stack.now, ((5, 5, 0), (5, 4, 0), (5, 3, 0))))
-    assert not stack.rested_in((5, 3, 0)) and not stack.rested_in((5, 5, 0))  # on its way there; it left
-    for _ in range(2):
-        stack.step(stack.now + 1, 100.0, (0, 0, 0))
-    assert stack.rested_in((5, 3, 0))
