@@ -54,7 +54,8 @@ class TaskBudget:
         self._at(step)
         self._asked.add(drone)
         limit = self.per_boundary(peers)
-        since = self._waiting_since.pop(drone, step) if waiting else step + 1
+        was = self._waiting_since.pop(drone, step)
+        since = was if waiting else step + 1
         ahead = sum(1 for other, was in self._waiting_since.items() if was < since and other not in self._asked)
         if limit is None or limit - self._started > ahead:
             return True
@@ -68,5 +69,6 @@ class TaskBudget:
         self._started += 1
 
     def _at(self, step: int) -> None:
-        if step != self._step:
+        if step != self._step:  # a drone that did not ask at the last boundary waits for no start
+            self._waiting_since = {d: was for d, was in self._waiting_since.items() if d in self._asked}
             self._step, self._started, self._asked = step, 0, set()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -37,3 +38,18 @@ def test_a_drone_turned_away_goes_before_the_drones_that_ask_before_it() -> None
                 budget.started(step)
                 granted.append(drone)
     assert granted == ["a", "b", "c"]
+
+
+@pytest.mark.parametrize("gone", ["asks with nothing to carry", "does not ask"])
+def test_a_drone_turned_away_that_no_longer_waits_holds_no_start_back(gone: str) -> None:
+    """A drone turned away whose mail went elsewhere, or that no longer asks (late, its vehicle lost),
+    must not keep the others waiting for a start it will never take."""
+    budget = TaskBudget(0.125)
+    budget.handled(0.125 / MESSAGES_PER_PEER / 2)  # one task a boundary with 2 peers
+    assert budget.may_start(0, 2, "a", waiting=True)
+    budget.started(0)
+    assert not budget.may_start(0, 2, "b", waiting=True)  # turned away: first at the next boundary
+    if gone == "asks with nothing to carry":
+        budget.may_start(1, 2, "b", waiting=False)
+    assert budget.may_start(1, 2, "c", waiting=True) is (gone == "asks with nothing to carry")
+    assert budget.may_start(2, 2, "c", waiting=True)
