@@ -198,16 +198,17 @@ class SetpointLoop:
         self.arrivals.append(_Arrival(step, self.target, boundary))
         if self.sampled_at == -math.inf:  # what came before the first step is no step's
             self.sampled_at = self.link_clock()
-        self.look(now)
+        self.look()
         return self._report(step, previous, self.target, now - boundary), actions
 
-    def look(self, now: float) -> None:
-        """Note the steps whose cell the vehicle is in now, for the first time."""
+    def look(self) -> None:
+        """Note the steps whose cell the vehicle is in now, for the first time. Both clocks are read
+        here: a time read before a tick or another drone's turn would date the report too early."""
         position = self.sink.last_position() if self.arrivals and not self.suspended else None
         if position is None:
             return
         here = self.frame.recorded_cell(position.ned)  # below the grid: over its take-off or landing
-        seen = now - max(0.0, self.link_clock() - position.at)  # a look the process was late to make
+        seen = self.clock() - max(0.0, self.link_clock() - position.at)  # a look the process was late to make
         for arrival in self.arrivals:
             if arrival.seen_at is None and here == arrival.cell:
                 arrival.seen_at = max(seen, arrival.boundary)
@@ -335,7 +336,7 @@ class SetpointFleet:
         """Until ``until``: fly routes (catching up on a stall or a turn), and watch for arrivals."""
         now = self.clock()
         for loop in self.loops:
-            loop.look(now)
+            loop.look()
             if loop.advance():
                 await loop.send()
         watched = [loop.check_period for loop in self.loops if loop.route or loop.arriving]

@@ -341,3 +341,37 @@ def test_a_vehicle_climbing_under_its_lowest_layer_cell_is_in_it(layer: int, on_
     loop.take(0, 0.0)
     sample = loop.sample(0)
     assert sample is not None and (sample.late_s is not None) == on_time, sample
+
+
+def test_a_tick_that_takes_time_does_not_date_the_arrival_it_looks_for_too_early() -> None:
+    """The drone's tick (its planner) takes 0.2 s at boundary 2; the vehicle reached (1,0,0) 0.15 s
+    into the step. A look dated before the tick put the arrival on the boundary: lateness lost, and
+    the (0,0,0) positions before it went to the next record, as if the vehicle went back (two
+    separation findings at 64 drones)."""
+    executor = PlanExecutor((0, 0, 0))
+    executor.start(Trajectory(1, ((0, 0, 0), (1, 0, 0), (2, 0, 0))))
+    vehicle = FakeVehicle(FRAME, (0, 0, 0), at=100.0)
+    now = [0.0]
+
+    def slow_tick(step: int) -> Sequence[object]:
+        now[0] += 0.2
+        return executor.tick(step)
+
+    loop = SetpointLoop(vehicle, FRAME, executor, 0.0, 1.0, lambda: now[0], tick=slow_tick, lateness_s=0.3,
+                        link_clock=lambda: 100.0 + now[0])
+    for step in range(2):
+        now[0] = float(step)
+        loop.take(step, float(step))
+        assert loop.sample(step) is not None
+    vehicle.over((0, 0, 0), at=102.1)
+    vehicle.over((1, 0, 0), at=102.15)
+    now[0] = 2.2
+    loop.take(2, 2.0)
+    arrived = loop.sample(2)
+    vehicle.over((2, 0, 0), at=103.1)
+    now[0] = 3.1
+    loop.take(3, 3.0)
+    next_one = loop.sample(3)
+    assert arrived is not None and arrived.late_s == pytest.approx(0.15)
+    assert arrived.passed[-2:] == ((0, 0, 0), (1, 0, 0))
+    assert next_one is not None and went_through(next_one.passed, (1, 0, 0), (2, 0, 0)) == ()
