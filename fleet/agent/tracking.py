@@ -129,7 +129,7 @@ class Tracking:
     def on_sample(self, sample: Sample) -> None:
         """Lambda after a boundary: record where the vehicle was, and judge how late it came."""
         seen = self.watch.seen_cell("sample")  # None: no fresh position, a gap in the record
-        flown = sample.planned if sample.late_s is not None else seen
+        flown = sample.planned if sample.late_s is not None else self._when_due(sample, seen)
         if self.record is not None:
             self._record(sample, flown if seen is not None else None)
         if self.down or self.watch.lost:
@@ -144,6 +144,12 @@ class Tracking:
                        f"step {sample.step} began")
         self.mail.refusal = self._refusal()
         self._alarm("late", None if self.late is None else f"late: {self.late}")
+
+    @staticmethod
+    def _when_due(sample: Sample, seen: Cell | None) -> Cell | None:
+        """A late vehicle's cell when its sample was due: a host sampling late has seen it fly on since,
+        and those cells are the next record's."""
+        return sample.passed[-1] if sample.passed and seen is not None else seen
 
     def _record(self, sample: Sample, flown: Cell | None) -> None:
         """One line of the flight record, with the cells passed since the last line (None: a gap, whose

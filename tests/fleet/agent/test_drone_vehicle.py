@@ -234,6 +234,23 @@ def test_a_record_names_the_cells_passed_since_the_record_before_it() -> None:
         (0, [0, 0, 0], None), (2, [3, 0, 0], [[1, 0, 0], [2, 0, 0]])]
 
 
+def test_a_late_vehicle_is_recorded_where_it_was_when_its_sample_was_due() -> None:
+    """A host sampling step 1 late saw the vehicle reach (2,0,0) after the sample was due: the record
+    puts it in (1,0,0), the last cell reported by then, and (2,0,0) is passed on the way to the next
+    record; recorded in (2,0,0), the next record passed (1,0,0) again, as if it went back."""
+    record, vehicle = io.StringIO(), vehicle_over_its_start()
+    stack = DroneStack("d1", StackConfig(WS, SafePlanner(WS)), dict(WS.drones))
+    agent = DroneAgent(stack, FakeNode(), KEYS, vehicle, FRAME, lambda: 1000.0, record)
+    agent.on_sample(Sample(0, (0, 0, 0), (0, 0, 0), 0.0, ((0, 0, 0),)))
+    vehicle.over((2, 0, 0), at=vehicle.at + 1.0)
+    agent.on_sample(Sample(1, (2, 0, 0), (2, 0, 0), None, ((0, 0, 0), (1, 0, 0))))
+    vehicle.over((3, 0, 0), at=vehicle.at + 1.0)
+    agent.on_sample(Sample(2, (3, 0, 0), (3, 0, 0), 0.1, ((1, 0, 0), (2, 0, 0), (3, 0, 0))))
+    lines = [json.loads(line) for line in record.getvalue().splitlines()]
+    assert [(r["step"], r["cell"], r.get("via")) for r in lines] == [
+        (0, [0, 0, 0], None), (1, [1, 0, 0], None), (2, [3, 0, 0], [[2, 0, 0]])]
+
+
 def _d1_with_mail(order: MailOrder) -> tuple[FakeNode, FakeVehicle, DroneStack, DroneAgent]:
     """d1's agent over its vehicle at its start, given ``order``."""
     node, vehicle = FakeNode(), vehicle_over_its_start()
