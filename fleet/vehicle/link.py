@@ -57,12 +57,18 @@ class Share(float, enum.Enum):
     setpoint loop and the record read them at every step boundary); the landed state at half (a
     take-off or a landing waits on it); battery and system status at a quarter (the battery monitor
     reads once a step, and a cell's worth of flight barely moves them); the GPS fix at a fifth.
-    Every message asked for costs the ground station and the radio link, fleet-wide."""
+    Every message asked for costs the ground station and the radio link, fleet-wide; one not read is
+    asked OFF (an autopilot may stream it by default, as PX4 does LOCAL_POSITION_NED)."""
 
     POSITION = 1.0
     LANDED = 0.5
     STATUS = 0.25
     GPS = 0.2
+    OFF = 0.0
+
+    def interval_us(self, stream_hz: float) -> float:
+        """MAV_CMD_SET_MESSAGE_INTERVAL's param2 at ``stream_hz``: -1 stops the stream."""
+        return -1.0 if self is Share.OFF else 1e6 / (stream_hz * self.value)
 
 
 @dataclass(frozen=True)

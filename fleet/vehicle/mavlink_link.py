@@ -160,7 +160,7 @@ class PymavlinkLink(ConfirmedCommands):
     async def _ask_for_streams(self) -> None:
         """The telemetry at our rates (every stream's request acknowledged, or VehicleError)."""
         for msg_id, share in self.streams.items():
-            await self.command(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 1e6 / (self.stream_hz * share))
+            await self.command(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, share.interval_us(self.stream_hz))
 
     async def close(self) -> None:
         self._closed, self._lost_at = True, None

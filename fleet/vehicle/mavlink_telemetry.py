@@ -24,9 +24,8 @@ STREAMS = {mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED: Share.POSITION,
            mavlink2.MAVLINK_MSG_ID_BATTERY_STATUS: Share.STATUS, mavlink2.MAVLINK_MSG_ID_SYS_STATUS: Share.STATUS,
            mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: Share.LANDED, mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT: Share.GPS}
 #: With a workspace frame, positions and velocities come from GLOBAL_POSITION_INT alone: the local
-#: position is asked for at the status rate only (a GCS sharing the vehicle may still want it). At
-#: the position rate it was a third of the messages a vehicle sent, each decoded in pure Python.
-FRAMED_STREAMS = {**STREAMS, mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED: Share.STATUS}
+#: position is asked off (rates are set per link: a GCS sharing the vehicle keeps its own).
+FRAMED_STREAMS = {**STREAMS, mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED: Share.OFF}
 #: ArduPilot's own word on its position estimate (see fleet.vehicle.policy); PX4 does not know the message.
 ARDUPILOT_STREAMS = {mavlink2.MAVLINK_MSG_ID_EKF_STATUS_REPORT: Share.STATUS}
 #: The message types kept as the latest of their kind: what telemetry is read from.

@@ -176,7 +176,7 @@ class MavsdkLink(ConfirmedCommands):
             direct.append((EKF_STATUS_REPORT, Share.STATUS))
         for msg_id, share in direct:
             await self.command("SET_MESSAGE_INTERVAL", Command.SET_MESSAGE_INTERVAL, msg_id,
-                               1e6 / (self.stream_hz * share))
+                               share.interval_us(self.stream_hz))
 
     async def close(self) -> None:
         await cancel_all(self._tasks)
