@@ -263,3 +263,25 @@ def _strict_cell(value: object, number: int, name: str, or_else: str) -> Cell:
 
 def _json(value: object) -> str:
     return json.dumps(value, default=repr)
+
+
+def record_line(step: int, drone: str, cell: Cell, planned: Cell | None, delta: int,
+                via: tuple[Cell, ...] = ()) -> str:
+    """One line of the flight record (``--record``): where the vehicle was at ``step``, the
+    cell its plan put it in, and the cells it went through since the last record (see drona_gcs.audit)."""
+    plan = "null" if planned is None else _cell_json(planned)
+    through = f', "via": [{", ".join(map(_cell_json, via))}]' if via else ""
+    return (f'{{"step": {step}, "drone": "{drone}", "cell": {_cell_json(cell)}, "planned": {plan}, "delta": {delta}'
+            f'{through}}}\n')
+
+
+def went_through(passed: tuple[Cell, ...], before: Cell | None, after: Cell) -> tuple[Cell, ...]:
+    """The cells seen between two records, in order, without the records' own at either end."""
+    start = 1 if passed and passed[0] == before else 0
+    end = len(passed) - 1 if len(passed) > start and passed[-1] == after else len(passed)
+    return passed[start:end]
+
+
+
+def _cell_json(cell: Cell) -> str:
+    return "[{}, {}, {}]".format(*cell)

@@ -11,13 +11,14 @@ import logging
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, TextIO
 
+from drona_gcs.audit import record_line, went_through
 from drona_gcs.geo import GeoFrame
 from drona_gcs.stack.drone import DroneAction, DroneStack
 from drona_gcs.stack.protocol import State
 from drona_gcs.workspace import Cell, Workspace
 from fleet.agent.maildesk import MailDesk
 from fleet.agent.vehicle import VehicleSupervisor
-from fleet.agent.watch import Seen, VehicleWatch, Verdict, joined, record_line, went_through
+from fleet.agent.watch import Seen, VehicleWatch, Verdict, joined
 from fleet.setpoint_loop import Sample, SetpointLoop, StepReport
 from fleet.vehicle.link import Readiness, VehicleLink
 

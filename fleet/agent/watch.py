@@ -134,27 +134,6 @@ def _on_the_ground(t: Telemetry) -> bool:
     return t.landed is LandedState.ON_GROUND or (not t.armed and (t.height_m or 0.0) < 0.5)
 
 
-def record_line(step: int, drone: str, cell: Cell, planned: Cell | None, delta: int,
-                via: tuple[Cell, ...] = ()) -> str:
-    """One line of the flight record (``--record``): where telemetry put the vehicle at ``step``, the
-    cell its plan put it in, and the cells it went through since the last record (see drona_gcs.audit)."""
-    plan = "null" if planned is None else _cell_json(planned)
-    through = f', "via": [{", ".join(map(_cell_json, via))}]' if via else ""
-    return (f'{{"step": {step}, "drone": "{drone}", "cell": {_cell_json(cell)}, "planned": {plan}, "delta": {delta}'
-            f'{through}}}\n')
-
-
-def went_through(passed: tuple[Cell, ...], before: Cell | None, after: Cell) -> tuple[Cell, ...]:
-    """The cells telemetry saw between two records, in order, without the records' own at either end."""
-    start = 1 if passed and passed[0] == before else 0
-    end = len(passed) - 1 if len(passed) > start and passed[-1] == after else len(passed)
-    return passed[start:end]
-
-
 def joined(cells: tuple[Cell, ...], then: tuple[Cell, ...]) -> tuple[Cell, ...]:
     """Cells seen, then the cells seen next: a cell at both ends of the join was one visit."""
     return cells + (then[1:] if cells and then and cells[-1] == then[0] else then)
-
-
-def _cell_json(cell: Cell) -> str:
-    return "[{}, {}, {}]".format(*cell)

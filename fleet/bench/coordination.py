@@ -95,8 +95,9 @@ async def run_bench(agents: int, processes: int, seconds: float, steady_after: f
                 *(["--shared-session"] * shared_session)]
     base, port = free_udp_base(agents), free_port_block(agents, socket.SOCK_STREAM)
     fleet = f"bench-{port}"
+    truth = [] if record is None else ["--record", str(truth_path(record))]
     children = [spawn(["sim-vehicle", "--workspace", str(ws_file), "--count", str(agents), "--base-port",
-                        str(base), "--speedup", str(VEHICLE_SPEEDUP), "--ready-after", "0.5"])]
+                        str(base), "--speedup", str(VEHICLE_SPEEDUP), "--ready-after", "0.5", *truth])]
     for first in range(0, agents, share):
         count = min(share, agents - first)
         # Agent i listens on port + i and connects to agent 0's port; gossip meshes the rest.
@@ -128,6 +129,11 @@ async def run_bench(agents: int, processes: int, seconds: float, steady_after: f
 RECORD_PART = "flight"
 
 
+def truth_path(record: Path) -> Path:
+    """Where the simulator records, beside the agents' ``record``: where each vehicle really was."""
+    return record.with_suffix(f".truth{record.suffix}")
+
+
 def _recording(record: Path | None, workdir: Path, first: str) -> list[str]:
     return [] if record is None else ["--record", str(workdir / f"{RECORD_PART}.{first}")]
 
@@ -138,17 +144,18 @@ def gather_records(record: Path, parts: list[Path]) -> None:
     record.write_text("".join(f"{line}\n" for line in lines), encoding="utf-8")
 
 
-def audit_records(record: Path, workspace_text: str) -> str:
+def audit_records(record: Path, workspace_text: str, what: str = "flight record") -> str:
     """Audit the flight record ``record``, with its workspace written beside it."""
     lines = [line for line in record.read_text(encoding="utf-8").splitlines() if line]
     ws_file = record.with_name(f"{record.name}.workspace.yaml")
     ws_file.write_text(workspace_text, encoding="utf-8")
     verdict = audit(load_workspace(ws_file), [json.loads(line) for line in lines])
     worst = verdict.conformance.worst
-    return (f"flight record {record} ({len(lines)} records, workspace {ws_file.name}): delta {verdict.delta}, "
+    return (f"{what} {record} ({len(lines)} records, workspace {ws_file.name}): delta {verdict.delta}, "
             f"{'safe' if verdict.safe else f'{len(verdict.violations)} separation violations'}, "
-            f"{len(verdict.jumps)} jumps, conformance {verdict.conformance.fraction:.1%}"
-            + (f" (worst {worst})" if worst is not None else ""))
+            f"{len(verdict.jumps)} jumps, " + (f"conformance {verdict.conformance.fraction:.1%}"
+                                                + (f" (worst {worst})" if worst is not None else "")
+                                                if verdict.conformance.planned_steps else "no plan in it"))
 
 
 def default_processes() -> int:
@@ -170,7 +177,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="plain TCP (default: mutual TLS and the fleet's access control, with certificates made "
                              "for the run)")
     parser.add_argument("--record", type=Path, help="record every drone's flight here (JSON Lines, with the "
-                        "workspace beside it) and audit it after the run")
+                        "workspace beside it), and the simulator's own record beside it (NAME.truth.jsonl: "
+                        "where each vehicle really was), and audit both after the run")
     parser.add_argument("--steady-after", type=float, default=10.0,
                         help="also report the plans after this many seconds, past the opening burst (default 10)")
 
@@ -198,7 +206,7 @@ def run(args: argparse.Namespace) -> int:
             return 1
     if args.json:
         if args.record is not None:
-            print(audit_records(args.record, bench_workspace(agents)), file=sys.stderr)
+            print(_audits(args.record, agents), file=sys.stderr)
         # A figure with nothing to go on (no plan after the opening) is null: strict JSON parsers refuse NaN.
         row = {"processes": processes, **asdict(result)}
         print(json.dumps({k: None if isinstance(v, float) and math.isnan(v) else v for k, v in row.items()}))
@@ -224,5 +232,11 @@ def run(args: argparse.Namespace) -> int:
           f"{result.reference_ms_after:.0f} ms after (lower is faster; the figures above scale with it)")
     bench_plot.write(args, "coordination", result)
     if args.record is not None:
-        print(audit_records(args.record, bench_workspace(agents)))
+        print(_audits(args.record, agents))
     return 0
+
+
+def _audits(record: Path, agents: int) -> str:
+    """The agents' record (what telemetry showed them) and the simulator's (where the vehicles were)."""
+    return "\n".join((audit_records(record, bench_workspace(agents)),
+                      audit_records(truth_path(record), bench_workspace(agents), "the simulator's record")))

@@ -16,13 +16,16 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import math
 import signal
 import sys
 from dataclasses import replace
+from pathlib import Path
+from typing import TextIO
 
 from drona_gcs.errors import DronaError
-from drona_gcs.geo import check_speed
+from drona_gcs.geo import GeoFrame, check_speed
 from drona_gcs.workspace import Workspace
 from drona_gcs.workspace_files import load_workspace
 from fleet import runtime
@@ -31,6 +34,7 @@ from fleet.sim.fleet import FleetConfig, SimNode, run_fleet
 from fleet.sim.params import ParamStore, starting_limits
 from fleet.sim.personality import PERSONALITIES
 from fleet.sim.transport import PtyLink
+from fleet.sim.truth import TruthRecord
 from fleet.vehicle.signing import parse_key
 from fleet.vehicle.urls import DEFAULT_BAUD
 
@@ -70,6 +74,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a parameter's starting value, as set by hand on a real vehicle (repeat for more), "
                              "e.g. PSC_JERK_XY=10: ArduCopter closes in on a setpoint at jerk / (2 WPNAV_ACCEL)")
     parser.add_argument("--signing-key", help="MAVLink 2 signing key, 64 hex digits: unsigned commands are ignored")
+    parser.add_argument("--record", type=Path,
+                        help="with --workspace: write where each vehicle really was at each step here (JSON Lines, "
+                             "for drona audit; the agents' own records show what their telemetry said)")
+    parser.add_argument("--epoch", type=float, default=0.0,
+                        help="the fleet epoch for --record, Unix seconds: step k starts at epoch + k tau (default 0)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -81,8 +90,11 @@ def run(args: argparse.Namespace) -> int:
     except (ValueError, DronaError) as exc:
         print(f"drona sim-vehicle: {exc}", file=sys.stderr)
         return 2
+    if args.record is not None and workspace is None:
+        print("drona sim-vehicle: --record needs --workspace (its cells and tau)", file=sys.stderr)
+        return 2
     try:
-        runtime.run(_serve(config, workspace))
+        runtime.run(_serve(config, workspace, args.record, args.epoch))
     except DronaError as exc:
         print(f"drona sim-vehicle: {exc}", file=sys.stderr)
         return 2
@@ -137,7 +149,8 @@ def _config(args: argparse.Namespace) -> FleetConfig:
                        first=args.instance)
 
 
-async def _serve(config: FleetConfig, workspace: Workspace | None) -> None:
+async def _serve(config: FleetConfig, workspace: Workspace | None, record: Path | None = None,
+                 epoch: float = 0.0) -> None:
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -156,10 +169,23 @@ async def _serve(config: FleetConfig, workspace: Workspace | None) -> None:
             print(f"drona sim-vehicle: system {node.system_id} ({config.vehicle.personality.name}) {where}",
                   file=sys.stderr, flush=True)
 
-    await run_fleet(config, workspace, stop, on_ready=announce)
+    with contextlib.ExitStack() as files:
+        truth = None
+        if record is not None and workspace is not None:
+            out = files.enter_context(_open_record(record))
+            names = list(workspace.drones)[config.instances.start:config.instances.stop]
+            truth = TruthRecord(GeoFrame(workspace), names, epoch, out)
+        await run_fleet(config, workspace, stop, on_ready=announce, truth=truth)
     for node in serving:  # whether the telemetry asked for fits the line (a radio's 57600 baud, say)
         if isinstance(node.link, PtyLink) and node.link.unsent:
             line = node.link
             print(f"drona sim-vehicle: system {node.system_id}: the serial line had no room for {line.unsent} of "
                   f"{line.sent + line.unsent} bytes ({100 * line.unsent / (line.sent + line.unsent):.1f}%): "
                   "ask for less telemetry, or a higher baud rate", file=sys.stderr, flush=True)
+
+
+def _open_record(path: Path) -> TextIO:
+    try:
+        return path.open("w", encoding="utf-8")
+    except OSError as exc:
+        raise DronaError(f"--record {path}: {exc.strerror}") from exc

@@ -40,6 +40,7 @@ from fleet.sim.config import Placement, VehicleConfig
 from fleet.sim.mav import Message
 from fleet.sim.model import VehicleModel
 from fleet.sim.transport import DataCallback, PtyLink, TcpServerLink, UdpLink
+from fleet.sim.truth import TruthRecord
 
 UDP_BASE_PORT = 14540
 TCP_BASE_PORT = 5760
@@ -183,8 +184,9 @@ def build_nodes(config: FleetConfig, workspace: Workspace | None, clock: SimCloc
 
 
 async def run_fleet(config: FleetConfig, workspace: Workspace | None, stop: asyncio.Event,
-                    on_ready: Callable[[list[SimNode]], None] | None = None) -> None:
-    """Run the vehicles until ``stop`` is set; ``on_ready(nodes)`` once every link is open."""
+                    on_ready: Callable[[list[SimNode]], None] | None = None, truth: TruthRecord | None = None) -> None:
+    """Run the vehicles until ``stop`` is set; ``on_ready(nodes)`` once every link is open; ``truth``
+    records where they are at every tick."""
     clock = SimClock(config.speedup)
     nodes = build_nodes(config, workspace, clock)
     try:
@@ -193,7 +195,7 @@ async def run_fleet(config: FleetConfig, workspace: Workspace | None, stop: asyn
         if on_ready is not None:
             on_ready(nodes)
         async with asyncio.TaskGroup() as tg:
-            ticker = tg.create_task(_tick(nodes, clock, config.tick_s))
+            ticker = tg.create_task(_tick(nodes, clock, config.tick_s, truth))
             await stop.wait()
             ticker.cancel()
     finally:
@@ -204,8 +206,10 @@ async def run_fleet(config: FleetConfig, workspace: Workspace | None, stop: asyn
                 await node.link.wait_closed()
 
 
-async def _tick(nodes: list[SimNode], clock: SimClock, period: float) -> None:
+async def _tick(nodes: list[SimNode], clock: SimClock, period: float, truth: TruthRecord | None) -> None:
     async for _ in periodic(period):
         now = clock.now()
         for node in nodes:
             node.step(now)
+        if truth is not None:
+            truth.observe(time.time(), [node.model.ned() for node in nodes])

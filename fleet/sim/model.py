@@ -135,9 +135,13 @@ class VehicleModel:
     def behaviour(self) -> Behaviour:
         return self.personality.behaviour(self.mode)
 
-    def global_position(self) -> GeoPoint:
+    def ned(self) -> Ned:
+        """Where the vehicle is, in the workspace's NED frame."""
         h, b = self.placement.home, self.body
-        return self.placement.frame.ned_to_global(Ned(h.north + b.north, h.east + b.east, h.down + b.down))
+        return Ned(h.north + b.north, h.east + b.east, h.down + b.down)
+
+    def global_position(self) -> GeoPoint:
+        return self.placement.frame.ned_to_global(self.ned())
 
     def landed_state(self) -> int:
         """As ArduCopter's ``landed_state()``: on the ground until it left it (the spool-up too), taking

@@ -18,7 +18,7 @@ from typing import Any
 
 import pytest
 
-from fleet.agent.watch import record_line
+from drona_gcs.audit import record_line
 from tests.api.conftest import REPO
 
 WORKSPACE = {

@@ -12,10 +12,9 @@ from typing import Any
 
 import pytest
 
-from drona_gcs.audit import audit
+from drona_gcs.audit import audit, record_line
 from drona_gcs.errors import ProblemError
 from drona_gcs.workspace import Workspace
-from fleet.agent.watch import record_line
 from fleet.cli import main
 
 WS = Workspace.build(size=(5, 5, 1), obstacles=frozenset())

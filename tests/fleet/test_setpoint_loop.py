@@ -10,12 +10,11 @@ from collections.abc import Callable, Sequence
 
 import pytest
 
-from drona_gcs.audit import audit, moves
+from drona_gcs.audit import audit, moves, record_line, went_through
 from drona_gcs.geo import GeoFrame, Ned
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.executor import Completed, ExecutorAction, PlanExecutor, Setpoint
 from drona_gcs.workspace import Cell, Workspace
-from fleet.agent.watch import record_line, went_through
 from fleet.setpoint_loop import Sample, SetpointLoop, StepReport
 from fleet.vehicle.link import Position
 from tests.fakes.vehicle import FakeVehicle

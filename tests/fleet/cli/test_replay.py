@@ -15,11 +15,11 @@ from typing import Any
 
 import pytest
 
+from drona_gcs.audit import record_line
 from drona_gcs.errors import ProblemError
 from drona_gcs.geo import GeoFrame
 from drona_gcs.replay import replay_document
 from drona_gcs.workspace_files import workspace_from_mapping
-from fleet.agent.watch import record_line
 from fleet.cli import main
 from fleet.cli.replay import load_document, make_server
 

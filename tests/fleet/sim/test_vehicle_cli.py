@@ -5,6 +5,7 @@ lines, the flags it refuses and how it stops.
 from __future__ import annotations
 
 import asyncio
+import json
 import math
 import os
 import re
@@ -202,6 +203,31 @@ def test_cli_refuses_more_vehicles_than_drones(write_file: Callable[[str, str], 
     ws_file = write_file("ws.yaml", "size: [4, 4, 1]\ndrones: {d1: [1, 0, 0]}\n")
     assert drona_main(["sim-vehicle", "--workspace", str(ws_file), "--count", "2"]) == 2
     assert "has 1 drone(s), 2 vehicles asked for" in capsys.readouterr().err
+
+
+def test_cli_records_where_each_vehicle_was_at_each_step(write_file: Callable[[str, str], Path],
+                                                         tmp_path: Path) -> None:
+    """``--record``: a line per vehicle per step (tau 0.2 s), from the vehicles' physics, under its own
+    drone's name and start cell; refused without a workspace."""
+    ws_file = write_file("ws.yaml", "size: [4, 4, 1]\ncell_size_m: 1\ntau_s: 0.2\n"
+                         "drones: {d1: [1, 0, 0], d2: [3, 2, 0]}\n")
+    record = tmp_path / "truth.jsonl"
+    assert drona_main(["sim-vehicle", "--record", str(record)]) == 2
+    proc = subprocess.Popen([sys.executable, "-m", "fleet.cli", "sim-vehicle", "--workspace", str(ws_file),
+                             "--count", "2", "--base-port", str(free_udp_base(2)), "--record", str(record)],
+                            cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        stderr_lines(proc, 2, 10)  # both vehicles up
+        time.sleep(1.5)  # a real-time record: some steps of it
+    finally:
+        err = terminate(proc)
+    assert proc.returncode == 0, err.decode()
+    lines = [json.loads(line) for line in record.read_text().splitlines()]
+    for drone, cell in (("d1", [1, 0, 0]), ("d2", [3, 2, 0])):
+        steps = [r["step"] for r in lines if r["drone"] == drone]
+        assert len(steps) >= 5 and steps == list(range(steps[0], steps[0] + len(steps))), steps
+        assert {tuple(r["cell"]) for r in lines if r["drone"] == drone} == {tuple(cell)}
+    assert all(r["planned"] is None and r["delta"] == 0 for r in lines)
 
 
 def test_cli_instance_starts_from_that_drone_and_is_refused_past_the_last(
