@@ -44,6 +44,8 @@ class TruthRecord:
                 self._write(i, step, cell)
             elif cell is not None and (not self._passed[i] or self._passed[i][-1] != cell):
                 self._passed[i].append(cell)
+        if begins:  # a simulator killed keeps its record up to its last step
+            self.out.flush()
 
     def _write(self, i: int, step: int, cell: Cell | None) -> None:
         passed, self._passed[i] = self._passed[i], []

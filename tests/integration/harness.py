@@ -120,6 +120,10 @@ class FleetProcesses:
     def record(self, drone: str) -> Path:
         return self.tmp / f"record-{drone}.jsonl"
 
+    def truth(self, sim: str) -> Path:
+        """The record of simulator ``sim`` (a drone's, or "all"): where its vehicles were."""
+        return self.tmp / f"truth-{sim}.jsonl"
+
     def start(self) -> None:
         if self.routers:
             assert self.hosts is not None, "routers run on hosts"
@@ -129,10 +133,12 @@ class FleetProcesses:
                     "--speedup", str(SPEEDUP), "--ready-after", "0.5"]
         if self.vehicles_apart:
             for i, drone in enumerate(self.drones):
-                self.sims[drone] = self._spawn(f"sim-{drone}", [*vehicles, "--count", "1", "--instance", str(i)],
+                self.sims[drone] = self._spawn(f"sim-{drone}", [*vehicles, "--count", "1", "--instance", str(i),
+                                                                "--record", str(self.truth(drone))],
                                                self.host_of.get(drone))
         else:
-            self.sims["all"] = self._spawn("sim", [*vehicles, "--count", str(len(self.drones))])
+            self.sims["all"] = self._spawn("sim", [*vehicles, "--count", str(len(self.drones)),
+                                                   "--record", str(self.truth("all"))])
         if self.hosted:
             self.agents["+".join(self.drones)] = self._spawn("host", self.host_command())
             return
@@ -230,6 +236,12 @@ class FleetProcesses:
             path = self.record(drone)
             if path.exists():
                 records += [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+        return audit(load_workspace(self.workspace), records)
+
+    def truth_audit(self) -> Audit:
+        """The audit of the simulators' records: what was flown, judged apart from the agents."""
+        records = [json.loads(line) for path in sorted(self.tmp.glob("truth-*.jsonl"))
+                   for line in path.read_text().splitlines() if line.strip()]
         return audit(load_workspace(self.workspace), records)
 
     def logs(self) -> str:

@@ -51,7 +51,17 @@ def check_run_record(fleet: FleetProcesses) -> Audit:
     conformance = result.conformance
     assert conformance.planned_steps > 20 and conformance.fraction >= MIN_CONFORMANCE, (
         f"flown in the planned cell: {conformance.fraction:.1%}, worst {conformance.worst}")
+    check_truth(fleet)
     return result
+
+
+def check_truth(fleet: FleetProcesses) -> None:
+    """The simulators' own records (where the vehicles were, not what the agents saw): no two vehicles
+    in one cell within a step, none crossing cells unseen."""
+    truth = fleet.truth_audit()
+    assert set(truth.trajectories) == set(fleet.drones), sorted(truth.trajectories)
+    assert truth.safe, f"the simulators' records: {truth.violations[:5]}\n{fleet.logs()}"
+    assert not truth.jumps, f"the simulators' records: {truth.jumps[:5]}"
 
 
 def unsafe(result: Audit, fleet: FleetProcesses) -> str:

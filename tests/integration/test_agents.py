@@ -23,7 +23,7 @@ import pytest
 
 from fleet.transport.wire import MailOrder, MailStatus
 from tests.integration.harness import DRONA, FleetProcesses, Observer
-from tests.integration.runs import check_run, deliver_all, random_orders, unsafe
+from tests.integration.runs import check_run, check_truth, deliver_all, random_orders, unsafe
 
 pytestmark = pytest.mark.slow
 
@@ -80,6 +80,7 @@ def test_an_agent_killed_mid_coordination_neither_blocks_the_others_nor_loses_it
         assert all(codes[d] == 0 for d in ("d1", "d3", "d4")), f"{codes}\n{fleet.logs()}"
         result = fleet.audit()
         assert result.safe, unsafe(result, fleet)
+        check_truth(fleet)
     finally:
         fleet.kill_all()
 

@@ -16,7 +16,15 @@ import pytest
 
 from fleet.transport.wire import DroneState, MailAck, MailOrder, MailStatus
 from tests.integration.harness import FleetProcesses, Observer
-from tests.integration.runs import MIN_CONFORMANCE, check_run, check_run_record, deliver_all, random_orders, unsafe
+from tests.integration.runs import (
+    MIN_CONFORMANCE,
+    check_run,
+    check_run_record,
+    check_truth,
+    deliver_all,
+    random_orders,
+    unsafe,
+)
 
 pytestmark = pytest.mark.slow
 
@@ -108,6 +116,7 @@ def test_a_vehicle_killed_in_flight_is_one_drones_problem(hosted_apart: Callable
         ends = {drone: t.end_step for drone, t in result.trajectories.items()}
         assert ends["d2"] < min(ends[d] for d in ("d1", "d3", "d4")) - 10, ends  # never recorded once lost
         assert result.conformance.fraction >= MIN_CONFORMANCE, str(result.conformance.worst)
+        check_truth(fleet)
     finally:
         fleet.kill_all()
 
