@@ -282,6 +282,5 @@ def went_through(passed: tuple[Cell, ...], before: Cell | None, after: Cell) -> 
     return passed[start:end]
 
 
-
 def _cell_json(cell: Cell) -> str:
     return "[{}, {}, {}]".format(*cell)
