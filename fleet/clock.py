@@ -4,8 +4,14 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 from collections.abc import AsyncIterator
 from typing import Any
+
+
+def step_at(t: float, epoch: float, tau: float) -> int:
+    """The step under way at time ``t``: step k starts at ``epoch + k * tau``."""
+    return math.floor((t - epoch) / tau)
 
 
 async def periodic(period: float) -> AsyncIterator[None]:

@@ -36,6 +36,7 @@ from drona_gcs.errors import VehicleError
 from drona_gcs.geo import GeoFrame, Ned
 from drona_gcs.stack.executor import PlanExecutor, Setpoint
 from drona_gcs.workspace import Cell
+from fleet.clock import step_at
 from fleet.vehicle.link import SetpointSink
 
 
@@ -116,7 +117,7 @@ class SetpointLoop:
 
     def step_at(self, t: float) -> int:
         """The step under way at local time ``t``."""
-        return math.floor((t - self.epoch) / self.tau)
+        return step_at(t, self.epoch, self.tau)
 
     async def run(self, on_step: Callable[[StepReport, Sequence[object]], None], stop: asyncio.Event,
                   on_sample: Callable[[Sample], None] | None = None) -> None:

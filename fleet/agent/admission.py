@@ -54,8 +54,8 @@ class TaskBudget:
         self._at(step)
         self._asked.add(drone)
         limit = self.per_boundary(peers)
-        was = self._waiting_since.pop(drone, step)
-        since = was if waiting else step + 1
+        turned_away_at = self._waiting_since.pop(drone, step)  # asking with nothing to carry leaves the line
+        since = turned_away_at if waiting else step + 1
         ahead = sum(1 for other, was in self._waiting_since.items() if was < since and other not in self._asked)
         if limit is None or limit - self._started > ahead:
             return True

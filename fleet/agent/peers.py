@@ -8,7 +8,6 @@ handed to the stack on the event loop, one at a time, as the systematic tester h
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
@@ -19,6 +18,7 @@ from drona_gcs.workspace import Workspace
 from fleet.agent.admission import TaskBudget
 from fleet.agent.clocksync import ClockCheck, OffsetSample
 from fleet.agent.maildesk import MailDesk
+from fleet.clock import step_at
 from fleet.logs import Throttled
 from fleet.transport.identity import Speakers
 from fleet.transport.keys import FleetKeys
@@ -121,7 +121,7 @@ class PeerSide:
 
     def _step_now(self) -> int:
         """The step on this clock, also before the first boundary is stepped."""
-        return max(self.stack.now, math.floor((self.clock() - self.epoch_s) / self.ws.tau_s))
+        return max(self.stack.now, step_at(self.clock(), self.epoch_s, self.ws.tau_s))
 
     def _check_sender(self, key: str, sender: str) -> None:
         """A peer of this fleet, speaking on its own key, or on its host's protocol key (the access control

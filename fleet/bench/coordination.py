@@ -31,7 +31,7 @@ import tempfile
 from dataclasses import asdict
 from pathlib import Path
 
-from drona_gcs.audit import audit
+from drona_gcs.audit import Conformance, audit
 from drona_gcs.stack.drone import default_lead_steps
 from drona_gcs.workspace_files import load_workspace
 from fleet.bench import BenchError
@@ -150,12 +150,16 @@ def audit_records(record: Path, workspace_text: str, what: str = "flight record"
     ws_file = record.with_name(f"{record.name}.workspace.yaml")
     ws_file.write_text(workspace_text, encoding="utf-8")
     verdict = audit(load_workspace(ws_file), [json.loads(line) for line in lines])
-    worst = verdict.conformance.worst
     return (f"{what} {record} ({len(lines)} records, workspace {ws_file.name}): delta {verdict.delta}, "
             f"{'safe' if verdict.safe else f'{len(verdict.violations)} separation violations'}, "
-            f"{len(verdict.jumps)} jumps, " + (f"conformance {verdict.conformance.fraction:.1%}"
-                                                + (f" (worst {worst})" if worst is not None else "")
-                                                if verdict.conformance.planned_steps else "no plan in it"))
+            f"{len(verdict.jumps)} jumps, {_conformance(verdict.conformance)}")
+
+
+def _conformance(conformance: Conformance) -> str:
+    if not conformance.planned_steps:  # the simulator's record: no plan
+        return "no plan in it"
+    worst = "" if conformance.worst is None else f" (worst {conformance.worst})"
+    return f"conformance {conformance.fraction:.1%}{worst}"
 
 
 def default_processes() -> int:

@@ -12,13 +12,13 @@ it was in when the step began, the cells it passed since the line before (``via`
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import TextIO
 
 from drona_gcs.audit import record_line, went_through
 from drona_gcs.geo import GeoFrame, Ned
 from drona_gcs.workspace import Cell
+from fleet.clock import step_at
 
 TRUTH_DELTA = 0  #: one clock, no plan: the same cell within the same step
 
@@ -35,7 +35,7 @@ class TruthRecord:
 
     def observe(self, wall: float, positions: Sequence[Ned]) -> None:
         """The vehicles' positions (workspace NED, in ``drones`` order) at Unix time ``wall``."""
-        step = math.floor((wall - self.epoch) / self.tau)
+        step = step_at(wall, self.epoch, self.tau)
         begins = step != self._step
         self._step = step
         for i, ned in enumerate(positions):
@@ -48,10 +48,8 @@ class TruthRecord:
             self.out.flush()
 
     def _write(self, i: int, step: int, cell: Cell | None) -> None:
-        passed, self._passed[i] = self._passed[i], []
         if cell is None:  # outside the grid: its cells so far go with the next line
-            self._passed[i] = passed
             return
-        via = went_through(tuple(passed), self._last[i], cell)
+        via = went_through(tuple(self._passed[i]), self._last[i], cell)
         self.out.write(record_line(step, self.drones[i], cell, None, TRUTH_DELTA, via))
-        self._last[i] = cell
+        self._last[i], self._passed[i] = cell, []
