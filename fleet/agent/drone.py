@@ -94,7 +94,6 @@ log = logging.getLogger(__name__)
 
 BROADCAST = "all"  #: proto/all: a message to every drone of the fleet (no drone may be called "all")
 ARRIVAL_FRACTION = 0.2  #: over a cell: within this fraction of a cell of its centre (before landing)
-KEEP_UP_TAU = 0.25  #: a host behind by more than this share of tau starts no task (see _keeping_up)
 
 
 @dataclass
@@ -149,7 +148,7 @@ class DroneAgent(Tracking, PeerSide):
         self.boundary_late_s = 0.0
         self.backlog_s: Callable[[], float] = lambda: 0.0  #: (set by the host: its inbox's)
         #: the tasks this host's drones may start at a boundary (set by the host: one for all its drones)
-        self.budget = TaskBudget(KEEP_UP_TAU * self.ws.tau_s)
+        self.budget = TaskBudget.of_period(self.ws.tau_s)
         self.metrics = Metrics()
         self.lease_steps = 0  #: the Zenoh lease in steps (set by the host)
         #: the step at which each peer was last heard from (a protocol message, a plan, a clock reply)
@@ -235,7 +234,7 @@ class DroneAgent(Tracking, PeerSide):
         inbox (found over 128 agents on 2 cores: news seconds old, vehicles late, two braked into one
         cell). A task waits for the next boundary instead; its mail stays this drone's. No alarm: the
         drone is healthy, and the service must not give its mail to another for a moment's load."""
-        bound = KEEP_UP_TAU * self.ws.tau_s
+        bound = self.budget.bound_s
         behind = max(self.boundary_late_s, self.backlog_s())
         if behind > bound:
             self.dropped.warning("busy", "%s: the host is %.0f ms behind (bound %.0f ms): no task starts", self.me,
@@ -307,6 +306,7 @@ class DroneAgent(Tracking, PeerSide):
                 self._alarm("leg", None)  # trying again (or a new leg)
                 self._started(action)
             elif isinstance(action, TaskFailed):
+                self._round_ended()
                 walls = f" (held for good: {self._held_for_good()})" if action.cut_off else ""
                 log.warning("%s: no plan for task %s to %s: %s%s%s", self.me, action.task.id, list(action.task.goal),
                             action.reason, self._resting_at(action.task.goal), walls)
@@ -348,11 +348,19 @@ class DroneAgent(Tracking, PeerSide):
         self.node.put(key, payload, now=now)
         self.metrics.messages_sent += copies
 
+    def _round_ended(self) -> float | None:
+        """How long the task's round took (None: no round was under way)."""
+        if self.task_since is None:
+            return None
+        took, self.task_since = self.clock() - self.task_since, None
+        self.budget.round_ended(took)
+        return took
+
     def _started(self, action: StartExecuting) -> None:
         """A new plan, flown: every drone is told by its ``decide``."""
-        if self.task_since is not None:
-            self.metrics.latencies_s.append(self.clock() - self.task_since)
-            self.task_since = None
+        took = self._round_ended()
+        if took is not None:
+            self.metrics.latencies_s.append(took)
         self.metrics.plans += 1
         self.vehicle.want_airborne(True)
         self.publish_state_soon()  # after the answers to the peers that waited for this plan

@@ -36,7 +36,7 @@ from drona_gcs.stack.drone import DroneStack, StackConfig, default_hover_lead_st
 from drona_gcs.workspace import Workspace
 from fleet import runtime
 from fleet.agent.admission import TaskBudget
-from fleet.agent.drone import BROADCAST, KEEP_UP_TAU, DroneAgent
+from fleet.agent.drone import BROADCAST, DroneAgent
 from fleet.agent.settings import AgentSettings
 from fleet.clock import cancel_all, periodic
 from fleet.setpoint_loop import Sample, SetpointFleet, SetpointLoop, StepReport
@@ -159,7 +159,7 @@ async def run_host(host: Host, record: TextIO | None, on_ready: Callable[[Host],
             log.info("stopped before any vehicle answered")
             return
         links = connected
-        budget = TaskBudget(KEEP_UP_TAU * ws.tau_s)  # one for the host: its drones share its CPU
+        budget = TaskBudget.of_period(ws.tau_s)  # one for the host: its drones share its CPU
         for node, link, name in zip(nodes, links, host.names, strict=True):
             stack = DroneStack(name, config, ws.drones, epoch=time.time_ns() // 1_000_000)
             agent = DroneAgent(stack, node, keys, link, frame, host.clock, record, timeouts(settings),

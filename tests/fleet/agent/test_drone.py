@@ -15,6 +15,7 @@ from drona_gcs.stack.drone import DroneStack, StackConfig
 from drona_gcs.stack.messages import CurrentTraj, PlanAck, PlanDecision, PlanProposal, ReqForCurrentTraj, TaskId
 from drona_gcs.stack.protocol import Braked, State
 from drona_gcs.workspace import Workspace
+from fleet.agent.admission import TaskBudget
 from fleet.agent.drone import DroneAgent
 from fleet.transport.wire import (
     CurTraj,
@@ -339,3 +340,41 @@ def test_a_brake_goes_out_as_a_plan_that_says_braked_and_peers_take_it_so() -> N
     told = [decode(p).body for k, p in node.puts if k == KEYS.plan("d1")]
     assert [(b.braked, b.trajectory.cells) for b in told if isinstance(b, PlanAnnounce)] == [
         (True, ((0, 0, 0), (1, 0, 0), (1, 0, 0)))]
+
+
+class _Rounds(TaskBudget):
+    """A host's budget that keeps what its rounds took."""
+
+    def __init__(self) -> None:
+        super().__init__(0.25, 0.2)
+        self.took: list[float] = []
+
+    def round_ended(self, took_s: float) -> None:
+        self.took.append(took_s)
+        super().round_ended(took_s)
+
+
+@pytest.mark.parametrize("ending", ["flown", "failed"])
+def test_a_round_tells_the_hosts_budget_how_long_it_took(ending: str) -> None:
+    """The budget keeps rounds within their target only if every round ends there: a plan flown or none."""
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0, drones={"d1": (0, 0, 0), "d2": (7, 0, 0)})
+
+    async def scenario() -> tuple[State, list[float]]:
+        node, now = FakeNode(), [1000.0]
+        stack = DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones))
+        agent = DroneAgent(stack, node, KEYS, vehicle_over_its_start(), GeoFrame(ws), lambda: now[0])
+        agent.budget = budget = _Rounds()
+        agent.mail.take(MailOrder(id="m", pickup=[3, 3, 0], dropoff=[5, 5, 0], priority=1))
+        agent.tick(0)
+        proposed = next(b for _, p in node.puts if isinstance(b := decode(p).body, Propose))
+        now[0] += 0.04
+        if ending == "flown":
+            ack = PlanAck("d2", proposed.task_id.core(), Trajectory.stationary((7, 0, 0), 0), direct=True)
+            agent._on_protocol(KEYS.proto("d1", "d2"), encode("d2", now[0], from_core(ack)))
+        else:
+            agent._on_liveliness(KEYS.alive("d2"), False)  # gone before it held the plan
+        return stack.protocol.state, budget.took
+
+    state, took = asyncio.run(scenario())
+    assert state is (State.EXECUTING if ending == "flown" else State.WAIT_FOR_TASK)
+    assert took == [pytest.approx(0.04)]
