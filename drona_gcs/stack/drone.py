@@ -182,10 +182,11 @@ class DroneStack(DroneCore):
         """``drone`` announced it cut its plan short, to ``trajectory``: it holds at its end."""
         return self._protocol(PeerBraked(drone, trajectory))
 
-    def peer_lost(self, drone: str, cells: tuple[Cell, ...], for_now: bool = False) -> list[DroneAction]:
+    def peer_lost(self, drone: str, cells: tuple[Cell, ...], for_now: bool = False,
+                  seq: tuple[int, int] = (0, 0)) -> list[DroneAction]:
         """``drone`` announced its vehicle is lost and may be in ``cells`` for good (none: it is back);
-        ``for_now``: late or its clock off (see PeerLost)."""
-        return self._protocol(PeerLost(drone, cells, for_now))
+        ``for_now``: late or its clock off; ``seq``: which of its holds (see PeerLost)."""
+        return self._protocol(PeerLost(drone, cells, for_now, seq))
 
     def peer_down(self, drone: str, cell: Cell) -> list[DroneAction]:
         """``drone`` announced its vehicle came down in ``cell``: an obstacle for good, and a new plan

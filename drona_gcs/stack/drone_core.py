@@ -42,7 +42,7 @@ class DroneCore:
         lead = config.lead_steps if config.lead_steps is not None else config.planner.delta + 1
         self.protocol = CoordinationProtocol(me, start, dict(peers), planner.plan, lead, planner.delta,
                                              hover_lead_steps=config.hover_lead_steps,
-                                             propose_at_once=config.propose_at_once)
+                                             propose_at_once=config.propose_at_once, epoch=epoch)
         self.executor = PlanExecutor(start)
         self.monitor = BatteryMonitor(config.low_mark, config.recharged_mark)
         parking = own_parking(ws.parking, list(peers), me)

@@ -30,6 +30,7 @@ class Holds:
 
     cells: tuple[Cell, ...]
     for_now: bool = False  #: late or its clock off, not lost
+    seq: tuple[int, int] = (0, 0)  #: which of the sender's holds (Holding.seq)
 
 
 @dataclass(frozen=True)

@@ -40,7 +40,7 @@ class Service(Fleet):
             if isinstance(action, Holding):  # as the agent does, on plan/<me>
                 for peer in self.config.drones:
                     if peer != drone:
-                        self._post(drone, peer, Holds(action.cells, action.for_now))
+                        self._post(drone, peer, Holds(action.cells, action.for_now, action.seq))
             if isinstance(action, MailProgress):
                 self.stacks[drone].mail.reported(action)
                 self._report(drone, action)

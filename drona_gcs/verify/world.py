@@ -190,7 +190,7 @@ class World(FieldFaults):
             self._carry_out(msg.to, stack.heard(msg.sender, notice.trajectory))
         elif isinstance(notice, Holds):
             self.monitors.heard_news(msg.to, msg.sender, self.steps[msg.to])
-            self._carry_out(msg.to, stack.peer_lost(msg.sender, notice.cells, notice.for_now))
+            self._carry_out(msg.to, stack.peer_lost(msg.sender, notice.cells, notice.for_now, notice.seq))
         elif isinstance(notice, Left):
             self.monitors.left(msg.to, msg.sender)
             self._carry_out(msg.to, stack.peer_left(msg.sender, notice.since))

@@ -319,7 +319,7 @@ class DroneAgent(Tracking, PeerSide):
             elif isinstance(action, Holding):
                 flies = self.stack.protocol.current_trajectory(self.stack.now)
                 told = PlanAnnounce(trajectory=WireTrajectory.of(flies), lost=True, holds=action.cells,
-                                    for_now=action.for_now)
+                                    for_now=action.for_now, holds_seq=action.seq)
                 self.node.put(self.keys.plan(self.me), encode(self.me, self.clock(), told))
             elif isinstance(action, Present) and action.trajectory != presented:
                 presented = action.trajectory

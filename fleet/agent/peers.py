@@ -113,7 +113,7 @@ class PeerSide:
             if body.grounded:
                 self._carry_out(self.stack.peer_down(sender, body.trajectory.core().last))
             elif body.lost:
-                self._carry_out(self.stack.peer_lost(sender, body.holds, body.for_now))
+                self._carry_out(self.stack.peer_lost(sender, body.holds, body.for_now, body.holds_seq))
             elif body.braked:
                 self._carry_out(self.stack.peer_braked(sender, body.trajectory.core()))
             else:

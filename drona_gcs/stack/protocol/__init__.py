@@ -196,7 +196,10 @@ settled here, and one message it sends is saved (the second point):
   my trajectory from when it was last seen, or where it was seen: I keep answering with
   my trajectory and also name those cells (``holds``), which every peer holds for good
   in the Psi of its next plans; I plan nothing meanwhile (a task fails at once). Every peer is
-  told at once (``Holding``; ``PeerLost`` there), and steers clear of them as of a vehicle down. Once
+  told at once (``Holding``; ``PeerLost`` there), and steers clear of them as of a vehicle down. Holds
+  are counted (``Holding.seq``: my incarnation, then a count), and a peer drops one older than the
+  newest it heard from me: news reorders, and an old, wider hold come last held cells I had left for
+  good (found by the tester's skews, sweep 30752). Once
   the vehicle is back and seen in a cell, I rest there with no plan (``Relocated``):
   the holds end with the next answers I give. Plans made before the loss avoided only my
   trajectory: what a vehicle does while nobody hears it is beyond any protocol.

@@ -76,6 +76,9 @@ class Holding:
     cells: tuple[Cell, ...]
     #: late, or my clock off (not lost): held until I say so, but no wall a way to mail must go around
     for_now: bool = False
+    #: which of my holds this is, (incarnation, count): a later one replaces an earlier, never the reverse
+    #: (news reorders)
+    seq: tuple[int, int] = (0, 0)
 
 
 @dataclass(frozen=True)

@@ -83,6 +83,7 @@ class PeerLost:
     drone: str
     cells: tuple[Cell, ...]
     for_now: bool = False
+    seq: tuple[int, int] = (0, 0)  #: ``Holding.seq``: one older than the newest heard from ``drone`` is dropped
 
 
 @dataclass(frozen=True)

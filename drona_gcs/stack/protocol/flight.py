@@ -32,6 +32,7 @@ from drona_gcs.stack.protocol.events import (
 )
 from drona_gcs.stack.protocol.knowledge import Knowledge, cut_overtakes, rests_after
 from drona_gcs.stack.protocol.state import State
+from drona_gcs.workspace import Cell
 
 
 class Flight(Knowledge):
@@ -60,7 +61,11 @@ class Flight(Knowledge):
 
     def _holding(self) -> Holding:
         """Where my vehicle may be, for every peer: for now if it is late or my clock is off, for good if lost."""
-        return Holding(self.holds(), for_now=self.lost is None)
+        return self._new_holds(self.holds(), for_now=self.lost is None)
+
+    def _new_holds(self, cells: tuple[Cell, ...], for_now: bool = False) -> Holding:
+        self.holds_told += 1
+        return Holding(cells, for_now, (self.epoch, self.holds_told))
 
     def _on_completed_while_rerouting(self, event: PlanCompleted, now: int) -> list[Action]:
         """The plan ended before its new rest was planned: the round is moot, and I rest at its end."""
@@ -88,10 +93,10 @@ class Flight(Knowledge):
     def _on_vehicle_lost(self, event: VehicleLost, now: int) -> list[Action]:
         """Every peer is told at once where my vehicle may be: plans made before avoided only my plan."""
         self.lost = event
-        return [Holding(self.holds())]
+        return [self._new_holds(self.holds())]
 
     def _on_relocated(self, event: Relocated, now: int) -> list[Action]:
-        back: list[Action] = [Holding(())] if self.lost is not None else []
+        back: list[Action] = [self._new_holds(())] if self.lost is not None else []
         self._enter(State.WAIT_FOR_TASK)
         self.location, self.trajectory, self.task, self.lost = event.cell, None, None, None
         return back
@@ -142,6 +147,9 @@ class Flight(Knowledge):
         them as of a vehicle down (brake, or plan its rest anew); every plan from now avoids them."""
         if event.drone == self.me or event.drone not in self.peers:
             return []
+        if event.seq < self.holds_heard.get(event.drone, (0, 0)):
+            return []  # older than holds it sent since: late news
+        self.holds_heard[event.drone] = event.seq
         self._reported(event.drone)
         if not event.cells:
             self.peers_lost.pop(event.drone, None)

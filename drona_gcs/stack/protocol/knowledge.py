@@ -50,6 +50,7 @@ class Knowledge:
     hover_lead_steps: int | None = None  #: ``lead_steps`` for a drone in the air, which climbs no more
     #: a new task's plan is made against what I know and proposed at once (a round asks if it is not held)
     propose_at_once: bool = True
+    epoch: int = 0  #: my agent's incarnation, larger at each restart: my holds are counted within it
     _state: State = field(default=State.WAIT_FOR_TASK, init=False)  #: read as :attr:`state`
     #: the event being taken, while a handler runs: what :meth:`_enter` checks a change against
     _taking: Taking | None = field(default=None, init=False, repr=False, compare=False)
@@ -93,6 +94,8 @@ class Knowledge:
     left_behind: dict[Cell, int] = field(default_factory=dict)
     peers_lost: dict[str, tuple[Cell, ...]] = field(default_factory=dict)  #: peers' lost vehicles, where they may be
     peers_late: set[str] = field(default_factory=set)  #: of those, the late ones and clocks off (``PeerLost.for_now``)
+    holds_told: int = 0  #: how many holds I told, in this incarnation
+    holds_heard: dict[str, tuple[int, int]] = field(default_factory=dict)  #: the newest ``PeerLost.seq`` of each
     #: members back since they left, not heard from since: held where they may be until they say (Present)
     unreported: set[str] = field(default_factory=set)
     cut: Trajectory | None = None  #: my last brake: the plan I cut short, held at its end
@@ -257,10 +260,11 @@ class Knowledge:
         if self.down is not None and self.trajectory is not None:
             return [Grounded(self.trajectory)]  # a restarted agent missed the news: it never moves
         if self.lost is not None:
-            return [Holding(self.holds())]
+            return [Holding(self.holds(), seq=(self.epoch, self.holds_told))]
         braked = self.trajectory is not None and self.trajectory == self.cut
         held = self.holds()
-        return [Present(drone, self.current_trajectory(now), braked), *([Holding(held, for_now=True)] * bool(held))]
+        told = Holding(held, for_now=True, seq=(self.epoch, self.holds_told))
+        return [Present(drone, self.current_trajectory(now), braked), *([told] * bool(held))]
 
     def _leave_behind(self, drone: str, now: int) -> None:
         """News of ``drone``, whose steps are not mine: what it was to fly, or may have flown while gone, stays

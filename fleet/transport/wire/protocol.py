@@ -87,3 +87,4 @@ class PlanAnnounce(WireBody, frozen=True, kw_only=True, tag="plan"):
     lost: bool = False
     holds: Holds = ()
     for_now: bool = False
+    holds_seq: tuple[int, int] = (0, 0)  #: which of the drone's holds these are: an older one, come late, is dropped

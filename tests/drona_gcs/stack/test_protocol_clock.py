@@ -86,7 +86,7 @@ def test_a_drone_whose_clock_is_off_holds_where_its_plan_ends_and_plans_nothing(
                              + proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0)
                              + proto.handle(CurrentTraj("c", location_of("c"), ID_A), 0))).trajectory
     # Every peer is told at once where its vehicle may be, not only the next round that asks.
-    assert proto.handle(ClockBound(mine_off=True), 3) == [Holding(proto.holds(), for_now=True)]
+    assert proto.handle(ClockBound(mine_off=True), 3) == [Holding(proto.holds(), for_now=True, seq=(0, 1))]
     assert set(plan.suffix_from(3).cells) <= set(proto.holds())
     assert proto.handle(ClockBound(mine_off=True), 4) == []  # said once
     [answer] = proto.handle(request(ID_B_LOW, "b", 4), 4)
@@ -103,7 +103,7 @@ def test_a_drone_whose_clock_is_off_holds_where_its_plan_ends_and_plans_nothing(
     assert isinstance(answer, Send) and isinstance(answer.message, CurrentTraj)
     assert set(answer.message.trajectory.cells) == {GOAL}
     back = proto.handle(ClockBound(mine_off=False), plan.end_step + 1)
-    assert back == [Holding((), for_now=True)]  # peers hold no more
+    assert back == [Holding((), for_now=True, seq=(0, 3))]  # peers hold no more (the second: its rest)
     assert proto.holds() == ()
 
 
@@ -166,7 +166,8 @@ def test_a_drone_whose_clock_is_off_tells_every_peer_at_once_that_it_rests() -> 
     assert proto.trajectory is not None
     rest = Trajectory.stationary(proto.trajectory.last, proto.trajectory.end_step)
     told = proto.handle(PlanCompleted(), proto.trajectory.end_step)
-    assert told == [*(Present(peer, rest, braked=False) for peer in ("b", "c")), Holding((rest.last,), for_now=True)]
+    assert told == [*(Present(peer, rest, braked=False) for peer in ("b", "c")),
+                    Holding((rest.last,), for_now=True, seq=(0, 2))]
 
 
 def test_a_drone_found_off_at_rest_after_a_plan_tells_every_peer_at_once_that_it_rests() -> None:
@@ -178,7 +179,8 @@ def test_a_drone_found_off_at_rest_after_a_plan_tells_every_peer_at_once_that_it
     proto.handle(PlanCompleted(), end)
     rest = Trajectory.stationary(proto.trajectory.last, end + 3)
     told = proto.handle(ClockBound(mine_off=True), end + 3)
-    assert told == [*(Present(peer, rest, braked=False) for peer in ("b", "c")), Holding((rest.last,), for_now=True)]
+    assert told == [*(Present(peer, rest, braked=False) for peer in ("b", "c")),
+                    Holding((rest.last,), for_now=True, seq=(0, 1))]
     assert proto.current_trajectory(end + 4) == rest
 
 
@@ -205,7 +207,8 @@ def test_a_late_vehicle_is_told_to_every_peer_at_once_and_held_on_its_plan_until
     assert set(told.cells) <= set(plan.cells)
     rest = proto.handle(PlanCompleted(), proto.trajectory.end_step)
     assert isinstance(rest[-1], Holding) and set(rest[-1].cells) == set(told.cells)  # its vehicle is on it still
-    assert proto.handle(ClockBound(mine_off=False), proto.trajectory.end_step + 2) == [Holding((), for_now=True)]
+    assert proto.handle(ClockBound(mine_off=False), proto.trajectory.end_step + 2) == [
+        Holding((), for_now=True, seq=(0, 3))]
 
 
 def test_a_peer_back_is_told_at_once_where_my_late_vehicle_may_be() -> None:
@@ -215,5 +218,5 @@ def test_a_peer_back_is_told_at_once_where_my_late_vehicle_may_be() -> None:
     [told] = [a for a in proto.handle(ClockBound(mine_off=True, on_time_at=1), 3) if isinstance(a, Holding)]
     proto.handle(PeerLeft("b"), 4)
     back = proto.handle(PeerJoined("b", B_AWAY.last), 5)
-    assert Holding(told.cells, for_now=True) in back
+    assert Holding(told.cells, for_now=True, seq=told.seq) in back  # the same holds: the same count
     assert any(isinstance(a, Present) and a.to == "b" for a in back)

@@ -81,7 +81,7 @@ def test_a_drone_whose_vehicle_is_lost_holds_the_rest_of_its_plan_and_plans_noth
     proto = machine({"a": A, "b": B})
     proto.handle(NewTask(Task(ID_A, GOAL)), 0)
     plan = started(confirmed(proto, proto.handle(CurrentTraj("b", location_of("b"), ID_A), 0))).trajectory
-    assert proto.handle(VehicleLost(4, (1, 0, 0)), 4) == [Holding(proto.holds())]  # every peer is told at once
+    assert proto.handle(VehicleLost(4, (1, 0, 0)), 4) == [Holding(proto.holds(), seq=(0, 1))]  # every peer, at once
     answer = proto.handle(request(ID_B_LOW, "b", 4), 4)
     assert answer == [Send("b", CurrentTraj("a", plan, ID_B_LOW, ((1, 0, 0), A, *plan.suffix_from(4).cells)))]
     reply = answer[0]
@@ -95,7 +95,7 @@ def test_a_drone_whose_vehicle_is_lost_holds_the_rest_of_its_plan_and_plans_noth
     assert [type(a) for a in failed] == [TaskFailed]
     assert isinstance(failed[0], TaskFailed) and "vehicle is lost" in failed[0].reason
 
-    assert proto.handle(Relocated((2, 0, 0)), 11) == [Holding(())]
+    assert proto.handle(Relocated((2, 0, 0)), 11) == [Holding((), seq=(0, 2))]
     assert proto.holds() == () and proto.current_trajectory(11) == Trajectory.stationary((2, 0, 0), 11)
 
 

@@ -378,3 +378,32 @@ def test_a_round_tells_the_hosts_budget_how_long_it_took(ending: str) -> None:
     state, took = asyncio.run(scenario())
     assert state is (State.EXECUTING if ending == "flown" else State.WAIT_FOR_TASK)
     assert took == [pytest.approx(0.04)]
+
+
+def test_holds_that_come_after_newer_ones_are_dropped_and_a_drones_holds_go_out_counted() -> None:
+    """Sweep 30752 (``--skews 2 --max-delay 2``): a drone whose clock went off held three cells of its plan,
+    then only the one it braked in. A peer got the two in the other order, held the three for good, and
+    its task planner flew between two chargers with a mail for 628 steps. Each holds now goes out counted,
+    and one older than what its sender said since is dropped."""
+    ws = Workspace.build(size=(8, 8, 1), cell_size_m=2.0, tau_s=1.0, drones={"d1": (0, 0, 0), "d2": (7, 0, 0)})
+    wide, narrow = ((7, 2, 0), (7, 1, 0), (7, 0, 0)), ((7, 0, 0),)
+
+    def holds(cells: tuple[tuple[int, int, int], ...], seq: tuple[int, int]) -> bytes:
+        return encode("d2", 1000.0, PlanAnnounce(trajectory=WireTrajectory.of(Trajectory.stationary((7, 0, 0), 0)),
+                                                 lost=True, holds=cells, for_now=True, holds_seq=seq))
+
+    async def scenario() -> tuple[FakeNode, DroneStack, tuple[tuple[int, int, int], ...]]:
+        node, stack = FakeNode(), DroneStack("d1", StackConfig(ws, SafePlanner(ws)), dict(ws.drones), epoch=7)
+        agent = DroneAgent(stack, node, KEYS, vehicle_over_its_start(), GeoFrame(ws), lambda: 1000.0)
+        agent._on_plan(KEYS.plan("d2"), holds(narrow, (5, 2)))
+        agent._on_plan(KEYS.plan("d2"), holds(wide, (5, 1)))  # sent first, come last
+        held = stack.protocol.peers_lost["d2"]
+        agent._on_plan(KEYS.plan("d2"), holds(wide, (6, 1)))  # its agent restarted: it counts anew
+        agent._carry_out(stack.clock_bound(True, frozenset(), "my clock is off"))
+        agent._carry_out(stack.vehicle_lost(0, (0, 0, 0), "lost"))
+        return node, stack, held
+
+    node, stack, held = asyncio.run(scenario())
+    assert held == narrow and stack.protocol.peers_lost == {"d2": wide}
+    told = [decode(p).body for k, p in node.puts if k == KEYS.plan("d1")]
+    assert [b.holds_seq for b in told if isinstance(b, PlanAnnounce) and b.lost] == [(7, 1), (7, 2)]
