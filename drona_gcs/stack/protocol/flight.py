@@ -65,7 +65,7 @@ class Flight(Knowledge):
 
     def _new_holds(self, cells: tuple[Cell, ...], for_now: bool = False) -> Holding:
         self.holds_told += 1
-        return Holding(cells, for_now, (self.epoch, self.holds_told))
+        return Holding(cells, for_now, self.holds_seq)
 
     def _on_completed_while_rerouting(self, event: PlanCompleted, now: int) -> list[Action]:
         """The plan ended before its new rest was planned: the round is moot, and I rest at its end."""

@@ -146,6 +146,11 @@ class Knowledge:
         """A round is under way: collecting every peer's trajectory, to plan."""
         return self.state in (State.COORDINATING, State.REROUTING)
 
+    @property
+    def holds_seq(self) -> tuple[int, int]:
+        """``Holding.seq`` of my last holds: a re-send repeats it."""
+        return self.epoch, self.holds_told
+
     def holds(self) -> tuple[Cell, ...]:
         """Cells my lost vehicle may be in, besides my trajectory: the rest of my plan from when it
         was last seen, where it was seen, and where I rest (none while my vehicle answers). A vehicle
@@ -260,10 +265,10 @@ class Knowledge:
         if self.down is not None and self.trajectory is not None:
             return [Grounded(self.trajectory)]  # a restarted agent missed the news: it never moves
         if self.lost is not None:
-            return [Holding(self.holds(), seq=(self.epoch, self.holds_told))]
+            return [Holding(self.holds(), seq=self.holds_seq)]
         braked = self.trajectory is not None and self.trajectory == self.cut
         held = self.holds()
-        told = Holding(held, for_now=True, seq=(self.epoch, self.holds_told))
+        told = Holding(held, for_now=True, seq=self.holds_seq)
         return [Present(drone, self.current_trajectory(now), braked), *([told] * bool(held))]
 
     def _leave_behind(self, drone: str, now: int) -> None:
