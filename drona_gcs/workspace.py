@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Collection, Iterable, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from fractions import Fraction
 from functools import cached_property
 
@@ -31,16 +31,16 @@ DEFAULT_LAYER0_ALT_M = 10.0
 
 @dataclass(frozen=True)
 class VehicleLimits:
-    """How fast a vehicle can get going; the defaults are ArduCopter's (WPNAV_SPEED, WPNAV_ACCEL,
-    PSC_JERK_XY; WPNAV_SPEED_UP, WPNAV_SPEED_DN, WPNAV_ACCEL_Z, PSC_JERK_Z)."""
+    """How fast a vehicle can get going, as its autopilot is set; the defaults are ArduCopter's
+    (WPNAV_SPEED, WPNAV_ACCEL, PSC_JERK_XY; WPNAV_SPEED_UP, WPNAV_SPEED_DN, WPNAV_ACCEL_Z, PSC_JERK_Z)."""
 
-    speed: float = 10.0  #: m/s, horizontal
-    accel: float = 2.5  #: m/s²
-    jerk: float = 5.0  #: m/s³
-    climb: float = 2.5  #: m/s
-    descent: float = 1.5  #: m/s
-    accel_z: float = 1.0  #: m/s²
-    jerk_z: float = 5.0  #: m/s³
+    speed_m_s: float = 10.0  #: horizontal
+    accel_m_s2: float = 2.5
+    jerk_m_s3: float = 5.0
+    climb_m_s: float = 2.5
+    descent_m_s: float = 1.5
+    accel_z_m_s2: float = 1.0
+    jerk_z_m_s3: float = 5.0
 
 
 ARDUCOPTER = VehicleLimits()
@@ -66,16 +66,17 @@ def tracking_lateness_s(cell_size_m: float, layer_height_m: float, layers: int,
     """Lambda's default: how late after a boundary a vehicle enters its step's cell.
 
     The autopilot shapes each position setpoint into a target that trails it (see
-    :func:`shaping_lag_s`), and a vehicle waiting at a cell's centre crosses half a cell from rest
-    before it is in the next one. Vertical moves count only when the grid has layers, at the slower
-    vertical limits.
+    :func:`shaping_lag_s`), and a vehicle at rest at a cell's centre (after a wait, or where it turns
+    back) crosses half a cell from rest before it is in the next one. On its way it is swept across
+    its cells with the velocity fed forward (:mod:`fleet.setpoint_loop`), and is later by less.
+    Vertical moves count only when the grid has layers, at the slower vertical limits.
     """
-    across = shaping_lag_s(limits.accel, limits.jerk) + time_to_cover(
-        cell_size_m / 2, limits.speed, limits.accel, limits.jerk)
+    across = shaping_lag_s(limits.accel_m_s2, limits.jerk_m_s3) + time_to_cover(
+        cell_size_m / 2, limits.speed_m_s, limits.accel_m_s2, limits.jerk_m_s3)
     if layers < 2:
         return across
-    up_down = shaping_lag_s(limits.accel_z, limits.jerk_z) + time_to_cover(
-        layer_height_m / 2, min(limits.climb, limits.descent), limits.accel_z, limits.jerk_z)
+    up_down = shaping_lag_s(limits.accel_z_m_s2, limits.jerk_z_m_s3) + time_to_cover(
+        layer_height_m / 2, min(limits.climb_m_s, limits.descent_m_s), limits.accel_z_m_s2, limits.jerk_z_m_s3)
     return max(across, up_down)
 
 
@@ -107,6 +108,7 @@ class Workspace:
     tau_s: float = 1.0
     beta_s: float = 0.0
     lambda_s: float | None = None  #: None: derived (see :func:`tracking_lateness_s`)
+    vehicle: VehicleLimits = ARDUCOPTER  #: what the vehicles can fly: lambda's default derives from it
     max_plan_length: int | None = None
     geo: GeoOrigin = field(default_factory=GeoOrigin)
     pickups: tuple[Cell, ...] = ()
@@ -134,6 +136,8 @@ class Workspace:
             raise WorkspaceError(f"must be a finite number >= 0, got {self.beta_s}", field="beta_s", source=src)
         if self.lambda_s is not None and not (self.lambda_s >= 0 and math.isfinite(self.lambda_s)):
             raise WorkspaceError(f"must be a finite number >= 0, got {self.lambda_s}", field="lambda_s", source=src)
+        for name, value in asdict(self.vehicle).items():
+            _positive(value, f"vehicle.{name}", src)
         if self.max_plan_length is not None and self.max_plan_length < 1:
             raise WorkspaceError(f"must be >= 1, got {self.max_plan_length}",
                                  field="max_plan_length", source=src)
@@ -226,7 +230,7 @@ class Workspace:
         """Lambda: how late a vehicle may enter its step's cell, set or derived from the geometry."""
         if self.lambda_s is not None:
             return self.lambda_s
-        return round(tracking_lateness_s(self.cell_size_m, self.layer_height_m, self.nz), 3)
+        return round(tracking_lateness_s(self.cell_size_m, self.layer_height_m, self.nz, self.vehicle), 3)
 
     @property
     def delta(self) -> int:

@@ -10,18 +10,20 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
 import yaml
 
 from drona_gcs.errors import WorkspaceError
-from drona_gcs.workspace import Cell, GeoOrigin, Workspace, box_cells
+from drona_gcs.workspace import Cell, GeoOrigin, VehicleLimits, Workspace, box_cells
 
 _CELL_LISTS = ("charging_stations", "pickups", "dropoffs", "parking")
 _NUMBERS = {"cell_size_m": float, "tau_s": float, "beta_s": float, "lambda_s": float, "max_plan_length": int}
-_KNOWN = {"name", "size", "obstacles", "drones", "geo_origin", *_CELL_LISTS, *_NUMBERS}
+_KNOWN = {"name", "size", "obstacles", "drones", "geo_origin", "vehicle", *_CELL_LISTS, *_NUMBERS}
 _GEO_FIELDS = {"lat", "lon", "alt_m", "layer0_alt_m", "layer_height_m"}
+_VEHICLE_FIELDS = {f.name for f in fields(VehicleLimits)}
 
 
 def load_workspace(path: str | Path) -> Workspace:
@@ -68,6 +70,8 @@ def workspace_from_mapping(data: object, *, source: str = "", name: str = "works
             kwargs[key] = _number(data[key], key, source, kind)
     if data.get("geo_origin") is not None:
         kwargs["geo"] = _geo(data["geo_origin"], source)
+    if data.get("vehicle") is not None:
+        kwargs["vehicle"] = VehicleLimits(**_numbers(data["vehicle"], "vehicle", _VEHICLE_FIELDS, source))
     return Workspace.build(**kwargs)
 
 
@@ -186,16 +190,21 @@ def _drones(value: object, source: str) -> dict[str, Cell]:
 
 
 def _geo(value: object, source: str) -> GeoOrigin:
-    if not isinstance(value, Mapping):
-        raise WorkspaceError(f"must be a mapping, got {value!r}", field="geo_origin", source=source)
-    unknown = sorted(set(value) - _GEO_FIELDS)
-    if unknown:
-        raise WorkspaceError(f"unknown field(s) {unknown}", field="geo_origin", source=source)
-    numbers = {k: _number(v, f"geo_origin.{k}", source, float) for k, v in value.items()}
+    numbers = _numbers(value, "geo_origin", _GEO_FIELDS, source)
     if not -90 <= numbers.get("lat", 0.0) <= 90 or not -180 <= numbers.get("lon", 0.0) <= 180:
         raise WorkspaceError("lat must be within [-90, 90] and lon within [-180, 180]",
                              field="geo_origin", source=source)
     return GeoOrigin(**numbers)
+
+
+def _numbers(value: object, section: str, known: set[str], source: str) -> dict[str, float]:
+    """A mapping of numbers, each named in ``known``."""
+    if not isinstance(value, Mapping):
+        raise WorkspaceError(f"must be a mapping, got {value!r}", field=section, source=source)
+    unknown = sorted(set(value) - known)
+    if unknown:
+        raise WorkspaceError(f"unknown field(s) {unknown}; known: {sorted(known)}", field=section, source=source)
+    return {str(k): _number(v, f"{section}.{k}", source, float) for k, v in value.items()}
 
 
 def _xml_cell(elem: ET.Element, where: str, source: str, positive: bool = False) -> Cell:

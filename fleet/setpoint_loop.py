@@ -37,7 +37,7 @@ from drona_gcs.geo import GeoFrame, Ned
 from drona_gcs.stack.executor import PlanExecutor, Setpoint
 from drona_gcs.workspace import Cell
 from fleet.clock import step_at
-from fleet.vehicle.link import SetpointSink
+from fleet.vehicle.link import STILL, SetpointSink, Sweep
 
 
 @dataclass(frozen=True)
@@ -82,7 +82,8 @@ class _Arrival:
 
 
 ROUTE_LIMIT = 64  #: cells kept for a vehicle that does not follow at all (it is flagged lagging anyway)
-LEAD_FRACTION = 0.3  #: of a cell: how far past its centre a vehicle going straight on is aimed
+#: of a step: how far short of the face to its next cell a sweep stops (a stalled process's vehicle waits there)
+SWEEP_SHORT = 0.1
 
 
 class SetpointLoop:
@@ -106,7 +107,7 @@ class SetpointLoop:
         # By default a drone may trail by a cell: it is between two cells for most of a step.
         self.tolerance = lag_tolerance_m if lag_tolerance_m is not None else frame.ws.cell_size_m
         self.target = executor.cell
-        self.before_target: Cell | None = None  #: the target before this one
+        self.came_from = executor.cell  #: the target before this one: the cell of the step before
         #: Cells the vehicle must still fly through, in order, before ``target`` (see :meth:`take`).
         self.route: collections.deque[Cell] = collections.deque()
         self.changed_at = -math.inf  #: when the target last moved
@@ -131,35 +132,53 @@ class SetpointLoop:
         """The cell the vehicle is sent to: the next one of its route, or the target."""
         return self.route[0] if self.route else self.target
 
-    def aim_point(self) -> Ned:
-        """Where in the aimed cell the vehicle is sent: its centre, or past it towards the next cell when
-        the way goes straight on (still inside the cell: never more than a cell ahead). An autopilot
-        slows down as it closes in on its setpoint: aimed at each centre, an ArduCopter at its default
-        gains falls ever further behind one cell per tau (1 m cells, tau 1 s)."""
-        aim, here = self.aim, self._here()
-        centre = self.frame.cell_to_ned(aim)
-        before = self.before_target if here in (None, aim) else here
-        after = self._after(aim)
-        if after is None or before is None or _offset(before, aim) != _offset(aim, after) or after == aim:
-            return centre
-        ahead = self.frame.cell_to_ned(after)
-        lead = LEAD_FRACTION
-        return Ned(centre.north + lead * (ahead.north - centre.north), centre.east + lead * (ahead.east - centre.east),
-                   centre.down + lead * (ahead.down - centre.down))
+    def aim_point(self) -> tuple[Ned, Sweep | None]:
+        """Where the vehicle is sent: swept across the aimed cell as the schedule runs.
 
-    def _after(self, aim: Cell) -> Cell | None:
-        """The cell of the way after ``aim``: the route's next, the target, or the plan's next step."""
+        An autopilot slows down as it closes in on a point: aimed at each centre in turn, an
+        ArduCopter falls ever further behind a cell per tau. So the vehicle is swept across its cell,
+        the velocity fed forward: from the middle of the face it enters by towards the middle of the
+        face it leaves by, over the step (:func:`profile`). Straight on, that is through the centre;
+        at a turn it cuts the cell's corner (a staircase is flown as a diagonal line), never leaving
+        the cell. It slows down to stop at the centre before a wait, the plan's end, or a way back;
+        it speeds up from the centre after one. A sweep on to the next cell stops short of its face
+        (:data:`SWEEP_SHORT`): the vehicle is never sent into its next cell before that cell's step.
+        On time, the sweep starts where the step has got to; behind (a route), each cell of the
+        route is swept from its entry as soon as the vehicle is in the cell before, never further.
+        """
         way = [*self.route, self.target]
-        if aim != way[-1]:
-            return way[way.index(aim) + 1]
-        plan, step = self.executor.trajectory, self.executor.step
-        return plan.at(step + 1) if plan is not None and step < plan.end_step else None
+        aim, plan, step = way[0], self.executor.trajectory, self.executor.step
+        if self.route:  # from where the vehicle is, as soon as it is in the cell before
+            here = self._here()
+            before, after, into = here if here is not None else aim, way[1], 0.0
+        else:
+            before, into = self.came_from, (self.clock() - self._boundary()) / self.tau
+            after = plan.at(step + 1) if plan is not None and plan.at(step) == aim else aim
+        centre = self.frame.cell_to_ned(aim)
+        entry, leave = self._face(aim, before), self._face(aim, after)
+        if leave == entry:  # a way back: stop at the centre first
+            leave = centre
+        if entry == centre == leave:
+            return centre, None
+        return profile(entry, leave, from_rest=entry == centre, stop=leave == centre, into=into, tau=self.tau)
+
+    def _face(self, cell: Cell, neighbour: Cell) -> Ned:
+        """The middle of ``cell``'s face to ``neighbour`` (its centre if that is ``cell``, or not next to it)."""
+        here = self.frame.cell_to_ned(cell)
+        if sum(abs(a - b) for a, b in zip(cell, neighbour, strict=True)) != 1:
+            return here
+        there = self.frame.cell_to_ned(neighbour)
+        return _along(here, Ned(there.north - here.north, there.east - here.east, there.down - here.down), 0.5)
+
+    def _boundary(self) -> float:
+        """When the executor's step began, on the local clock."""
+        return self.epoch + self.executor.step * self.tau
 
     async def send(self) -> None:
         if self.suspended:
             return
         try:
-            await self.sink.send_position_target(self.aim_point())
+            await self.sink.send_position_target(*self.aim_point())
         except VehicleError:
             return  # the link just went down: its agent sees it at the next boundary
 
@@ -184,11 +203,9 @@ class SetpointLoop:
         never be seen to fly would only grow.
         """
         now = self.clock()
-        previous = self.target
+        previous = self.came_from = self.target
         actions = self.tick(step)
         self.target = next(a.cell for a in actions if isinstance(a, Setpoint))
-        if self.target != previous:
-            self.before_target = previous
         if self.target != previous and not self.suspended:
             # A target never aimed at (a route was pending) must be flown through too.
             if self.route or self._short_of(previous, now):
@@ -352,8 +369,32 @@ async def _let_messages_in() -> None:
     await asyncio.sleep(0)
 
 
-def _offset(a: Cell, b: Cell) -> Cell:
-    return (b[0] - a[0], b[1] - a[1], b[2] - a[2])
+def profile(entry: Ned, leave: Ned, *, from_rest: bool, stop: bool, into: float, tau: float) -> tuple[Ned, Sweep]:
+    """A step's sweep from ``entry`` towards ``leave``, ``into`` (a share of tau) after the step began:
+    at an even pace; slowing down evenly to stop at ``leave`` by the step's end (``stop``), from the
+    pace it came at; or speeding up evenly from rest to that pace (``from_rest``). One that does not
+    stop ends short of ``leave`` (:data:`SWEEP_SHORT`). Its acceleration is at most a cell's length over
+    tau squared."""
+    end = 1.0 if stop else 1.0 - SWEEP_SHORT
+    u = min(max(into, 0.0), end)
+    if stop:  # the share of the way covered by u: 2u - u², its pace 2 - 2u and its change -2
+        covered, pace, change = 2 * u - u * u, 2 - 2 * u, -2.0
+    elif from_rest:
+        covered, pace, change = u * u, 2 * u, 2.0
+    else:
+        covered, pace, change = u, 1.0, 0.0
+    way = _between(entry, leave)
+    return _along(entry, way, covered), Sweep(_along(STILL, way, pace / tau), (end - u) * tau,
+                                              _along(STILL, way, change / (tau * tau)))
+
+
+def _between(a: Ned, b: Ned) -> Ned:
+    return Ned(b.north - a.north, b.east - a.east, b.down - a.down)
+
+
+def _along(start: Ned, way: Ned, share: float) -> Ned:
+    """``start`` moved ``share`` of ``way``."""
+    return Ned(start.north + share * way.north, start.east + share * way.east, start.down + share * way.down)
 
 
 async def _sleep_or_stop(stop: asyncio.Event, seconds: float) -> None:

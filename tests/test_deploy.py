@@ -373,7 +373,7 @@ def test_compose_makes_certificates_and_runs_a_router_four_vehicles_and_four_age
     vehicles = build_parser("sim-vehicle").parse_args(services["vehicles"]["command"])
     workspace = load_workspace(CONTAINER_DIR / "workspace.yaml")
     assert len(workspace.drones) >= vehicles.count == 4
-    check_speed(workspace, max_speed(vehicles))  # sim-vehicle would refuse it otherwise
+    check_speed(workspace, max_speed(vehicles, workspace))  # sim-vehicle would refuse it otherwise
     containerfile = (CONTAINER_DIR / "Containerfile").read_text()
     assert "FROM docker.io/library/python:3.11-slim" in containerfile
     assert 'ENTRYPOINT ["drona"]' in containerfile

@@ -40,8 +40,9 @@ class AgentSettings(BaseSettings):
     clock_offset_s: float = 0.0  #: simulation only: shift this process's clock to test the skew check
     lead_steps: Annotated[int, Field(ge=1)] | None = None  #: steps between planning and a plan's start
     hover_lead_steps: Annotated[int, Field(ge=1)] | None = None  #: the same for a drone in the air
-    #: the rate the link repeats the last setpoint at (PX4 leaves OFFBOARD at 2 Hz or less)
-    rate_hz: Annotated[float, Field(gt=2)] = 10.0
+    #: the rate the link streams the setpoint at (PX4 leaves OFFBOARD at 2 Hz or less): between two, the
+    #: autopilot carries a sweep on at its last velocity, off the sweep's curve where it turns
+    rate_hz: Annotated[float, Field(gt=2)] = 20.0
     telemetry_hz: Annotated[float, Field(gt=0)] = 10.0  #: the rate asked of the vehicle's position streams
     #: battery points a step of flight costs (planning model); default 0.33 a second of flight
     drain_per_step: Annotated[float, Field(gt=0)] | None = None

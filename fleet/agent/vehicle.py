@@ -27,6 +27,9 @@ from fleet.vehicle.policy import DEFAULT_TIMEOUTS, Timeouts, in_air
 log = logging.getLogger(__name__)
 
 
+SETTLED_M_S = 0.3  #: ground speed under which a vehicle is over where it is sent to land
+
+
 class VehicleSupervisor:
     def __init__(self, name: str, link: VehicleLink, takeoff_alt_m: float, on_alarm: Callable[[str | None], None],
                  target: Callable[[], Ned], arrival_m: float, timeouts: Timeouts = DEFAULT_TIMEOUTS) -> None:
@@ -133,9 +136,12 @@ class VehicleSupervisor:
             await self._changed.wait()
 
     def _over_target(self, telemetry: Telemetry) -> bool:
-        if telemetry.position is None:
+        """Over the landing cell and all but still: LAND brakes to a stop from where it starts, and a
+        vehicle still moving would come down further on, in a cell that may be another's."""
+        position, velocity = telemetry.position, telemetry.velocity
+        if position is None or velocity is None or math.hypot(velocity.north, velocity.east) > SETTLED_M_S:
             return False
-        here, there = telemetry.position.ned, self.target()
+        here, there = position.ned, self.target()
         return math.hypot(here.north - there.north, here.east - there.east) <= self.arrival_m
 
     async def _launch(self) -> None:

@@ -41,7 +41,9 @@ from fleet.bench.processes import spawn
 from fleet.sim.ports import free_port_block, free_udp_base
 from fleet.transport.identity import SERVICE, make_certs
 
-VEHICLE_SPEEDUP = 2.0  #: enough to track a cell per tau; telemetry rates scale with it, as in SITL
+#: The bench's vehicles: ArduCopter at the top of WPNAV_ACCEL's and PSC_JERK_XY's ranges, quick enough for a
+#: 1 m cell every 0.5 s; sim-vehicle sets them from the workspace, as an operator would.
+BENCH_VEHICLE = "vehicle: {speed_m_s: 20.0, accel_m_s2: 10.0, jerk_m_s3: 40.0}"
 TELEMETRY_HZ = 10.0  #: the agent's default: a vehicle sent a cell ahead at most is sent on as soon as seen there
 #: The agents yield the CPU to the fake vehicles: real vehicles fly on their own computers, and a
 #: simulation starved by the agents it serves flies them slower than physics would (late for nothing).
@@ -61,6 +63,7 @@ def bench_workspace(agents: int) -> str:
     rim = _rim(side)
     return "\n".join([
         f"name: bench-{agents}", f"size: [{side}, {side}, 1]", "cell_size_m: 1.0", "tau_s: 0.5", "beta_s: 0.2",
+        BENCH_VEHICLE,
         "geo_origin: {lat: 47.397742, lon: 8.545594, alt_m: 488.0, layer0_alt_m: 2.0}",
         f"charging_stations: [[0, 0, 0], [{side - 1}, {side - 1}, 0]]",
         "parking: [" + ", ".join(f"[{x}, {y}, 0]" for x, y in rim[:agents]) + "]",
@@ -97,14 +100,14 @@ async def run_bench(agents: int, processes: int, seconds: float, steady_after: f
     fleet = f"bench-{port}"
     truth = [] if record is None else ["--record", str(truth_path(record))]
     children = [spawn(["sim-vehicle", "--workspace", str(ws_file), "--count", str(agents), "--base-port",
-                        str(base), "--speedup", str(VEHICLE_SPEEDUP), "--ready-after", "0.5", *truth])]
+                        str(base), "--ready-after", "0.5", *truth])]
     for first in range(0, agents, share):
         count = min(share, agents - first)
         # Agent i listens on port + i and connects to agent 0's port; gossip meshes the rest.
         children.append(spawn(["agent", "--workspace", str(ws_file), "--drone", names[first], "--count", str(count),
                                 "--fleet", fleet, "--listen", f"tcp/127.0.0.1:{port + first}",
                                 "--connect", f"tcp/127.0.0.1:{port}", "--vehicle-base-port", str(base),
-                                "--lead-steps", str(default_lead_steps(workspace, VEHICLE_SPEEDUP)),
+                                "--lead-steps", str(default_lead_steps(workspace)),
                                 "--hover-lead-steps", str(max(4, workspace.delta + 1)),
                                 "--telemetry-hz", str(TELEMETRY_HZ), "--log-level", "WARNING",
                                 *security, *_recording(record, workdir, names[first])], nice=AGENT_NICE))

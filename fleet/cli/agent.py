@@ -53,8 +53,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="simulation only: shift this process's clock by S seconds (tests the skew check)")
     add("--telemetry-hz", type=float, help="rate asked of the vehicle's position streams; the landed state comes at "
                                            "half of it, battery and status at a quarter (default 10)")
-    add("--rate-hz", type=float, help="the link repeats the last setpoint at this rate, over 2 (PX4 leaves OFFBOARD "
-                                      "at 2 Hz or less) (default 10) [DRONA_RATE_HZ]")
+    add("--rate-hz", type=float, help="the link streams the setpoint at this rate, over 2 (PX4 leaves OFFBOARD "
+                                      "at 2 Hz or less) (default 20) [DRONA_RATE_HZ]")
     add("--drain-per-step", type=float,
         help="battery points one step of flight costs, for planning (default 0.33 a second of flight, times tau)")
     add("--backend", choices=["pymavlink", "mavsdk"],

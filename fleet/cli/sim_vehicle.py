@@ -31,7 +31,7 @@ from drona_gcs.workspace_files import load_workspace
 from fleet import runtime
 from fleet.sim.config import VehicleConfig
 from fleet.sim.fleet import FleetConfig, SimNode, run_fleet
-from fleet.sim.params import ParamStore, starting_limits
+from fleet.sim.params import ParamStore, limit_params, starting_limits
 from fleet.sim.personality import PERSONALITIES
 from fleet.sim.transport import PtyLink
 from fleet.sim.truth import TruthRecord
@@ -40,7 +40,8 @@ from fleet.vehicle.urls import DEFAULT_BAUD
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--workspace", help="workspace file: vehicle i starts at drone i's start cell")
+    parser.add_argument("--workspace",
+                        help="workspace file: vehicle i starts at drone i's start cell, set to its vehicle limits")
     parser.add_argument("--count", type=int, default=1, help="number of vehicles (default 1)")
     parser.add_argument("--instance", type=int, default=0,
                         help="the first vehicle's instance, as SITL's -I: vehicle i of this process is the "
@@ -83,10 +84,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     try:
-        config = _config(args)
         workspace: Workspace | None = load_workspace(args.workspace) if args.workspace else None
+        config = _config(args, workspace)
         if workspace is not None:  # a cell per tau must be within what the vehicles can fly
-            check_speed(workspace, max_speed(args) * args.speedup)  # simulated seconds run faster
+            check_speed(workspace, starting_limits(config.vehicle).max_speed * args.speedup)  # simulated s run faster
     except (ValueError, DronaError) as exc:
         print(f"drona sim-vehicle: {exc}", file=sys.stderr)
         return 2
@@ -101,9 +102,10 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def max_speed(args: argparse.Namespace) -> float:
-    """The horizontal speed limit the vehicles start with: ``--max-speed``, else their autopilot's default."""
-    return starting_limits(_config(args).vehicle).max_speed
+def max_speed(args: argparse.Namespace, workspace: Workspace | None = None) -> float:
+    """The horizontal speed limit the vehicles start with: ``--max-speed``, else the workspace's (or their
+    autopilot's default)."""
+    return starting_limits(_config(args, workspace).vehicle).max_speed
 
 
 def _param(text: str) -> tuple[str, float]:
@@ -117,7 +119,7 @@ def _param(text: str) -> tuple[str, float]:
     return name, number
 
 
-def _config(args: argparse.Namespace) -> FleetConfig:
+def _config(args: argparse.Namespace, workspace: Workspace | None = None) -> FleetConfig:
     if args.count < 1:
         raise ValueError(f"--count must be >= 1, got {args.count}")
     if args.instance < 0:
@@ -139,9 +141,13 @@ def _config(args: argparse.Namespace) -> FleetConfig:
     limits = None  # the personality's parameter defaults
     if args.max_speed is not None:
         limits = replace(starting_limits(VehicleConfig(personality=personality)), max_speed=args.max_speed)
+    # The workspace's vehicle limits are set on the vehicles as an operator would, before any by hand.
+    tuned = () if workspace is None else limit_params(
+        workspace.vehicle if args.max_speed is None else replace(workspace.vehicle, speed_m_s=args.max_speed),
+        personality)
     vehicle = VehicleConfig(personality=personality, limits=limits, ready_after_s=args.ready_after,
                             spool_up_s=args.spool_up, auto_disarm_s=args.auto_disarm, battery_pct=args.battery,
-                            params=tuple(_param(text) for text in args.param))
+                            params=(*tuned, *(_param(text) for text in args.param)))
     ParamStore(vehicle)  # refuses a parameter its autopilot does not have, before any vehicle starts
     key = parse_key(args.signing_key, "--signing-key") if args.signing_key else None
     return FleetConfig(count=args.count, vehicle=vehicle, tcp=args.tcp, host=args.host, base_port=args.base_port,

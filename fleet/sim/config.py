@@ -36,6 +36,9 @@ class VehicleConfig:
     takeoff_alt_m: float | None = None  #: PX4's MIS_TAKEOFF_ALT, when the command gives none
     #: parameters by name with their starting values (after the fields above), as a vehicle tuned by hand
     params: tuple[tuple[str, float], ...] = ()
+    #: simulated seconds per second of the ground station's clock (the fleet's speedup): the velocities it
+    #: sends are per second of its clock, as the schedule it streams them along runs
+    speedup: float = 1.0
     hover_current_a: float = 15.0
     charge_current_a: float = 10.0
 

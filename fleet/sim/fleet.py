@@ -177,7 +177,7 @@ def build_nodes(config: FleetConfig, workspace: Workspace | None, clock: SimCloc
     nodes = []
     for i, place in zip(config.instances, placements(workspace, config.instances.stop, config.first), strict=True):
         sysid = 1 if config.vehicle.personality.one_system_id else i + 1
-        vehicle = replace(config.vehicle, system_id=sysid, instance=i)
+        vehicle = replace(config.vehicle, system_id=sysid, instance=i, speedup=config.speedup)
         codec = Codec(sysid, signing_key=config.signing_key)
         nodes.append(SimNode(VehicleModel(vehicle, place, now), codec, clock))
     return nodes

@@ -3,15 +3,17 @@
 Every step: a vehicle armed on the ground without a takeoff disarms after its auto-disarm delay
 (PX4: one before its first take-off since arming, another after a touchdown; 0 or less: never);
 PX4 leaves OFFBOARD for AUTO.LOITER once the setpoints stop; an ArduCopter GUIDED velocity
-setpoint not renewed for GUID_TIMEOUT stops. Then the body moves towards the mode's target
-within the live motion limits, touchdown and takeoff completion are noticed (LAND and RTL disarm
-on touchdown), and the battery drains (in the air, armed) or charges (landed, disarmed, on a
-charging station). Every delay, limit and height is a parameter's live value (:mod:`fleet.sim.params`).
+setpoint not renewed for GUID_TIMEOUT stops (a position given with it stops moving on). Then the
+body moves towards the mode's target within the live motion limits, touchdown and takeoff
+completion are noticed (LAND and RTL disarm on touchdown), and the battery drains (in the air,
+armed) or charges (landed, disarmed, on a charging station). Every delay, limit and height is a
+parameter's live value (:mod:`fleet.sim.params`).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from fleet.sim.mav import mavlink2
@@ -28,6 +30,7 @@ def advance(m: VehicleModel, now: float, dt: float) -> None:
     _rules(m, now)
     m.body.limits = m.params.limits  # a PARAM_SET takes effect from the next step
     m.body.step(_motion_target(m, now), dt)
+    _carry_on(m, dt)
     _after_motion(m, now)
     m.battery.capacity_mah = m.params.setting(Setting.BATTERY_CAPACITY)  # the monitor counts down from it
     m.battery.step(dt, _current(m))
@@ -42,9 +45,25 @@ def _rules(m: VehicleModel, now: float) -> None:
     if m.mode == p.follow_mode and p is not ARDUPILOT and not m.streaming(now):
         m.text(mavlink2.MAV_SEVERITY_CRITICAL, "Offboard signal lost: holding")
         m.enter_mode(p.hold_mode, now)
-    if (p is ARDUPILOT and m.setpoint is not None and not m.setpoint.has_horizontal_position
+    if (p is ARDUPILOT and m.setpoint is not None and m.setpoint.moving
             and m.setpoint_times and now - m.setpoint_times[-1] > m.params.setting(Setting.GUIDED_TIMEOUT)):
-        m.setpoint = None  # GUIDED velocity control times out: stop
+        # GUIDED velocity control times out: stop; a moving position stays where it got to
+        m.setpoint = None if not m.setpoint.has_horizontal_position else replace(m.setpoint, vn=0.0, ve=0.0, vd=0.0,
+                                                                                  an=0.0, ae=0.0)
+
+
+def _carry_on(m: VehicleModel, dt: float) -> None:
+    """ArduCopter moves a GUIDED position target given with a velocity (and an acceleration) on at that
+    velocity (its position controller integrates the target); PX4 takes them as feed-forward only."""
+    sp = m.setpoint
+    if m.personality is not ARDUPILOT or sp is None or not sp.moving or m.behaviour is not Behaviour.FOLLOW:
+        return
+    if sp.north is not None and sp.east is not None:
+        sp = replace(sp, north=sp.north + sp.vn * dt + sp.an * dt * dt / 2,
+                     east=sp.east + sp.ve * dt + sp.ae * dt * dt / 2, vn=sp.vn + sp.an * dt, ve=sp.ve + sp.ae * dt)
+    if sp.down is not None:
+        sp = replace(sp, down=sp.down + sp.vd * dt)
+    m.setpoint = sp
 
 
 def _motion_target(m: VehicleModel, now: float) -> Target | None:

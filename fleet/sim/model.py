@@ -45,6 +45,7 @@ import logging
 import math
 from collections import deque
 from collections.abc import Callable
+from dataclasses import replace
 
 from drona_gcs.geo import GeoPoint, Ned
 from fleet.sim import commands, flight, ftp, mission, telemetry
@@ -227,6 +228,10 @@ class VehicleModel:
             return
         target, yaw = update
         self.setpoint_times.append(now)
+        if target is not None and self.config.speedup != 1.0:
+            s = self.config.speedup
+            target = replace(target, vn=target.vn / s, ve=target.ve / s, vd=target.vd / s, an=target.an / s / s,
+                             ae=target.ae / s / s)
         if self.personality is ARDUPILOT and self.behaviour is not Behaviour.FOLLOW:
             return  # ArduCopter uses setpoints only in GUIDED
         if target is not None:

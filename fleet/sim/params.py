@@ -28,6 +28,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from drona_gcs.workspace import VehicleLimits
 from fleet.sim import telemetry
 from fleet.sim.mav import ENC, Message, mavlink2
 from fleet.sim.personality import ARDUPILOT, Personality
@@ -43,6 +44,7 @@ INT16: int = mavlink2.MAV_PARAM_TYPE_INT16
 INT32: int = mavlink2.MAV_PARAM_TYPE_INT32
 _INT_RANGE = {INT8: (-(2**7), 2**7 - 1), INT16: (-(2**15), 2**15 - 1), INT32: (-(2**31), 2**31 - 1)}
 CM = 0.01  #: metres per centimetre: ArduCopter's speeds and heights are in cm
+GRAVITY = 9.80665  #: m/s²
 PARAMS_PER_STEP = 5  #: PARAM_VALUEs streamed per step (the runner steps at 50 Hz: 250 a second)
 HASH_CHECK = "_HASH_CHECK"
 NO_INDEX = 0xFFFF  #: PARAM_VALUE's param_index (uint16) of PX4's _HASH_CHECK: C's -1
@@ -97,7 +99,9 @@ ARDUCOPTER_PARAMS = (
     Param("RTL_ALT", 1500, INT32, (Setting.RTL_ALT,), CM),
     Param("DISARM_DELAY", 10, INT8, (Setting.PREFLIGHT_DISARM, Setting.LANDED_DISARM)),
     Param("GUID_TIMEOUT", 3, REAL32, (Setting.GUIDED_TIMEOUT,)),
-    Param("ANGLE_MAX", 3000, INT16),
+    Param("ANGLE_MAX", 3000, INT16),  # cdeg: its lean angle bounds WPNAV_ACCEL
+    Param("ATC_ACCEL_R_MAX", 110000, REAL32),  # cdeg/s²: the attitude controller's bounds PSC_JERK_XY
+    Param("ATC_ACCEL_P_MAX", 110000, REAL32),
     Param("FENCE_ENABLE", 0, INT8),
     Param("FENCE_TYPE", 7, INT8),  # max altitude, circle and polygon
     Param("ARMING_CHECK", 1, INT32),
@@ -136,6 +140,32 @@ def starting_settings(config: VehicleConfig) -> dict[Setting, float]:
              Setting.GUIDED_TIMEOUT: config.guided_velocity_timeout_s}
     start.update({s: v for s, v in given.items() if v is not None})
     return start
+
+
+def arducopter_shaping(wpnav_accel: float, psc_jerk: float, angle_max_cdeg: float, roll_accel_cdeg: float,
+                       pitch_accel_cdeg: float) -> tuple[float, float]:
+    """The horizontal acceleration and jerk ArduCopter shapes with: WPNAV_ACCEL, at most what its lean
+    angle gives; PSC_JERK_XY, at most what its attitude controller's angular acceleration gives
+    (``AC_PosControl::set_max_speed_accel_NE_m``; 0: not limited)."""
+    accel = max(MIN_LIMIT, min(wpnav_accel, GRAVITY * math.tan(math.radians(angle_max_cdeg / 100))))
+    jerk = max(MIN_LIMIT, psc_jerk)
+    snap = min(roll_accel_cdeg, pitch_accel_cdeg) / 100 * math.pi / 180 * GRAVITY
+    return accel, min(jerk, 0.5 * math.sqrt(accel * snap)) if snap > 0 else jerk
+
+
+def limit_params(limits: VehicleLimits, personality: Personality) -> tuple[tuple[str, float], ...]:
+    """The parameters, in ``personality``'s names and units, that set a workspace's vehicle limits
+    (those its table has: PX4's has no jerk)."""
+    wanted = {Setting.MAX_SPEED: limits.speed_m_s, Setting.MAX_ACCEL: limits.accel_m_s2,
+              Setting.SHAPING_JERK: limits.jerk_m_s3, Setting.CLIMB_RATE: limits.climb_m_s,
+              Setting.DESCENT_RATE: limits.descent_m_s}
+    tuned = [(p.name, wanted[s] / p.scale) for p in TABLES[personality.name] for s in p.drives if s in wanted]
+    if personality is ARDUPILOT:  # the lean angle and the attitude controller must allow them
+        lean = math.degrees(math.atan(limits.accel_m_s2 / GRAVITY))
+        tuned.append(("ANGLE_MAX", float(max(3000, math.ceil(lean) * 100))))
+        if arducopter_shaping(limits.accel_m_s2, limits.jerk_m_s3, 9000, 110000, 110000)[1] < limits.jerk_m_s3:
+            tuned += [("ATC_ACCEL_R_MAX", 0.0), ("ATC_ACCEL_P_MAX", 0.0)]
+    return tuple(tuned)
 
 
 def starting_limits(config: VehicleConfig) -> Limits:
@@ -227,11 +257,15 @@ class ParamStore:
     # ------------------------------------------------------------- internals
     def _limits(self) -> Limits:
         values = {s.value: max(MIN_LIMIT, self.setting(s)) for s in LIMIT_SETTINGS}
-        gain = self._shape.gain
+        gain, jerk = self._shape.gain, math.inf
         if Setting.SHAPING_JERK in self._driver:  # ArduCopter: a higher WPNAV_ACCEL makes it slower to close in
-            gain = max(MIN_LIMIT, self.setting(Setting.SHAPING_JERK)) / (2 * values[Setting.MAX_ACCEL.value])
+            accel, jerk = arducopter_shaping(values[Setting.MAX_ACCEL.value], self.setting(Setting.SHAPING_JERK),
+                                             self.value("ANGLE_MAX"), self.value("ATC_ACCEL_R_MAX"),
+                                             self.value("ATC_ACCEL_P_MAX"))
+            values[Setting.MAX_ACCEL.value] = accel
+            gain = jerk / (2 * accel)
         return Limits(**values, land_speed_high_alt=self._shape.land_speed_high_alt, gain=gain,
-                      gain_z=self._shape.gain_z)
+                      gain_z=self._shape.gain_z, jerk=jerk)
 
     def _bytewise(self, p: Param) -> bool:
         return p.type != REAL32 and self.personality is not ARDUPILOT

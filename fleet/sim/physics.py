@@ -7,6 +7,13 @@ The position controller is the one a multicopter's is shaped like: the commanded
 towards a position target is ``min(max_speed, sqrt(2 * accel * distance), gain * distance)``
 (cruise, then a braking curve, then a gentle final approach), and the velocity moves towards
 it at most ``max_accel`` per second. Horizontal speed therefore never exceeds ``max_speed``.
+
+With a jerk limit (ArduCopter's PSC_JERK_XY) the horizontal target is shaped as ArduCopter
+shapes it (AP_Math/control.cpp ``shape_pos_vel_accel_xy``: square-root controllers on the
+position and velocity errors, the acceleration jerk-limited), and the body trails the shaped
+target by :data:`BODY_LAG_S`. Against a real ArduCopter SITL at its defaults: a 1 m step from
+rest crosses 0.5 m after 1.28 s there, 1.24 s here (0.87 s without the shaping); each metre of
+a staircase of one a second is crossed 1.24-1.30 s after it is set there, 1.22-1.30 s here.
 """
 
 from __future__ import annotations
@@ -16,6 +23,8 @@ from dataclasses import dataclass
 
 #: Integration step (s of simulated time); a longer step is split into these.
 SUBSTEP_S = 0.02
+#: How far the body trails its shaped target (its attitude and thrust responses): fits a real SITL.
+BODY_LAG_S = 0.1
 
 
 @dataclass(frozen=True)
@@ -32,11 +41,13 @@ class Limits:
     land_speed_high_alt: float = 10.0  #: m, above this a landing descends at descent_rate
     gain: float = 1.0  #: 1/s, position error to speed near a target (ArduCopter's jerk / (2 accel), PX4's MPC_XY_P)
     gain_z: float = 1.5  #: 1/s, the same vertically
+    jerk: float = math.inf  #: m/s³, horizontal: finite, the target is shaped as ArduCopter's (PSC_JERK_XY)
 
 
 @dataclass(frozen=True)
 class Target:
-    """What the controller flies to: a position on each axis group given, else a velocity."""
+    """What the controller flies to: a position on each axis group given, else a velocity; given both,
+    the velocity is fed forward (the position controller adds it to what it flies to close in)."""
 
     north: float | None = None  #: horizontal position (with east), else fly (vn, ve)
     east: float | None = None
@@ -44,10 +55,17 @@ class Target:
     vn: float = 0.0
     ve: float = 0.0
     vd: float = 0.0
+    an: float = 0.0  #: horizontal acceleration fed forward with a position and a velocity (m/s²)
+    ae: float = 0.0
 
     @property
     def has_horizontal_position(self) -> bool:
         return self.north is not None and self.east is not None
+
+    @property
+    def moving(self) -> bool:
+        """Whether a velocity is given (flown, or fed forward)."""
+        return (self.vn, self.ve, self.vd, self.an, self.ae) != (0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 HOLD_STILL = Target()  #: zero velocity everywhere: stop and stay
@@ -62,6 +80,7 @@ class Body:
         self.vn = self.ve = self.vd = 0.0
         self.an = self.ae = 0.0  #: last horizontal acceleration (for the attitude)
         self.yaw = 0.0  #: rad, 0 north, clockwise
+        self.shaped = Shaped()  #: the shaped horizontal target, with a jerk limit
 
     @property
     def height(self) -> float:
@@ -86,6 +105,7 @@ class Body:
 
     def stop(self) -> None:
         self.vn = self.ve = self.vd = self.an = self.ae = 0.0
+        self.shaped.reset(self.north, self.east, 0.0, 0.0)
 
     # -------------------------------------------------------------- internals
     def _substep(self, target: Target | None, dt: float) -> None:
@@ -95,17 +115,13 @@ class Body:
         else:
             wn, we = self._wanted_horizontal(target)
             wd = self._wanted_vertical(target)
-        dvn, dve = wn - self.vn, we - self.ve
-        dv = math.hypot(dvn, dve)
+        if math.isfinite(lim.jerk) and target is not None and not self.on_ground:
+            self._trail_shaped(target, dt)
+        else:
+            self._accelerate(wn, we, dt)
+            self.shaped.reset(self.north, self.east, self.vn, self.ve)
         step = lim.max_accel * dt
-        if dv > step:
-            dvn, dve = dvn * step / dv, dve * step / dv
-        self.an, self.ae = dvn / dt, dve / dt
-        self.vn += dvn
-        self.ve += dve
         self.vd += max(-step, min(step, wd - self.vd))
-        self.north += self.vn * dt
-        self.east += self.ve * dt
         self.down += self.vd * dt
         if self.down >= 0.0:  # the ground
             self.down = 0.0
@@ -113,18 +129,44 @@ class Body:
             if self.vd == 0.0:
                 self.vn = self.ve = 0.0
 
+    def _accelerate(self, wn: float, we: float, dt: float) -> None:
+        """Towards the wanted horizontal velocity ``(wn, we)``, at most ``max_accel``."""
+        an, ae = _clipped((wn - self.vn) / dt, (we - self.ve) / dt, self.limits.max_accel)
+        self.an, self.ae = an, ae
+        self.vn += an * dt
+        self.ve += ae * dt
+        self.north += self.vn * dt
+        self.east += self.ve * dt
+
+    def _trail_shaped(self, target: Target, dt: float) -> None:
+        """Shape the horizontal target as ArduCopter does, and trail it by BODY_LAG_S."""
+        lim, shaped = self.limits, self.shaped
+        if target.north is not None and target.east is not None:  # a velocity given too is fed forward
+            error = (target.north - shaped.north, target.east - shaped.east)
+            wanted = _clipped(*_sqrt_controller(error, 0.5 * lim.jerk / lim.max_accel, 0.5 * lim.max_accel, dt),
+                              lim.max_speed)
+            wanted = (wanted[0] + target.vn, wanted[1] + target.ve)
+        else:
+            wanted = _clipped(target.vn, target.ve, lim.max_speed)
+        error_v = (wanted[0] - shaped.vn, wanted[1] - shaped.ve)
+        accel = _clipped(*_sqrt_controller(error_v, lim.jerk / lim.max_accel, lim.jerk, dt), lim.max_accel)
+        accel = (accel[0] + target.an, accel[1] + target.ae)
+        shaped.step(accel, lim.jerk, dt)
+        pull = min(1.0, dt / BODY_LAG_S)
+        north, east = self.north + (shaped.north - self.north) * pull, self.east + (shaped.east - self.east) * pull
+        vn, ve = (north - self.north) / dt, (east - self.east) / dt
+        self.an, self.ae = (vn - self.vn) / dt, (ve - self.ve) / dt
+        self.north, self.east, self.vn, self.ve = north, east, vn, ve
+
     def _wanted_horizontal(self, t: Target) -> tuple[float, float]:
         lim = self.limits
         if t.north is not None and t.east is not None:
             dn, de = t.north - self.north, t.east - self.east
             dist = math.hypot(dn, de)
-            if dist < 1e-6:
-                return 0.0, 0.0
-            speed = min(lim.max_speed, math.sqrt(2 * lim.max_accel * dist), lim.gain * dist)
-            return dn / dist * speed, de / dist * speed
-        speed = math.hypot(t.vn, t.ve)
-        scale = lim.max_speed / speed if speed > lim.max_speed else 1.0
-        return t.vn * scale, t.ve * scale
+            if dist >= 1e-6:
+                speed = min(lim.max_speed, math.sqrt(2 * lim.max_accel * dist), lim.gain * dist)
+                return _clipped(dn / dist * speed + t.vn, de / dist * speed + t.ve, lim.max_speed)
+        return _clipped(t.vn, t.ve, lim.max_speed)
 
     def _wanted_vertical(self, t: Target) -> float:
         lim = self.limits
@@ -132,8 +174,51 @@ class Body:
             return max(-lim.climb_rate, min(lim.descent_rate, t.vd))
         dd = t.down - self.down
         limit = lim.descent_rate if dd > 0 else lim.climb_rate
-        speed = min(limit, math.sqrt(2 * lim.max_accel * abs(dd)), lim.gain_z * abs(dd))
-        return math.copysign(speed, dd)
+        speed = math.copysign(min(limit, math.sqrt(2 * lim.max_accel * abs(dd)), lim.gain_z * abs(dd)), dd)
+        return max(-lim.climb_rate, min(lim.descent_rate, speed + t.vd))
+
+
+@dataclass
+class Shaped:
+    """A shaped horizontal target: where it is, how fast it moves and accelerates."""
+
+    north: float = 0.0
+    east: float = 0.0
+    vn: float = 0.0
+    ve: float = 0.0
+    an: float = 0.0
+    ae: float = 0.0
+
+    def reset(self, north: float, east: float, vn: float, ve: float) -> None:
+        """At the body, as it moves (on the ground, or flown without shaping)."""
+        self.north, self.east, self.vn, self.ve, self.an, self.ae = north, east, vn, ve, 0.0, 0.0
+
+    def step(self, accel: tuple[float, float], jerk: float, dt: float) -> None:
+        """Towards ``accel`` at most ``jerk`` per second, then ``dt`` on."""
+        dan, dae = _clipped(accel[0] - self.an, accel[1] - self.ae, jerk * dt)
+        self.an, self.ae = self.an + dan, self.ae + dae
+        self.north += self.vn * dt + self.an * dt * dt / 2
+        self.east += self.ve * dt + self.ae * dt * dt / 2
+        self.vn += self.an * dt
+        self.ve += self.ae * dt
+
+
+def _sqrt_controller(error: tuple[float, float], p: float, limit: float, dt: float) -> tuple[float, float]:
+    """ArduPilot's sqrt_controller on a vector: linear near zero, sqrt(2 limit x) beyond, never past the
+    error in one step."""
+    length = math.hypot(*error)
+    if length <= 0.0:
+        return 0.0, 0.0
+    linear = limit / (p * p)
+    rate = math.sqrt(2 * limit * (length - linear / 2)) if length > linear else length * p
+    rate = min(rate, length / dt)
+    return error[0] * rate / length, error[1] * rate / length
+
+
+def _clipped(x: float, y: float, most: float) -> tuple[float, float]:
+    """``(x, y)`` shortened to length ``most`` if longer."""
+    length = math.hypot(x, y)
+    return (x, y) if length <= most else (x * most / length, y * most / length)
 
 
 @dataclass

@@ -182,12 +182,68 @@ def readiness(t: Telemetry, lost: bool = False) -> Readiness:
     return Readiness.WAITING_FOR_POSITION if problems[0][0] else Readiness.NOT_READY
 
 
+STILL = Ned(0.0, 0.0, 0.0)
+#: SET_POSITION_TARGET_* type_mask: x, y, z only (velocity, acceleration, yaw and yaw rate ignored)
+POSITION_ONLY = 0b110111111000
+#: x, y, z and the velocity to feed forward: between two messages the autopilot carries the target on at
+#: it. Not its acceleration: fed forward on top of the autopilot's own, it overshoots where a sweep turns.
+POSITION_VELOCITY = 0b110111000000
+
+
+@dataclass(frozen=True)
+class Motion:
+    """A streamed target: where it is and how fast it moves (None: a still point, sent as a position only)."""
+
+    where: Ned
+    velocity: Ned | None = None
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """A target that moves: from where it was sent, at ``velocity`` (m/s, NED), which changes at
+    ``accel`` (m/s²), which changes at ``jerk`` (m/s³), for ``duration_s``; then still. The autopilot
+    gets the velocity as feed-forward with each position along the way, as a trajectory is streamed
+    to it: aimed at a point that moves, it keeps up, where aimed at a point that waits, it slows down
+    to stop there."""
+
+    velocity: Ned
+    duration_s: float
+    accel: Ned = STILL
+    jerk: Ned = STILL
+
+    def at(self, start: Ned, elapsed: float) -> Motion:
+        """The target ``elapsed`` s after it was sent from ``start``."""
+        t = min(max(elapsed, 0.0), self.duration_s)
+        where = Ned(*(p + v * t + a * t * t / 2 + j * t ** 3 / 6 for p, v, a, j in self._axes(start)))
+        if elapsed >= self.duration_s:
+            return Motion(where, STILL)
+        return Motion(where, Ned(*(v + a * t + j * t * t / 2 for _, v, a, j in self._axes(start))))
+
+    def _axes(self, start: Ned) -> list[tuple[float, float, float, float]]:
+        return [(start.north, self.velocity.north, self.accel.north, self.jerk.north),
+                (start.east, self.velocity.east, self.accel.east, self.jerk.east),
+                (start.down, self.velocity.down, self.accel.down, self.jerk.down)]
+
+
+@dataclass(frozen=True)
+class Aim:
+    """The target a link streams: ``start``, or a sweep from it, as sent at link time ``sent_at``."""
+
+    start: Ned
+    sweep: Sweep | None
+    sent_at: float
+
+    def at(self, now: float) -> Motion:
+        return Motion(self.start) if self.sweep is None else self.sweep.at(self.start, now - self.sent_at)
+
+
 class SetpointSink(Protocol):
     """Where the setpoint loop sends targets and reads positions."""
 
-    async def send_position_target(self, target: Ned) -> None:
-        """Fly to ``target``. The sink keeps repeating the last target to the vehicle (PX4 leaves
-        OFFBOARD without a stream): the setpoint loop sends one only when the target moves."""
+    async def send_position_target(self, target: Ned, sweep: Sweep | None = None) -> None:
+        """Fly to ``target``, or along ``sweep`` from it. The sink keeps streaming the target to the
+        vehicle (PX4 leaves OFFBOARD without a stream; a sweep moves on with each message): the
+        setpoint loop sends one only when the target changes."""
         ...
 
     def last_position(self) -> Position | None: ...

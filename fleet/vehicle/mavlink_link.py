@@ -56,7 +56,19 @@ from drona_gcs.geo import GeoFrame, GeoPoint, Ned
 from fleet.clock import cancel_all, periodic
 from fleet.vehicle.commands import ConfirmedCommands
 from fleet.vehicle.frames import Deframer
-from fleet.vehicle.link import REOPEN_S, Position, Share, StreamRequests, Telemetry, Trail
+from fleet.vehicle.link import (
+    POSITION_ONLY,
+    POSITION_VELOCITY,
+    REOPEN_S,
+    STILL,
+    Aim,
+    Position,
+    Share,
+    StreamRequests,
+    Sweep,
+    Telemetry,
+    Trail,
+)
 from fleet.vehicle.mavlink_telemetry import (
     ARDUPILOT_STREAMS,
     FRAMED_STREAMS,
@@ -84,7 +96,6 @@ __all__ = ["ARDUPILOT_STREAMS", "FRAMED_STREAMS", "STREAMS", "PymavlinkLink"]  #
 
 log = logging.getLogger(__name__)
 
-POSITION_ONLY = 0b110111111000  #: type_mask: use x, y, z; ignore velocity, acceleration, yaw and yaw rate
 GCS_COMPONENT = mavlink2.MAV_COMP_ID_MISSIONPLANNER
 REOPEN_TIMEOUT_S = 5.0  #: how long one attempt may take (a TCP connect to a host that does not answer)
 
@@ -123,8 +134,7 @@ class PymavlinkLink(ConfirmedCommands):
         self._closed = False  #: closed by us: a stream lost now is not opened again
         self._streams = StreamRequests(self._ask_for_streams, str(self.url))
         self._started = clock()
-        self._setpoint: Message | None = None  #: repeated at setpoint_hz (PX4 leaves OFFBOARD without it)
-        self._target: Ned | None = None  #: where ``_setpoint`` sends the vehicle
+        self._aim: Aim | None = None  #: streamed at setpoint_hz (PX4 leaves OFFBOARD without it)
         self._setpoints_sent = 0
         self._latest = Latest()  #: telemetry: the last message of each type
         self._trail = Trail()
@@ -211,7 +221,7 @@ class PymavlinkLink(ConfirmedCommands):
         return verdict
 
     def _stop_setpoints(self) -> None:
-        self._setpoint, self._target = None, None
+        self._aim = None
 
     async def follow_setpoints(self) -> None:
         """GUIDED on ArduPilot; on PX4 stream the current position as the setpoint, then OFFBOARD."""
@@ -219,7 +229,7 @@ class PymavlinkLink(ConfirmedCommands):
         mode = policy.follow_mode
         if mode is None or self.session.in_mode(mode):
             return
-        if policy.setpoints_first and self._setpoint is None:
+        if policy.setpoints_first and self._aim is None:
             here = self.last_position()
             if here is None:
                 raise VehicleError(f"vehicle {self.sysid}: no position to hold while entering OFFBOARD")
@@ -241,31 +251,39 @@ class PymavlinkLink(ConfirmedCommands):
         return ""
 
     # ------------------------------------------------------------ setpoints
-    async def send_position_target(self, target: Ned) -> None:
-        """Fly to ``target`` (local NED, or the workspace frame's with ``frame``); repeated at ``setpoint_hz``.
-        The target being repeated, sent again, is left to the repeats (a drone at rest gets one at every boundary)."""
-        if self._setpoint is not None and target == self._target:
+    async def send_position_target(self, target: Ned, sweep: Sweep | None = None) -> None:
+        """Fly to ``target`` (local NED, or the workspace frame's with ``frame``), or along ``sweep`` from it;
+        streamed at ``setpoint_hz``. The target being streamed, sent again, is left to the stream (a drone at
+        rest gets one at every boundary)."""
+        if self._aim is not None and (target, sweep) == (self._aim.start, self._aim.sweep):
             self._check_alive()
             return
-        ms = round((self.clock() - self._started) * 1000) & 0xFFFFFFFF
-        if self.frame is None:
-            self._setpoint = self._enc.set_position_target_local_ned_encode(
-                ms, self.sysid or 0, self.compid, mavlink2.MAV_FRAME_LOCAL_NED, POSITION_ONLY,
-                target.north, target.east, target.down, 0, 0, 0, 0, 0, 0, 0, 0)
-        else:
-            g = self.frame.ned_to_global(target)
-            self._setpoint = self._enc.set_position_target_global_int_encode(
-                ms, self.sysid or 0, self.compid, mavlink2.MAV_FRAME_GLOBAL_INT, POSITION_ONLY,
-                round(g.lat * 1e7), round(g.lon * 1e7), g.alt_m, 0, 0, 0, 0, 0, 0, 0, 0)
-        self._target = target
+        self._aim = Aim(target, sweep, self.clock())
         self._check_alive()
         self._send_setpoint()
 
+    def _setpoint(self) -> Message:
+        """The aim as of now: SET_POSITION_TARGET_LOCAL_NED, or _GLOBAL_INT with ``frame``."""
+        assert self._aim is not None
+        motion = self._aim.at(self.clock())
+        where, v = motion.where, motion.velocity or STILL
+        mask = POSITION_ONLY if motion.velocity is None else POSITION_VELOCITY
+        ms = round((self.clock() - self._started) * 1000) & 0xFFFFFFFF
+        if self.frame is None:
+            return self._enc.set_position_target_local_ned_encode(
+                ms, self.sysid or 0, self.compid, mavlink2.MAV_FRAME_LOCAL_NED, mask,
+                where.north, where.east, where.down, v.north, v.east, v.down, 0, 0, 0, 0, 0)
+        g = self.frame.ned_to_global(where)
+        return self._enc.set_position_target_global_int_encode(
+            ms, self.sysid or 0, self.compid, mavlink2.MAV_FRAME_GLOBAL_INT, mask,
+            round(g.lat * 1e7), round(g.lon * 1e7), g.alt_m, v.north, v.east, v.down, 0, 0, 0, 0, 0)
+
     def _send_setpoint(self) -> None:
-        if self._setpoint is not None and may_stream_setpoints(self.telemetry()):
-            self._send(self._setpoint)
+        if self._aim is not None and may_stream_setpoints(self.telemetry()):
+            message = self._setpoint()
+            self._send(message)
             self._setpoints_sent += 1
-            self._waiters.resolve(SETPOINT_SENT, self._setpoint)
+            self._waiters.resolve(SETPOINT_SENT, message)
 
     async def _stream_setpoint(self) -> None:
         async for _ in periodic(1 / self.setpoint_hz):

@@ -59,7 +59,18 @@ from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from drona_gcs.geo import GeoFrame, GeoPoint, Ned
 from fleet.clock import cancel_all, periodic
 from fleet.vehicle.commands import ConfirmedCommands
-from fleet.vehicle.link import REOPEN_S, Autopilot, Position, Share, StreamRequests, Telemetry, Trail, not_ready
+from fleet.vehicle.link import (
+    REOPEN_S,
+    Aim,
+    Autopilot,
+    Position,
+    Share,
+    StreamRequests,
+    Sweep,
+    Telemetry,
+    Trail,
+    not_ready,
+)
 from fleet.vehicle.mavsdk_messages import (
     EKF_STATUS_REPORT,
     EXTENDED_SYS_STATE,
@@ -109,7 +120,7 @@ class MavsdkLink(ConfirmedCommands):
         self.frame, self.clock = frame, clock
         self.heartbeat_timeout, self.command_timeout = heartbeat_timeout, command_timeout
         self.text_grace, self.stream_hz, self.setpoint_hz, self.timeouts = text_grace, stream_hz, setpoint_hz, timeouts
-        self._setpoint: MavlinkMessage | None = None  #: ArduPilot's, repeated at setpoint_hz by this link
+        self._aim: Aim | None = None  #: ArduPilot's streamed at setpoint_hz by this link, PX4's by MAVSDK
         self.session = MavlinkSession(str(self.url), heartbeat_timeout)
         self._mavsdk: Mavsdk | None = None
         self._connection: Any = None  #: MAVSDK's handle of our connection
@@ -214,7 +225,7 @@ class MavsdkLink(ConfirmedCommands):
         return verdict()
 
     def _stop_setpoints(self) -> None:
-        self._setpoint = None
+        self._aim = None
 
     async def follow_setpoints(self) -> None:
         """PX4: MAVSDK's offboard, holding the current position as the first setpoint. ArduPilot: GUIDED,
@@ -293,28 +304,42 @@ class MavsdkLink(ConfirmedCommands):
         return ["", *self.session.serious_since(since)][-1]
 
     # ------------------------------------------------------------ setpoints
-    async def send_position_target(self, target: Ned) -> None:
-        """Fly to ``target`` (local NED, or the workspace frame's with ``frame``). PX4: MAVSDK's offboard
-        repeats it at 20 Hz. ArduPilot: this link repeats it at ``setpoint_hz``, once the take-off is over."""
+    async def send_position_target(self, target: Ned, sweep: Sweep | None = None) -> None:
+        """Fly to ``target`` (local NED, or the workspace frame's with ``frame``), or along ``sweep`` from it.
+        ArduPilot: this link streams it at ``setpoint_hz``, once the take-off is over, the sweep's velocity
+        fed forward. PX4: MAVSDK's offboard repeats it at 20 Hz; a sweep's position is moved on at this
+        link's rate (as a position only: MAVSDK's offboard has no velocity with a global position)."""
         self._check_alive()
+        self._aim = Aim(target, sweep, self.clock())
         if self.autopilot is Autopilot.ARDUPILOT:
-            self._setpoint = setpoint(self.sysid or 0, target, self.frame, self.clock())
             self._send_setpoint()
             return
-        try:  # these only store the setpoint (and send it once): they do not wait for the vehicle
-            if self.frame is None:
-                self._offboard.set_position_ned(PositionNedYaw(target.north, target.east, target.down, 0.0))
-            else:
-                g = self.frame.ned_to_global(target)
-                self._offboard.set_position_global(
-                    PositionGlobalYaw(g.lat, g.lon, g.alt_m, 0.0, PositionGlobalYaw.AltitudeType.AMSL))
+        try:
+            self._offboard_to(target)
         except OffboardError as exc:
             raise VehicleError(f"vehicle {self.sysid}: setpoint not taken ({exc})") from exc
 
+    def _offboard_to(self, target: Ned) -> None:
+        """MAVSDK's offboard setpoint: these only store it (and send it once), they do not wait for the vehicle."""
+        if self.frame is None:
+            self._offboard.set_position_ned(PositionNedYaw(target.north, target.east, target.down, 0.0))
+        else:
+            g = self.frame.ned_to_global(target)
+            self._offboard.set_position_global(
+                PositionGlobalYaw(g.lat, g.lon, g.alt_m, 0.0, PositionGlobalYaw.AltitudeType.AMSL))
+
     def _send_setpoint(self) -> None:
-        if self._setpoint is not None and self.session.problem() is None and may_stream_setpoints(self.telemetry()):
+        if self._aim is None or self.session.problem() is not None:
+            return
+        motion = self._aim.at(self.clock())
+        if self.autopilot is not Autopilot.ARDUPILOT:
+            if motion.velocity is not None:  # a sweep under way
+                with contextlib.suppress(OffboardError):
+                    self._offboard_to(motion.where)
+            return
+        if may_stream_setpoints(self.telemetry()):
             try:
-                self._direct.send_message(self._setpoint)
+                self._direct.send_message(setpoint(self.sysid or 0, motion, self.frame, self.clock()))
             except MavlinkDirectError as exc:
                 log.debug("vehicle %s: setpoint not sent: %s", self.sysid, exc)
 

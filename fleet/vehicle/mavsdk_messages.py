@@ -11,13 +11,13 @@ from typing import Any
 
 from mavsdk.plugins.mavlink_direct import MavlinkMessage
 
-from drona_gcs.geo import GeoFrame, Ned
+from drona_gcs.geo import GeoFrame
+from fleet.vehicle.link import POSITION_ONLY, POSITION_VELOCITY, STILL, Motion
 from fleet.vehicle.policy import Result
 from fleet.vehicle.session import CommandAck, Heartbeat, Inbound, StatusText
 from fleet.vehicle.urls import LinkUrl, Scheme
 
 SYS_STATUS, EXTENDED_SYS_STATE, EKF_STATUS_REPORT = 1, 245, 193  #: message ids MAVSDK has no set_rate_* for
-POSITION_ONLY = 0b110111111000  #: SET_POSITION_TARGET_* type_mask: x, y, z only
 LOCAL_NED, GLOBAL_INT = 1, 5  #: MAV_FRAME
 #: MAVSDK's ActionResult/OffboardResult name -> MAV_RESULT, when no COMMAND_ACK says better.
 RESULTS = {"COMMAND_DENIED": Result.DENIED, "COMMAND_DENIED_LANDED_STATE_UNKNOWN": Result.DENIED,
@@ -54,12 +54,16 @@ def command_long(sysid: int, command: int, params: tuple[float, ...]) -> Mavlink
                           fields_json=json.dumps(fields))
 
 
-def setpoint(sysid: int, target: Ned, frame: GeoFrame | None, now: float) -> MavlinkMessage:
-    """SET_POSITION_TARGET_LOCAL_NED to ``target``; with ``frame``, SET_POSITION_TARGET_GLOBAL_INT."""
+def setpoint(sysid: int, motion: Motion, frame: GeoFrame | None, now: float) -> MavlinkMessage:
+    """SET_POSITION_TARGET_LOCAL_NED to where ``motion`` is, its velocity fed forward (a position only
+    without one); with ``frame``, SET_POSITION_TARGET_GLOBAL_INT."""
     ms = round((now % 4e6) * 1000)
+    target, v = motion.where, motion.velocity or STILL
+    mask = POSITION_ONLY if motion.velocity is None else POSITION_VELOCITY
     fields: dict[str, float | int] = {"time_boot_ms": ms, "target_system": sysid, "target_component": 1,
-                                      "type_mask": POSITION_ONLY, **dict.fromkeys(
-                                          ("vx", "vy", "vz", "afx", "afy", "afz", "yaw", "yaw_rate"), 0.0)}
+                                      "type_mask": mask,
+                                      "vx": v.north, "vy": v.east, "vz": v.down,
+                                      **dict.fromkeys(("afx", "afy", "afz", "yaw", "yaw_rate"), 0.0)}
     if frame is None:
         name = "SET_POSITION_TARGET_LOCAL_NED"
         fields.update(coordinate_frame=LOCAL_NED, x=target.north, y=target.east, z=target.down)

@@ -8,7 +8,8 @@ import itertools
 import pytest
 
 from drona_gcs.errors import WorkspaceError
-from drona_gcs.workspace import Cell, GeoOrigin, Workspace
+from drona_gcs.workspace import Cell, GeoOrigin, VehicleLimits, Workspace
+from drona_gcs.workspace_files import workspace_from_mapping
 
 
 # ------------------------------------------------------------ cell ids, delta
@@ -64,7 +65,7 @@ def test_delta_is_ceil_beta_over_tau_for_a_vehicle_never_late(beta: float, tau: 
 
 
 @pytest.mark.parametrize(("beta", "lam", "tau", "delta"), [
-    (0.2, 1.882, 0.5, 5),  # the coordination bench's grid
+    (0.2, 1.882, 0.5, 5),  # ArduCopter's defaults at tau 0.5 s
     (0.05, 2.345, 1.0, 3),  # the demo campus
     (0.1, 0.2, 0.1, 3),  # 0.30000000000000004 / 0.1 in floats
     (0.0, 0.5, 0.5, 1),
@@ -83,6 +84,16 @@ def test_lambda_defaults_to_the_shaping_lag_and_half_a_cell_from_rest(cell: floa
                                                                       lateness: float) -> None:
     ws = Workspace.build(size=(2, 2, layers), cell_size_m=cell, geo=GeoOrigin(layer_height_m=layer))
     assert ws.lateness_s == pytest.approx(lateness, abs=1e-3)
+
+
+def test_lambda_derives_from_the_vehicles_the_workspace_says_it_flies() -> None:
+    """Quicker vehicles are less late: at ArduCopter's WPNAV_ACCEL 500 and PSC_JERK_XY 20 (the top of
+    both ranges), 1 m cells are entered 1.072 s late at most, and Delta at tau 0.5 s, beta 0.2 s is 3, not 5."""
+    quick = VehicleLimits(accel_m_s2=5.0, jerk_m_s3=20.0)
+    ws = Workspace.build(size=(2, 2, 1), tau_s=0.5, beta_s=0.2, vehicle=quick)
+    assert ws.lateness_s == pytest.approx(0.5 + 0.125 + 0.447, abs=1e-3)
+    assert (ws.delta, Workspace.build(size=(2, 2, 1), tau_s=0.5, beta_s=0.2).delta) == (3, 5)
+    assert workspace_from_mapping({"size": [2, 2, 1], "vehicle": {"accel_m_s2": 5, "jerk_m_s3": 20}}).vehicle == quick
 
 
 def test_a_set_lambda_wins_and_a_bad_one_is_named() -> None:

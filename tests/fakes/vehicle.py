@@ -20,7 +20,7 @@ from collections.abc import Callable
 from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from drona_gcs.geo import GeoFrame, GeoPoint, Ned
 from drona_gcs.workspace import Cell
-from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry, Trail
+from fleet.vehicle.link import Autopilot, LandedState, Position, Sweep, Telemetry, Trail
 
 GPS_FIX_WITH_ESTIMATE = 6  #: GPS_FIX_TYPE_RTK_FIXED: what a vehicle with its position estimate reports
 GPS_FIX_WITHOUT = 1  #: GPS_FIX_TYPE_NO_FIX
@@ -52,7 +52,7 @@ class FakeVehicle:
         self.lost: str | None = None  #: why its link cannot carry commands (None: it can)
         self.trail = Trail()  #: every position it reported: placed by the test, or read
         # What it was sent.
-        self.sent: list[tuple[float, Ned]] = []  #: (clock time, target) of every setpoint
+        self.sent: list[tuple[float, Ned, Sweep | None]] = []  #: (clock time, target, sweep) of every setpoint
         self.commands: list[str] = []  #: every command asked for, by name, refused ones too
         self.refuse: dict[str, int] = {}  #: command name -> the MAV_RESULT it is rejected with
 
@@ -73,8 +73,8 @@ class FakeVehicle:
         self.armed, self.landed, self.height_m = False, LandedState.ON_GROUND, None
 
     # ------------------------------------------------------------ the port
-    async def send_position_target(self, target: Ned) -> None:
-        self.sent.append((self.clock(), target))
+    async def send_position_target(self, target: Ned, sweep: Sweep | None = None) -> None:
+        self.sent.append((self.clock(), target, sweep))
         if self.follow:
             self.where, self.at = target, self.clock()
 

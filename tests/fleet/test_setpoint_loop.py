@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import itertools
 import json
 import math
 import time
@@ -14,9 +15,13 @@ from drona_gcs.audit import audit, moves, record_line, went_through
 from drona_gcs.geo import GeoFrame, Ned
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.executor import Completed, ExecutorAction, PlanExecutor, Setpoint
-from drona_gcs.workspace import Cell, Workspace
-from fleet.setpoint_loop import Sample, SetpointLoop, StepReport
-from fleet.vehicle.link import Position
+from drona_gcs.workspace import Cell, VehicleLimits, Workspace
+from fleet.setpoint_loop import SWEEP_SHORT, Sample, SetpointLoop, StepReport
+from fleet.sim.config import VehicleConfig
+from fleet.sim.params import limit_params, starting_limits
+from fleet.sim.personality import ARDUPILOT
+from fleet.sim.physics import Body, Limits, Target
+from fleet.vehicle.link import Aim, Position, Sweep, Trail
 from tests.fakes.vehicle import FakeVehicle
 
 WS = Workspace.build(size=(6, 4, 1), cell_size_m=4.0, tau_s=0.1)
@@ -59,11 +64,24 @@ async def fly(follow: bool, steps: int = 7) -> tuple[list[StepReport], list[Exec
     return reports, actions, sink, epoch
 
 
-def aimed(step: int) -> Ned:
-    """TRAJ goes straight on through (1,0,0) at step 3: the vehicle is sent 0.3 of a cell past its
-    centre (4 m cells: 1.2 m east); elsewhere to the centre of the step's cell."""
-    centre = FRAME.cell_to_ned(TRAJ.at(step))
-    return Ned(centre.north, centre.east + 1.2, centre.down) if step == 3 else centre
+def face(cell: Cell, neighbour: Cell) -> Ned:
+    """The middle of ``cell``'s face to ``neighbour`` (its centre when that is ``cell``)."""
+    a, b = FRAME.cell_to_ned(cell), FRAME.cell_to_ned(neighbour)
+    return Ned((a.north + b.north) / 2, (a.east + b.east) / 2, (a.down + b.down) / 2)
+
+
+#: TRAJ's steps swept: from the face (or centre) the vehicle enters by, to the face (or centre) it leaves
+#: by; the share of that way covered u of the way into the step, and where the sweep ends.
+SWEPT: dict[int, tuple[Cell, Cell, Callable[[float], float], float]] = {
+    2: ((0, 0, 0), (1, 0, 0), lambda u: u * u, 0.81),  # from rest at the start cell's centre, speeding up
+    3: ((0, 0, 0), (2, 0, 0), lambda u: u, 0.9),  # straight on, short of the face
+    4: ((1, 0, 0), (2, 1, 0), lambda u: u, 0.9),  # the turn: across the corner
+    5: ((2, 0, 0), (2, 1, 0), lambda u: 2 * u - u * u, 1.0),  # the end: slowing down to stop at the centre
+}
+
+
+def close(a: Ned, b: Ned, within: float = 1e-6) -> bool:
+    return math.dist((a.north, a.east, a.down), (b.north, b.east, b.down)) <= within
 
 
 def test_boundaries_follow_the_timed_trajectory() -> None:
@@ -73,13 +91,30 @@ def test_boundaries_follow_the_timed_trajectory() -> None:
     assert [a for a in actions if isinstance(a, Completed)] == [Completed(TRAJ)]
     assert max(r.late_s for r in reports) < 0.05  # generous for a loaded CI machine
     assert not any(r.lagging for r in reports[1:])
-    # Every boundary's target is sent once, at the boundary: the link repeats it (a second stream
+    # Every boundary's target is sent once, at the boundary: the link streams it (a second stream
     # here would double the traffic to the vehicle).
-    for k in range(1, 6):
+    for k in range(1, 7):
         start, end = epoch + k * 0.1, epoch + (k + 1) * 0.1
-        between = [(t, ned) for t, ned in sink.sent if start <= t < end]
-        assert [ned for _, ned in between] == [aimed(k)], f"step {k}: {between}"
-        assert between[0][0] - start < 0.05
+        between = [sent for sent in sink.sent if start <= sent[0] < end]
+        at, target, sweep = between[0]
+        assert at - start < 0.05
+        if k not in SWEPT:  # before the plan, and after it: held at the centre
+            assert (target, sweep) == (FRAME.cell_to_ned(TRAJ.at(k)), None) and len(between) <= 1, f"step {k}"
+            continue
+        assert len(between) == 1, f"step {k}: {between}"
+        came, goes, covered, ends = SWEPT[k]
+        cell = TRAJ.at(k)
+        entry, leave = face(cell, came), face(cell, goes)
+        way = Ned(leave.north - entry.north, leave.east - entry.east, leave.down - entry.down)
+        u = (at - start) / 0.1
+        assert sweep is not None, f"step {k}"
+        share = covered(u)
+        assert close(target, Ned(entry.north + share * way.north, entry.east + share * way.east, entry.down), 0.1)
+        pace = (covered(u + 1e-4) - share) / 1e-4 / 0.1  # how fast the share grows, per second
+        assert close(sweep.velocity, Ned(pace * way.north, pace * way.east, 0.0), 0.05 * math.hypot(way.north, way.east)
+                     / 0.1), f"step {k}: {sweep}"
+        stop = Ned(entry.north + ends * way.north, entry.east + ends * way.east, entry.down)
+        assert close(sweep.at(target, sweep.duration_s).where, stop, 1e-3), f"step {k}"
 
 
 def test_a_drone_that_does_not_follow_is_flagged_lagging() -> None:
@@ -91,30 +126,34 @@ def test_a_drone_that_does_not_follow_is_flagged_lagging() -> None:
 
 
 class CruisingSink(FakeVehicle):
-    """The shared fake vehicle, flying at ``speed`` m/s straight at the last setpoint and stopping on it;
-    it records the straight legs it flew (where it was when a new setpoint came, and that setpoint)."""
+    """The shared fake vehicle, flying at ``speed`` m/s straight at the last setpoint (where a sweep has
+    got to) and stopping on it; it records the straight legs it was sent along (where it was when a
+    new setpoint came, and where that setpoint ends: its point, or the end of its sweep)."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop, start: Ned, speed: float) -> None:
         super().__init__(FRAME, at=loop.time(), clock=loop.time)
-        self.speed, self.here, self.aim = speed, start, start
+        self.speed, self.here = speed, start
+        self.aim = Aim(start, None, loop.time())
         self.legs: list[tuple[Ned, Ned]] = []
 
     def _move(self) -> None:
         now = self.clock()
-        gap = math.dist((self.here.north, self.here.east), (self.aim.north, self.aim.east))
+        aim = self.aim.at(now).where
+        gap = math.dist((self.here.north, self.here.east), (aim.north, aim.east))
         step = min(gap, self.speed * (now - self.at))
         if gap > 0:
             f = step / gap
-            self.here = Ned(self.here.north + f * (self.aim.north - self.here.north),
-                            self.here.east + f * (self.aim.east - self.here.east), self.aim.down)
+            self.here = Ned(self.here.north + f * (aim.north - self.here.north),
+                            self.here.east + f * (aim.east - self.here.east), aim.down)
         self.where, self.at = self.here, now
 
-    async def send_position_target(self, target: Ned) -> None:
+    async def send_position_target(self, target: Ned, sweep: Sweep | None = None) -> None:
         self._move()
-        if target != self.aim:
-            self.legs.append((self.here, target))
-        self.aim = target
-        await super().send_position_target(target)
+        if (target, sweep) != (self.aim.start, self.aim.sweep):
+            end = target if sweep is None else sweep.at(target, sweep.duration_s).where
+            self.legs.append((self.here, end))
+        self.aim = Aim(target, sweep, self.clock())
+        await super().send_position_target(target, sweep)
 
     def last_position(self) -> Position | None:
         self._move()
@@ -166,6 +205,14 @@ def legs_off_the_plan(sink: CruisingSink, plan: Trajectory) -> list[str]:
     return off
 
 
+def cells_sent_to(sink: CruisingSink, plan: Trajectory) -> list[Cell | None]:
+    """The cells the vehicle was sent into after its start cell, in order, each once a visit (a cell is
+    swept across and a sweep sent again after a stall)."""
+    cells = [FRAME.locate(end).cell for _, end in sink.legs]
+    visits = [c for i, c in enumerate(cells) if i == 0 or c != cells[i - 1]]
+    return visits[1:] if visits and visits[0] == plan.cells[0] else visits
+
+
 LONG = Trajectory(2, ((0, 0, 0), (1, 0, 0), (2, 0, 0), (3, 0, 0), (3, 1, 0), (3, 2, 0)))
 
 
@@ -181,7 +228,7 @@ def test_a_stalled_process_catches_up_through_every_cell_and_cuts_no_corner(
     sink, reports = cruise(plan, cells_a_step, tau, lambda report, _: report.step == 12,
                            stall=(2, stalled_steps * tau))
     assert legs_off_the_plan(sink, plan) == []
-    assert [FRAME.locate(end).cell for _, end in sink.legs] == list(plan.cells[1:])
+    assert cells_sent_to(sink, plan) == list(plan.cells[1:])
     assert max(r.behind for r in reports) >= 1  # a cell it had no time to reach was kept
     assert reports[-1].behind == 0 and FRAME.locate(sink.here).cell == plan.cells[-1]
 
@@ -218,8 +265,7 @@ def test_a_slow_vehicle_turns_in_the_plans_cells(cells_a_step: float) -> None:
     sink, reports = cruise(ZIGZAG, cells_a_step, 0.1, done, check_hz=100.0)
     assert legs_off_the_plan(sink, ZIGZAG) == []
     # The cells it was sent to, in order (a check late under load may aim it at a second point of a cell).
-    sent = [FRAME.locate(end).cell for _, end in sink.legs]
-    assert [c for i, c in enumerate(sent) if i == 0 or c != sent[i - 1]] == list(ZIGZAG.cells[1:])
+    assert cells_sent_to(sink, ZIGZAG) == list(ZIGZAG.cells[1:])
     assert max(r.behind for r in reports) >= 1  # the corner was kept on its route
 
 
@@ -241,27 +287,25 @@ def test_a_vehicle_behind_on_a_straight_line_is_sent_one_cell_ahead_at_most() ->
     assert max(r.target[0] - here[0] for r, here in seen if here is not None) >= 2  # it fell behind
     for start, end in sink.legs:  # every setpoint, from where the vehicle was when it went out
         assert moves(cell_of(start), cell_of(end)) <= 1, (start, end)
-    assert [FRAME.locate(end).cell for _, end in sink.legs] == list(STRAIGHT.cells[1:])
+    assert cells_sent_to(sink, STRAIGHT) == list(STRAIGHT.cells[1:])
 
 
-@pytest.mark.parametrize(("cells_a_step", "lateness_s", "late_steps"), [
-    (2.0, 0.15, 0.1),  # at its aim by the next boundary: a fifth of a cell to the next; sampled within the step
-    (1.0, 0.36, 0.5),  # never quite at its aim: half a cell to the next; sampled in the next step
-])
-def test_each_step_is_sampled_lambda_after_its_boundary_with_how_late_the_vehicle_came(
-        cells_a_step: float, lateness_s: float, late_steps: float) -> None:
-    """A vehicle that flies straight at its setpoint (0.3 of a cell past the centre, on a straight
-    line) enters each cell soon after the boundary: every sample, lambda after the boundary, saw it
-    in the step's cell, and says how late it came."""
+@pytest.mark.parametrize("cells_a_step", [2.0, 1.0])
+def test_each_step_is_sampled_lambda_after_its_boundary_with_how_late_the_vehicle_came(cells_a_step: float) -> None:
+    """A vehicle swept across each cell of a straight line waits short of the face to the next
+    (SWEEP_SHORT of a step, at a cell a step) until the next sweep begins at the boundary, then
+    crosses it: every sample, lambda after the boundary, saw it in the step's cell, and says how late
+    it came, the gap over its speed."""
     tau = 0.3
     samples: list[Sample] = []
     cruise(STRAIGHT, cells_a_step, tau, lambda report, _: report.step == 10, check_hz=200.0,
-           lateness_s=lateness_s, samples=samples)
+           lateness_s=0.15, samples=samples)
     moving = [s for s in samples if 4 <= s.step <= 7]  # under way: the first move starts at a centre
     assert [s.step for s in samples] == list(range(samples[0].step, samples[0].step + len(samples)))
     assert [(s.planned, s.actual) for s in moving] == [(STRAIGHT.at(s.step), STRAIGHT.at(s.step)) for s in moving]
+    late = SWEEP_SHORT * tau / cells_a_step
     for s in moving:
-        assert s.late_s is not None and late_steps * tau - 0.02 <= s.late_s <= late_steps * tau + 0.06, s
+        assert s.late_s is not None and late - 0.01 <= s.late_s <= late + 0.04, s
 
 
 def test_a_vehicle_not_in_its_cell_lambda_after_the_boundary_is_sampled_late() -> None:
@@ -374,3 +418,83 @@ def test_a_tick_that_takes_time_does_not_date_the_arrival_it_looks_for_too_early
     assert arrived is not None and arrived.late_s == pytest.approx(0.15)
     assert arrived.passed[-2:] == ((0, 0, 0), (1, 0, 0))
     assert next_one is not None and went_through(next_one.passed, (1, 0, 0), (2, 0, 0)) == ()
+
+
+class ArduCopterSink:
+    """The fake ArduCopter's physics (:class:`~fleet.sim.physics.Body`) as a setpoint sink, on a clock the
+    test moves: each aim is flown as its stream would carry it, a message every 20 ms."""
+
+    def __init__(self, frame: GeoFrame, start: Cell, limits: Limits, clock: Callable[[], float]) -> None:
+        self.frame, self.clock, self.body = frame, clock, Body(limits)
+        centre = frame.cell_to_ned(start)
+        self.body.north, self.body.east = centre.north, centre.east
+        self.body.stop()
+        self.body.down = centre.down
+        self.at = clock()
+        self.aim = Aim(centre, None, self.at)
+        self.trail = Trail()
+
+    def fly(self) -> None:
+        while self.at + 0.02 <= self.clock() + 1e-9:
+            self.at += 0.02
+            motion = self.aim.at(self.at)
+            where, v = motion.where, motion.velocity or Ned(0.0, 0.0, 0.0)
+            self.body.step(Target(where.north, where.east, where.down, v.north, v.east, v.down), 0.02)
+            self.trail.add(Position(Ned(self.body.north, self.body.east, self.body.down), self.at))
+
+    async def send_position_target(self, target: Ned, sweep: Sweep | None = None) -> None:
+        self.fly()
+        self.aim = Aim(target, sweep, self.clock())
+
+    def last_position(self) -> Position | None:
+        self.fly()
+        return Position(Ned(self.body.north, self.body.east, self.body.down), self.at)
+
+    def positions_since(self, at: float) -> list[Position]:
+        self.fly()
+        return self.trail.since(at)
+
+
+#: Straight on, a turn, a staircase (a diagonal), a wait, back the way it came, a turn into a stop.
+EVERY_KIND = Trajectory(1, (
+    *((2, y, 0) for y in range(2, 7)), *((x, 6, 0) for x in range(3, 6)),
+    *itertools.chain.from_iterable(((5 + i, 7 + i, 0), (6 + i, 7 + i, 0)) for i in range(4)),
+    (9, 10, 0), (9, 10, 0), (9, 10, 0), (9, 11, 0), (9, 12, 0), (9, 11, 0), (9, 10, 0), (8, 10, 0), (8, 10, 0)))
+
+
+def test_arducopter_at_the_bench_limits_flies_every_kind_of_step_in_its_cells_within_lambda() -> None:
+    """The fake ArduCopter (its shaping measured against SITL), set to a workspace's vehicle limits as
+    sim-vehicle sets it, flies a plan of 1 m cells at tau 0.5 s: each step's cell is reached within the
+    lambda the workspace derives from those limits, and never a cell the plan does not have."""
+    quick = VehicleLimits(speed_m_s=20.0, accel_m_s2=10.0, jerk_m_s3=40.0)  # the coordination bench's
+    ws = Workspace.build(size=(14, 14, 1), cell_size_m=1.0, tau_s=0.5, vehicle=quick)
+    frame = GeoFrame(ws)
+    limits = starting_limits(VehicleConfig(params=limit_params(ws.vehicle, ARDUPILOT)))
+    now = [0.0]
+    sink = ArduCopterSink(frame, EVERY_KIND.cells[0], limits, lambda: now[0])
+    executor = PlanExecutor(EVERY_KIND.cells[0])
+    executor.start(EVERY_KIND)
+    loop = SetpointLoop(sink, frame, executor, 0.0, ws.tau_s, lambda: now[0], lateness_s=ws.lateness_s)
+    samples: list[Sample] = []
+
+    async def fly() -> None:
+        for step in range(EVERY_KIND.end_step + 4):
+            loop.take(step, now[0])
+            await loop.send()
+            for tick in range(1, 11):  # looks at 20 Hz; each step sampled lambda after its boundary
+                now[0] = step * ws.tau_s + tick * ws.tau_s / 10
+                loop.look()
+                if loop.advance():
+                    await loop.send()
+                while len(samples) <= step and now[0] >= len(samples) * ws.tau_s + ws.lateness_s - 1e-9:
+                    sample = loop.sample(len(samples))
+                    assert sample is not None
+                    samples.append(sample)
+
+    asyncio.run(fly())
+    flown = [s for s in samples if s.step <= EVERY_KIND.end_step]
+    assert len(flown) == EVERY_KIND.end_step + 1
+    for s in flown:
+        assert s.actual == s.planned and s.late_s is not None and s.late_s <= ws.lateness_s, s
+        assert set(s.passed) <= set(EVERY_KIND.cells), s
+    assert max(s.late_s or 0.0 for s in flown) > 0.05  # it was late a little: the physics flew it

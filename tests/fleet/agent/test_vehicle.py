@@ -74,6 +74,24 @@ def test_a_plan_during_the_descent_turns_the_landing_into_a_climb(personality: s
     run(scenario)
 
 
+def test_a_vehicle_still_moving_over_its_landing_cell_is_landed_once_it_is_all_but_still() -> None:
+    """LAND brakes to a stop from wherever it starts: sent down as it passed within the arrival radius
+    of its cell at speed, the vehicle came down further on. The supervisor waits for it to be still."""
+    async def scenario() -> None:
+        async with supervising("ardupilot") as (link, supervisor, _, target):
+            supervisor.want_airborne(True)
+            await asyncio.wait_for(supervisor.reached.wait(), 15)
+            await link.wait_until(lambda t: (t.height_m or 0.0) > FLIGHT_ALT_M - 0.5, 10, "the flight altitude")
+            target[0] = Ned(3.0, 0.0, -FLIGHT_ALT_M)
+            supervisor.want_airborne(False)  # at once: the landing waits for the arrival
+            await asyncio.wait_for(supervisor.reached.wait(), 30)
+            down = await link.wait_until(lambda t: t.landed is LandedState.ON_GROUND, 15, "the touchdown")
+            assert down.position is not None
+            assert abs(down.position.ned.north - 3.0) < 0.2, f"came down at {down.position.ned.north:.2f} m north"
+
+    run(scenario)
+
+
 @pytest.mark.parametrize("personality", ["ardupilot", "px4"])
 def test_a_vehicle_down_by_itself_raises_the_question_and_needs_no_landing(personality: str) -> None:
     """A failsafe (or a pilot) lands the vehicle under a drone the stack still flies: the supervisor

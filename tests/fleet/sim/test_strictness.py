@@ -1,5 +1,6 @@
 """The fake vehicle refuses what the real autopilot refuses: each behaviour measured on ArduCopter SITL
-(V4.7.0-dev) that a ground station must cope with, on the sans-I/O model driven by ``now``.
+(V4.7.0-dev; the step response at commit 90700977c5) that a ground station must cope with, on the
+sans-I/O model driven by ``now``.
 
 A ground station that passes against a forgiving fake and then leaves no real vehicle on the ground
 is what these tests are for: each one failed on the fake before it was made this strict.
@@ -8,6 +9,7 @@ is what these tests are for: each one failed on the fake before it was made this
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any, TypeVar
 
 import pytest
@@ -20,7 +22,7 @@ from fleet.sim.params import ParamStore, Setting
 from fleet.sim.personality import ARDUPILOT, PX4
 from fleet.sim.telemetry import ekf_status_report, global_position_int, gps_raw_int, local_position_ned
 from fleet.vehicle.policy import ekf_has_position
-from tests.fleet.sim.vehicle_helpers import GCS, POSITION_ONLY, ack_of, deliver, run_for
+from tests.fleet.sim.vehicle_helpers import GCS, POSITION_ONLY, POSITION_VELOCITY, ack_of, deliver, run_for
 
 ML = mavlink2
 GUIDED = 4
@@ -113,6 +115,26 @@ def test_a_position_target_once_the_takeoff_is_over_is_flown() -> None:
     assert model.body.north == pytest.approx(8.0, abs=0.3)
 
 
+def test_arducopter_carries_a_target_given_with_a_velocity_on_until_its_guided_timeout() -> None:
+    """GUIDED takes a position given with a velocity as a moving target (``set_destination_posvelaccel``:
+    its position controller moves the target on at the velocity, and feeds the velocity forward); with
+    no update for GUID_TIMEOUT (3 s) the velocity is zeroed and the target stays where it got to."""
+    model = arducopter(ready_after_s=1.0)
+    armed_and_taking_off(model, 1.0, height=5.0)
+    now = run_for(model, 1.0, 10.0)
+    deliver(model, GCS.set_position_target_local_ned_encode(0, 1, 1, ML.MAV_FRAME_LOCAL_NED, POSITION_VELOCITY,
+                                                            0.0, 0.0, -5.0, 0.0, 1.0, 0.0, 0, 0, 0, 0, 0), now)
+    now = run_for(model, now, 2.0)
+    carried = model.setpoint
+    assert carried is not None and (carried.east, carried.ve) == pytest.approx((2.0, 1.0), abs=0.05)
+    assert 1.0 < model.body.east < 2.0  # it keeps up, a little behind
+    now = run_for(model, now, 3.0)
+    stopped = model.setpoint
+    assert stopped is not None and (stopped.east, stopped.ve) == pytest.approx((3.0, 0.0), abs=0.05)
+    run_for(model, now, 5.0)
+    assert model.body.east == pytest.approx(3.0, abs=0.1)
+
+
 def test_every_arducopter_sitl_is_system_1_and_px4_instances_count_up() -> None:
     for personality, expected in ((ARDUPILOT, [1, 1, 1]), (PX4, [1, 2, 3])):
         config = FleetConfig(count=3, vehicle=dataclasses.replace(VehicleConfig(), personality=personality))
@@ -127,8 +149,24 @@ def test_a_higher_wpnav_accel_closes_in_on_a_setpoint_more_slowly_as_arducopter_
     assert store.limits.gain == pytest.approx(1.0)
     store.set("WPNAV_ACCEL", 500.0)
     assert (store.limits.max_accel, store.limits.gain) == pytest.approx((5.0, 0.5))
+
+
+def test_arducopters_lean_angle_and_attitude_controller_bound_its_acceleration_and_jerk() -> None:
+    """``AC_PosControl::set_max_speed_accel_NE_m``: the jerk is at most half the root of the acceleration
+    times the angular acceleration ATC_ACCEL_R_MAX/P_MAX allow (times g; 0: no bound), and the
+    acceleration at most what ANGLE_MAX's lean gives. PSC_JERK_XY 20 at WPNAV_ACCEL 500 shapes at 15.3 m/s³;
+    WPNAV_ACCEL 1000 flies at 5.66 m/s² at the default 30 degrees."""
+    store = ParamStore(VehicleConfig(personality=ARDUPILOT))
+    store.set("WPNAV_ACCEL", 500.0)
     store.set("PSC_JERK_XY", 20.0)
-    assert store.limits.gain == pytest.approx(2.0)
+    assert store.limits.jerk == pytest.approx(0.5 * math.sqrt(5.0 * 1100 * math.pi / 180 * 9.80665))
+    store.set("ATC_ACCEL_R_MAX", 0.0)
+    store.set("ATC_ACCEL_P_MAX", 0.0)
+    assert store.limits.jerk == 20.0
+    store.set("WPNAV_ACCEL", 1000.0)
+    assert store.limits.max_accel == pytest.approx(9.80665 * math.tan(math.radians(30)))
+    store.set("ANGLE_MAX", 4600)
+    assert store.limits.max_accel == 10.0
 
 
 def test_the_battery_capacity_parameter_sets_how_fast_the_charge_falls() -> None:
@@ -145,3 +183,30 @@ def test_the_battery_capacity_parameter_sets_how_fast_the_charge_falls() -> None
     px4 = ParamStore(VehicleConfig(personality=PX4))
     px4.set("BAT1_CAPACITY", 20000.0)
     assert px4.setting(Setting.BATTERY_CAPACITY) == 20000.0
+
+
+def _crossings(model: VehicleModel, now: float, east: float, marks: tuple[float, ...]) -> tuple[list[float], float]:
+    """Flown to ``east`` metres east for 10 s: the seconds until it is ``marks`` metres east of where it was,
+    and the furthest east it went."""
+    start, furthest = model.body.east, 0.0
+    found: list[float] = []
+    setpoint(model, now, model.body.north, start + east, model.body.down)
+    for tick in range(1, 500):
+        model.step(now + tick * 0.02)
+        furthest = max(furthest, model.body.east - start)
+        while len(found) < len(marks) and furthest >= marks[len(found)]:
+            found.append(tick * 0.02)
+    return found, furthest
+
+
+def test_a_step_from_a_hover_is_crossed_as_late_as_a_real_arducopter_crosses_it() -> None:
+    """ArduCopter SITL at its defaults (commit 90700977c5), hovering in GUIDED and sent 1 m east: 0.5 m after
+    1.28 s, 0.9 m after 2.12 s, at most 1.02 m. Its jerk-limited shaping makes the start that slow; the fake
+    without it crossed 0.5 m after 0.87 s, and so flew its plans' cells earlier than real vehicles fly them."""
+    model = arducopter(ready_after_s=1.0)
+    armed_and_taking_off(model, 1.0, height=2.0)
+    now = run_for(model, 1.0, 15.0, dt=0.02)
+    (half, most), furthest = _crossings(model, now, 1.0, (0.5, 0.9))
+    assert half == pytest.approx(1.28, abs=0.1)
+    assert most == pytest.approx(2.12, abs=0.1)
+    assert furthest == pytest.approx(1.02, abs=0.04)

@@ -65,8 +65,8 @@ def test_model_velocity_setpoint_times_out_in_guided() -> None:
     deliver(model, GCS.set_position_target_local_ned_encode(0, 1, 1, ML.MAV_FRAME_LOCAL_NED, velocity_only,
                                                             0, 0, 0, 2.0, 0, 0, 0, 0, 0, 0, 0), now)
     now = run_for(model, now, 2.5)
-    assert model.body.vn == pytest.approx(2.0, abs=0.01)
-    now = run_for(model, now, 3)  # ArduCopter stops a velocity setpoint that is not renewed for 3 s
+    assert model.body.vn == pytest.approx(2.0, abs=0.05)  # closed in on as ArduCopter's shaping does
+    now = run_for(model, now, 4)  # ArduCopter stops a velocity setpoint that is not renewed for 3 s
     assert model.body.ground_speed < 0.01
     assert model.body.height == pytest.approx(5, abs=0.25)
 

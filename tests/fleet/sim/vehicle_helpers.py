@@ -29,6 +29,7 @@ ML = mavutil.mavlink
 REPO = Path(__file__).resolve().parents[3]
 GUIDED, STABILIZE = 4, 0
 POSITION_ONLY = 0b110111111000  # SET_POSITION_TARGET type_mask: use x, y, z only
+POSITION_VELOCITY = 0b110111000000  # x, y, z and vx, vy, vz
 
 
 @contextlib.contextmanager

@@ -18,11 +18,13 @@ import statistics
 import time
 from collections.abc import Callable
 
+import pytest
+
 from drona_gcs.geo import GeoPoint, Ned
 from fleet.clock import cancel_all
 from fleet.sim.fleet import placements
 from fleet.sim.mav import mavlink2
-from fleet.vehicle.link import Autopilot, LandedState, Position, Telemetry, VehicleLink, not_ready
+from fleet.vehicle.link import Autopilot, LandedState, Position, Sweep, Telemetry, VehicleLink, not_ready
 from fleet.vehicle.policy import in_air
 from tests.fakes.autopilot import SPEEDUP, connected, fake_vehicle, run
 from tests.fleet.vehicle.link_helpers import backends, personalities, transports
@@ -188,6 +190,34 @@ def test_a_target_sent_again_is_left_to_the_repeats_and_a_new_one_goes_at_once()
                 got, heard = len(model.setpoint_times) - heard, len(model.setpoint_times)
                 assert got == (0 if target == last else 1), f"{got} setpoints for {target}"
                 last = target
+
+    run(scenario)
+
+
+@backends
+def test_a_sweep_is_streamed_as_a_target_moving_on_with_its_velocity_fed_forward(backend: str) -> None:
+    """Sent along a sweep, an ArduCopter gets, at each message of the stream, where the sweep has got
+    to and its velocity; once the sweep is over, its end, still. In real time: the fake moves a target
+    on between two messages as ArduCopter does, by the velocity over simulated seconds."""
+    async def scenario() -> None:
+        async with fake_vehicle("ardupilot", "udp", speedup=1.0, spool_up_s=0.5) as fake, \
+                connected(backend, fake) as link:
+            model = fake.nodes[0].model
+            await following_5_m_up(link)
+            here = link.last_position()
+            assert here is not None
+            start = Ned(here.ned.north, here.ned.east, -5.0)
+            await link.send_position_target(start, Sweep(Ned(0.0, 2.0, 0.0), 1.0))
+            await asyncio.sleep(0.5)
+            midway = model.setpoint
+            assert midway is not None and midway.east is not None and midway.north is not None
+            assert (midway.vn, midway.ve, midway.vd) == (0.0, 2.0, 0.0)
+            assert midway.east - start.east == pytest.approx(1.0, abs=0.3)
+            assert midway.north == pytest.approx(start.north)
+            await asyncio.sleep(1.0)
+            over = model.setpoint
+            assert over is not None and (over.vn, over.ve, over.vd) == (0.0, 0.0, 0.0)
+            assert (over.north, over.east) == pytest.approx((start.north, start.east + 2.0), abs=1e-3)
 
     run(scenario)
 
