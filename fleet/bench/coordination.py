@@ -41,8 +41,8 @@ from fleet.bench.processes import spawn
 from fleet.sim.ports import free_port_block, free_udp_base
 from fleet.transport.identity import SERVICE, make_certs
 
-#: The bench's vehicles: ArduCopter at the top of WPNAV_ACCEL's and PSC_JERK_XY's ranges, quick enough for a
-#: 1 m cell every 0.5 s; sim-vehicle sets them from the workspace, as an operator would.
+#: The bench's vehicles, quick enough for a 1 m cell every 0.5 s without cutting corners at turns (an
+#: ArduCopter at its defaults needs tau 1 s): sim-vehicle sets them from the workspace, as an operator would.
 BENCH_VEHICLE = "vehicle: {speed_m_s: 20.0, accel_m_s2: 10.0, jerk_m_s3: 40.0}"
 TELEMETRY_HZ = 10.0  #: the agent's default: a vehicle sent a cell ahead at most is sent on as soon as seen there
 #: The agents yield the CPU to the fake vehicles: real vehicles fly on their own computers, and a

@@ -9,14 +9,15 @@ from __future__ import annotations
 import asyncio
 import contextlib
 from collections.abc import AsyncIterator
+from typing import Any
 
 import pytest
 
 from drona_gcs.geo import Ned
 from fleet.agent.vehicle import VehicleSupervisor
 from fleet.clock import cancel_all
-from fleet.vehicle.link import LandedState, Telemetry, VehicleLink
-from tests.fakes.autopilot import connected, fake_vehicle, run
+from fleet.vehicle.link import LandedState, Sweep, Telemetry, VehicleLink
+from tests.fakes.autopilot import SPEEDUP, connected, fake_vehicle, run
 from tests.fakes.vehicle import FakeVehicle
 
 FLIGHT_ALT_M = 8.0
@@ -24,18 +25,18 @@ FLIGHT_ALT_M = 8.0
 
 @contextlib.asynccontextmanager
 async def supervising(personality: str, stream_hz: float = 10.0) -> AsyncIterator[
-        tuple[VehicleLink, VehicleSupervisor, list[str | None], list[Ned]]]:
+        tuple[VehicleLink, VehicleSupervisor, list[str | None], list[Any]]]:
     """A fake vehicle and its supervisor, with setpoints to ``target[0]`` streamed as the agent's
     setpoint loop does, whatever the supervisor does; the alarms it raises are kept."""
     async with fake_vehicle(personality, "udp") as fake, connected("pymavlink", fake, stream_hz=stream_hz) as link:
         await link.wait_ready(timeout=5)
         alarms: list[str | None] = []
-        target = [Ned(0.0, 0.0, -FLIGHT_ALT_M)]
+        target: list[Any] = [Ned(0.0, 0.0, -FLIGHT_ALT_M)]
         supervisor = VehicleSupervisor("d1", link, FLIGHT_ALT_M, alarms.append, lambda: target[0], arrival_m=0.5)
 
         async def stream() -> None:
-            while True:
-                await link.send_position_target(target[0])
+            while True:  # to target[0], or along a sweep given after it (from where it starts)
+                await link.send_position_target(*(target[1:] if len(target) > 1 else (target[0], None)))
                 await asyncio.sleep(0.05)
 
         runner, streamer = asyncio.create_task(supervisor.run()), asyncio.create_task(stream())
@@ -75,19 +76,26 @@ def test_a_plan_during_the_descent_turns_the_landing_into_a_climb(personality: s
 
 
 def test_a_vehicle_still_moving_over_its_landing_cell_is_landed_once_it_is_all_but_still() -> None:
-    """LAND brakes to a stop from wherever it starts: sent down as it passed within the arrival radius
-    of its cell at speed, the vehicle came down further on. The supervisor waits for it to be still."""
+    """LAND brakes to a stop from wherever it starts. A plan's last step slows its vehicle down to stop
+    at the cell's centre, and the vehicle, trailing, passes within the arrival radius still moving:
+    sent down then, it came down further on. The supervisor waits for it to be still."""
     async def scenario() -> None:
         async with supervising("ardupilot") as (link, supervisor, _, target):
             supervisor.want_airborne(True)
             await asyncio.wait_for(supervisor.reached.wait(), 15)
             await link.wait_until(lambda t: (t.height_m or 0.0) > FLIGHT_ALT_M - 0.5, 10, "the flight altitude")
-            target[0] = Ned(3.0, 0.0, -FLIGHT_ALT_M)
+            here = link.last_position()
+            assert here is not None
+            start, seconds = Ned(here.ned.north, here.ned.east, -FLIGHT_ALT_M), 1.0 / SPEEDUP
+            # 3 m north in a simulated second, slowing evenly to a stop there (in the ground station's time)
+            target[0] = Ned(start.north + 3.0, start.east, -FLIGHT_ALT_M)
+            sweep = Sweep(Ned(6.0 / seconds, 0.0, 0.0), seconds, Ned(-6.0 / seconds**2, 0.0, 0.0))
+            target += [start, sweep]
             supervisor.want_airborne(False)  # at once: the landing waits for the arrival
             await asyncio.wait_for(supervisor.reached.wait(), 30)
             down = await link.wait_until(lambda t: t.landed is LandedState.ON_GROUND, 15, "the touchdown")
             assert down.position is not None
-            assert abs(down.position.ned.north - 3.0) < 0.2, f"came down at {down.position.ned.north:.2f} m north"
+            assert abs(down.position.ned.north - target[0].north) < 0.2, (down.position.ned, target[0])
 
     run(scenario)
 
