@@ -2,9 +2,9 @@
 
 Step ``k`` of a trajectory starts at ``epoch + k * tau`` on the local clock.
 At each boundary the core's :class:`~drona_gcs.stack.executor.PlanExecutor`
-takes the step and names the cell to be in; the loop sends the vehicle to
-that cell's centre, once: the link streams the last setpoint at its own rate
-(PX4 leaves offboard mode at 2 Hz or less), as MAVSDK's offboard plugin does, so a
+takes the step and names the cell to be in; the loop sends the vehicle across
+that cell, once (:meth:`SetpointLoop.aim_point`): the link streams the sweep at its own
+rate (PX4 leaves offboard mode at 2 Hz or less), as MAVSDK's offboard plugin does, so a
 second stream here would only double the traffic. At each boundary it also reports where
 the vehicle actually is (its cell and the distance to the cell it should be
 in) and flags a drone that lags its timed trajectory by more than
