@@ -200,29 +200,23 @@ class Motion:
 
 @dataclass(frozen=True)
 class Sweep:
-    """A target that moves: from where it was sent, at ``velocity`` (m/s, NED), which changes at
-    ``accel`` (m/s²), which changes at ``jerk`` (m/s³), for ``duration_s``; then still. The autopilot
-    gets the velocity as feed-forward with each position along the way, as a trajectory is streamed
-    to it: aimed at a point that moves, it keeps up, where aimed at a point that waits, it slows down
-    to stop there."""
+    """A target that moves: from where it was sent, at ``velocity`` (m/s, NED) changing at ``accel``
+    (m/s²) for ``duration_s``; then still. The autopilot gets the velocity as feed-forward with each
+    position along the way, as a trajectory is streamed to it: aimed at a point that moves, it keeps
+    up, where aimed at a point that waits, it slows down to stop there."""
 
     velocity: Ned
     duration_s: float
     accel: Ned = STILL
-    jerk: Ned = STILL
 
     def at(self, start: Ned, elapsed: float) -> Motion:
         """The target ``elapsed`` s after it was sent from ``start``."""
-        t = min(max(elapsed, 0.0), self.duration_s)
-        where = Ned(*(p + v * t + a * t * t / 2 + j * t ** 3 / 6 for p, v, a, j in self._axes(start)))
+        t, v, a = min(max(elapsed, 0.0), self.duration_s), self.velocity, self.accel
+        where = Ned(start.north + v.north * t + a.north * t * t / 2, start.east + v.east * t + a.east * t * t / 2,
+                    start.down + v.down * t + a.down * t * t / 2)
         if elapsed >= self.duration_s:
             return Motion(where, STILL)
-        return Motion(where, Ned(*(v + a * t + j * t * t / 2 for _, v, a, j in self._axes(start))))
-
-    def _axes(self, start: Ned) -> list[tuple[float, float, float, float]]:
-        return [(start.north, self.velocity.north, self.accel.north, self.jerk.north),
-                (start.east, self.velocity.east, self.accel.east, self.jerk.east),
-                (start.down, self.velocity.down, self.accel.down, self.jerk.down)]
+        return Motion(where, Ned(v.north + a.north * t, v.east + a.east * t, v.down + a.down * t))
 
 
 @dataclass(frozen=True)
