@@ -66,8 +66,11 @@ class Host:
     hurry: asyncio.Event = field(default_factory=asyncio.Event)
     drained: asyncio.Event = field(default_factory=asyncio.Event)
 
+    clock_stepped: bool = False  #: with ``clock_step_on_signal``: SIGUSR1 came
+
     def clock(self) -> float:
-        return time.time() + self.settings.clock_offset_s
+        shifted = self.clock_stepped or not self.settings.clock_step_on_signal
+        return time.time() + (self.settings.clock_offset_s if shifted else 0.0)
 
 
 def select_drones(settings: AgentSettings, workspace: Workspace) -> list[str]:
@@ -364,6 +367,16 @@ def install_signals(host: Host) -> None:
 
     for sig in STOP_SIGNALS:
         loop.add_signal_handler(sig, on_signal)
+    if host.settings.clock_step_on_signal:
+        loop.add_signal_handler(CLOCK_STEP_SIGNAL, lambda: _step_clock(host))
+
+
+CLOCK_STEP_SIGNAL = signal.SIGUSR1
+
+
+def _step_clock(host: Host) -> None:
+    log.warning("clock stepped by %+g s (SIGUSR1)", host.settings.clock_offset_s)
+    host.clock_stepped = True
 
 
 def ignore_signals() -> None:

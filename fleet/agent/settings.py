@@ -38,6 +38,7 @@ class AgentSettings(BaseSettings):
     epoch: float = 0.0  #: fleet epoch, Unix seconds: step k starts at epoch + k * tau
     record: Path | None = None
     clock_offset_s: float = 0.0  #: simulation only: shift this process's clock to test the skew check
+    clock_step_on_signal: bool = False  #: simulation only: the shift from SIGUSR1 on (a clock stepped in flight)
     lead_steps: Annotated[int, Field(ge=1)] | None = None  #: steps between planning and a plan's start
     hover_lead_steps: Annotated[int, Field(ge=1)] | None = None  #: the same for a drone in the air
     #: the rate the link streams the setpoint at (PX4 leaves OFFBOARD at 2 Hz or less): between two, the

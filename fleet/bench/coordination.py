@@ -28,6 +28,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+from contextlib import ExitStack
 from dataclasses import asdict
 from pathlib import Path
 
@@ -36,7 +37,9 @@ from drona_gcs.stack.drone import default_lead_steps
 from drona_gcs.workspace_files import load_workspace
 from fleet.bench import BenchError
 from fleet.bench import plot as bench_plot
-from fleet.bench.latency import OPENING_S, CoordinationResult, measure
+from fleet.bench.faults import VICTIM_HOST, Fault, FaultPlan, Victim
+from fleet.bench.hosts import Hosts, network_hosts
+from fleet.bench.latency import OPENING_S, CoordinationResult, Disturbance, measure
 from fleet.bench.processes import spawn
 from fleet.sim.ports import free_port_block, free_udp_base
 from fleet.transport.identity import SERVICE, make_certs
@@ -44,6 +47,7 @@ from fleet.transport.identity import SERVICE, make_certs
 #: The bench's vehicles, quick enough for a 1 m cell every 0.5 s without cutting corners at turns (an
 #: ArduCopter at its defaults needs tau 1 s): sim-vehicle sets them from the workspace, as an operator would.
 BENCH_VEHICLE = "vehicle: {speed_m_s: 20.0, accel_m_s2: 10.0, jerk_m_s3: 40.0}"
+BENCH_BETA_S = 0.2
 TELEMETRY_HZ = 10.0  #: the agent's default: a vehicle sent a cell ahead at most is sent on as soon as seen there
 #: The agents yield the CPU to the fake vehicles: real vehicles fly on their own computers, and a
 #: simulation starved by the agents it serves flies them slower than physics would (late for nothing).
@@ -62,7 +66,8 @@ def bench_workspace(agents: int) -> str:
     starts = [(2 + 2 * (i % ((side - 4) // 2)), 2 + 2 * (i // ((side - 4) // 2))) for i in range(agents)]
     rim = _rim(side)
     return "\n".join([
-        f"name: bench-{agents}", f"size: [{side}, {side}, 1]", "cell_size_m: 1.0", "tau_s: 0.5", "beta_s: 0.2",
+        f"name: bench-{agents}", f"size: [{side}, {side}, 1]", "cell_size_m: 1.0", "tau_s: 0.5",
+        f"beta_s: {BENCH_BETA_S}",
         BENCH_VEHICLE,
         "geo_origin: {lat: 47.397742, lon: 8.545594, alt_m: 488.0, layer0_alt_m: 2.0}",
         f"charging_stations: [[0, 0, 0], [{side - 1}, {side - 1}, 0]]",
@@ -82,54 +87,111 @@ def _rim(side: int) -> list[tuple[int, int]]:
 
 async def run_bench(agents: int, processes: int, seconds: float, steady_after: float, workdir: Path,
                     seed: int = 1, shared_session: bool = True, secure: bool = True,
-                    record: Path | None = None) -> CoordinationResult:
+                    record: Path | None = None, fault: FaultPlan | None = None) -> CoordinationResult:
     """``secure``: mutual TLS and access control (certificates made in ``workdir``), a session per drone;
-    ``record``: each agent process records its drones' flights there (``record.<first drone>``)."""
-    ws_file = workdir / f"bench-{agents}.yaml"
-    ws_file.write_text(bench_workspace(agents))
-    workspace = load_workspace(ws_file)
-    names = list(workspace.drones)[:agents]
-    tls_dir = workdir / "tls" if secure else None
-    share = -(-agents // processes)
-    if tls_dir is not None:  # a host certificate for each process's session
-        hosts = {f"host-{names[first]}": names[first:first + share] for first in range(0, agents, share)}
-        make_certs(tls_dir, [*workspace.drones, SERVICE], hosts=hosts if shared_session else None)
-    security = [*(["--tls-dir", str(tls_dir)] if tls_dir else ["--insecure"]),
-                *(["--shared-session"] * shared_session)]
-    base, port = free_udp_base(agents), free_port_block(agents, socket.SOCK_STREAM)
-    fleet = f"bench-{port}"
-    truth = [] if record is None else ["--record", str(truth_path(record))]
-    children = [spawn(["sim-vehicle", "--workspace", str(ws_file), "--count", str(agents), "--base-port",
-                        str(base), "--ready-after", "0.5", *truth])]
-    for first in range(0, agents, share):
-        count = min(share, agents - first)
-        # Agent i listens on port + i and connects to agent 0's port; gossip meshes the rest.
-        children.append(spawn(["agent", "--workspace", str(ws_file), "--drone", names[first], "--count", str(count),
-                                "--fleet", fleet, "--listen", f"tcp/127.0.0.1:{port + first}",
-                                "--connect", f"tcp/127.0.0.1:{port}", "--vehicle-base-port", str(base),
-                                "--lead-steps", str(default_lead_steps(workspace)),
-                                "--hover-lead-steps", str(max(4, workspace.delta + 1)),
-                                "--telemetry-hz", str(TELEMETRY_HZ), "--log-level", "WARNING",
-                                *security, *_recording(record, workdir, names[first])], nice=AGENT_NICE))
-    try:
-        result = await measure(children, workspace, names, fleet, port, seconds, steady_after, seed, tls_dir)
-    finally:
-        # The agents first (they land and leave), then the vehicles they land.
-        for group in (children[1:], children[:1]):
-            for child in group:
+    ``record``: each agent process records its drones' flights there (``record.<first drone>``);
+    ``fault``: the last drone, in processes of its own, is struck mid-run (:mod:`fleet.bench.faults`)."""
+    with ExitStack() as hosts_made:
+        cut_off = fault is not None and fault.kind is Fault.PARTITION
+        hosts = hosts_made.enter_context(network_hosts([VICTIM_HOST])) if cut_off else None
+        fleet = _BenchFleet(agents, processes, workdir, shared_session, secure, record, fault, hosts)
+        children, victim = fleet.spawn_all()
+        disturbance = None if victim is None else Disturbance(
+            victim.strike, frozenset(fleet.struck), (victim.agent, victim.vehicle))
+        try:
+            return await measure(children, fleet.workspace, fleet.names, fleet.fleet, fleet.connect, seconds,
+                                 steady_after, seed, fleet.tls_dir, disturbance)
+        finally:
+            victims = [] if victim is None else [victim.agent, victim.vehicle]
+            _stop([*children[1:], *victims[:1]], [children[0], *victims[1:]])
+            if record is not None:
+                gather_records(record, sorted(workdir.glob(f"{RECORD_PART}.*")))
+                gather_records(truth_path(record), sorted(workdir.glob(f"{TRUTH_PART}.*")))
+
+
+def _stop(agents: list[subprocess.Popen[bytes]], vehicles: list[subprocess.Popen[bytes]]) -> None:
+    """The agents first (they land and leave), then the vehicles they land."""
+    for group in (agents, vehicles):
+        for child in group:
+            if child.poll() is None:
                 child.send_signal(signal.SIGINT)
-            for child in group:
-                try:
-                    child.wait(60)
-                except subprocess.TimeoutExpired:
-                    child.kill()
-                    child.wait()
-    if record is not None:
-        gather_records(record, sorted(workdir.glob(f"{RECORD_PART}.*")))
-    return result
+        for child in group:
+            try:
+                child.wait(60)
+            except subprocess.TimeoutExpired:
+                child.kill()
+                child.wait()
+
+
+class _BenchFleet:
+    """The bench's processes: the vehicles' simulator and the agent processes, and with a ``fault`` the
+    struck drone's own two (on a host of its own, of ``hosts``, for a partition)."""
+
+    def __init__(self, agents: int, processes: int, workdir: Path, shared_session: bool, secure: bool,
+                 record: Path | None, fault: FaultPlan | None, hosts: Hosts | None) -> None:
+        self.ws_file = workdir / f"bench-{agents}.yaml"
+        self.ws_file.write_text(bench_workspace(agents))
+        self.workspace = load_workspace(self.ws_file)
+        self.names = list(self.workspace.drones)[:agents]
+        self.struck = self.names[-1:] if fault else []
+        self.crowd = self.names[:agents - len(self.struck)]
+        self.workdir, self.record, self.fault, self.hosts = workdir, record, fault, hosts
+        self.tls_dir = workdir / "tls" if secure else None
+        self.share = -(-len(self.crowd) // processes)
+        if self.tls_dir is not None:  # a host certificate for each process's session
+            firsts = [*range(0, len(self.crowd), self.share), *(len(self.crowd) + i for i in range(len(self.struck)))]
+            groups = {f"host-{self.names[first]}": self._group(first) for first in firsts}
+            make_certs(self.tls_dir, [*self.workspace.drones, SERVICE], hosts=groups if shared_session else None)
+        self.security = [*(["--tls-dir", str(self.tls_dir)] if self.tls_dir else ["--insecure"]),
+                         *(["--shared-session"] * shared_session)]
+        self.base, self.port = free_udp_base(agents), free_port_block(agents, socket.SOCK_STREAM)
+        self.fleet = f"bench-{self.port}"
+        self.here = hosts.gateway if hosts else "127.0.0.1"  #: where the crowd listens
+        self.connect = f"tcp/{self.here}:{self.port}"
+
+    def _group(self, first: int) -> list[str]:
+        """The drones of the agent process whose first is drone ``first``."""
+        return self.names[first:min(first + self.share, len(self.crowd))] if first < len(self.crowd) else \
+            [self.names[first]]
+
+    def spawn_all(self) -> tuple[list[subprocess.Popen[bytes]], Victim | None]:
+        """The crowd's processes (the vehicles' first), and the struck drone's."""
+        children = [spawn(self._vehicles(0, len(self.crowd)))]
+        for first in range(0, len(self.crowd), self.share):
+            children.append(spawn(self._agent(first, self.here), nice=AGENT_NICE))
+        if self.fault is None:
+            return children, None
+        first = len(self.crowd)
+        on = [] if self.hosts is None else self.hosts.run_on(VICTIM_HOST, [])
+        where = self.here if self.hosts is None else self.hosts.ip[VICTIM_HOST]
+        extra = [] if self.fault.kind is not Fault.CLOCK else [
+            "--clock-offset", str(self.fault.clock_step_s(self.workspace.beta_s)), "--clock-step-on-signal"]
+        vehicle = spawn(self._vehicles(first, 1), on=on)
+        agent = spawn([*self._agent(first, where), *extra], nice=AGENT_NICE, on=on)
+        return children, Victim(self.fault, agent, vehicle, self.hosts)
+
+    def _vehicles(self, first: int, count: int) -> list[str]:
+        return ["sim-vehicle", "--workspace", str(self.ws_file), "--count", str(count), "--instance", str(first),
+                "--base-port", str(self.base), "--ready-after", "0.5", *self._recording(TRUTH_PART, first)]
+
+    def _agent(self, first: int, address: str) -> list[str]:
+        """Agent process of the drones from ``first``, listening on ``address``; each agent listens on
+        its port (``port + i``) and connects to the first's; gossip meshes the rest."""
+        return ["agent", "--workspace", str(self.ws_file), "--drone", self.names[first],
+                "--count", str(len(self._group(first))), "--fleet", self.fleet,
+                "--listen", f"tcp/{address}:{self.port + first}", "--connect", self.connect,
+                "--vehicle-base-port", str(self.base), "--lead-steps", str(default_lead_steps(self.workspace)),
+                "--hover-lead-steps", str(max(4, self.workspace.delta + 1)),
+                "--telemetry-hz", str(TELEMETRY_HZ), "--log-level", "WARNING", *self.security,
+                *self._recording(RECORD_PART, first)]
+
+    def _recording(self, part: str, first: int) -> list[str]:
+        """``--record`` into this run's ``part`` for the process whose first drone is ``first``."""
+        return [] if self.record is None else ["--record", str(self.workdir / f"{part}.{self.names[first]}")]
 
 
 RECORD_PART = "flight"
+TRUTH_PART = "truth"
 
 
 def truth_path(record: Path) -> Path:
@@ -137,13 +199,11 @@ def truth_path(record: Path) -> Path:
     return record.with_suffix(f".truth{record.suffix}")
 
 
-def _recording(record: Path | None, workdir: Path, first: str) -> list[str]:
-    return [] if record is None else ["--record", str(workdir / f"{RECORD_PART}.{first}")]
-
-
 def gather_records(record: Path, parts: list[Path]) -> None:
-    """The agent processes' flight records, one after the other, into ``record`` (replaced)."""
-    lines = [line for part in parts for line in part.read_text(encoding="utf-8").splitlines() if line]
+    """The processes' flight records, one after the other, into ``record`` (replaced). A process killed
+    may have left its last line half written: only whole lines are kept."""
+    texts = [part.read_text(encoding="utf-8") for part in parts]
+    lines = [line for text in texts for line in text[:text.rfind("\n") + 1].splitlines() if line]
     record.write_text("".join(f"{line}\n" for line in lines), encoding="utf-8")
 
 
@@ -186,6 +246,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--record", type=Path, help="record every drone's flight here (JSON Lines, with the "
                         "workspace beside it), and the simulator's own record beside it (NAME.truth.jsonl: "
                         "where each vehicle really was), and audit both after the run")
+    parser.add_argument("--fault", choices=[f.value for f in Fault],
+                        help="strike the last drone mid-run (its agent and vehicle run apart): kill its agent "
+                             "(SIGKILL), cut its host off (a network namespace; needs root), step its clock "
+                             "past beta, or kill its vehicle; judge with --record")
+    parser.add_argument("--fault-at", type=float,
+                        help="seconds into the mail the fault strikes (default: a third of --seconds)")
+    parser.add_argument("--fault-for", type=float, default=30.0,
+                        help="how long a partition lasts, s (default 30)")
     parser.add_argument("--steady-after", type=float, default=10.0,
                         help="also report the plans after this many seconds, past the opening burst (default 10)")
 
@@ -196,18 +264,27 @@ def run(args: argparse.Namespace) -> int:
     if agents < 2 or seconds <= 0:
         print("drona bench coordination: --agents must be >= 2 and --seconds > 0", file=sys.stderr)
         return 2
-    processes = max(1, min(args.processes or default_processes(), agents))
+    fault = None if args.fault is None else FaultPlan(
+        Fault(args.fault), seconds / 3 if args.fault_at is None else args.fault_at, args.fault_for)
+    if fault is not None and not (fault.at_s >= 0 and fault.for_s > 0 and fault.over_s < seconds):
+        print("drona bench coordination: --fault-at must be >= 0, --fault-for > 0, and the fault over (--fault-at, "
+              f"and --fault-for for a partition) before --seconds ({seconds:g})", file=sys.stderr)
+        return 2
+    processes = max(1, min(args.processes or default_processes(), agents - (fault is not None)))
     shared = not args.session_per_drone
     if not args.json:
         links = "plain TCP" if args.insecure else "mutual TLS, access control"
         print(f"drona bench coordination: {agents} agents (a Zenoh session per "
               f"{'process' if shared else 'drone'}, {links}) in {processes} `drona agent --count` processes, "
               f"{agents} fake vehicles in a `drona sim-vehicle`, loopback; mail for {seconds:g} s", flush=True)
+        if fault is not None:
+            struck = fault.describe(f"d{agents}", BENCH_BETA_S)
+            print(f"fault: {struck} (it runs in an agent process and a simulator of its own)", flush=True)
     with tempfile.TemporaryDirectory() as workdir:
         try:
             result = asyncio.run(run_bench(agents, processes, seconds, args.steady_after, Path(workdir),
                                            shared_session=shared, secure=not args.insecure,
-                                           record=args.record.resolve() if args.record else None))
+                                           record=args.record.resolve() if args.record else None, fault=fault))
         except BenchError as exc:
             print(f"drona bench coordination: {exc}", file=sys.stderr)
             return 1
@@ -237,6 +314,8 @@ def run(args: argparse.Namespace) -> int:
           f"process {result.vehicles_cpu_s_per_s:.2f} s/s)\n"
           f"host speed: a reference Python loop took {result.reference_ms_before:.0f} ms before the mail and "
           f"{result.reference_ms_after:.0f} ms after (lower is faster; the figures above scale with it)")
+    for line in result.fault:
+        print(f"fault: {line}")
     bench_plot.write(args, "coordination", result)
     if args.record is not None:
         print(_audits(args.record, agents))

@@ -10,6 +10,7 @@ import random
 import subprocess
 import sys
 import time
+from collections.abc import Callable, Coroutine
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -57,13 +58,25 @@ class CoordinationResult:
     #: from the opening's mail given to each drone's first plan seen (ms), waits for a task start included
     opening_first_plan_p50_ms: float = math.nan
     opening_last_first_plan_ms: float = math.nan
+    fault: tuple[str, ...] = ()  #: what struck the fleet meanwhile, and when (``--fault``)
+
+
+@dataclass(frozen=True)
+class Disturbance:
+    """What strikes the fleet once the mail is under way: ``strike`` (it says what it did), the drones that
+    may stop answering since, and the processes that may die of it (not counted as a fleet broken)."""
+
+    strike: Callable[[], Coroutine[None, None, list[str]]]
+    fallible: frozenset[str]
+    processes: tuple[subprocess.Popen[bytes], ...]
 
 
 async def measure(children: list[subprocess.Popen[bytes]], workspace: Workspace, names: list[str], fleet: str,
-                   port: int, seconds: float, steady_after: float, seed: int,
-                   tls_dir: Path | None) -> CoordinationResult:
+                   connect: str, seconds: float, steady_after: float, seed: int,
+                   tls_dir: Path | None, disturbance: Disturbance | None = None) -> CoordinationResult:
+    """``children``: the vehicles' process first, then the agents'; ``connect``: where the agents are reached."""
     keys = FleetKeys(fleet)
-    settings = ZenohSettings(connect=(f"tcp/127.0.0.1:{port}",)).secured(tls_dir, SERVICE, keys, names)
+    settings = ZenohSettings(connect=(connect,)).secured(tls_dir, SERVICE, keys, names)
     node = await ZenohNode.open(settings, "bench")
     latencies = PlanLatencies()
     alive: set[str] = set()
@@ -90,11 +103,12 @@ async def measure(children: list[subprocess.Popen[bytes]], workspace: Workspace,
     try:
         node.subscribe(keys.state(), on_state)
         node.watch_liveliness(keys.alive(), on_alive)
-        await up_or_gone(all_up, children, 120, "alive on Zenoh")
+        everyone = [*children, *(disturbance.processes if disturbance else ())]
+        await up_or_gone(all_up, everyone, 120, "alive on Zenoh")
         # And flying: a drone is alive (and takes mail) as soon as it joined, but its process steps only once
         # all its drones have joined. Mail given before would measure the start-up of the last process
         # (its queries to the fleet) as much as coordination.
-        await up_or_gone(all_stepping, children, 60, "stepping")
+        await up_or_gone(all_stepping, everyone, 60, "stepping")
         client = FleetClient(node, keys, "bench")
         # And parked (idle): given its mail at once, the whole fleet then coordinates at once, the worst
         # case of Protocol 1 (each round waits for those before it in line). Their moves to their parking
@@ -105,9 +119,13 @@ async def measure(children: list[subprocess.Popen[bytes]], workspace: Workspace,
         cpu0 = [_cpu_of(c.pid) for c in children]
         started = time.monotonic()
         opening = asyncio.create_task(_cpu_after(children, cpu0, OPENING_S))
-        delivered, sent, plans = await _keep_busy(node, client, keys, workspace, names, seconds, seed, before)
+        struck = asyncio.create_task(disturbance.strike()) if disturbance else None
+        fallible = disturbance.fallible if disturbance else frozenset()
+        delivered, sent, plans = await _keep_busy(node, client, keys, workspace, names, seconds, seed, before,
+                                                  fallible)
         elapsed = time.monotonic() - started
         opening_cpu = await opening
+        fault = tuple(await struck) if struck else ()
         reference_after = reference_loop_ms()
         check_alive(children)  # figures from a fleet that lost a process mean nothing
         cpu = _cpu_since(children, cpu0)
@@ -120,7 +138,7 @@ async def measure(children: list[subprocess.Popen[bytes]], workspace: Workspace,
         len(steady), _percentile(steady, 0.5), _percentile(steady, 0.99), _percentile(steady, 1),
         sent / plans if plans else float("nan"), 1000 * sum(cpu[1:]) / elapsed / len(names), cpu[0] / elapsed,
         delivered, reference_before, reference_after, latencies.first(until=started + steady_after),
-        tuple(1000 * c for c in opening_cpu[1:]), _percentile(first_plans, 0.5), _percentile(first_plans, 1))
+        tuple(1000 * c for c in opening_cpu[1:]), _percentile(first_plans, 0.5), _percentile(first_plans, 1), fault)
 
 
 async def _cpu_after(children: list[subprocess.Popen[bytes]], cpu0: list[float], seconds: float) -> list[float]:
@@ -171,10 +189,11 @@ class PlanLatencies:
 
 
 async def _keep_busy(node: ZenohNode, client: FleetClient, keys: FleetKeys, workspace: Workspace, names: list[str],
-                     seconds: float, seed: int, before: dict[str, DroneState]) -> tuple[int, int, int]:
+                     seconds: float, seed: int, before: dict[str, DroneState],
+                     fallible: frozenset[str] = frozenset()) -> tuple[int, int, int]:
     """Two mails per drone at first, and one more each time one is delivered, for ``seconds``. Returns
     the mails delivered, and the protocol messages sent and plans made since the states ``before`` (the
-    fleet between rounds)."""
+    fleet between rounds). A drone ``fallible`` may not answer its mail: it is given none then."""
     rng = random.Random(seed)
     # Not where a drone starts either: one that has no mail yet rests there, and a mail there waits for it.
     free = sorted(workspace.main_region - set(workspace.parking) - set(workspace.charging_stations)
@@ -192,8 +211,12 @@ async def _keep_busy(node: ZenohNode, client: FleetClient, keys: FleetKeys, work
         nonlocal count
         pickup, dropoff = rng.sample(free, 2)
         count += 1
-        await client.assign(drone, MailOrder(id=f"b{count}", pickup=_list(pickup), dropoff=_list(dropoff),
-                                             priority=rng.randint(0, 9)), ORDER_TIMEOUT_S)
+        order = MailOrder(id=f"b{count}", pickup=_list(pickup), dropoff=_list(dropoff), priority=rng.randint(0, 9))
+        try:
+            await client.assign(drone, order, ORDER_TIMEOUT_S)
+        except FleetUnavailable:
+            if drone not in fallible:
+                raise
 
     node.subscribe(keys.status(), on_report)
     try:

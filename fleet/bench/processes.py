@@ -14,9 +14,10 @@ from typing import Any, cast
 from fleet.bench import BenchError
 
 
-def spawn(arguments: list[str], nice: int = 0) -> subprocess.Popen[bytes]:
-    """``drona`` with ``arguments``, at ``nice`` (added to this process's niceness: lower priority)."""
-    child = subprocess.Popen([sys.executable, "-m", "fleet.cli", *arguments], stdout=subprocess.DEVNULL)
+def spawn(arguments: list[str], nice: int = 0, on: list[str] | None = None) -> subprocess.Popen[bytes]:
+    """``drona`` with ``arguments``, at ``nice`` (added to this process's niceness: lower priority), run
+    by the command ``on`` (``ip netns exec NS``: on another host; it execs the process)."""
+    child = subprocess.Popen([*(on or []), sys.executable, "-m", "fleet.cli", *arguments], stdout=subprocess.DEVNULL)
     if nice:  # at once: it is still importing, long before it serves a drone
         os.setpriority(os.PRIO_PROCESS, child.pid, os.getpriority(os.PRIO_PROCESS, 0) + nice)
     return child
@@ -52,7 +53,8 @@ async def up_or_gone(all_up: asyncio.Event, children: list[subprocess.Popen[byte
 def check_alive(children: list[subprocess.Popen[bytes]]) -> None:
     for child in children:
         if (code := child.poll()) is not None:
-            command = cast(list[str], child.args)[3]  # [python, -m, fleet.cli, command, ...] (see spawn)
+            args = cast(list[str], child.args)  # [..., python, -m, fleet.cli, command, ...] (see spawn)
+            command = args[args.index("fleet.cli") + 1]
             raise BenchError(f"`drona {command}` (pid {child.pid}) exited with code {code}; its error is above")
 
 

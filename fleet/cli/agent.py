@@ -51,6 +51,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the same for a drone in the air, at most --lead-steps (default: Delta + 1 + a second's round)")
     add("--clock-offset", dest="clock_offset_s", type=float,
         help="simulation only: shift this process's clock by S seconds (tests the skew check)")
+    add("--clock-step-on-signal", action="store_const", const=True,
+        help="simulation only: shift the clock by --clock-offset once the process gets SIGUSR1, not from the start "
+             "(a clock stepped in flight)")
     add("--telemetry-hz", type=float, help="rate asked of the vehicle's position streams; the landed state comes at "
                                            "half of it, battery and status at a quarter (default 10)")
     add("--rate-hz", type=float, help="the link streams the setpoint at this rate, over 2 (PX4 leaves OFFBOARD "

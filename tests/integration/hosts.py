@@ -1,78 +1,21 @@
-"""Hosts for the integration tests: network namespaces the test makes, each a machine of its own.
-
-Each host has one cable (a veth pair) to a bridge in the test's own namespace, where the
-observer (as the service would) reaches every host. Cutting a host's cable partitions it
-from the rest; healing it joins it again. Needs root and iproute2; a test without them skips.
-"""
+"""Hosts for the integration tests (:mod:`fleet.bench.hosts`); a test that cannot make them skips."""
 
 from __future__ import annotations
 
-import os
-import shutil
-import subprocess
-import uuid
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
 
 import pytest
 
+from fleet.bench.hosts import CANNOT_MAKE_HOSTS, Hosts, can_make_hosts
+from fleet.bench.hosts import network_hosts as make_hosts
 
-@dataclass(frozen=True)
-class Hosts:
-    """Namespaces on a bridge: ``ip[host]`` is a host's address, ``link[host]`` its cable."""
-
-    ns: dict[str, str]
-    ip: dict[str, str]
-    link: dict[str, str]
-
-    def cut(self, host: str) -> None:
-        _ip("link", "set", self.link[host], "down")
-
-    def heal(self, host: str) -> None:
-        _ip("link", "set", self.link[host], "up")
-
-    def run_on(self, host: str, command: list[str]) -> list[str]:
-        """``command`` as run on ``host``."""
-        return ["ip", "netns", "exec", self.ns[host], *command]
-
-
-def _ip(*args: str, ns: str | None = None) -> None:
-    command = ["ip", *(["netns", "exec", ns, "ip"] if ns else []), *args]
-    subprocess.run(command, check=True, capture_output=True, timeout=10)
-
-
-def _quietly(*command: str) -> None:
-    subprocess.run(list(command), check=False, capture_output=True, timeout=10)
+__all__ = ["Hosts", "network_hosts"]
 
 
 @contextmanager
 def network_hosts(names: Sequence[str]) -> Iterator[Hosts]:
-    """Hosts ``names`` on a bridge of their own (a fresh /24), removed on exit."""
-    if os.geteuid() != 0 or shutil.which("ip") is None:
-        pytest.skip("network namespaces need root and iproute2 (ip)")
-    tag = uuid.uuid4().hex[:5]
-    subnet = f"10.{77 + int(tag[0], 16) % 8}.{int(tag[1:3], 16)}"
-    bridge = f"br{tag}"
-    made = Hosts(ns={h: f"drona-{tag}-{h}" for h in names}, ip={h: f"{subnet}.{i + 1}" for i, h in enumerate(names)},
-                 link={h: f"v{tag}{i}" for i, h in enumerate(names)})
-    try:
-        _ip("link", "add", bridge, "type", "bridge")
-        _ip("addr", "add", f"{subnet}.254/24", "dev", bridge)
-        _ip("link", "set", bridge, "up")
-        for i, host in enumerate(names):
-            ns, cable, end = made.ns[host], made.link[host], f"p{tag}{i}"
-            _ip("netns", "add", ns)
-            _ip("link", "add", cable, "type", "veth", "peer", "name", end)
-            _ip("link", "set", end, "netns", ns)
-            _ip("link", "set", cable, "master", bridge)
-            _ip("link", "set", cable, "up")
-            _ip("addr", "add", f"{made.ip[host]}/24", "dev", end, ns=ns)
-            _ip("link", "set", end, "up", ns=ns)
-            _ip("link", "set", "lo", "up", ns=ns)
+    if not can_make_hosts():
+        pytest.skip(CANNOT_MAKE_HOSTS)
+    with make_hosts(names) as made:
         yield made
-    finally:
-        for host in names:
-            _quietly("ip", "netns", "del", made.ns[host])
-            _quietly("ip", "link", "del", made.link[host])
-        _quietly("ip", "link", "del", bridge)

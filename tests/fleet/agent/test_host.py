@@ -3,6 +3,8 @@ MAVLink 2 signing key each of its vehicles gets."""
 
 from __future__ import annotations
 
+import asyncio
+import os
 import signal
 import socket
 import subprocess
@@ -14,7 +16,7 @@ from pydantic import ValidationError
 
 from drona_gcs.geo import GeoFrame
 from drona_gcs.workspace_files import load_workspace
-from fleet.agent.host import open_link, session_groups, zenoh_settings
+from fleet.agent.host import Host, install_signals, open_link, session_groups, zenoh_settings
 from fleet.agent.settings import AgentSettings
 from fleet.sim.ports import free_port, free_udp_base
 from fleet.transport.settings import agent_endpoint
@@ -219,3 +221,23 @@ def _log_says(log: Path, process: subprocess.Popen[bytes], text: bytes, timeout:
     while text not in log.read_bytes() and process.poll() is None and time.monotonic() < deadline:
         time.sleep(0.1)
     return text in log.read_bytes()
+
+
+def test_a_clock_stepped_on_signal_is_shifted_from_the_signal_on(ws_file: Path) -> None:
+    """`--clock-step-on-signal`: the clock is true until SIGUSR1, then off by `--clock-offset` (the fault
+    bench steps a drone's clock in flight so)."""
+    settings = AgentSettings.model_validate({"workspace": ws_file, "drone": "d1", "tls_dir": None, "insecure": True,
+                                             "clock_offset_s": 7.0, "clock_step_on_signal": True})
+    host = Host(settings, load_workspace(ws_file), ["d1"])
+
+    async def before_and_after() -> tuple[float, float]:
+        install_signals(host)
+        before = host.clock() - time.time()
+        os.kill(os.getpid(), signal.SIGUSR1)
+        await asyncio.sleep(0.05)  # the loop runs the handler on its next turn
+        return before, host.clock() - time.time()
+
+    before, after = asyncio.run(before_and_after())
+    assert abs(before) < 0.01 and abs(after - 7.0) < 0.01, (before, after)
+    without = Host(settings.model_copy(update={"clock_step_on_signal": False}), host.workspace, ["d1"])
+    assert abs(without.clock() - time.time() - 7.0) < 0.01

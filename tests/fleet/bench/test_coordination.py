@@ -29,32 +29,6 @@ def _strict(constant: str) -> object:
     raise ValueError(f"not JSON: {constant}")
 
 
-def test_a_short_run_gives_one_strict_json_row_with_its_figures() -> None:
-    agents = 4
-    done = subprocess.run([sys.executable, "-m", "fleet.cli", "bench", "coordination", "--agents", str(agents),
-                           "--seconds", "4", "--json"], check=False, capture_output=True, text=True, timeout=240)
-    assert done.returncode == 0, done.stderr[-2000:]
-    row = json.loads(done.stdout.strip().splitlines()[-1], parse_constant=_strict)
-    assert row["agents"] == agents
-    assert row["processes"] == min(len(os.sched_getaffinity(0)), agents) == min(default_processes(), agents)
-    assert row["plans"] >= agents  # every drone was given mail at once
-    assert 0 < row["p50_ms"] <= row["p99_ms"] <= row["max_ms"]
-    # A plan proposed at once and held is 3(N-1) messages: its proposal, each ack and the decision. One
-    # not held goes on as a round, 2(N-1) more ((N-1) when the whole fleet coordinates at once: a request
-    # is its sender's answer to the drones before it in line, and a decision its sender's answer to those
-    # after it); more only when a round ends with no plan and is tried again.
-    assert 3 * (agents - 1) <= row["messages_per_round"] <= 7 * (agents - 1)
-    assert row["steady_plans"] == 0 and row["steady_p50_ms"] is None  # 4 s: nothing after the opening
-    assert row["cpu_ms_per_s_per_agent"] > 0
-    assert 0 < row["reference_ms_before"] < 60_000 and 0 < row["reference_ms_after"] < 60_000
-    # The opening burst: its head of the line flew first, and the agent processes worked meanwhile.
-    assert 0 < row["opening_first_ms"] <= row["max_ms"]
-    assert len(row["opening_cpu_ms"]) == row["processes"] and sum(row["opening_cpu_ms"]) > 0
-    # From the mail given to each drone's first plan: at least its coordination, at most the whole run.
-    assert row["opening_first_ms"] <= row["opening_last_first_plan_ms"] < 1000 * row["seconds"]
-    assert 0 < row["opening_first_plan_p50_ms"] <= row["opening_last_first_plan_ms"]
-
-
 class _Fleet:
     """A fleet client whose drones answer with a fixed mode each."""
 
@@ -142,3 +116,60 @@ def test_the_agents_records_are_gathered_and_audited(tmp_path: Path) -> None:
     assert "4 records" in verdict and "delta 5" in verdict and "separation violations, 0 jumps" in verdict, verdict
     assert len(record.read_text().splitlines()) == 4 and mine.read_text() == "the user's own file\n"
     assert (tmp_path / "run.jsonl.workspace.yaml").read_text() == bench_workspace(4)
+
+
+def test_a_record_cut_mid_line_by_a_kill_keeps_its_whole_lines(tmp_path: Path) -> None:
+    """A process killed (``--fault kill``) may leave half a line: the record keeps the lines before it."""
+    line = '{"step": 1, "drone": "d1", "cell": [2, 0, 0], "planned": [2, 0, 0], "delta": 3}\n'
+    (tmp_path / "flight.d1").write_text(line + line[:30])
+    (tmp_path / "flight.d2").write_text(line.replace("d1", "d2").replace("[2", "[4"))
+    record = tmp_path / "run.jsonl"
+    gather_records(record, sorted(tmp_path.glob("flight.*")))
+    assert [json.loads(each)["drone"] for each in record.read_text().splitlines()] == ["d1", "d2"]
+
+
+def _last_steps(record: Path) -> dict[str, int]:
+    last: dict[str, int] = {}
+    for line in record.read_text().splitlines():
+        entry = json.loads(line)
+        last[entry["drone"]] = max(entry["step"], last.get(entry["drone"], 0))
+    return last
+
+
+def test_a_short_run_with_a_drone_killed_gives_one_strict_json_row_and_records_that_audit(tmp_path: Path) -> None:
+    """A short run gives one strict-JSON row (a missing figure is null, never NaN) with the layout it ran.
+    With ``--fault kill`` the last drone's agent, in a process of its own, is killed mid-run: its flight
+    record stops there while its vehicle, left hovering, is in the simulator's to the end; the others fly
+    on; both records are audited, and the fault is in the row."""
+    agents, record = 4, tmp_path / "run.jsonl"
+    done = subprocess.run([sys.executable, "-m", "fleet.cli", "bench", "coordination", "--agents", str(agents),
+                           "--seconds", "16", "--steady-after", "30", "--fault", "kill", "--fault-at", "3",
+                           "--record", str(record), "--json"], check=False, capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    row = json.loads(done.stdout.strip().splitlines()[-1], parse_constant=_strict)
+    assert row["agents"] == agents
+    # The struck drone has an agent process of its own, beside one per core for the rest.
+    assert row["processes"] == min(len(os.sched_getaffinity(0)), agents - 1) == min(default_processes(), agents - 1)
+    assert row["plans"] >= agents  # every drone was given mail at once
+    assert 0 < row["p50_ms"] <= row["p99_ms"] <= row["max_ms"]
+    # A plan proposed at once and held is 3(N-1) messages: its proposal, each ack and the decision. One
+    # not held goes on as a round, 2(N-1) more ((N-1) when the whole fleet coordinates at once: a request
+    # is its sender's answer to the drones before it in line, and a decision its sender's answer to those
+    # after it); more only when a round ends with no plan and is tried again. N is 3 once d4 is killed.
+    assert 3 * (agents - 2) <= row["messages_per_round"] <= 7 * (agents - 1), row
+    assert row["steady_plans"] == 0 and row["steady_p50_ms"] is None  # nothing 30 s into a 16 s run
+    assert row["cpu_ms_per_s_per_agent"] > 0
+    assert 0 < row["reference_ms_before"] < 60_000 and 0 < row["reference_ms_after"] < 60_000
+    # The opening burst: its head of the line flew first, and the agent processes worked meanwhile.
+    assert 0 < row["opening_first_ms"] <= row["max_ms"]
+    assert len(row["opening_cpu_ms"]) == row["processes"] and sum(row["opening_cpu_ms"]) > 0
+    # From the mail given to each drone's first plan: at least its coordination, at most the whole run.
+    assert row["opening_first_ms"] <= row["opening_last_first_plan_ms"] < 1000 * row["seconds"]
+    assert 0 < row["opening_first_plan_p50_ms"] <= row["opening_last_first_plan_ms"]
+    assert len(row["fault"]) == 1 and row["fault"][0].startswith("struck at "), row["fault"]
+    flown, truth = _last_steps(record), _last_steps(record.with_suffix(".truth.jsonl"))
+    others = min(flown[d] for d in ("d1", "d2", "d3"))
+    assert flown["d4"] < others - 10, flown  # 13 s (26 steps) of mail after the kill
+    assert truth["d4"] >= others, truth
+    assert done.stderr.count(", safe, 0 jumps") == 2, done.stderr[-2000:]
