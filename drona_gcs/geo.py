@@ -131,3 +131,22 @@ def check_speed(workspace: Workspace, max_speed_m_s: float) -> None:
         raise WorkspaceError(
             f"one cell per tau needs {needed:.2f} m/s but the vehicle flies at most {max_speed_m_s:.2f} m/s: "
             "use smaller cells or a longer tau", field="tau_s", source=workspace.source)
+
+
+def check_flyable(workspace: Workspace) -> None:
+    """Refuse a workspace whose vehicles, as its ``vehicle`` limits say, cannot fly the executor's sweeps:
+    a cell per tau, and from rest at a cell's centre to its face (half a cell) in a tau, sped up evenly
+    (and so slowed down): ``cell / tau`` and ``cell / tau**2``. Vertically too, when the grid has layers."""
+    limits, tau = workspace.vehicle, workspace.tau_s
+    cell, layer = workspace.cell_size_m, workspace.layer_height_m
+    needs = [("speed_m_s", cell / tau, "m/s", cell), ("accel_m_s2", cell / tau**2, "m/s²", cell)]
+    if workspace.size[2] > 1:
+        needs += [("climb_m_s", layer / tau, "m/s", layer), ("descent_m_s", layer / tau, "m/s", layer),
+                  ("accel_z_m_s2", layer / tau**2, "m/s²", layer)]
+    for name, needed, unit, across in needs:
+        has = getattr(limits, name)
+        if has < needed:
+            raise WorkspaceError(
+                f"{has:g} {unit} cannot fly {across:g} m a tau ({tau:g} s), which needs {needed:.2f} {unit}: "
+                "give quicker vehicles (and set their autopilots so), smaller cells or a longer tau",
+                field=f"vehicle.{name}", source=workspace.source)

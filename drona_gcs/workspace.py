@@ -42,6 +42,13 @@ class VehicleLimits:
     accel_z_m_s2: float = 1.0
     jerk_z_m_s3: float = 5.0
 
+    def sped_up(self, factor: float) -> VehicleLimits:
+        """The same vehicle, its seconds ``factor`` times shorter (a simulation at ``factor`` times real time,
+        seen from the wall clock)."""
+        return VehicleLimits(self.speed_m_s * factor, self.accel_m_s2 * factor**2, self.jerk_m_s3 * factor**3,
+                             self.climb_m_s * factor, self.descent_m_s * factor, self.accel_z_m_s2 * factor**2,
+                             self.jerk_z_m_s3 * factor**3)
+
 
 ARDUCOPTER = VehicleLimits()
 

@@ -33,7 +33,7 @@ from typing import Any
 import pytest
 import yaml
 
-from drona_gcs.geo import check_speed
+from drona_gcs.geo import check_flyable, check_speed
 from drona_gcs.workspace_files import load_workspace
 from fleet.cli import COMMANDS, build_parser, main
 from fleet.cli.sim_vehicle import max_speed
@@ -374,6 +374,7 @@ def test_compose_makes_certificates_and_runs_a_router_four_vehicles_and_four_age
     workspace = load_workspace(CONTAINER_DIR / "workspace.yaml")
     assert len(workspace.drones) >= vehicles.count == 4
     check_speed(workspace, max_speed(vehicles, workspace))  # sim-vehicle would refuse it otherwise
+    check_flyable(workspace)  # and the agents
     containerfile = (CONTAINER_DIR / "Containerfile").read_text()
     assert "FROM docker.io/library/python:3.11-slim" in containerfile
     assert 'ENTRYPOINT ["drona"]' in containerfile

@@ -21,6 +21,7 @@ from typing import TextIO
 from pydantic import ValidationError
 
 from drona_gcs.errors import DronaError
+from drona_gcs.geo import check_flyable
 from drona_gcs.workspace_files import load_workspace
 from fleet import runtime
 from fleet.agent.host import Host, ignore_signals, install_signals, run_host, select_drones
@@ -94,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         settings = settings_from(args)
         workspace = load_workspace(settings.workspace)
+        check_flyable(workspace)
         names = select_drones(settings, workspace)
     except ValidationError as exc:
         print(f"drona agent: {_first_problem(exc)}", file=sys.stderr)

@@ -21,13 +21,14 @@ import shutil
 import signal
 import sys
 import tempfile
+from dataclasses import asdict
 from pathlib import Path
 
 import yaml
 
 from drona_gcs.errors import DronaError
-from drona_gcs.geo import check_speed
-from drona_gcs.workspace import Workspace
+from drona_gcs.geo import check_flyable, check_speed
+from drona_gcs.workspace import ARDUCOPTER, Workspace
 from drona_gcs.workspace_files import load_workspace
 from fleet.cli.lifeline import LEFTOVERS
 from fleet.cli.security import add_security_arguments, tls_dir_from
@@ -64,8 +65,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 DEMO_TAU_S = 1.5
 
 
-def demo_workspace(drones: int, tau: float) -> dict[str, object]:
-    """A small campus: two buildings, two chargers, drones parked along the west and east edges."""
+def demo_workspace(drones: int, tau: float, speedup: float = 1.0) -> dict[str, object]:
+    """A small campus: two buildings, two chargers, drones parked along the west and east edges; its
+    vehicles ArduCopters at their defaults, at ``speedup`` times real time."""
     if not 1 <= drones <= 16:
         raise ValueError(f"--drones must be within 1..16 on the embedded workspace, got {drones}")
     west = [(0, y) for y in range(1, DEMO_SIDE_Y, 2)]
@@ -74,7 +76,7 @@ def demo_workspace(drones: int, tau: float) -> dict[str, object]:
     homes = spots[:drones]
     return {
         "name": "demo-campus", "size": [DEMO_SIDE_X, DEMO_SIDE_Y, 1], "cell_size_m": 3.0, "tau_s": tau,
-        "beta_s": 0.05,
+        "beta_s": 0.05, "vehicle": asdict(ARDUCOPTER.sped_up(speedup)),
         "geo_origin": {"lat": 47.397742, "lon": 8.545594, "alt_m": 488.0, "layer0_alt_m": 5.0},
         "obstacles": [{"box": [[4, 3, 0], [6, 5, 0]]}, {"box": [[9, 6, 0], [11, 8, 0]]}],
         "charging_stations": [[3, 0, 0], [12, DEMO_SIDE_Y - 1, 0]],
@@ -90,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
         workspace_file = _workspace_file(args, state)
         workspace = load_workspace(workspace_file)
         check_speed(workspace, 5.0 * args.speedup)
+        check_flyable(workspace)
         drones = len(workspace.drones) if args.workspace else args.drones
         security = _security(args, workspace, state)
     except (ValueError, DronaError, OSError) as exc:
@@ -126,7 +129,7 @@ def _security(args: argparse.Namespace, workspace: Workspace, state: Path) -> li
 def _workspace_file(args: argparse.Namespace, state: Path) -> Path:
     """The workspace to fly, as a file the children can read (--tau applied)."""
     if args.workspace is None:
-        data = demo_workspace(args.drones, args.tau or DEMO_TAU_S)
+        data = demo_workspace(args.drones, args.tau or DEMO_TAU_S, args.speedup)
     elif args.tau is None:
         given: Path = args.workspace
         return given

@@ -3,14 +3,15 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drona_gcs.errors import WorkspaceError
-from drona_gcs.geo import GeoFrame, GeoPoint, Ned, check_speed
-from drona_gcs.workspace import GeoOrigin, Workspace
+from drona_gcs.geo import GeoFrame, GeoPoint, Ned, check_flyable, check_speed
+from drona_gcs.workspace import GeoOrigin, VehicleLimits, Workspace
 
 WS = Workspace.build(size=(40, 30, 3), cell_size_m=5.0, tau_s=2.0,
                      geo=GeoOrigin(lat=37.8716, lon=-122.2727, alt_m=52.0, layer0_alt_m=10.0, layer_height_m=4.0))
@@ -63,3 +64,19 @@ def test_speed_check_refuses_a_grid_too_fast_for_the_vehicle() -> None:
         check_speed(WS, 2.0)
     with pytest.raises(WorkspaceError, match="maximum speed must be > 0"):
         check_speed(WS, 0)
+
+
+def test_a_workspace_whose_vehicles_cannot_fly_its_sweeps_is_refused_naming_the_limit() -> None:
+    """A cell per tau, and half a cell from rest in a tau: 5 m cells and 4 m layers every 2 s need 2.5 m/s
+    and 1.25 m/s² across, 2 m/s and 1 m/s² up and down; ArduCopter's default WPNAV_SPEED_DN (1.5 m/s) is
+    too slow for the layers."""
+    with pytest.raises(WorkspaceError, match=r"vehicle.descent_m_s: 1.5 m/s cannot fly 4 m a tau \(2 s\), which "
+                                             r"needs 2.00 m/s"):
+        check_flyable(WS)
+    enough = VehicleLimits(speed_m_s=2.5, accel_m_s2=1.25, climb_m_s=2.0, descent_m_s=2.0, accel_z_m_s2=1.0)
+    check_flyable(replace(WS, vehicle=enough))  # exactly enough
+    check_flyable(Workspace.build(size=(40, 30, 1), cell_size_m=5.0, tau_s=2.0))  # no layers: none up or down
+    for name in ("speed_m_s", "accel_m_s2", "climb_m_s", "descent_m_s", "accel_z_m_s2"):
+        value = getattr(enough, name) * 0.96
+        with pytest.raises(WorkspaceError, match=rf"vehicle.{name}: {value:g} "):
+            check_flyable(replace(WS, vehicle=replace(enough, **{name: value})))

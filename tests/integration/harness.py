@@ -19,10 +19,11 @@ import time
 import uuid
 from collections import defaultdict
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from drona_gcs.audit import Audit, audit
+from drona_gcs.workspace import ARDUCOPTER
 from drona_gcs.workspace_files import load_workspace
 from fleet.sim.ports import free_port_block, free_udp_base
 from fleet.transport.fleet_client import FleetClient
@@ -60,6 +61,7 @@ def workspace_yaml(drones: int) -> str:
     lines = [
         # Vehicles at SPEEDUP enter their cells within a fifth of a second: lambda is theirs, not ArduCopter's.
         "name: integration", "size: [10, 10, 1]", "cell_size_m: 1.0", "tau_s: 0.5", "beta_s: 0.2", "lambda_s: 0.3",
+        f"vehicle: {json.dumps(asdict(ARDUCOPTER.sped_up(SPEEDUP)))}",  # ArduCopters at SPEEDUP
         "geo_origin: {lat: 47.397742, lon: 8.545594, alt_m: 488.0, layer0_alt_m: 2.0}",
         "obstacles:", "  - box: [[4, 4, 0], [5, 5, 0]]",
         "charging_stations: [[0, 0, 0], [9, 9, 0]]",

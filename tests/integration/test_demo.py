@@ -97,7 +97,7 @@ def load_workspace_of_demo(tmp_path: Path) -> Any:
     import yaml
 
     path = tmp_path / "demo-workspace.yaml"
-    path.write_text(yaml.safe_dump(demo_workspace(4, 0.5)))
+    path.write_text(yaml.safe_dump(demo_workspace(4, 0.5, speedup=4)))
     return load_workspace(path)
 
 

@@ -18,6 +18,7 @@ from drona_gcs.geo import GeoFrame
 from drona_gcs.workspace_files import load_workspace
 from fleet.agent.host import Host, install_signals, open_link, session_groups, zenoh_settings
 from fleet.agent.settings import AgentSettings
+from fleet.cli import main
 from fleet.sim.ports import free_port, free_udp_base
 from fleet.transport.settings import agent_endpoint
 from fleet.vehicle.signing import SigningKeyError
@@ -241,3 +242,14 @@ def test_a_clock_stepped_on_signal_is_shifted_from_the_signal_on(ws_file: Path) 
     assert abs(before) < 0.01 and abs(after - 7.0) < 0.01, (before, after)
     without = Host(settings.model_copy(update={"clock_step_on_signal": False}), host.workspace, ["d1"])
     assert abs(without.clock() - time.time() - 7.0) < 0.01
+
+
+def test_an_agent_refuses_a_workspace_its_vehicles_cannot_fly_naming_the_limit(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """1 m cells every 0.5 s need 4 m/s² to cross half a cell from rest in a tau; ArduCopter's default
+    WPNAV_ACCEL is 2.5 m/s². Refused before any vehicle or session is touched."""
+    slow = tmp_path / "slow.yaml"
+    slow.write_text("size: [4, 4, 1]\ncell_size_m: 1.0\ntau_s: 0.5\ndrones: {d1: [1, 1, 0]}\n")
+    assert main(["agent", "--workspace", str(slow)]) == 2
+    assert ("drona agent: " in (err := capsys.readouterr().err) and "vehicle.accel_m_s2: 2.5 m/s² cannot fly 1 m a "
+            "tau (0.5 s), which needs 4.00 m/s²" in err), err
