@@ -4,9 +4,46 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import math
-from collections.abc import AsyncIterator
+import time
+from collections.abc import AsyncIterator, Callable
 from typing import Any
+
+log = logging.getLogger(__name__)
+
+#: How fast the fleet clock takes up a step of the system clock, seconds a second: ntpd's and chrony's
+#: bound on slewing. The system clock's own drift, which they slew within it, is followed exactly.
+MAX_SLEW = 0.0005
+STEP_NOTICED_S = 0.01  #: a step of the system clock this large is logged
+
+
+class FleetClock:
+    """The system clock as a drone's schedule reads it: it never steps.
+
+    A plan is a timed trajectory; a system clock stepped in flight (NTP, GPS time, an operator) would
+    fly it early or stall it, by more than the fleet's window. So the step is taken up at most
+    ``max_slew`` seconds a second, on the monotonic clock; meanwhile the fleet's clock check measures
+    what is left, against beta, as it measures any skew.
+    """
+
+    def __init__(self, wall: Callable[[], float] = time.time, monotonic: Callable[[], float] = time.monotonic,
+                 max_slew: float = MAX_SLEW) -> None:
+        self._wall, self._monotonic, self._max_slew = wall, monotonic, max_slew
+        self._at, self._now = monotonic(), wall()
+        self._behind = 0.0  #: the step being taken up, as last logged
+
+    def __call__(self) -> float:
+        at, wall = self._monotonic(), self._wall()
+        elapsed = max(0.0, at - self._at)
+        free, room = self._now + elapsed, self._max_slew * elapsed
+        gap = wall - free
+        if abs(gap - self._behind) > STEP_NOTICED_S:
+            log.warning("the system clock stepped by %+.3f s: the fleet clock takes it up at %g ms a second",
+                        gap - self._behind, self._max_slew * 1000)
+        self._behind = gap - max(-room, min(room, gap))
+        self._at, self._now = at, free + max(-room, min(room, gap))
+        return self._now
 
 
 def step_at(t: float, epoch: float, tau: float) -> int:

@@ -38,7 +38,7 @@ from fleet import runtime
 from fleet.agent.admission import TaskBudget
 from fleet.agent.drone import BROADCAST, DroneAgent
 from fleet.agent.settings import AgentSettings
-from fleet.clock import cancel_all, periodic
+from fleet.clock import FleetClock, cancel_all, periodic
 from fleet.setpoint_loop import Sample, SetpointFleet, SetpointLoop, StepReport
 from fleet.transport.identity import Speakers, identity_for
 from fleet.transport.inbox import inbox_of
@@ -67,8 +67,13 @@ class Host:
     drained: asyncio.Event = field(default_factory=asyncio.Event)
 
     clock_stepped: bool = False  #: with ``clock_step_on_signal``: SIGUSR1 came
+    clock: FleetClock = field(init=False)  #: the drones' schedule's: it never steps
 
-    def clock(self) -> float:
+    def __post_init__(self) -> None:
+        self.clock = FleetClock(self._system_clock)
+
+    def _system_clock(self) -> float:
+        """The system clock, shifted by ``--clock-offset`` (from the start, or from SIGUSR1 on)."""
         shifted = self.clock_stepped or not self.settings.clock_step_on_signal
         return time.time() + (self.settings.clock_offset_s if shifted else 0.0)
 

@@ -164,8 +164,9 @@ class _BenchFleet:
         first = len(self.crowd)
         on = [] if self.hosts is None else self.hosts.run_on(VICTIM_HOST, [])
         where = self.here if self.hosts is None else self.hosts.ip[VICTIM_HOST]
-        extra = [] if self.fault.kind is not Fault.CLOCK else [
-            "--clock-offset", str(self.fault.clock_step_s(self.workspace.beta_s)), "--clock-step-on-signal"]
+        offset = self.fault.clock_offset_s(self.workspace.beta_s)
+        extra = [*(["--clock-offset", str(offset)] if offset else []),
+                 *(["--clock-step-on-signal"] if self.fault.kind is Fault.CLOCK_STEP else [])]
         vehicle = spawn(self._vehicles(first, 1), on=on)
         agent = spawn([*self._agent(first, where), *extra], nice=AGENT_NICE, on=on)
         return children, Victim(self.fault, agent, vehicle, self.hosts)
@@ -248,8 +249,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "where each vehicle really was), and audit both after the run")
     parser.add_argument("--fault", choices=[f.value for f in Fault],
                         help="strike the last drone mid-run (its agent and vehicle run apart): kill its agent "
-                             "(SIGKILL), cut its host off (a network namespace; needs root), step its clock "
-                             "past beta, or kill its vehicle; judge with --record")
+                             "(SIGKILL), cut its host off (a network namespace; needs root), set its clock "
+                             "past beta from its start, step its system clock in flight, or kill its vehicle; "
+                             "judge with --record")
     parser.add_argument("--fault-at", type=float,
                         help="seconds into the mail the fault strikes (default: a third of --seconds)")
     parser.add_argument("--fault-for", type=float, default=30.0,

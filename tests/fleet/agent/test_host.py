@@ -224,22 +224,25 @@ def _log_says(log: Path, process: subprocess.Popen[bytes], text: bytes, timeout:
     return text in log.read_bytes()
 
 
-def test_a_clock_stepped_on_signal_is_shifted_from_the_signal_on(ws_file: Path) -> None:
-    """`--clock-step-on-signal`: the clock is true until SIGUSR1, then off by `--clock-offset` (the fault
-    bench steps a drone's clock in flight so)."""
+def test_a_system_clock_stepped_on_signal_is_shifted_from_the_signal_on_and_the_fleet_clock_takes_it_up(
+        ws_file: Path) -> None:
+    """`--clock-step-on-signal`: the system clock is true until SIGUSR1, then off by `--clock-offset` (the
+    fault bench steps a drone's clock in flight so); the drones' schedule clock does not step with it.
+    Without the flag the offset is there from the start, in both."""
     settings = AgentSettings.model_validate({"workspace": ws_file, "drone": "d1", "tls_dir": None, "insecure": True,
                                              "clock_offset_s": 7.0, "clock_step_on_signal": True})
     host = Host(settings, load_workspace(ws_file), ["d1"])
 
-    async def before_and_after() -> tuple[float, float]:
+    async def offsets() -> list[tuple[float, float]]:
         install_signals(host)
-        before = host.clock() - time.time()
+        before = (host._system_clock() - time.time(), host.clock() - time.time())
         os.kill(os.getpid(), signal.SIGUSR1)
         await asyncio.sleep(0.05)  # the loop runs the handler on its next turn
-        return before, host.clock() - time.time()
+        return [before, (host._system_clock() - time.time(), host.clock() - time.time())]
 
-    before, after = asyncio.run(before_and_after())
-    assert abs(before) < 0.01 and abs(after - 7.0) < 0.01, (before, after)
+    (system_before, fleet_before), (system_after, fleet_after) = asyncio.run(offsets())
+    assert abs(system_before) < 0.01 and abs(system_after - 7.0) < 0.01, (system_before, system_after)
+    assert abs(fleet_before) < 0.01 and abs(fleet_after) < 0.01, (fleet_before, fleet_after)
     without = Host(settings.model_copy(update={"clock_step_on_signal": False}), host.workspace, ["d1"])
     assert abs(without.clock() - time.time() - 7.0) < 0.01
 
