@@ -6,14 +6,15 @@ import asyncio
 import contextlib
 import logging
 import math
+import threading
 import time
 from collections.abc import AsyncIterator, Callable
 from typing import Any
 
 log = logging.getLogger(__name__)
 
-#: How fast the fleet clock takes up a step of the system clock, seconds a second: ntpd's and chrony's
-#: bound on slewing. The system clock's own drift, which they slew within it, is followed exactly.
+#: How fast the fleet clock takes up a step of the system clock, seconds a second: ntpd's bound on
+#: slewing. The system clock's own drift, which NTP corrects within it, is followed exactly.
 MAX_SLEW = 0.0005
 STEP_NOTICED_S = 0.01  #: a step of the system clock this large is logged
 
@@ -31,19 +32,20 @@ class FleetClock:
                  max_slew: float = MAX_SLEW) -> None:
         self._wall, self._monotonic, self._max_slew = wall, monotonic, max_slew
         self._at, self._now = monotonic(), wall()
-        self._behind = 0.0  #: the step being taken up, as last logged
+        self._behind = 0.0  #: what is left of the steps being taken up
+        self._lock = threading.Lock()  # Zenoh's threads stamp queries with it too
 
     def __call__(self) -> float:
-        at, wall = self._monotonic(), self._wall()
-        elapsed = max(0.0, at - self._at)
-        free, room = self._now + elapsed, self._max_slew * elapsed
-        gap = wall - free
-        if abs(gap - self._behind) > STEP_NOTICED_S:
-            log.warning("the system clock stepped by %+.3f s: the fleet clock takes it up at %g ms a second",
-                        gap - self._behind, self._max_slew * 1000)
-        self._behind = gap - max(-room, min(room, gap))
-        self._at, self._now = at, free + max(-room, min(room, gap))
-        return self._now
+        with self._lock:
+            at, wall = max(self._at, self._monotonic()), self._wall()
+            free = self._now + (at - self._at)
+            room, gap = self._max_slew * (at - self._at), wall - free
+            if abs(gap - self._behind) > STEP_NOTICED_S:
+                log.warning("the system clock stepped by %+.3f s: the fleet clock takes it up at %g ms a second",
+                            gap - self._behind, self._max_slew * 1000)
+            taken = max(-room, min(room, gap))
+            self._at, self._now, self._behind = at, free + taken, gap - taken
+            return self._now
 
 
 def step_at(t: float, epoch: float, tau: float) -> int:

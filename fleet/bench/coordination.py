@@ -95,15 +95,14 @@ async def run_bench(agents: int, processes: int, seconds: float, steady_after: f
         cut_off = fault is not None and fault.kind is Fault.PARTITION
         hosts = hosts_made.enter_context(network_hosts([VICTIM_HOST])) if cut_off else None
         fleet = _BenchFleet(agents, processes, workdir, shared_session, secure, record, fault, hosts)
-        children, victim = fleet.spawn_all()
-        disturbance = None if victim is None else Disturbance(
-            victim.strike, frozenset(fleet.struck), (victim.agent, victim.vehicle))
         try:
+            children, victim = fleet.spawn_all()
+            disturbance = None if victim is None else Disturbance(
+                victim.strike, frozenset(fleet.struck), (victim.agent, victim.vehicle))
             return await measure(children, fleet.workspace, fleet.names, fleet.fleet, fleet.connect, seconds,
                                  steady_after, seed, fleet.tls_dir, disturbance)
         finally:
-            victims = [] if victim is None else [victim.agent, victim.vehicle]
-            _stop([*children[1:], *victims[:1]], [children[0], *victims[1:]])
+            _stop(fleet.agents, fleet.vehicles)
             if record is not None:
                 gather_records(record, sorted(workdir.glob(f"{RECORD_PART}.*")))
                 gather_records(truth_path(record), sorted(workdir.glob(f"{TRUTH_PART}.*")))
@@ -148,6 +147,8 @@ class _BenchFleet:
         self.fleet = f"bench-{self.port}"
         self.here = hosts.gateway if hosts else "127.0.0.1"  #: where the crowd listens
         self.connect = f"tcp/{self.here}:{self.port}"
+        self.vehicles: list[subprocess.Popen[bytes]] = []  #: the simulators started
+        self.agents: list[subprocess.Popen[bytes]] = []  #: the agent processes started
 
     def _group(self, first: int) -> list[str]:
         """The drones of the agent process whose first is drone ``first``."""
@@ -155,10 +156,12 @@ class _BenchFleet:
             [self.names[first]]
 
     def spawn_all(self) -> tuple[list[subprocess.Popen[bytes]], Victim | None]:
-        """The crowd's processes (the vehicles' first), and the struck drone's."""
-        children = [spawn(self._vehicles(0, len(self.crowd)))]
+        """The crowd's processes (the vehicles' first), and the struck drone's; each is also in
+        ``vehicles`` or ``agents`` as soon as it runs, to be stopped whatever happens next."""
+        self.vehicles.append(spawn(self._vehicles(0, len(self.crowd))))
         for first in range(0, len(self.crowd), self.share):
-            children.append(spawn(self._agent(first, self.here), nice=AGENT_NICE))
+            self.agents.append(spawn(self._agent(first, self.here), nice=AGENT_NICE))
+        children = [*self.vehicles, *self.agents]
         if self.fault is None:
             return children, None
         first = len(self.crowd)
@@ -167,8 +170,8 @@ class _BenchFleet:
         offset = self.fault.clock_offset_s(self.workspace.beta_s)
         extra = [*(["--clock-offset", str(offset)] if offset else []),
                  *(["--clock-step-on-signal"] if self.fault.kind is Fault.CLOCK_STEP else [])]
-        vehicle = spawn(self._vehicles(first, 1), on=on)
-        agent = spawn([*self._agent(first, where), *extra], nice=AGENT_NICE, on=on)
+        self.vehicles.append(vehicle := spawn(self._vehicles(first, 1), on=on))
+        self.agents.append(agent := spawn([*self._agent(first, where), *extra], nice=AGENT_NICE, on=on))
         return children, Victim(self.fault, agent, vehicle, self.hosts)
 
     def _vehicles(self, first: int, count: int) -> list[str]:
@@ -265,6 +268,9 @@ def run(args: argparse.Namespace) -> int:
     seconds = args.seconds or (15.0 if args.quick else 60.0)
     if agents < 2 or seconds <= 0:
         print("drona bench coordination: --agents must be >= 2 and --seconds > 0", file=sys.stderr)
+        return 2
+    if args.fault is not None and agents < 3:  # the survivor of a pair cannot tell a fault from its own
+        print("drona bench coordination: --fault needs --agents >= 3", file=sys.stderr)
         return 2
     fault = None if args.fault is None else FaultPlan(
         Fault(args.fault), seconds / 3 if args.fault_at is None else args.fault_at, args.fault_for)

@@ -41,7 +41,11 @@ class Hosts:
 
 def _ip(*args: str, ns: str | None = None) -> None:
     command = ["ip", *(["netns", "exec", ns, "ip"] if ns else []), *args]
-    subprocess.run(command, check=True, capture_output=True, timeout=10)
+    try:
+        subprocess.run(command, check=True, capture_output=True, timeout=10)
+    except (subprocess.CalledProcessError, subprocess.TimeoutExpired) as exc:
+        said = exc.stderr.decode(errors="replace").strip() if isinstance(exc.stderr, bytes) else ""
+        raise BenchError(f"`{' '.join(command)}` failed: {said or exc}") from exc
 
 
 def _quietly(*command: str) -> None:

@@ -136,7 +136,8 @@ async def measure(children: list[subprocess.Popen[bytes]], workspace: Workspace,
     return CoordinationResult(
         len(names), elapsed, len(values), _percentile(values, 0.5), _percentile(values, 0.99), _percentile(values, 1),
         len(steady), _percentile(steady, 0.5), _percentile(steady, 0.99), _percentile(steady, 1),
-        sent / plans if plans else float("nan"), 1000 * sum(cpu[1:]) / elapsed / len(names), cpu[0] / elapsed,
+        sent / plans if plans else float("nan"), 1000 * sum(cpu[1:]) / elapsed / (len(names) - len(fallible)),
+        cpu[0] / elapsed,
         delivered, reference_before, reference_after, latencies.first(until=started + steady_after),
         tuple(1000 * c for c in opening_cpu[1:]), _percentile(first_plans, 0.5), _percentile(first_plans, 1), fault)
 

@@ -27,7 +27,7 @@ from pathlib import Path
 import yaml
 
 from drona_gcs.errors import DronaError
-from drona_gcs.geo import check_flyable, check_speed
+from drona_gcs.geo import check_flyable
 from drona_gcs.workspace import ARDUCOPTER, Workspace
 from drona_gcs.workspace_files import load_workspace
 from fleet.cli.lifeline import LEFTOVERS
@@ -91,7 +91,6 @@ def run(args: argparse.Namespace) -> int:
         state = Path(tempfile.mkdtemp(prefix="drona-demo-"))
         workspace_file = _workspace_file(args, state)
         workspace = load_workspace(workspace_file)
-        check_speed(workspace, 5.0 * args.speedup)
         check_flyable(workspace)
         drones = len(workspace.drones) if args.workspace else args.drones
         security = _security(args, workspace, state)

@@ -68,8 +68,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "DISARM_DELAY or COM_DISARM_PRFLT/COM_DISARM_LAND (default: the autopilot's, 10; PX4 "
                              "2 after a landing)")
     parser.add_argument("--max-speed", type=float,
-                        help="horizontal speed limit, m/s: the starting WPNAV_SPEED or MPC_XY_VEL_MAX, which a ground "
-                             "station may change (default: the autopilot's, ArduCopter 10, PX4 12)")
+                        help="horizontal speed limit, m/s of simulated time: the starting WPNAV_SPEED or "
+                             "MPC_XY_VEL_MAX, which a ground station may change (default: the workspace's, else "
+                             "the autopilot's, ArduCopter 10, PX4 12)")
     parser.add_argument("--battery", type=float, default=100.0, help="initial battery charge, percent")
     parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                         help="a parameter's starting value, as set by hand on a real vehicle (repeat for more), "
@@ -103,8 +104,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def max_speed(args: argparse.Namespace, workspace: Workspace | None = None) -> float:
-    """The horizontal speed limit the vehicles start with: ``--max-speed``, else the workspace's (or their
-    autopilot's default)."""
+    """The horizontal speed limit the vehicles start with, in their simulated seconds: ``--max-speed``, else
+    the workspace's slowed by ``--speedup`` (or their autopilot's default)."""
     return starting_limits(_config(args, workspace).vehicle).max_speed
 
 

@@ -44,3 +44,14 @@ def test_the_system_clocks_drift_within_the_slew_rate_is_followed() -> None:
         clocks.tick(0.05, drift=MAX_SLEW / 2)
         now = clock()
     assert now == pytest.approx(clocks.wall, abs=1e-9)
+
+
+def test_a_monotonic_clock_that_goes_back_counts_no_time_twice() -> None:
+    clocks = _Clocks()
+    clock = FleetClock(lambda: clocks.wall, lambda: clocks.monotonic)
+    start = clock()
+    clocks.monotonic -= 1.0  # never, for time.monotonic: a test's clock may
+    assert clock() == pytest.approx(start, abs=1e-9)  # not a second back
+    clocks.tick(2.0)
+    clocks.wall -= 1.0  # 1 s went by since the clock was read: the wall clock says so too
+    assert clock() == pytest.approx(start + 1.0, abs=1e-9)
