@@ -96,6 +96,10 @@ class VehicleError(DronaError):
     """The link to a vehicle failed (timeout, lost heartbeat, transport error)."""
 
 
+class VehicleLimitsError(DronaError):
+    """A vehicle's autopilot is set to fly less than the workspace's ``vehicle`` limits."""
+
+
 class VehicleCommandRejected(VehicleError):
     """The autopilot refused a command; ``result`` is the MAV_RESULT code."""
 

@@ -28,7 +28,7 @@ from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TextIO, TypeVar
 
-from drona_gcs.errors import DronaError, VehicleError
+from drona_gcs.errors import DronaError, VehicleError, VehicleLimitsError
 from drona_gcs.geo import GeoFrame
 from drona_gcs.planner import SafePlanner
 from drona_gcs.stack.battery import BatteryModel
@@ -45,7 +45,8 @@ from fleet.transport.inbox import inbox_of
 from fleet.transport.keys import FleetKeys, check_name
 from fleet.transport.node import ZenohNode
 from fleet.transport.settings import ZenohSettings, agent_endpoint
-from fleet.vehicle.link import REOPEN_S, VehicleLink
+from fleet.vehicle.limits import parameters_to_read, shortfalls
+from fleet.vehicle.link import REOPEN_S, Autopilot, VehicleLink
 from fleet.vehicle.mavlink_link import PymavlinkLink
 from fleet.vehicle.policy import Timeouts
 
@@ -273,9 +274,30 @@ async def _connect(host: Host, frame: GeoFrame, name: str, signing_key: bytes | 
         except BaseException:
             await link.close()
             raise
+    try:
+        await _check_limits(link, ws, name)
+    except BaseException:
+        await link.close()
+        raise
     with contextlib.suppress(VehicleError):  # not ready yet: it joins waiting for its position
         await link.wait_ready(settings.ready_timeout_s)
     return link
+
+
+async def _check_limits(link: VehicleLink, workspace: Workspace, name: str) -> None:
+    """Refuse a vehicle whose autopilot is set to fly less than the workspace's ``vehicle`` limits, which
+    lambda, and so every plan's margin, is derived from (:mod:`fleet.vehicle.limits`)."""
+    autopilot = link.telemetry().autopilot or Autopilot.OTHER
+    names = parameters_to_read(autopilot)
+    if not names:
+        log.warning("drone %s: its autopilot (%s) has no limits this agent can read: not checked against the "
+                    "workspace's vehicle", name, autopilot.value)
+        return
+    short = shortfalls(autopilot, await link.read_parameters(names), workspace.vehicle)
+    if short:
+        raise VehicleLimitsError(f"drone {name}: its vehicle flies less than the workspace's vehicle limits, "
+                                 f"which lambda is derived from: {'; '.join(short)}. Set its parameters, or give "
+                                 "the workspace what it flies")
 
 
 async def _fly(host: Host, frame: GeoFrame, record: TextIO | None) -> None:

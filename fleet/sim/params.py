@@ -68,6 +68,7 @@ class Setting(enum.Enum):
     SYSTEM_ID = "system_id"  #: reported only: both autopilots take a new id at their next boot
     SHAPING_JERK = "shaping_jerk"  #: m/s³, ArduCopter's PSC_JERK_XY: its position gain is jerk / (2 accel)
     BATTERY_CAPACITY = "battery_capacity"  #: mAh, the pack the battery monitor counts down from
+    SPEEDUP = "speedup"  #: reported only: simulated seconds per wall-clock second (ArduPilot SITL's SIM_SPEEDUP)
 
 
 LIMIT_SETTINGS = (Setting.MAX_SPEED, Setting.MAX_ACCEL, Setting.CLIMB_RATE, Setting.DESCENT_RATE,
@@ -106,6 +107,7 @@ ARDUCOPTER_PARAMS = (
     Param("FENCE_TYPE", 7, INT8),  # max altitude, circle and polygon
     Param("ARMING_CHECK", 1, INT32),
     Param("BATT_CAPACITY", 5000, INT32, (Setting.BATTERY_CAPACITY,)),  # the fake's pack (ArduCopter's: 3300)
+    Param("SIM_SPEEDUP", 1.0, REAL32, (Setting.SPEEDUP,)),  # SITL's: a ground station reads its speedup there
 )
 
 #: PX4 v1.15's defaults, numbered in name order as PX4 does.
@@ -131,7 +133,7 @@ TABLES: dict[str, tuple[Param, ...]] = {"ardupilot": ARDUCOPTER_PARAMS, "px4": P
 
 def starting_settings(config: VehicleConfig) -> dict[Setting, float]:
     """The settings a config gives explicitly (each the starting value of its parameter)."""
-    start: dict[Setting, float] = {Setting.SYSTEM_ID: config.system_id}
+    start: dict[Setting, float] = {Setting.SYSTEM_ID: config.system_id, Setting.SPEEDUP: config.speedup}
     if config.limits is not None:
         start.update({s: getattr(config.limits, s.value) for s in LIMIT_SETTINGS})
     given = {Setting.PREFLIGHT_DISARM: config.auto_disarm_s, Setting.LANDED_DISARM: config.auto_disarm_s,

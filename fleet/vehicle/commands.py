@@ -11,7 +11,7 @@ abstract methods of :class:`ConfirmedCommands`.
 from __future__ import annotations
 
 import abc
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Sequence
 
 from fleet.vehicle.link import Autopilot, Telemetry
 from fleet.vehicle.modes import mode_command
@@ -28,6 +28,8 @@ from fleet.vehicle.policy import (
     takeoff_started,
 )
 from fleet.vehicle.session import MavlinkSession, Verdict
+
+PARAM_TRIES = 3
 
 
 class ConfirmedCommands(abc.ABC):
@@ -64,7 +66,22 @@ class ConfirmedCommands(abc.ABC):
     def _check_alive(self) -> None:
         self.session.check_alive()
 
+    async def read_parameters(self, names: Sequence[str]) -> dict[str, float]:
+        """Each parameter of ``names`` the vehicle answers PARAM_REQUEST_READ for (asked up to
+        ``PARAM_TRIES`` times each: a request or its answer may be lost), with its value."""
+        values: dict[str, float] = {}
+        for name in names:
+            for _ in range(PARAM_TRIES):
+                if (value := await self._read_parameter(name)) is not None:
+                    values[name] = value
+                    break
+        return values
+
     # ------------------------------------------------------------ the backend's part
+    @abc.abstractmethod
+    async def _read_parameter(self, name: str) -> float | None:
+        """PARAM_REQUEST_READ for ``name``: its PARAM_VALUE's value, None if none came in time."""
+
     @abc.abstractmethod
     async def _order(self, label: str, command: Command, params: tuple[float, ...]) -> int:
         """Send ``command`` and await its ACK (VehicleCommandRejected unless ACCEPTED); returns the

@@ -13,7 +13,7 @@ import collections
 import enum
 import itertools
 import logging
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -270,6 +270,9 @@ class VehicleLink(SetpointSink, Protocol):
     async def land(self) -> None: ...
 
     async def close(self) -> None: ...
+
+    async def read_parameters(self, names: Sequence[str]) -> dict[str, float]:
+        """Each parameter of ``names`` the vehicle answers PARAM_REQUEST_READ for, with its value."""
 
     def last_global(self) -> GeoPoint | None: ...
 

@@ -213,6 +213,15 @@ class PymavlinkLink(ConfirmedCommands):
     async def _order(self, label: str, command: Command, params: tuple[float, ...]) -> int:
         return await self.command(command, *params, name=label)
 
+    async def _read_parameter(self, name: str) -> float | None:
+        self._check_alive()
+        answer = self._waiters.expect("PARAM_VALUE", lambda m: m.param_id == name)
+        self._send(self._enc.param_request_read_encode(self.sysid or 0, self.compid, name.encode(), -1))
+        try:
+            return float((await self._waiters.wait(answer, self.ack_timeout)).param_value)
+        except TimeoutError:
+            return None
+
     async def _await_verdict(self, expect: Expectation, seen: int) -> Verdict:
         """Each HEARTBEAT within ``heartbeat_timeout`` of the last, until the verdict is in."""
         while (verdict := self.session.verdict(expect, seen)) is Verdict.PENDING:

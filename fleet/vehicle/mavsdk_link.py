@@ -80,6 +80,7 @@ from fleet.vehicle.mavsdk_messages import (
     command_long,
     inbound,
     mavsdk_url,
+    param_request_read,
     setpoint,
     settle,
 )
@@ -126,6 +127,7 @@ class MavsdkLink(ConfirmedCommands):
         self._connection: Any = None  #: MAVSDK's handle of our connection
         self._reopened_at = -math.inf  #: the last attempt to open a silent serial link again
         self._action: Any = None
+        self._parameters: dict[str, float] = {}  #: PARAM_VALUEs heard, by name
         self._offboard: Any = None
         self._telemetry: Any = None
         self._direct: Any = None
@@ -163,7 +165,7 @@ class MavsdkLink(ConfirmedCommands):
                                                                                           Autopilot.OTHER)
             for kind, handler in (("HEARTBEAT", self._on_heartbeat), ("COMMAND_ACK", self._on_message),
                                   ("STATUSTEXT", self._on_message), ("SYS_STATUS", self._keep_direct),
-                                  ("EKF_STATUS_REPORT", self._keep_direct)):
+                                  ("EKF_STATUS_REPORT", self._keep_direct), ("PARAM_VALUE", self._on_parameter)):
                 handle = self._direct.subscribe_message(kind, self._handler(handler))
                 self._subscriptions.append((self._direct.unsubscribe_message, handle))
             for name in TELEMETRY:
@@ -251,6 +253,14 @@ class MavsdkLink(ConfirmedCommands):
         """MAVSDK's offboard start (its answer is the DO_SET_MODE's ACK); the HEARTBEATs heard by then."""
         await self._call(label, self._offboard.start_async, OffboardError, Command.DO_SET_MODE)
         return self.heartbeats
+
+    async def _read_parameter(self, name: str) -> float | None:
+        """Through MavlinkDirect: MAVSDK's Param plugin only blocks."""
+        self._check_alive()
+        self._parameters.pop(name, None)
+        self._direct.send_message(param_request_read(self.sysid or 0, name))
+        await self._updates.until(lambda: name in self._parameters, self.command_timeout)
+        return self._parameters.get(name)
 
     async def command(self, label: str, command: int, *params: float) -> None:
         """COMMAND_LONG through MavlinkDirect; VehicleCommandRejected unless the ACK says ACCEPTED."""
@@ -394,6 +404,12 @@ class MavsdkLink(ConfirmedCommands):
     def _keep_direct(self, msg: MavlinkMessage) -> None:
         if msg.component_id == 1:
             self._keep(msg.message_name, json.loads(msg.fields_json))
+
+    def _on_parameter(self, msg: MavlinkMessage) -> None:
+        if msg.component_id == 1:
+            fields = json.loads(msg.fields_json)
+            self._parameters[str(fields["param_id"])] = float(fields["param_value"])
+            self._updates.notify()
 
     def _on_message(self, msg: MavlinkMessage) -> None:
         """A COMMAND_ACK or a STATUSTEXT."""

@@ -1,6 +1,6 @@
 """What the MAVSDK backend builds for MAVSDK: its connection strings, and the MAVLink messages it
 sends through MavlinkDirect (COMMAND_LONG, and ArduPilot's position setpoints) as JSON fields; and
-the session's messages it reads from MavlinkDirect's JSON (:func:`inbound`)."""
+the session's messages it reads from MavlinkDirect's JSON (:func:`inbound`); PARAM_REQUEST_READ too."""
 
 from __future__ import annotations
 
@@ -51,6 +51,13 @@ def command_long(sysid: int, command: int, params: tuple[float, ...]) -> Mavlink
               # JSON has no NaN: MavlinkDirect sends null as NaN (PX4: "unset")
               **{f"param{i + 1}": None if math.isnan(v) else v for i, v in enumerate(p)}}
     return MavlinkMessage(message_name="COMMAND_LONG", target_system_id=sysid, target_component_id=1,
+                          fields_json=json.dumps(fields))
+
+
+def param_request_read(sysid: int, name: str) -> MavlinkMessage:
+    """PARAM_REQUEST_READ of parameter ``name`` from the autopilot of ``sysid`` (by name: index -1)."""
+    fields = {"target_system": sysid, "target_component": 1, "param_id": name, "param_index": -1}
+    return MavlinkMessage(message_name="PARAM_REQUEST_READ", target_system_id=sysid, target_component_id=1,
                           fields_json=json.dumps(fields))
 
 

@@ -161,6 +161,26 @@ def test_an_agent_with_its_key_file_flies_a_signed_sim_vehicle(ws_file: Path, tm
     assert codes == [0, 0], log.read_text(errors="replace")
 
 
+def test_an_agent_refuses_a_vehicle_set_slower_than_the_workspace_naming_the_parameter(ws_file: Path) -> None:
+    """The workspace's ArduCopters at 6 times real time accelerate at 90 m/s² on the wall clock: its
+    lambda counts on it. A vehicle whose WPNAV_ACCEL was set by hand to 1 m/s² (36 at that speedup) is
+    refused once connected, its agent exiting with the parameter named."""
+    base, listen = free_udp_base(1), free_port(socket.SOCK_STREAM)
+    sim = subprocess.Popen([*DRONA, "sim-vehicle", "--workspace", str(ws_file), "--base-port", str(base),
+                            "--speedup", "6", "--ready-after", "0.5", "--param", "WPNAV_ACCEL=100"],
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        agent = subprocess.run([*DRONA, "agent", "--workspace", str(ws_file), "--drone", "d1",
+                                "--vehicle", f"udpin://127.0.0.1:{base}", "--fleet", f"slow-{listen}",
+                                "--listen", f"tcp/127.0.0.1:{listen}"], capture_output=True, text=True, timeout=60)
+    finally:
+        sim.send_signal(signal.SIGINT)
+        _wait(sim)
+    assert agent.returncode == 2, agent.stderr[-2000:]
+    assert ("drone d1: its vehicle flies less than the workspace's vehicle limits, which lambda is derived from: "
+            "WPNAV_ACCEL 100 gives 36, under the workspace's vehicle.accel_m_s2 90") in agent.stderr, agent.stderr
+
+
 def _wait(process: subprocess.Popen[bytes]) -> int | None:
     try:
         return process.wait(15)
