@@ -17,6 +17,7 @@ SQLite's in ``api.store.sqlite_errors``. The whole tree (``tests/drona_gcs/test_
     ├── Violation                 a monitor of the systematic tester found a bug (verify.monitors)
     ├── VehicleError              the vehicle link failed
     │   └── VehicleCommandRejected(result, reason)
+    ├── VehicleLimitsError        a vehicle is set to fly less than the workspace's vehicle limits
     ├── LinkUrlError              a vehicle connection string is wrong (fleet.vehicle.urls)
     ├── SigningKeyError           a MAVLink signing key is unusable (fleet.vehicle.signing)
     ├── TransportError            Zenoh failed: configure, open, declare, put, ask (fleet.transport.node)
