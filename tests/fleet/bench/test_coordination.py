@@ -19,6 +19,7 @@ from drona_gcs.workspace_files import workspace_from_mapping
 from fleet.bench import BenchError
 from fleet.bench.coordination import audit_records, bench_workspace, default_processes, gather_records
 from fleet.bench.latency import PlanLatencies, _keep_busy, between_rounds
+from fleet.cli import main
 from fleet.transport.fleet_client import FleetClient
 from fleet.transport.keys import FleetKeys
 from fleet.transport.wire import DroneState
@@ -173,3 +174,14 @@ def test_a_short_run_with_a_drone_killed_gives_one_strict_json_row_and_records_t
     assert flown["d4"] < others - 10, flown  # 13 s (26 steps) of mail after the kill
     assert truth["d4"] >= others, truth
     assert done.stderr.count(", safe, 0 jumps") == 2, done.stderr[-2000:]
+
+
+@pytest.mark.parametrize(("flags", "said"), [
+    (["--agents", "2", "--fault", "kill"], "--fault needs --agents >= 3"),
+    (["--seconds", "40", "--fault", "vehicle", "--fault-at", "45"], "the fault over (--fault-at, and --fault-for"),
+    (["--seconds", "60", "--fault", "partition", "--fault-at", "20", "--fault-for", "40"], "before --seconds (60)"),
+])
+def test_a_fault_that_cannot_strike_within_the_run_is_refused_before_anything_starts(
+        flags: list[str], said: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "coordination", *flags]) == 2
+    assert said in capsys.readouterr().err
