@@ -265,6 +265,7 @@ async def _connect(host: Host, frame: GeoFrame, name: str, signing_key: bytes | 
         link = open_link(settings, url, frame, signing_key)
         try:
             await link.connect()
+            await _check_limits(link, ws, name)  # a VehicleLimitsError is not retried: the vehicle must be set
             break
         except VehicleError as exc:
             await link.close()
@@ -274,11 +275,6 @@ async def _connect(host: Host, frame: GeoFrame, name: str, signing_key: bytes | 
         except BaseException:
             await link.close()
             raise
-    try:
-        await _check_limits(link, ws, name)
-    except BaseException:
-        await link.close()
-        raise
     with contextlib.suppress(VehicleError):  # not ready yet: it joins waiting for its position
         await link.wait_ready(settings.ready_timeout_s)
     return link

@@ -144,9 +144,11 @@ def _config(args: argparse.Namespace, workspace: Workspace | None = None) -> Fle
         limits = replace(starting_limits(VehicleConfig(personality=personality)), max_speed=args.max_speed)
     # The workspace's vehicle limits are set on the vehicles as an operator would, before any by hand; they
     # are in the fleet's seconds, which a sped-up vehicle makes shorter.
-    tuned = () if workspace is None else limit_params(
-        workspace.vehicle.sped_up(1 / args.speedup) if args.max_speed is None
-        else replace(workspace.vehicle.sped_up(1 / args.speedup), speed_m_s=args.max_speed), personality)
+    tuned: tuple[tuple[str, float], ...] = ()
+    if workspace is not None:
+        wanted = workspace.vehicle.sped_up(1 / args.speedup)
+        tuned = limit_params(wanted if args.max_speed is None else replace(wanted, speed_m_s=args.max_speed),
+                             personality)
     vehicle = VehicleConfig(personality=personality, limits=limits, ready_after_s=args.ready_after,
                             spool_up_s=args.spool_up, auto_disarm_s=args.auto_disarm, battery_pct=args.battery,
                             params=(*tuned, *(_param(text) for text in args.param)))
