@@ -84,7 +84,7 @@ class DroneStack(DroneCore):
     """One drone's stack: its machines (:class:`DroneCore`) and the inputs the runtime feeds it."""
 
     def receive(self, message: Message) -> list[DroneAction]:
-        self.clock.observe(task_of(message).stamp)
+        self.clock.observe(task_of(message))
         if isinstance(message, ReqForCurrentTraj) and message.clear:
             self._make_way(message.clear, message.trajectory.last)
         return self._protocol(message)

@@ -1,56 +1,79 @@
 """Task ids and the messages drones exchange: frozen dataclasses that validate themselves.
 
 **Task ids** are globally unique and totally ordered without a central
-counter: ``(stamp, drone, seq)`` where ``stamp`` comes from the drone's hybrid
-logical clock (:class:`HybridClock`), ``drone`` breaks ties between drones
-and ``seq`` between tasks of one drone. The original DRONA used a
-process-global counter, which only works when every robot runs in one process.
+counter: ``(stamp, tick, drone, seq)`` where ``stamp`` and ``tick`` come from
+the drone's hybrid logical clock (:class:`HybridClock`), ``drone`` breaks ties
+between drones and ``seq`` between tasks of one drone. The original DRONA used
+a process-global counter, which only works when every robot runs in one process.
 A lower id is a higher priority (the paper's rule).
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
+from typing import Final
 
 from drona_gcs.errors import ProtocolViolation
 from drona_gcs.motion import Trajectory
 from drona_gcs.workspace import Cell
 
+#: The most ids of one stamp: past it a clock moves its stamp on a step instead (only a forged id comes near).
+TICK_LIMIT: Final = 2**32
 
-@dataclass(frozen=True, order=True)
+
+@functools.total_ordering
+@dataclass(frozen=True)
 class TaskId:
-    stamp: int
+    stamp: int  #: the largest physical step its maker had seen
     drone: str
     seq: int
     #: the incarnation of the drone's agent that made it (a restart counts afresh): see :meth:`newer_than`
     epoch: int = 0
+    tick: int = 0  #: orders ids of one stamp: past every id its maker had seen with that stamp
+
+    def __lt__(self, other: object) -> bool:
+        if not isinstance(other, TaskId):
+            return NotImplemented
+        return self._rank() < other._rank()
+
+    def _rank(self) -> tuple[int, int, str, int, int]:
+        return self.stamp, self.tick, self.drone, self.seq, self.epoch
 
     def newer_than(self, other: TaskId) -> bool:
         """Made after ``other`` by the same drone: by a later incarnation, or later in the same one. Stamps
         alone cannot tell: a restarted agent's clock may be behind the stamps its old one had seen."""
-        return (self.epoch, self.stamp, self.seq) > (other.epoch, other.stamp, other.seq)
+        return (self.epoch, self.seq) > (other.epoch, other.seq)
 
     def __str__(self) -> str:
-        return f"{self.stamp}.{self.drone}.{self.seq}"
+        tick = f"+{self.tick}" if self.tick else ""
+        return f"{self.stamp}{tick}.{self.drone}.{self.seq}"
 
 
 class HybridClock:
-    """A hybrid logical clock: stamps follow physical time but never go backwards,
-    and jump past every stamp seen from a peer, so ids stay causally ordered."""
+    """A hybrid logical clock (Kulkarni et al., 2014): ``stamp`` is the largest physical step seen, here
+    or in a peer's id, so it never runs ahead of the fleet's clocks; ``tick`` counts ids made since it
+    last moved, so every id outranks every id seen before it (causal order)."""
 
     def __init__(self, drone: str, epoch: int = 0) -> None:
         self.drone = drone
         self.epoch = epoch  #: this agent's incarnation: larger at each restart
-        self.last = 0
+        self.stamp = 0
+        self.tick = 0
         self.seq = 0
 
-    def observe(self, stamp: int) -> None:
-        self.last = max(self.last, stamp)
+    def observe(self, seen: TaskId) -> None:
+        self.stamp, self.tick = max((self.stamp, self.tick), (seen.stamp, seen.tick))
 
     def next_id(self, physical: int) -> TaskId:
-        self.last = max(self.last + 1, physical)
+        if physical > self.stamp:
+            self.stamp, self.tick = physical, 0
+        elif self.tick < TICK_LIMIT:
+            self.tick += 1
+        else:
+            self.stamp, self.tick = self.stamp + 1, 0
         self.seq += 1
-        return TaskId(self.last, self.drone, self.seq, self.epoch)
+        return TaskId(self.stamp, self.drone, self.seq, self.epoch, self.tick)
 
 
 @dataclass(frozen=True)

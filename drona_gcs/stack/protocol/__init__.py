@@ -11,7 +11,7 @@ answered at once with my current location; otherwise the requester waits in
 my location; executing, with my trajectory. What the paper leaves open is
 settled here, and one message it sends is saved (the second point):
 
-* **Task ids** are ``(HLC stamp, drone, seq)`` (see :mod:`.messages`): globally
+* **Task ids** are ``(HLC stamp and tick, drone, seq)`` (see :mod:`.messages`): globally
   unique and totally ordered with no central counter, so ties cannot happen.
 * **A request carries the requester's trajectory, and is its answer to the
   drones before it in line.** A drone ahead of me in line (a lower task id)

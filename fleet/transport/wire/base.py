@@ -9,7 +9,7 @@ import msgspec
 
 from drona_gcs.errors import DronaError
 from drona_gcs.motion import Trajectory
-from drona_gcs.stack.messages import TaskId
+from drona_gcs.stack.messages import TICK_LIMIT, TaskId
 
 #: 2: a Zenoh message may carry several envelopes, one per line (fleet.transport.node);
 #: 3: ``cur_traj_to``, one answer to several drones;
@@ -24,7 +24,8 @@ from drona_gcs.stack.messages import TaskId
 #: 10: ``held`` lists mail handed back that no peer holds yet, and a status says ``handed_back``; ``refuse``.
 #: 11: ``mail_clear``, the service's clearance to take a mail on board.
 #: 13: a host's drones send to one drone on ``proto/<host>/<to>``, several messages in one.
-VERSION: Final = 15
+#: 16: task ids carry their hybrid clock's ``tick``.
+VERSION: Final = 16
 
 CellList = Annotated[list[int], msgspec.Meta(min_length=3, max_length=3)]
 #: A mail id is a Zenoh key chunk (mail/status/<id>); \Z, not $: "$" would let a final newline through.
@@ -57,13 +58,15 @@ class WireTaskId(WireStruct, frozen=True, kw_only=True):
     drone: str
     seq: int
     epoch: int = 0  #: the incarnation of the agent that made it
+    tick: Annotated[int, msgspec.Meta(ge=0, le=TICK_LIMIT)] = 0  #: the hybrid clock's count within one stamp
 
     @classmethod
     def of(cls, task_id: TaskId) -> WireTaskId:
-        return cls(stamp=task_id.stamp, drone=task_id.drone, seq=task_id.seq, epoch=task_id.epoch)
+        return cls(stamp=task_id.stamp, drone=task_id.drone, seq=task_id.seq, epoch=task_id.epoch,
+                   tick=task_id.tick)
 
     def core(self) -> TaskId:
-        return TaskId(self.stamp, self.drone, self.seq, self.epoch)
+        return TaskId(self.stamp, self.drone, self.seq, self.epoch, self.tick)
 
 
 class WireTrajectory(WireStruct, frozen=True, kw_only=True):

@@ -32,7 +32,7 @@ Body = (ReqTraj | CurTraj | CurTrajTo | Propose | Ack | Refuse | Decide | PlanAn
 
 
 class Envelope(WireStruct, frozen=True, kw_only=True):
-    v: Literal[15] = VERSION
+    v: Literal[16] = VERSION
     sender: Annotated[str, msgspec.Meta(min_length=1)]
     sent_at: float
     body: Body
@@ -42,8 +42,8 @@ _ENCODER = msgspec.json.Encoder()
 _DECODER = msgspec.json.Decoder(Envelope)
 
 
-#: How far ahead of the receiver's step a task id's stamp may be. Stamps follow the sender's step (a hybrid
-#: clock: a burst of ids in one step runs a few ahead); a stamp far beyond would drag every clock it reaches.
+#: How far ahead of the receiver's step a task id's stamp may be. Stamps are the largest step a sender has
+#: seen (a hybrid clock): within the fleet's skew; a stamp far beyond would drag every clock it reaches.
 STAMP_AHEAD_STEPS: Final = 1000
 
 #: Envelopes decoded, and bodies found within bounds, remembered for the drones of a process.

@@ -78,7 +78,7 @@ class ProtocolCluster:
     def deliver(self, index: int = 0) -> tuple[str, str, Message]:
         """Deliver the in-flight message at ``index`` (0: the oldest) and queue what it causes."""
         sent = self.net.take(self.net.inflight[index].seq)
-        self.clocks[sent.to].observe(task_of(sent.message).stamp)
+        self.clocks[sent.to].observe(task_of(sent.message))
         self._handle(sent.to, sent.message)
         return (sent.sender, sent.to, sent.message)
 

@@ -10,6 +10,7 @@ import pytest
 
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.messages import (
+    TICK_LIMIT,
     CurrentTraj,
     HybridClock,
     PlanAck,
@@ -61,20 +62,45 @@ def test_task_ids_are_unique_and_totally_ordered_across_drones() -> None:
 
 def test_ids_follow_physical_time_and_never_go_back() -> None:
     clock = HybridClock("a")
-    assert clock.next_id(100).stamp == 100
-    assert clock.next_id(50).stamp == 101
-    assert clock.next_id(200).stamp == 200
+    first = clock.next_id(100)
+    behind = clock.next_id(50)  # physical time stepped back: the stamp stays, the tick counts on
+    assert (first.stamp, first.tick) == (100, 0) and (behind.stamp, behind.tick) == (100, 1) and behind > first
+    assert (clock.next_id(200).stamp, clock.tick) == (200, 0)
 
 
-def test_an_observed_stamp_makes_later_ids_rank_below_it() -> None:
+def test_an_observed_id_makes_later_ids_rank_below_it() -> None:
     a, b = HybridClock("a"), HybridClock("b")
     seen = a.next_id(40)
-    b.observe(seen.stamp)
+    b.observe(seen)
     later = b.next_id(0)
-    assert later.stamp > seen.stamp
+    assert later.stamp == seen.stamp  # no further than the stamp seen: the tick orders them
     assert later > seen and later > TaskId(seen.stamp, "zzz", 10**6)
-    b.observe(3)  # an older stamp does not pull the clock back
+    b.observe(TaskId(3, "c", 1))  # an older id does not pull the clock back
     assert b.next_id(0) > later
+
+
+def test_stamps_never_run_ahead_of_the_largest_physical_step() -> None:
+    """Every drone sees every id: a fleet making many ids a step must not push stamps past its clocks
+    (they would pass the bound on stamps ahead, and every message would then be refused as forged)."""
+    clocks = [HybridClock(f"d{n}") for n in range(8)]
+    last: TaskId | None = None
+    for step in range(50):
+        for _burst in range(5):
+            for clock in clocks:
+                if last is not None:
+                    clock.observe(last)
+                made = clock.next_id(step)
+                assert last is None or made > last  # each after the last it saw
+                assert made.stamp == step
+                last = made
+
+
+def test_a_tick_at_its_limit_moves_the_stamp_on() -> None:
+    clock = HybridClock("a")
+    forged = TaskId(7, "z", 1, tick=TICK_LIMIT)
+    clock.observe(forged)
+    after = clock.next_id(0)
+    assert (after.stamp, after.tick) == (8, 0) and after > forged
 
 
 # ====================================================== a clock beyond the fleet's bound

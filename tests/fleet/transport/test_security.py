@@ -223,7 +223,7 @@ def test_a_peer_message_out_of_bounds_is_refused_with_one_log_line(what: str, ca
         for _ in range(1000):
             agent._on_protocol(KEYS.answers("d2"), payload)
     assert stack.protocol.known["d2"] == before
-    assert stack.clock.last < 1000  # the task-id clock was not dragged ahead
+    assert stack.clock.stamp < 1000  # the task-id clock was not dragged ahead
     refused = [r for r in caplog.records if "dropped a message" in r.getMessage()]
     assert len(refused) == 1, [r.getMessage() for r in refused]
     fine = answers(Trajectory(3, ((7, 0, 0), (6, 0, 0))), {"d1": TaskId(5, "d1", 1)})

@@ -67,11 +67,14 @@ def envelope(body: dict[str, object], **over: object) -> bytes:
 
 @pytest.mark.parametrize("payload, problem", [
     (b"not json", "JSON is malformed"),
-    (b'{"v": 15, "sender": "d\xff", "sent_at": 1.0, "body": {"kind": "clock_ping"}}', "UTF-8"),
+    (b'{"v": 16, "sender": "d\xff", "sent_at": 1.0, "body": {"kind": "clock_ping"}}', "UTF-8"),
     (envelope({"kind": "clock_ping"}, v=3), "Invalid enum value 3 - at `$.v`"),
     (envelope({"kind": "teleport"}), "Invalid value 'teleport' - at `$.body.kind`"),
     (envelope({"kind": "req_traj", "task_id": {"stamp": "12", "drone": "d1", "seq": 1}}),
      "Expected `int`, got `str` - at `$.body.task_id.stamp`"),
+    (envelope({"kind": "cur_traj", "in_reply_to": {"stamp": 1, "drone": "d1", "seq": 1, "tick": 2**32 + 1},
+               "trajectory": {"start_step": 3, "cells": [[1, 1, 0]]}}),
+     "at `$.body.in_reply_to.tick`"),  # a hybrid clock moves its stamp on before this
     (envelope({"kind": "cur_traj_to", "replies": {}, "trajectory": {"start_step": 3, "cells": [[1, 1, 0]]}}),
      "at `$.body.replies`"),
     (envelope({"kind": "req_traj", "task_id": {"stamp": 1, "drone": "d1", "seq": 1}, "extra": 1}),
@@ -107,12 +110,17 @@ def test_a_payload_handed_to_every_drone_of_a_process_is_validated_once() -> Non
             decode(broken)
 
 
+def test_a_task_ids_tick_travels() -> None:
+    proposal = PlanProposal("d1", TaskId(40, "d1", 3, epoch=2, tick=17), Trajectory(40, ((1, 2, 0),)))
+    assert to_core(decode(encode("d1", 5.5, from_core(proposal))), "d2") == proposal
+
+
 def test_the_wire_format_is_the_documented_json() -> None:
     """Other tools read these bytes: the envelope's fields in order, the body tagged by its kind."""
     request = ReqForCurrentTraj(TASK, "d1", Trajectory(40, ((1, 2, 0), (2, 2, 0))), ("d2",))
     payload = encode("d1", 5.5, from_core(request))
-    assert payload == (b'{"v":15,"sender":"d1","sent_at":5.5,"body":{"kind":"req_traj",'
-                       b'"task_id":{"stamp":%d,"drone":"%s","seq":%d,"epoch":0},'
+    assert payload == (b'{"v":16,"sender":"d1","sent_at":5.5,"body":{"kind":"req_traj",'
+                       b'"task_id":{"stamp":%d,"drone":"%s","seq":%d,"epoch":0,"tick":0},'
                        b'"trajectory":{"start_step":40,"cells":[[1,2,0],[2,2,0]]},"asked":["d2"],"holds":[],"clear":[]}}'
                        % (TASK.stamp, TASK.drone.encode(), TASK.seq))
 
