@@ -198,9 +198,10 @@ class SetpointLoop:
         target that comes while a route is pending. The vehicle flies the plan's cells in order,
         each as soon as it is in the last, late (and flagged lagging) rather than off the path, and
         on a straight line too: sent further, it would reach its cells earlier than a peer behind
-        it was told. Where telemetry puts the vehicle in no cell (no position yet, or still below
-        the grid on its climb) only a stall counts: it is flagged lagging, and a route it could
-        never be seen to fly would only grow.
+        it was told. Under the grid, still climbing, it is in the cell over it (as its flight record
+        has it). Where telemetry puts the vehicle in no cell (no position yet, or outside the grid)
+        only a stall counts: it is flagged lagging, and a route it could never be seen to fly would
+        only grow.
         """
         now = self.clock()
         previous = self.came_from = self.target
@@ -280,9 +281,10 @@ class SetpointLoop:
         return True
 
     def _here(self) -> Cell | None:
-        """The cell telemetry puts the vehicle in (None: no position yet, or outside the grid)."""
+        """The cell telemetry puts the vehicle in, as the flight record does: under the grid (climbing
+        late, landing), the cell over it. None: no position yet, or outside the grid."""
         position = self.sink.last_position()
-        return None if position is None else self.frame.locate(position.ned).cell
+        return None if position is None else self.frame.recorded_cell(position.ned)
 
     def _report(self, step: int, previous: Cell, target: Cell, late: float) -> StepReport:
         """At boundary ``step`` the vehicle should have reached ``previous`` (last step's cell)."""

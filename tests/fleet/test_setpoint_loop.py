@@ -386,6 +386,31 @@ def test_a_vehicle_climbing_under_its_lowest_layer_cell_is_in_it(layer: int, on_
     assert sample is not None and (sample.late_s is not None) == on_time, sample
 
 
+def test_a_vehicle_still_climbing_when_its_plan_turns_flies_the_turns_cell_first() -> None:
+    """Still under the grid two steps into its plan (a late take-off), a vehicle over its start cell is
+    two cells, across a corner, from its new target: it is sent through the cell between (the one its
+    plan left), not across the corner, and on once over that cell, though still under the grid."""
+    ws = Workspace.build(size=(4, 4, 1), cell_size_m=2.0, tau_s=1.0)
+    frame = GeoFrame(ws)
+    vehicle = FakeVehicle(frame, at=0.0)
+    now = [0.0]
+
+    def climbing_over(cell: Cell) -> Ned:
+        centre = frame.cell_to_ned(cell)
+        return Ned(centre.north, centre.east, -0.3)
+
+    vehicle.where = climbing_over((1, 1, 0))
+    executor = PlanExecutor((1, 1, 0))
+    executor.start(Trajectory(0, ((1, 1, 0), (1, 2, 0), (2, 2, 0))))
+    loop = SetpointLoop(vehicle, frame, executor, 0.0, 1.0, lambda: now[0])
+    for step in range(3):
+        now[0] = float(step)
+        loop.take(step, now[0])
+    assert (loop.target, loop.aim) == ((2, 2, 0), (1, 2, 0))
+    vehicle.where = climbing_over((1, 2, 0))
+    assert loop.advance() and loop.aim == (2, 2, 0)
+
+
 def test_a_tick_that_takes_time_does_not_date_the_arrival_it_looks_for_too_early() -> None:
     """The drone's tick (its planner) takes 0.2 s at boundary 2; the vehicle reached (1,0,0) 0.15 s
     into the step. A look dated before the tick put the arrival on the boundary: lateness lost, and
