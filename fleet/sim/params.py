@@ -56,6 +56,8 @@ class Setting(enum.Enum):
 
     MAX_SPEED = "max_speed"  #: m/s horizontal (Limits.max_speed)
     MAX_ACCEL = "max_accel"  #: m/s² (Limits.max_accel)
+    MAX_ACCEL_UP = "max_accel_up"  #: m/s², vertical (Limits.max_accel_up)
+    MAX_ACCEL_DOWN = "max_accel_down"  #: m/s², vertical (Limits.max_accel_down)
     CLIMB_RATE = "climb_rate"  #: m/s (Limits.climb_rate)
     DESCENT_RATE = "descent_rate"  #: m/s (Limits.descent_rate)
     LAND_SPEED = "land_speed"  #: m/s, a landing's final descent (Limits.land_speed)
@@ -67,12 +69,13 @@ class Setting(enum.Enum):
     GUIDED_TIMEOUT = "guided_timeout"  #: s before an ArduCopter GUIDED velocity setpoint stops
     SYSTEM_ID = "system_id"  #: reported only: both autopilots take a new id at their next boot
     SHAPING_JERK = "shaping_jerk"  #: m/s³, ArduCopter's PSC_JERK_XY: its position gain is jerk / (2 accel)
+    SHAPING_JERK_Z = "shaping_jerk_z"  #: m/s³, ArduCopter's PSC_JERK_Z: its vertical shaping
     BATTERY_CAPACITY = "battery_capacity"  #: mAh, the pack the battery monitor counts down from
     SPEEDUP = "speedup"  #: reported only: simulated seconds per wall-clock second (ArduPilot SITL's SIM_SPEEDUP)
 
 
-LIMIT_SETTINGS = (Setting.MAX_SPEED, Setting.MAX_ACCEL, Setting.CLIMB_RATE, Setting.DESCENT_RATE,
-                  Setting.LAND_SPEED)
+LIMIT_SETTINGS = (Setting.MAX_SPEED, Setting.MAX_ACCEL, Setting.MAX_ACCEL_UP, Setting.MAX_ACCEL_DOWN,
+                  Setting.CLIMB_RATE, Setting.DESCENT_RATE, Setting.LAND_SPEED)
 
 #: Settings one autopilot has no parameter for (it never uses them), unless the config gives them.
 FALLBACK = {Setting.TAKEOFF_ALT: 2.5, Setting.OFFBOARD_TIMEOUT: 1.0, Setting.GUIDED_TIMEOUT: 3.0,
@@ -95,7 +98,9 @@ ARDUCOPTER_PARAMS = (
     Param("WPNAV_SPEED_UP", 250, REAL32, (Setting.CLIMB_RATE,), CM),
     Param("WPNAV_SPEED_DN", 150, REAL32, (Setting.DESCENT_RATE,), CM),
     Param("WPNAV_ACCEL", 250, REAL32, (Setting.MAX_ACCEL,), CM),
+    Param("WPNAV_ACCEL_Z", 100, REAL32, (Setting.MAX_ACCEL_UP, Setting.MAX_ACCEL_DOWN), CM),
     Param("PSC_JERK_XY", 5.0, REAL32, (Setting.SHAPING_JERK,)),
+    Param("PSC_JERK_Z", 5.0, REAL32, (Setting.SHAPING_JERK_Z,)),
     Param("LAND_SPEED", 50, INT16, (Setting.LAND_SPEED,), CM),
     Param("RTL_ALT", 1500, INT32, (Setting.RTL_ALT,), CM),
     Param("DISARM_DELAY", 10, INT8, (Setting.PREFLIGHT_DISARM, Setting.LANDED_DISARM)),
@@ -116,6 +121,8 @@ PX4_PARAMS = tuple(sorted((
     Param("MPC_XY_VEL_MAX", 12.0, REAL32, (Setting.MAX_SPEED,)),
     Param("MPC_XY_CRUISE", 5.0),  # AUTO missions' speed; offboard setpoints fly up to MPC_XY_VEL_MAX
     Param("MPC_ACC_HOR", 3.0, REAL32, (Setting.MAX_ACCEL,)),
+    Param("MPC_ACC_UP_MAX", 4.0, REAL32, (Setting.MAX_ACCEL_UP,)),
+    Param("MPC_ACC_DOWN_MAX", 3.0, REAL32, (Setting.MAX_ACCEL_DOWN,)),
     Param("MPC_Z_VEL_MAX_UP", 3.0, REAL32, (Setting.CLIMB_RATE,)),
     Param("MPC_Z_VEL_MAX_DN", 1.5, REAL32, (Setting.DESCENT_RATE,)),
     Param("MPC_LAND_SPEED", 0.7, REAL32, (Setting.LAND_SPEED,)),
@@ -160,8 +167,10 @@ def limit_params(limits: VehicleLimits, personality: Personality) -> tuple[tuple
     (those its table has: PX4's has no jerk)."""
     wanted = {Setting.MAX_SPEED: limits.speed_m_s, Setting.MAX_ACCEL: limits.accel_m_s2,
               Setting.SHAPING_JERK: limits.jerk_m_s3, Setting.CLIMB_RATE: limits.climb_m_s,
-              Setting.DESCENT_RATE: limits.descent_m_s}
-    tuned = [(p.name, wanted[s] / p.scale) for p in TABLES[personality.name] for s in p.drives if s in wanted]
+              Setting.DESCENT_RATE: limits.descent_m_s, Setting.MAX_ACCEL_UP: limits.accel_z_m_s2,
+              Setting.MAX_ACCEL_DOWN: limits.accel_z_m_s2, Setting.SHAPING_JERK_Z: limits.jerk_z_m_s3}
+    tuned = list({p.name: wanted[s] / p.scale for p in TABLES[personality.name] for s in p.drives
+                  if s in wanted}.items())
     if personality is ARDUPILOT:  # the lean angle and the attitude controller must allow them
         lean = math.degrees(math.atan(limits.accel_m_s2 / GRAVITY))
         tuned.append(("ANGLE_MAX", float(max(3000, math.ceil(lean) * 100))))
@@ -266,8 +275,11 @@ class ParamStore:
                                              self.value("ATC_ACCEL_P_MAX"))
             values[Setting.MAX_ACCEL.value] = accel
             gain = jerk / (2 * accel)
+        jerk_z = math.inf
+        if Setting.SHAPING_JERK_Z in self._driver:  # ArduCopter shapes its vertical target too
+            jerk_z = max(MIN_LIMIT, self.setting(Setting.SHAPING_JERK_Z))
         return Limits(**values, land_speed_high_alt=self._shape.land_speed_high_alt, gain=gain,
-                      gain_z=self._shape.gain_z, jerk=jerk)
+                      gain_z=self._shape.gain_z, jerk=jerk, jerk_z=jerk_z)
 
     def _bytewise(self, p: Param) -> bool:
         return p.type != REAL32 and self.personality is not ARDUPILOT

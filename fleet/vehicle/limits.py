@@ -36,9 +36,13 @@ LIMIT_PARAMS = {
                           LimitParam("WPNAV_ACCEL", "accel_m_s2", 0.01, 2),
                           LimitParam("PSC_JERK_XY", "jerk_m_s3", 1.0, 3),
                           LimitParam("WPNAV_SPEED_UP", "climb_m_s", 0.01),
-                          LimitParam("WPNAV_SPEED_DN", "descent_m_s", 0.01)),
+                          LimitParam("WPNAV_SPEED_DN", "descent_m_s", 0.01),
+                          LimitParam("WPNAV_ACCEL_Z", "accel_z_m_s2", 0.01, 2),
+                          LimitParam("PSC_JERK_Z", "jerk_z_m_s3", 1.0, 3)),
     Autopilot.PX4: (LimitParam("MPC_XY_VEL_MAX", "speed_m_s"), LimitParam("MPC_ACC_HOR", "accel_m_s2", 1.0, 2),
-                    LimitParam("MPC_Z_VEL_MAX_UP", "climb_m_s"), LimitParam("MPC_Z_VEL_MAX_DN", "descent_m_s")),
+                    LimitParam("MPC_Z_VEL_MAX_UP", "climb_m_s"), LimitParam("MPC_Z_VEL_MAX_DN", "descent_m_s"),
+                    LimitParam("MPC_ACC_UP_MAX", "accel_z_m_s2", 1.0, 2),
+                    LimitParam("MPC_ACC_DOWN_MAX", "accel_z_m_s2", 1.0, 2)),
 }
 
 
