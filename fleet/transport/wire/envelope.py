@@ -11,6 +11,7 @@ from typing import Annotated, Any, Final, Literal, TypeVar
 
 import msgspec
 
+from drona_gcs.stack.messages import TICK_LIMIT
 from fleet.transport.wire.base import VERSION, WireError, WireStruct, WireTaskId, WireTrajectory
 from fleet.transport.wire.protocol import Ack, CurTraj, CurTrajTo, Decide, PlanAnnounce, Propose, Refuse, ReqTraj
 from fleet.transport.wire.queries import (
@@ -89,8 +90,9 @@ class PeerBounds:
                                     f"{self.max_cells}")
                 self._inside(cells)
         for task_id in _task_ids(body):
-            if task_id.stamp > now + STAMP_AHEAD_STEPS:
-                raise WireError(f"task id stamp {task_id.stamp} is {task_id.stamp - now} steps ahead of this "
+            stamp = task_id.stamp + (task_id.tick >= TICK_LIMIT)  # a clock that saw it moves its stamp on
+            if stamp > now + STAMP_AHEAD_STEPS:
+                raise WireError(f"task id stamp {stamp} is {stamp - now} steps ahead of this "
                                 f"clock (at most {STAMP_AHEAD_STEPS})")
 
     def _inside(self, cells: Sequence[tuple[int, int, int]]) -> None:

@@ -10,6 +10,7 @@ import pytest
 
 from drona_gcs.motion import Trajectory
 from drona_gcs.stack.messages import (
+    TICK_LIMIT,
     CurrentTraj,
     Message,
     PlanAck,
@@ -21,7 +22,9 @@ from drona_gcs.stack.messages import (
 )
 from fleet.transport.keys import FleetKeys, check_name
 from fleet.transport.wire import (
+    STAMP_AHEAD_STEPS,
     VERSION,
+    Body,
     MailOrder,
     PeerBounds,
     WireError,
@@ -182,6 +185,20 @@ def test_what_a_proposal_says_its_sender_flies_is_bounded_as_any_trajectory() ->
     with pytest.raises(WireError, match=r"cell \[9, 2, 0\] is outside the 8x8x1 workspace"):
         PeerBounds.of((8, 8, 1), 20).check(body, 40)
     PeerBounds.of((8, 8, 1), 20).check(proposing(proposal, {"d2": TASK}, Trajectory(40, ((7, 2, 0),))), 40)
+
+
+def test_a_tick_at_its_limit_counts_as_the_next_stamp_against_the_bound_ahead() -> None:
+    """A clock that sees an id whose tick is at its limit moves its stamp on a step: at the bound, that
+    id would make honest drones send ids their peers refuse. So the id itself is refused."""
+    bounds, now = PeerBounds.of((8, 8, 1), 20), 100
+
+    def proposal(tick: int) -> Body:
+        task = TaskId(now + STAMP_AHEAD_STEPS, "d1", 1, tick=tick)
+        return decode(encode("d1", 5.5, from_core(PlanProposal("d1", task, Trajectory(42, ((7, 2, 0),)))))).body
+
+    bounds.check(proposal(TICK_LIMIT - 1), now)
+    with pytest.raises(WireError, match="1001 steps ahead"):
+        bounds.check(proposal(TICK_LIMIT), now)
 
 
 def test_a_body_within_bounds_is_checked_once_for_every_drone_but_not_for_other_bounds_or_steps() -> None:
