@@ -139,6 +139,8 @@ class DroneAgent(Tracking, PeerSide):
         self.may_plan = True
         #: why the vehicle is out of its lateness bound (None: within it; see on_sample)
         self.late: str | None = None
+        #: how its autopilot's limits, set in flight, fall short of the workspace's (None: they do not)
+        self.limits_short: str | None = None
         self.on_time_at: int | None = None  #: the last step the vehicle was seen in its cell within lambda
         #: the vehicle came down by itself: its mail is handed back and it starts no task, for good (a
         #: vehicle may be anywhere once down: it rejoins the fleet when its agent is restarted)

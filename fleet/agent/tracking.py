@@ -20,7 +20,8 @@ from fleet.agent.maildesk import MailDesk
 from fleet.agent.vehicle import VehicleSupervisor
 from fleet.agent.watch import Seen, VehicleWatch, Verdict, joined
 from fleet.setpoint_loop import Sample, SetpointLoop, StepReport
-from fleet.vehicle.link import Readiness, VehicleLink
+from fleet.vehicle.limits import shortfalls
+from fleet.vehicle.link import Autopilot, Readiness, VehicleLink
 
 log = logging.getLogger("fleet.agent.drone")  # the agent's logger: its lines keep their name
 
@@ -46,6 +47,7 @@ class Tracking:
     passing: tuple[Cell, ...]
     battery_pct: float
     late: str | None
+    limits_short: str | None
     boundary_late_s: float
     on_time_at: int | None
     down: bool
@@ -115,6 +117,7 @@ class Tracking:
         if self._sent_too_late(report):
             self._late(f"its setpoint for {list(report.target)} went out {report.late_s:.3g} s after step "
                        f"{report.step} began, later than lambda ({self.ws.lateness_s:g} s)")
+        self._judge_limits()
         self._alarm("lag", self._lag(report))
         self._alarm("down", "vehicle: came down while its plan flew (a failsafe or a pilot?); its mail was handed "
                     "back and it starts no task; restart its agent once it is back in service" if self.down else None)
@@ -137,7 +140,8 @@ class Tracking:
             return
         if sample.late_s is not None:
             self.on_time_at = sample.step
-        if self.late is not None and seen == self.stack.executor.cell and self.stack.executor.trajectory is None:
+        if (self.late is not None and self.limits_short is None and seen == self.stack.executor.cell
+                and self.stack.executor.trajectory is None):
             self._on_time_again()  # in the air or landed below it: its vehicle is where its plan ended
         elif self.late is None and sample.late_s is None and self.vehicle.wanted:
             # In the air or not yet: a climb longer than the lead is late too.
@@ -175,6 +179,18 @@ class Tracking:
         log.warning("%s: %s: it holds where its plan ends, and takes no task until it is on time", self.me, self.late)
         self._carry_out(self.stack.tracking_bound(True, f"drone {self.me}'s vehicle is later than lambda",
                                                   self.on_time_at))
+
+    def _judge_limits(self) -> None:
+        """A limit set lower in flight (the autopilot tells every ground station): lambda no longer holds,
+        so the drone is late, and stays out of its bound until the limit is set back."""
+        autopilot = self.link.telemetry().autopilot or Autopilot.OTHER
+        short = shortfalls(autopilot, self.link.parameters_heard(), self.ws.vehicle, unanswered=False)
+        was, self.limits_short = self.limits_short, "; ".join(short) or None
+        if self.limits_short != was:
+            log.warning("%s: its vehicle's limits %s", self.me, self.limits_short or "are back within the workspace's")
+        if self.limits_short is not None and self.late is None and not self.down and not self.watch.lost:
+            self._late(f"its autopilot was set to fly less than the workspace's vehicle limits: {self.limits_short}")
+        self._alarm("limits", None if self.limits_short is None else f"limits: {self.limits_short}")
 
     def _sent_too_late(self, report: StepReport) -> bool:
         """A vehicle sent to its next cell more than lambda into the step cannot be there within lambda:

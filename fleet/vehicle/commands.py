@@ -11,7 +11,7 @@ abstract methods of :class:`ConfirmedCommands`.
 from __future__ import annotations
 
 import abc
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 
 from fleet.vehicle.link import Autopilot, Telemetry
 from fleet.vehicle.modes import mode_command
@@ -38,6 +38,7 @@ class ConfirmedCommands(abc.ABC):
     session: MavlinkSession
     timeouts: Timeouts
     clock: Callable[[], float]
+    parameters: dict[str, float]  #: the last PARAM_VALUE of each name heard (the backend keeps it)
 
     @property
     def sysid(self) -> int | None:
@@ -65,6 +66,9 @@ class ConfirmedCommands(abc.ABC):
 
     def _check_alive(self) -> None:
         self.session.check_alive()
+
+    def parameters_heard(self) -> Mapping[str, float]:
+        return self.parameters
 
     async def read_parameters(self, names: Sequence[str]) -> dict[str, float]:
         """Each parameter of ``names`` the vehicle answers PARAM_REQUEST_READ for (asked up to

@@ -2,7 +2,8 @@
 
 Lambda, and so the window every plan keeps, is derived from the workspace's limits: a vehicle whose
 autopilot is set slower comes later than lambda, and its peers' margin is gone. So an agent reads
-them once connected and refuses a vehicle short of them, naming the parameter.
+them once connected and refuses a vehicle short of them, naming the parameter; and one set lower in
+flight (an autopilot tells every ground station of a parameter set) puts the drone out of its bound.
 """
 
 from __future__ import annotations
@@ -53,16 +54,18 @@ def parameters_to_read(autopilot: Autopilot) -> list[str]:
     return [p.name for p in LIMIT_PARAMS[autopilot]] + [LEAN, SPEEDUP]
 
 
-def shortfalls(autopilot: Autopilot, values: Mapping[str, float], wanted: VehicleLimits) -> list[str]:
+def shortfalls(autopilot: Autopilot, values: Mapping[str, float], wanted: VehicleLimits, *,
+               unanswered: bool = True) -> list[str]:
     """Each way the vehicle, as its parameters ``values`` set it, flies less than ``wanted``: a limit
-    below the workspace's, or a parameter that did not answer. A simulator's speedup (SIM_SPEEDUP, if it
-    answered) counts: limits are in the fleet's seconds."""
+    below the workspace's, or (``unanswered``) a parameter that did not answer. A simulator's speedup
+    (SIM_SPEEDUP, if it answered) counts: limits are in the fleet's seconds."""
     speedup = values.get(SPEEDUP, 1.0)
     short = []
     for param in LIMIT_PARAMS.get(autopilot, ()):
         needs = getattr(wanted, param.field)
         if param.name not in values:
-            short.append(f"{param.name} did not answer (the workspace's vehicle.{param.field} is {needs:g})")
+            if unanswered:
+                short.append(f"{param.name} did not answer (the workspace's vehicle.{param.field} is {needs:g})")
             continue
         flies = values[param.name] * param.scale * speedup**param.per_second
         if flies < needs * (1 - SLACK):

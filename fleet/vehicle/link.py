@@ -13,7 +13,7 @@ import collections
 import enum
 import itertools
 import logging
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -273,6 +273,10 @@ class VehicleLink(SetpointSink, Protocol):
 
     async def read_parameters(self, names: Sequence[str]) -> dict[str, float]:
         """Each parameter of ``names`` the vehicle answers PARAM_REQUEST_READ for, with its value."""
+
+    def parameters_heard(self) -> Mapping[str, float]:
+        """The last value the vehicle sent of each parameter (PARAM_VALUE): read by us, or set by any
+        ground station (the autopilot tells every one)."""
 
     def last_global(self) -> GeoPoint | None: ...
 

@@ -138,6 +138,7 @@ class PymavlinkLink(ConfirmedCommands):
         self._setpoints_sent = 0
         self._latest = Latest()  #: telemetry: the last message of each type
         self._trail = Trail()
+        self.parameters: dict[str, float] = {}
         #: telemetry() as of the last message: read several times per drone at every step boundary
         self._snapshot: Telemetry | None = None
         self.unhandled: collections.Counter[str] = collections.Counter()
@@ -145,10 +146,11 @@ class PymavlinkLink(ConfirmedCommands):
             "HEARTBEAT": self._on_heartbeat,
             "COMMAND_ACK": self._on_command_ack,
             "STATUSTEXT": self._on_statustext,
+            "PARAM_VALUE": self._on_param_value,
             **dict.fromkeys(KEPT, self._keep),  # telemetry()
             # Ignored on purpose:
             **dict.fromkeys(("ATTITUDE", "ATTITUDE_QUATERNION", "HOME_POSITION", "TIMESYNC", "SYSTEM_TIME",
-                             "AUTOPILOT_VERSION", "PARAM_VALUE", "RADIO_STATUS", "VFR_HUD",
+                             "AUTOPILOT_VERSION", "RADIO_STATUS", "VFR_HUD",
                              "ESTIMATOR_STATUS", "VIBRATION", "POWER_STATUS", "MEMINFO", "MISSION_CURRENT",
                              "NAV_CONTROLLER_OUTPUT", "POSITION_TARGET_LOCAL_NED", "POSITION_TARGET_GLOBAL_INT",
                              "ALTITUDE", "UTM_GLOBAL_POSITION"), _ignore),
@@ -360,6 +362,9 @@ class PymavlinkLink(ConfirmedCommands):
     def _on_statustext(self, msg: Message) -> None:
         self.session.receive(StatusText(int(msg.severity), str(msg.text)), self.clock())
         log.info("vehicle %s says: %s", self.sysid, msg.text)
+
+    def _on_param_value(self, msg: Message) -> None:
+        self.parameters[str(msg.param_id)] = float(msg.param_value)
 
     def _keep(self, msg: Message) -> None:
         self._latest.keep(msg, self.clock())

@@ -38,6 +38,7 @@ refused with a :class:`~fleet.vehicle.signing.SigningKeyError` rather than flown
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextlib
 import functools
 import json
@@ -127,7 +128,8 @@ class MavsdkLink(ConfirmedCommands):
         self._connection: Any = None  #: MAVSDK's handle of our connection
         self._reopened_at = -math.inf  #: the last attempt to open a silent serial link again
         self._action: Any = None
-        self._parameters: dict[str, float] = {}  #: PARAM_VALUEs heard, by name
+        self.parameters: dict[str, float] = {}
+        self._values_heard: collections.Counter[str] = collections.Counter()  #: PARAM_VALUEs heard, by name
         self._offboard: Any = None
         self._telemetry: Any = None
         self._direct: Any = None
@@ -257,10 +259,11 @@ class MavsdkLink(ConfirmedCommands):
     async def _read_parameter(self, name: str) -> float | None:
         """Through MavlinkDirect: MAVSDK's Param plugin only blocks."""
         self._check_alive()
-        self._parameters.pop(name, None)
+        heard = self._values_heard[name]
         self._direct.send_message(param_request_read(self.sysid or 0, name))
-        await self._updates.until(lambda: name in self._parameters, self.command_timeout)
-        return self._parameters.get(name)
+        if await self._updates.until(lambda: self._values_heard[name] > heard, self.command_timeout):
+            return self.parameters[name]
+        return None
 
     async def command(self, label: str, command: int, *params: float) -> None:
         """COMMAND_LONG through MavlinkDirect; VehicleCommandRejected unless the ACK says ACCEPTED."""
@@ -408,7 +411,9 @@ class MavsdkLink(ConfirmedCommands):
     def _on_parameter(self, msg: MavlinkMessage) -> None:
         if msg.component_id == 1:
             fields = json.loads(msg.fields_json)
-            self._parameters[str(fields["param_id"])] = float(fields["param_value"])
+            name = str(fields["param_id"])
+            self.parameters[name] = float(fields["param_value"])
+            self._values_heard[name] += 1
             self._updates.notify()
 
     def _on_message(self, msg: MavlinkMessage) -> None:

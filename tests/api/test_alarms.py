@@ -6,6 +6,7 @@ from __future__ import annotations
 import sqlite3
 from typing import Any
 
+from api.alarms import kind_of, meaning_of
 from api.schema import MIGRATIONS, SCHEMA
 from api.settings import ApiSettings
 from drona_gcs.workspace import Workspace
@@ -114,3 +115,12 @@ def test_an_old_database_is_migrated_at_start_and_keeps_its_mail(settings: ApiSe
         assert conn.execute("PRAGMA user_version").fetchone() == (len(MIGRATIONS),)
         indexes = {r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type = 'index'")}
         assert {"alarm_open", "audit_status_at"} <= indexes
+
+
+def test_each_alarm_an_agent_raises_is_explained_to_the_operator() -> None:
+    """The texts a drone's agent writes (fleet/agent): each kind has a meaning of its own, not the fallback."""
+    texts = [LAG, "vehicle: came down while its plan flew", "catching up (a stall): 2 cells",
+             "vehicle_lost: no HEARTBEAT", "limits: WPNAV_SPEED 100 gives 1, under the workspace's vehicle.speed_m_s",
+             "clock skew: d2 is 0.7 s off"]
+    meanings = [meaning_of(kind_of(text)) for text in texts]
+    assert "reported by the drone" not in meanings and len(set(meanings)) == len(texts)

@@ -15,7 +15,7 @@ the link waits on it (by default nothing: the wait ends at once, met or not).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 from drona_gcs.errors import VehicleCommandRejected, VehicleError
 from drona_gcs.geo import GeoFrame, GeoPoint, Ned
@@ -46,7 +46,7 @@ class FakeVehicle:
         self.battery_pct: int | None = 90
         self.battery_v: float | None = 16.0
         self.satellites = 10
-        self.parameters: dict[str, float] = {}  #: what it answers PARAM_REQUEST_READ with
+        self.parameters: dict[str, float] = {}  #: what it answers PARAM_REQUEST_READ with, and says it is set to
         self.estimate = True  #: its position estimate: without it, no position and no fix
         self.where: Ned | None = None if cell is None else self._ned(cell)  #: its position (None: none reported)
         self.at = at  #: the link clock time of its last report (HEARTBEAT and position)
@@ -104,6 +104,9 @@ class FakeVehicle:
 
     async def read_parameters(self, names: Sequence[str]) -> dict[str, float]:
         return {name: self.parameters[name] for name in names if name in self.parameters}
+
+    def parameters_heard(self) -> Mapping[str, float]:
+        return self.parameters
 
     async def wait_until(self, predicate: Callable[[Telemetry], bool], timeout: float, what: str) -> Telemetry:
         if self.on_wait is not None:

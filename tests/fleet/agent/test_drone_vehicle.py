@@ -34,6 +34,7 @@ from fleet.transport.wire import (
 from tests.fakes.node import FakeNode
 from tests.fakes.vehicle import FakeVehicle
 from tests.fleet.agent.drone_helpers import FRAME, KEYS, WS, statuses, vehicle_over_its_start
+from tests.fleet.vehicle.test_limits import DEFAULTS as ARDUCOPTER_DEFAULTS
 
 
 def test_a_vehicle_down_by_itself_hands_its_mail_back_and_the_drone_starts_no_task() -> None:
@@ -389,6 +390,53 @@ def test_a_host_measures_how_long_a_protocol_message_takes_to_handle() -> None:
 
     agent = asyncio.run(scenario())
     assert agent.budget.handling_s is not None and agent.budget.handling_s > 0
+
+
+def test_a_limit_set_lower_in_flight_puts_the_drone_out_of_its_bound_until_set_back() -> None:
+    """Another ground station sets WPNAV_SPEED to 1 m/s in flight (the autopilot tells every one): lambda,
+    derived from the workspace's limits, no longer holds. The drone is late at once, as a vehicle seen
+    late is, and stays so at the end of its plan until the limit is set back."""
+    async def scenario() -> tuple[FakeNode, list[str]]:
+        node, vehicle, stack, agent = _d1_with_mail(MailOrder(id="m", pickup=[3, 0, 0], dropoff=[5, 5, 0],
+                                                              priority=9))
+        vehicle.parameters = dict(ARDUCOPTER_DEFAULTS)
+        seen: list[str] = []
+        for step in range(40):
+            agent.on_step(StepReport(step, stack.executor.cell, None, 0.0, False, 0.0), agent.tick(step))
+            agent.vehicle.airborne = True
+            if stack.executor.flying and stack.executor.cell != (0, 0, 0) and not seen:
+                seen.append(f"limits: {agent.limits_short}, late: {agent.late is not None}")
+                vehicle.parameters["WPNAV_SPEED"] = 100.0
+            elif seen and stack.executor.trajectory is None and len(seen) == 1:
+                vehicle.over(stack.executor.cell, at=vehicle.at + 1.0)
+                agent.on_sample(Sample(step, stack.executor.cell, stack.executor.cell, 0.1))
+                seen.append(f"at its plan's end, set short: late {agent.late is not None}")
+                vehicle.parameters["WPNAV_SPEED"] = 1000.0
+            elif len(seen) == 2:
+                vehicle.over(stack.executor.cell, at=vehicle.at + 1.0)
+                agent.on_sample(Sample(step, stack.executor.cell, stack.executor.cell, 0.1))
+                seen.append(f"set back: late {agent.late is not None}, alarm {'limits' in agent.alarms}")
+            await asyncio.sleep(0)
+        return node, seen
+
+    node, seen = asyncio.run(scenario())
+    assert seen == ["limits: None, late: False", "at its plan's end, set short: late True",
+                    "set back: late False, alarm False"]
+    assert statuses(node, "m")[-1] == (MailStatus.HANDED_BACK, "drone d1's vehicle is later than lambda")
+
+
+def test_a_limit_set_lower_in_flight_is_named_in_the_alarm() -> None:
+    async def scenario() -> DroneAgent:
+        _, vehicle, _, agent = _d1_with_mail(MailOrder(id="m", pickup=[3, 0, 0], dropoff=[5, 5, 0], priority=9))
+        vehicle.parameters = {**ARDUCOPTER_DEFAULTS, "WPNAV_ACCEL": 100.0}
+        agent.vehicle.airborne = True
+        agent.on_step(StepReport(0, (0, 0, 0), None, 0.0, False, 0.0), agent.tick(0))
+        return agent
+
+    agent = asyncio.run(scenario())
+    assert agent.alarms["limits"] == ("limits: WPNAV_ACCEL 100 gives 1, under the workspace's vehicle.accel_m_s2 "
+                                      f"{WS.vehicle.accel_m_s2:g}")
+    assert agent.late is not None and "WPNAV_ACCEL 100 gives 1" in agent.late
 
 
 @pytest.mark.parametrize("late_by", [-0.01, 0.01])

@@ -19,6 +19,7 @@ import time
 from collections.abc import Callable
 
 import pytest
+from pymavlink import mavutil
 
 from drona_gcs.geo import GeoPoint, Ned
 from fleet.clock import cancel_all
@@ -284,5 +285,36 @@ def test_parameters_are_read_by_name_as_the_autopilot_stores_them(backend: str) 
                 "WPNAV_ACCEL": 400.0, "SIM_SPEEDUP": SPEEDUP}
         async with fake_vehicle("px4", "udp") as fake, connected(backend, fake) as link:
             assert await link.read_parameters(["MPC_ACC_HOR"]) == {"MPC_ACC_HOR": 3.0}
+
+    run(scenario)
+
+
+def _set_as_another_ground_station(port: int, name: str, value: float) -> float:
+    """PARAM_SET from a ground station of its own (blocking: run it in a thread); the value it was answered."""
+    station = mavutil.mavlink_connection(f"tcp:127.0.0.1:{port}", source_system=250)
+    try:
+        station.wait_heartbeat(timeout=5)
+        station.mav.param_set_send(1, 1, name.encode(), value, mavlink2.MAV_PARAM_TYPE_REAL32)
+        answer = station.recv_match(type="PARAM_VALUE", blocking=True, timeout=5)
+        assert answer is not None, "no PARAM_VALUE for the set"
+        return float(answer.param_value)
+    finally:
+        station.close()
+
+
+@backends
+def test_a_parameter_another_ground_station_sets_is_heard_unasked(backend: str) -> None:
+    """ArduPilot tells every ground station of a parameter set (``GCS::send_parameter_value``, to all active
+    channels): a limit lowered in flight by another station reaches the agent, which asked for nothing."""
+    async def scenario() -> None:
+        async with fake_vehicle("ardupilot", "tcp") as fake, connected(backend, fake) as link:
+            assert await link.read_parameters(["WPNAV_SPEED"]) == {"WPNAV_SPEED": 1000.0}
+            port = int(fake.url.rsplit(":", 1)[1])
+            assert await asyncio.to_thread(_set_as_another_ground_station, port, "WPNAV_SPEED", 300.0) == 300.0
+            for _ in range(100):  # bounded: 5 s
+                if link.parameters_heard().get("WPNAV_SPEED") == 300.0:
+                    break
+                await asyncio.sleep(0.05)
+            assert link.parameters_heard()["WPNAV_SPEED"] == 300.0
 
     run(scenario)
