@@ -45,7 +45,7 @@ from fleet.transport.inbox import inbox_of
 from fleet.transport.keys import FleetKeys, check_name
 from fleet.transport.node import ZenohNode
 from fleet.transport.settings import ZenohSettings, agent_endpoint
-from fleet.vehicle.limits import parameters_to_read, shortfalls
+from fleet.vehicle.limits import bound_flying_on, parameters_to_read, shortfalls
 from fleet.vehicle.link import REOPEN_S, Autopilot, VehicleLink
 from fleet.vehicle.mavlink_link import PymavlinkLink
 from fleet.vehicle.policy import Timeouts
@@ -289,7 +289,8 @@ async def _check_limits(link: VehicleLink, workspace: Workspace, name: str) -> N
         log.warning("drone %s: its autopilot (%s) has no limits this agent can read: not checked against the "
                     "workspace's vehicle", name, autopilot.value)
         return
-    short = shortfalls(autopilot, await link.read_parameters(names), workspace.vehicle)
+    values = await bound_flying_on(link, autopilot, await link.read_parameters(names), workspace.tau_s)
+    short = shortfalls(autopilot, values, workspace.vehicle, workspace.tau_s)
     if short:
         raise VehicleLimitsError(f"drone {name}: its vehicle flies less than the workspace's vehicle limits, "
                                  f"which lambda is derived from: {'; '.join(short)}. Set its parameters, or give "

@@ -184,7 +184,7 @@ class Tracking:
         """A limit set lower in flight (the autopilot tells every ground station): lambda no longer holds,
         so the drone is late, and stays out of its bound until the limit is set back."""
         autopilot = self.link.telemetry().autopilot or Autopilot.OTHER
-        short = shortfalls(autopilot, self.link.parameters_heard(), self.ws.vehicle, unanswered=False)
+        short = shortfalls(autopilot, self.link.parameters_heard(), self.ws.vehicle, self.ws.tau_s, unanswered=False)
         was, self.limits_short = self.limits_short, "; ".join(short) or None
         if self.limits_short != was:
             log.warning("%s: its vehicle's limits %s", self.me, self.limits_short or "are back within the workspace's")

@@ -81,10 +81,22 @@ class ConfirmedCommands(abc.ABC):
                     break
         return values
 
+    async def set_parameter(self, name: str, value: float) -> float | None:
+        """PARAM_SET ``name`` to ``value`` (up to ``PARAM_TRIES`` times): the value the vehicle answers it
+        holds (None: it never answered)."""
+        for _ in range(PARAM_TRIES):
+            if (held := await self._set_parameter(name, value)) is not None:
+                return held
+        return None
+
     # ------------------------------------------------------------ the backend's part
     @abc.abstractmethod
     async def _read_parameter(self, name: str) -> float | None:
         """PARAM_REQUEST_READ for ``name``: its PARAM_VALUE's value, None if none came in time."""
+
+    @abc.abstractmethod
+    async def _set_parameter(self, name: str, value: float) -> float | None:
+        """PARAM_SET of ``name`` to ``value``: the answering PARAM_VALUE's value, None if none came in time."""
 
     @abc.abstractmethod
     async def _order(self, label: str, command: Command, params: tuple[float, ...]) -> int:

@@ -8,17 +8,22 @@ flight (an autopilot tells every ground station of a parameter set) puts the dro
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
 from drona_gcs.workspace import VehicleLimits
-from fleet.vehicle.link import Autopilot
+from fleet.vehicle.link import Autopilot, VehicleLink
+
+log = logging.getLogger(__name__)
 
 GRAVITY = 9.80665
 SPEEDUP = "SIM_SPEEDUP"  #: ArduPilot SITL's: its seconds are this many times shorter than the wall clock's
 LEAN = "ANGLE_MAX"  #: ArduCopter's lean angle (cdeg): it bounds the acceleration to g tan(angle)
 SLACK = 1e-6  #: a limit set from the workspace in other units (cm, a speedup) may come back rounded
+#: ArduCopter's: how long it flies on along its last GUIDED setpoint's velocity once setpoints stop (s)
+GUIDED_TIMEOUT = "GUID_TIMEOUT"
 
 
 @dataclass(frozen=True)
@@ -51,14 +56,24 @@ def parameters_to_read(autopilot: Autopilot) -> list[str]:
     """The parameters :func:`shortfalls` judges ``autopilot`` by (none for an autopilot it does not know)."""
     if autopilot is not Autopilot.ARDUPILOT:
         return [p.name for p in LIMIT_PARAMS.get(autopilot, ())]
-    return [p.name for p in LIMIT_PARAMS[autopilot]] + [LEAN, SPEEDUP]
+    return [p.name for p in LIMIT_PARAMS[autopilot]] + [LEAN, GUIDED_TIMEOUT, SPEEDUP]
 
 
-def shortfalls(autopilot: Autopilot, values: Mapping[str, float], wanted: VehicleLimits, *,
+def flying_on_s(tau_s: float) -> float:
+    """The longest a vehicle may fly on along its last setpoint once its agent stops (killed, its host
+    down): half a period. A sweep moves at most a cell per tau, along the plan, so the vehicle ends at
+    most half a cell on, in the cell its plan flies next: one its peers hold, as they hold every cell of
+    a departed drone's plans. ArduCopter's default (GUID_TIMEOUT 3 s) flew a killed drone's vehicle
+    four cells on, across its peers' paths."""
+    return tau_s / 2
+
+
+def shortfalls(autopilot: Autopilot, values: Mapping[str, float], wanted: VehicleLimits, tau_s: float, *,
                unanswered: bool = True) -> list[str]:
-    """Each way the vehicle, as its parameters ``values`` set it, flies less than ``wanted``: a limit
-    below the workspace's, or (``unanswered``) a parameter that did not answer. A simulator's speedup
-    (SIM_SPEEDUP, if it answered) counts: limits are in the fleet's seconds."""
+    """Each way the vehicle, as its parameters ``values`` set it, flies less than ``wanted``, or flies on
+    longer than :func:`flying_on_s` once its agent stops: a limit short of the workspace's, or
+    (``unanswered``) a parameter that did not answer. A simulator's speedup (SIM_SPEEDUP, if it answered)
+    counts: limits are in the fleet's seconds."""
     speedup = values.get(SPEEDUP, 1.0)
     short = []
     for param in LIMIT_PARAMS.get(autopilot, ()):
@@ -76,4 +91,33 @@ def shortfalls(autopilot: Autopilot, values: Mapping[str, float], wanted: Vehicl
         if leans < wanted.accel_m_s2 * (1 - SLACK):
             short.append(f"{LEAN} {values[LEAN]:g} leans to {leans:.3g} m/s² at most, under the workspace's "
                          f"vehicle.accel_m_s2 {wanted.accel_m_s2:g}")
-    return short
+    return short + _flying_on(autopilot, values, tau_s, speedup, unanswered)
+
+
+async def bound_flying_on(link: VehicleLink, autopilot: Autopilot, values: dict[str, float],
+                          tau_s: float) -> dict[str, float]:
+    """An ArduCopter set to fly on longer than :func:`flying_on_s` once its agent stops is set to that
+    (GUID_TIMEOUT, in a simulator's own seconds); ``values`` with what it then holds."""
+    if autopilot is not Autopilot.ARDUPILOT or GUIDED_TIMEOUT not in values:
+        return values
+    speedup = values.get(SPEEDUP, 1.0)
+    if values[GUIDED_TIMEOUT] / speedup <= flying_on_s(tau_s) * (1 + SLACK):
+        return values
+    held = await link.set_parameter(GUIDED_TIMEOUT, flying_on_s(tau_s) * speedup)
+    log.info("vehicle %s: %s set from %g to %s: once its agent stops it flies on half a period at most",
+             link.telemetry().autopilot, GUIDED_TIMEOUT, values[GUIDED_TIMEOUT], held)
+    return values if held is None else {**values, GUIDED_TIMEOUT: held}
+
+
+def _flying_on(autopilot: Autopilot, values: Mapping[str, float], tau_s: float, speedup: float,
+               unanswered: bool) -> list[str]:
+    if autopilot is not Autopilot.ARDUPILOT:
+        return []  # not judged: PX4 takes no position on, and leaves OFFBOARD COM_OF_LOSS_T after the last setpoint
+    if GUIDED_TIMEOUT not in values:
+        return [f"{GUIDED_TIMEOUT} did not answer (a vehicle may fly on {flying_on_s(tau_s):g} s at most once its "
+                "agent stops)"] if unanswered else []
+    on = values[GUIDED_TIMEOUT] / speedup
+    if on <= flying_on_s(tau_s) * (1 + SLACK):
+        return []
+    return [f"{GUIDED_TIMEOUT} {values[GUIDED_TIMEOUT]:g} flies it on {on:.3g} s along its last setpoint once its "
+            f"agent stops, over half a period ({flying_on_s(tau_s):g} s)"]

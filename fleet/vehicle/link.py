@@ -274,6 +274,9 @@ class VehicleLink(SetpointSink, Protocol):
     async def read_parameters(self, names: Sequence[str]) -> dict[str, float]:
         """Each parameter of ``names`` the vehicle answers PARAM_REQUEST_READ for, with its value."""
 
+    async def set_parameter(self, name: str, value: float) -> float | None:
+        """PARAM_SET ``name`` to ``value``: what the vehicle answers it now holds (None: no answer)."""
+
     def parameters_heard(self) -> Mapping[str, float]:
         """The last value the vehicle sent of each parameter (PARAM_VALUE): read by us, or set by any
         ground station (the autopilot tells every one)."""

@@ -216,9 +216,18 @@ class PymavlinkLink(ConfirmedCommands):
         return await self.command(command, *params, name=label)
 
     async def _read_parameter(self, name: str) -> float | None:
+        return await self._parameter_answer(
+            name, self._enc.param_request_read_encode(self.sysid or 0, self.compid, name.encode(), -1))
+
+    async def _set_parameter(self, name: str, value: float) -> float | None:
+        return await self._parameter_answer(name, self._enc.param_set_encode(
+            self.sysid or 0, self.compid, name.encode(), value, mavlink2.MAV_PARAM_TYPE_REAL32))
+
+    async def _parameter_answer(self, name: str, message: Message) -> float | None:
+        """Send ``message``; the value of the PARAM_VALUE for ``name`` that answers it (None: none in time)."""
         self._check_alive()
         answer = self._waiters.expect("PARAM_VALUE", lambda m: m.param_id == name)
-        self._send(self._enc.param_request_read_encode(self.sysid or 0, self.compid, name.encode(), -1))
+        self._send(message)
         try:
             return float((await self._waiters.wait(answer, self.ack_timeout)).param_value)
         except TimeoutError:

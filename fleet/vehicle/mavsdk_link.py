@@ -82,6 +82,7 @@ from fleet.vehicle.mavsdk_messages import (
     inbound,
     mavsdk_url,
     param_request_read,
+    param_set,
     setpoint,
     settle,
 )
@@ -258,9 +259,16 @@ class MavsdkLink(ConfirmedCommands):
 
     async def _read_parameter(self, name: str) -> float | None:
         """Through MavlinkDirect: MAVSDK's Param plugin only blocks."""
+        return await self._parameter_answer(name, param_request_read(self.sysid or 0, name))
+
+    async def _set_parameter(self, name: str, value: float) -> float | None:
+        return await self._parameter_answer(name, param_set(self.sysid or 0, name, value))
+
+    async def _parameter_answer(self, name: str, message: MavlinkMessage) -> float | None:
+        """Send ``message``; the value of the next PARAM_VALUE for ``name`` (None: none in time)."""
         self._check_alive()
         heard = self._values_heard[name]
-        self._direct.send_message(param_request_read(self.sysid or 0, name))
+        self._direct.send_message(message)
         if await self._updates.until(lambda: self._values_heard[name] > heard, self.command_timeout):
             return self.parameters[name]
         return None

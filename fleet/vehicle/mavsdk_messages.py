@@ -25,6 +25,7 @@ RESULTS = {"COMMAND_DENIED": Result.DENIED, "COMMAND_DENIED_LANDED_STATE_UNKNOWN
            "UNSUPPORTED": Result.UNSUPPORTED}
 #: Results that mean no answer came: a link problem, not a refusal.
 UNANSWERED = {"NO_SYSTEM", "CONNECTION_ERROR", "TIMEOUT", "UNKNOWN"}
+PARAM_REAL32 = 9  #: MAV_PARAM_TYPE_REAL32
 
 
 def inbound(msg: MavlinkMessage) -> Inbound:
@@ -58,6 +59,14 @@ def param_request_read(sysid: int, name: str) -> MavlinkMessage:
     """PARAM_REQUEST_READ of parameter ``name`` from the autopilot of ``sysid`` (by name: index -1)."""
     fields = {"target_system": sysid, "target_component": 1, "param_id": name, "param_index": -1}
     return MavlinkMessage(message_name="PARAM_REQUEST_READ", target_system_id=sysid, target_component_id=1,
+                          fields_json=json.dumps(fields))
+
+
+def param_set(sysid: int, name: str, value: float) -> MavlinkMessage:
+    """PARAM_SET of parameter ``name`` of the autopilot of ``sysid`` to ``value`` (as a float)."""
+    fields = {"target_system": sysid, "target_component": 1, "param_id": name, "param_value": value,
+              "param_type": PARAM_REAL32}
+    return MavlinkMessage(message_name="PARAM_SET", target_system_id=sysid, target_component_id=1,
                           fields_json=json.dumps(fields))
 
 

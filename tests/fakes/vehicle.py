@@ -105,6 +105,11 @@ class FakeVehicle:
     async def read_parameters(self, names: Sequence[str]) -> dict[str, float]:
         return {name: self.parameters[name] for name in names if name in self.parameters}
 
+    async def set_parameter(self, name: str, value: float) -> float | None:
+        self._command(f"PARAM_SET {name}")
+        self.parameters[name] = value
+        return value
+
     def parameters_heard(self) -> Mapping[str, float]:
         return self.parameters
 

@@ -34,7 +34,7 @@ from fleet.transport.wire import (
 from tests.fakes.node import FakeNode
 from tests.fakes.vehicle import FakeVehicle
 from tests.fleet.agent.drone_helpers import FRAME, KEYS, WS, statuses, vehicle_over_its_start
-from tests.fleet.vehicle.test_limits import DEFAULTS as ARDUCOPTER_DEFAULTS
+from tests.fleet.vehicle.test_limits import READY as ARDUCOPTER_DEFAULTS
 
 
 def test_a_vehicle_down_by_itself_hands_its_mail_back_and_the_drone_starts_no_task() -> None:

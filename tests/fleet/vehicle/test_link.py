@@ -277,12 +277,15 @@ def test_a_link_in_a_workspace_frame_flies_global_setpoints(backend: str) -> Non
 @backends
 def test_parameters_are_read_by_name_as_the_autopilot_stores_them(backend: str) -> None:
     """PARAM_REQUEST_READ by name: an ArduCopter's WPNAV_ACCEL as set (cm/s²), and SITL's SIM_SPEEDUP
-    (the fake's speedup); a PX4's MPC_ACC_HOR at its default. What the agent judges its limits by."""
+    (the fake's speedup); a PX4's MPC_ACC_HOR at its default. What the agent judges its limits by. PARAM_SET
+    answered with the value held, as an agent sets GUID_TIMEOUT."""
     async def scenario() -> None:
         async with fake_vehicle("ardupilot", "udp", params=(("WPNAV_ACCEL", 400.0),)) as fake, \
                 connected(backend, fake) as link:
             assert await link.read_parameters(["WPNAV_ACCEL", "SIM_SPEEDUP"]) == {
                 "WPNAV_ACCEL": 400.0, "SIM_SPEEDUP": SPEEDUP}
+            assert await link.set_parameter("GUID_TIMEOUT", 0.25) == 0.25  # what an agent sets (half of tau)
+            assert await link.read_parameters(["GUID_TIMEOUT"]) == {"GUID_TIMEOUT": 0.25}
         async with fake_vehicle("px4", "udp") as fake, connected(backend, fake) as link:
             assert await link.read_parameters(["MPC_ACC_HOR"]) == {"MPC_ACC_HOR": 3.0}
 
