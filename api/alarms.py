@@ -35,8 +35,8 @@ KINDS: tuple[tuple[str, str, str], ...] = (
                                       "and takes no task"),
     ("placement:", "placement", "the vehicle is not where its drone started: out of service until landed by hand"),
     ("leg_not_flown:", "leg", "a leg ended with the vehicle short of its goal; the leg is flown again"),
-    ("limits:", "limits", "the vehicle's autopilot was set in flight to fly less than the workspace's vehicle "
-                          "limits (lambda does not hold): its drone holds where its plan ends and takes no task"),
+    ("limits:", "limits", "the vehicle's autopilot was set in flight out of the workspace's vehicle limits "
+                          "(lambda does not hold): its drone holds where its plan ends and takes no task"),
     ("clock skew:", "clock", "a peer's clock is beyond beta from this drone's: it plans nothing until back within"),
 )
 LEFT = "left"

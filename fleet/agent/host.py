@@ -289,7 +289,7 @@ async def _check_limits(link: VehicleLink, workspace: Workspace, name: str) -> N
         log.warning("drone %s: its autopilot (%s) has no limits this agent can read: not checked against the "
                     "workspace's vehicle", name, autopilot.value)
         return
-    values = await bound_flying_on(link, autopilot, await link.read_parameters(names), workspace.tau_s)
+    values = await bound_flying_on(link, autopilot, await link.read_parameters(names), workspace.tau_s, name)
     short = shortfalls(autopilot, values, workspace.vehicle, workspace.tau_s)
     if short:
         raise VehicleLimitsError(f"drone {name}: its vehicle flies less than the workspace's vehicle limits, "

@@ -189,7 +189,7 @@ class Tracking:
         if self.limits_short != was:
             log.warning("%s: its vehicle's limits %s", self.me, self.limits_short or "are back within the workspace's")
         if self.limits_short is not None and self.late is None and not self.down and not self.watch.lost:
-            self._late(f"its autopilot was set to fly less than the workspace's vehicle limits: {self.limits_short}")
+            self._late(f"its autopilot was set out of the workspace's vehicle limits: {self.limits_short}")
         self._alarm("limits", None if self.limits_short is None else f"limits: {self.limits_short}")
 
     def _sent_too_late(self, report: StepReport) -> bool:

@@ -43,10 +43,10 @@ def test_an_agent_sets_how_long_its_arducopter_flies_on_to_half_a_period(speedup
     """In the simulator's own seconds when sped up; one set shorter already is left as it is."""
     vehicle = FakeVehicle()
     vehicle.parameters = {**READY, "GUID_TIMEOUT": held, "SIM_SPEEDUP": speedup}
-    values = asyncio.run(bound_flying_on(vehicle, Autopilot.ARDUPILOT, dict(vehicle.parameters), TAU))
+    values = asyncio.run(bound_flying_on(vehicle, Autopilot.ARDUPILOT, dict(vehicle.parameters), TAU, "d1"))
     assert values["GUID_TIMEOUT"] == (held if expected is None else expected)
     assert vehicle.commands == ([] if expected is None else ["PARAM_SET GUID_TIMEOUT"])
-    px4 = asyncio.run(bound_flying_on(vehicle, Autopilot.PX4, {"MPC_ACC_HOR": 3.0}, TAU))
+    px4 = asyncio.run(bound_flying_on(vehicle, Autopilot.PX4, {"MPC_ACC_HOR": 3.0}, TAU, "d1"))
     assert px4 == {"MPC_ACC_HOR": 3.0}
 
 
