@@ -98,10 +98,8 @@ async def bound_flying_on(link: VehicleLink, autopilot: Autopilot, values: dict[
                           tau_s: float, drone: str) -> dict[str, float]:
     """An ArduCopter set to fly on longer than :func:`flying_on_s` once its agent stops is set to that
     (GUID_TIMEOUT, in a simulator's own seconds; ArduPilot keeps it); ``values`` with what it then holds."""
-    if autopilot is not Autopilot.ARDUPILOT or GUIDED_TIMEOUT not in values:
-        return values
     speedup = values.get(SPEEDUP, 1.0)
-    if values[GUIDED_TIMEOUT] / speedup <= flying_on_s(tau_s) * (1 + SLACK):
+    if not _flying_on(autopilot, values, tau_s, speedup, unanswered=False):
         return values
     held = await link.set_parameter(GUIDED_TIMEOUT, flying_on_s(tau_s) * speedup)
     log.info("drone %s: its vehicle's %s set from %g to %s: once its agent stops it flies on half a period at most",
